@@ -1,0 +1,218 @@
+"""Losses of SF² with TD3 and SAC: pure functions of parameters, a batch and explicit noise.
+
+Paper: eq. (3)–(4) and Algorithm 1 (flow), Appendix A.3 (explicit mixture), Appendix D Algorithms 2–3
+(TD3 and SAC on features); docs/core-contract.md "Losses". Every random draw (ε, flow_time k, smoothing
+ξ, SAC noise) is an argument, so the same inputs give the same numbers in JAX and torch.
+
+Each loss returns `(loss, aux)` with `aux` a dict of scalars. Parameter groups a loss does not train are
+wrapped in `stop_gradient`, so `jax.grad` over the whole `params` dict gives zeros for them. Batch means
+divide by B; samples masked by m_b = 1 − truncation_b count as zeros.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from sf2_jax import networks as nw
+from sf2_jax.ode import integrate
+
+__all__ = [
+    "Batch", "flow_loss", "explicit_mixture_loss", "td3_critic_loss", "td3_actor_loss",
+    "sac_critic_loss", "sac_actor_loss", "sac_alpha_loss", "ema_update",
+]
+
+sg = jax.lax.stop_gradient
+
+
+class Batch(NamedTuple):
+    """Transitions: obs (B, D), action (B, A), reward (B,), discount (B,) = 1 − terminal, next_obs (B, D),
+    truncation (B,) ∈ {0, 1}."""
+
+    obs: Any
+    action: Any
+    reward: Any
+    discount: Any
+    next_obs: Any
+    truncation: Any
+
+
+def _trainable(params: nw.Params, groups: tuple[str, ...]) -> nw.Params:
+    """Stop the gradient of every group not in `groups` (targets, normalizer, untrained networks)."""
+    return {name: (value if name in groups else sg(value)) for name, value in params.items()}
+
+
+def _check_batch(nets: nw.Networks, batch: Batch) -> tuple[int, ...]:
+    cfg = nets.cfg
+    nw._check_last("batch.obs", batch.obs, cfg.obs_size, "obs_size")
+    nw._check_last("batch.next_obs", batch.next_obs, cfg.obs_size, "obs_size")
+    nw._check_last("batch.action", batch.action, cfg.action_size, "action_size")
+    b = tuple(jnp.shape(batch.obs)[:-1])
+    for name in ("next_obs", "action"):
+        nw._check_leading(f"batch.{name}", getattr(batch, name), b, "batch.obs")
+    for name in ("reward", "discount", "truncation"):
+        nw._check_batch_dims(f"batch.{name}", getattr(batch, name), b, "batch.obs")
+    return b
+
+
+def _check_noise(nets: nw.Networks, name: str, x, batch_shape, size: int, what: str):
+    nw._check_last(name, x, size, what)
+    nw._check_leading(name, x, batch_shape, "batch.obs")
+
+
+# ------------------------------------------------------------------------------------------------ flow
+def flow_loss(nets: nw.Networks, params: nw.Params, batch: Batch, next_action, eps, flow_time):
+    """L_flow = mean_b m_b[(1 − γ_su) ℓ_P + γ_su ℓ_B] (eq. 3–4, Algorithm 1).
+
+    ℓ_P = Σ_d (ζ(x_k, k)ψ − (s̄′ − ε))²_d with x_k = k s̄′ + (1 − k) ε, s̄′ = normalize(s′), ψ = ψ(s, a);
+    ℓ_B = Σ_d (ζ(x̂, k)ψ − sg(ζ̄(x̂, k)ψ̄′))²_d with ψ̄′ = ψ̄(s′, ā′) and x̂ the ODE solution from ε over
+    [0, k] under the target field ζ̄ψ̄′ (`denoising_steps` steps of `integrator`).
+
+    `next_action` ā′ (B, A) gets no gradient; `eps` ε (B, D) ~ N(0, I); `flow_time` k (B,) ~ U(0, 1).
+    With `cfg.contract_zeta` the fast path (DESIGN.md §6) contracts ζ's last layer with ψ once (M, c) and
+    with ψ̄′ once (M̄, c̄) and reuses them for every evaluation; otherwise ζ (B, D, F) is materialized.
+    With γ_su = 0 the bootstrap branch is skipped and loss_boot = 0. Trains ψ and ζ.
+    Returns (loss, {"loss_p": mean_b m_b ℓ_P, "loss_boot": mean_b m_b ℓ_B}).
+    """
+    cfg = nets.cfg
+    b = _check_batch(nets, batch)
+    _check_noise(nets, "next_action", next_action, b, cfg.action_size, "action_size")
+    _check_noise(nets, "eps", eps, b, cfg.obs_size, "obs_size")
+    nw._check_batch_dims("flow_time", flow_time, b, "batch.obs")
+    p = _trainable(params, ("psi", "zeta"))
+    next_action = sg(next_action)
+
+    next_obs_n = nw.normalize(batch.next_obs, p["obs_norm"])
+    features = nw.psi(nets, p, batch.obs, batch.action)
+    k = flow_time
+    x_k = k[..., None] * next_obs_n + (1 - k[..., None]) * eps
+    if cfg.contract_zeta:
+        M, c = nw.contract(nets, p, features)
+
+        def online(x):
+            return nw.velocity_contracted(nets, p, x, k, M, c)
+    else:
+        def online(x):
+            return nw.velocity(nets, p, x, k, features)
+
+    loss_p = jnp.sum((online(x_k) - (next_obs_n - eps)) ** 2, axis=-1)
+    mask = 1 - batch.truncation
+    if cfg.gamma_su == 0:
+        loss = jnp.mean(mask * ((1 - cfg.gamma_su) * loss_p))
+        return loss, {"loss_p": jnp.mean(mask * loss_p), "loss_boot": jnp.zeros_like(loss)}
+
+    next_features = sg(nw.psi(nets, p, batch.next_obs, next_action, target=True))
+    if cfg.contract_zeta:
+        M_bar, c_bar = nw.contract(nets, p, next_features, target=True)
+
+        def target_velocity(x, kk):
+            return nw.velocity_contracted(nets, p, x, kk, M_bar, c_bar, target=True)
+    else:
+        def target_velocity(x, kk):
+            return nw.velocity(nets, p, x, kk, next_features, target=True)
+
+    x_hat = sg(integrate(target_velocity, eps, k, cfg.denoising_steps, cfg.integrator))
+    loss_b = jnp.sum((online(x_hat) - sg(target_velocity(x_hat, k))) ** 2, axis=-1)
+    loss = jnp.mean(mask * ((1 - cfg.gamma_su) * loss_p + cfg.gamma_su * loss_b))
+    return loss, {"loss_p": jnp.mean(mask * loss_p), "loss_boot": jnp.mean(mask * loss_b)}
+
+
+def explicit_mixture_loss(velocity_fn: Callable, x1, x2, eps1, eps2, k1, k2, weight):
+    """Explicit mixture objective (Appendix A.3), with φ_k(ε, x) = kx + (1 − k)ε:
+    weight·mean_b‖v(φ_k1(ε1, x1), k1) − (x1 − ε1)‖² + (1 − weight)·mean_b‖v(φ_k2(ε2, x2), k2) − (x2 − ε2)‖².
+    Returns (loss, {"loss_1": first mean, "loss_2": second mean})."""
+
+    def term(x, e, k):
+        x_k = k[..., None] * x + (1 - k[..., None]) * e
+        return jnp.mean(jnp.sum((velocity_fn(x_k, k) - (x - e)) ** 2, axis=-1))
+
+    loss_1, loss_2 = term(x1, eps1, k1), term(x2, eps2, k2)
+    return weight * loss_1 + (1 - weight) * loss_2, {"loss_1": loss_1, "loss_2": loss_2}
+
+
+# ------------------------------------------------------------------------------------------------ TD3
+def _td_loss(q, y, truncation):
+    """½ mean_{b,j}(m_b(Q_j − sg(y)))²."""
+    err = (1 - truncation)[..., None] * (q - sg(y)[..., None])
+    return 0.5 * jnp.mean(err**2)
+
+
+def td3_critic_loss(nets: nw.Networks, params: nw.Params, batch: Batch, smoothing):
+    """TD3 critic on features (Algorithm 2): ã′ = clip(π̄(s′) + clip(σ_s ξ, −c, c), −1, 1),
+    y = rs·r + discount·γ·min_j Q̄_j(ψ̄(s′, ã′)), loss = ½ mean_{b,j}(m_b(Q_j(ψ(s, a)) − sg(y)))².
+    `smoothing` ξ (B, A) ~ N(0, I). Trains Q and ψ. aux: q (mean Q), target_q (mean y)."""
+    cfg = nets.cfg
+    b = _check_batch(nets, batch)
+    _check_noise(nets, "smoothing", smoothing, b, cfg.action_size, "action_size")
+    p = _trainable(params, ("psi", "q"))
+    noise = jnp.clip(cfg.smoothing_noise * smoothing, -cfg.noise_clip, cfg.noise_clip)
+    next_action = jnp.clip(nw.td3_action(nets, p, batch.next_obs, target=True) + noise, -1, 1)
+    next_q = nw.q_values(nets, p, nw.psi(nets, p, batch.next_obs, next_action, target=True), target=True)
+    y = cfg.reward_scaling * batch.reward + batch.discount * cfg.discount * jnp.min(next_q, axis=-1)
+    q = nw.q_values(nets, p, nw.psi(nets, p, batch.obs, batch.action))
+    return _td_loss(q, y, batch.truncation), {"q": jnp.mean(q), "target_q": jnp.mean(sg(y))}
+
+
+def td3_actor_loss(nets: nw.Networks, params: nw.Params, batch: Batch):
+    """TD3 actor (Algorithm 2): −mean_b Q_0(ψ(s, π(s))). Trains the policy only. aux: q (mean Q_0)."""
+    _check_batch(nets, batch)
+    p = _trainable(params, ("policy",))
+    action = nw.td3_action(nets, p, batch.obs)
+    q0 = nw.q_values(nets, p, nw.psi(nets, p, batch.obs, action))[..., 0]
+    loss = -jnp.mean(q0)
+    return loss, {"q": -loss}
+
+
+# ------------------------------------------------------------------------------------------------ SAC
+def sac_critic_loss(nets: nw.Networks, params: nw.Params, batch: Batch, noise):
+    """SAC critic on features (Algorithm 3): a′, log π(a′|s′) from the online policy at s′ with ξ′ = `noise`;
+    y = rs·r + discount·γ·(min_j Q̄_j(ψ̄(s′, a′)) − α log π(a′|s′)), α = exp(log_alpha) constant;
+    loss = ½ mean_{b,j}(m_b(Q_j(ψ(s, a)) − sg(y)))². Trains Q and ψ. aux: q, target_q."""
+    cfg = nets.cfg
+    b = _check_batch(nets, batch)
+    _check_noise(nets, "noise", noise, b, cfg.action_size, "action_size")
+    p = _trainable(params, ("psi", "q"))
+    alpha = jnp.exp(p["log_alpha"])
+    next_action, next_log_prob = nw.sac_sample(nets, p, batch.next_obs, noise)
+    next_q = nw.q_values(nets, p, nw.psi(nets, p, batch.next_obs, next_action, target=True), target=True)
+    y = cfg.reward_scaling * batch.reward + batch.discount * cfg.discount * (
+        jnp.min(next_q, axis=-1) - alpha * next_log_prob)
+    q = nw.q_values(nets, p, nw.psi(nets, p, batch.obs, batch.action))
+    return _td_loss(q, y, batch.truncation), {"q": jnp.mean(q), "target_q": jnp.mean(sg(y))}
+
+
+def sac_actor_loss(nets: nw.Networks, params: nw.Params, batch: Batch, noise):
+    """SAC actor (Algorithm 3): a ~ π(s) with ξ = `noise`; loss = mean_b(α log π(a|s) − min_j Q_j(ψ(s, a))).
+    Trains the policy only. aux: entropy (−mean log π)."""
+    cfg = nets.cfg
+    b = _check_batch(nets, batch)
+    _check_noise(nets, "noise", noise, b, cfg.action_size, "action_size")
+    p = _trainable(params, ("policy",))
+    alpha = jnp.exp(p["log_alpha"])
+    action, log_prob = nw.sac_sample(nets, p, batch.obs, noise)
+    q = nw.q_values(nets, p, nw.psi(nets, p, batch.obs, action))
+    loss = jnp.mean(alpha * log_prob - jnp.min(q, axis=-1))
+    return loss, {"entropy": -jnp.mean(log_prob)}
+
+
+def sac_alpha_loss(nets: nw.Networks, params: nw.Params, batch: Batch, noise):
+    """SAC temperature: loss = mean_b(exp(log_alpha)·sg(−log π(a|s) − target_entropy)),
+    target_entropy = −target_entropy_scale·A. Trains log_alpha only. aux: alpha."""
+    cfg = nets.cfg
+    b = _check_batch(nets, batch)
+    _check_noise(nets, "noise", noise, b, cfg.action_size, "action_size")
+    p = _trainable(params, ("log_alpha",))
+    _, log_prob = nw.sac_sample(nets, p, batch.obs, noise)
+    target_entropy = -cfg.target_entropy_scale * cfg.action_size
+    alpha = jnp.exp(p["log_alpha"])
+    loss = jnp.mean(alpha * sg(-log_prob - target_entropy))
+    return loss, {"alpha": sg(alpha)}
+
+
+# ------------------------------------------------------------------------------------------------ EMA
+def ema_update(target, online, tau):
+    """Target-network EMA (paper §3.4): target ← (1 − τ)·target + τ·online, leaf by leaf."""
+    return jax.tree_util.tree_map(lambda t, o: (1 - tau) * t + tau * o, target, online)

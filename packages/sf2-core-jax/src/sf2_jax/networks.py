@@ -1,0 +1,345 @@
+"""Networks of SF²: ψ, ζ, twin Q heads, TD3 and SAC policies, observation normalizer, flow-time embedding.
+
+Paper: Definition 3.1 (u = ζ(x, k)ᵀψ(s, a)), Appendix E (architectures); DESIGN.md §5–§6;
+docs/core-contract.md "Networks". JAX is functional: `make_networks(cfg, algo)` returns a `Networks`
+container of flax.linen modules (no parameters), `init_params(nets, key)` returns the parameter dict of
+canonical groups, and the helpers below (`psi`, `zeta`, `velocity`, ...) apply a group to inputs.
+
+Each network's flax `params` collection uses the canonical layer names `dense_{i}` / `layer_norm_{i}`
+(and `head_{0,1}` for Q), so it flattens directly to the canonical names of `sf2_jax.params`.
+Every input is shape-checked on its static shape: a wrong observation or action size raises `ShapeError`
+naming the expected and the found sizes before any framework op runs.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from sf2_jax.config import SF2Config
+from sf2_jax.errors import ConfigError, ShapeError
+
+__all__ = [
+    "ALGOS", "MLP", "TwinQ", "Networks", "make_networks", "init_params", "init_normalizer",
+    "normalize", "update_normalizer", "flow_time_embedding", "psi", "zeta", "zeta_hidden",
+    "zeta_last_layer", "velocity", "contract", "velocity_contracted", "q_values", "td3_action",
+    "sac_distribution", "sac_sample", "sac_mode",
+]
+
+ALGOS = ("td3", "sac")
+LAYER_NORM_EPS = 1e-6
+# LeCun-uniform: U(±√(3/fan_in)) for every Dense kernel; biases are zero (flax default).
+LECUN_UNIFORM = nn.initializers.variance_scaling(1.0, "fan_in", "uniform")
+
+Params = dict[str, Any]
+
+
+# --------------------------------------------------------------------------------------------- modules
+class MLP(nn.Module):
+    """Hidden layers Dense → ReLU → LayerNorm(ε = 1e-6), then a last Dense (Appendix E).
+
+    Submodules are `dense_0..dense_n` and `layer_norm_0..layer_norm_{n-1}` (n = len(hidden_sizes)).
+    `hidden(x)` is everything before the last Dense (ζ's h in the fast path of DESIGN.md §6).
+    """
+
+    hidden_sizes: tuple[int, ...]
+    out_size: int
+    use_layer_norm: bool = True
+
+    def setup(self):
+        sizes = (*self.hidden_sizes, self.out_size)
+        self.dense = [nn.Dense(n, kernel_init=LECUN_UNIFORM) for n in sizes]
+        if self.use_layer_norm:
+            # use_fast_variance=False: var = mean((x − mean)²), the formula torch uses too.
+            self.layer_norm = [nn.LayerNorm(epsilon=LAYER_NORM_EPS, use_fast_variance=False)
+                               for _ in self.hidden_sizes]
+
+    def hidden(self, x):
+        for i in range(len(self.hidden_sizes)):
+            x = nn.relu(self.dense[i](x))
+            if self.use_layer_norm:
+                x = self.layer_norm[i](x)
+        return x
+
+    def __call__(self, x):
+        return self.dense[-1](self.hidden(x))
+
+
+class TwinQ(nn.Module):
+    """Two independent Q heads `head_0`, `head_1`: Dense(F → hidden) → ReLU → Dense(→ 1), no LayerNorm."""
+
+    hidden_size: int
+
+    def setup(self):
+        self.head_0 = MLP((self.hidden_size,), 1, use_layer_norm=False)
+        self.head_1 = MLP((self.hidden_size,), 1, use_layer_norm=False)
+
+    def __call__(self, features):
+        return jnp.concatenate([self.head_0(features), self.head_1(features)], axis=-1)
+
+
+@struct.dataclass
+class Networks:
+    """The config, the algorithm and the (parameter-free) flax modules of one SF² agent.
+
+    A pytree with no leaves and hashable, so it can be passed to `jax.jit` either way.
+    """
+
+    cfg: SF2Config = struct.field(pytree_node=False)
+    algo: str = struct.field(pytree_node=False)
+    psi: MLP = struct.field(pytree_node=False)
+    zeta: MLP = struct.field(pytree_node=False)
+    q: TwinQ = struct.field(pytree_node=False)
+    policy: MLP = struct.field(pytree_node=False)
+
+
+def make_networks(cfg: SF2Config, algo: str) -> Networks:
+    """ψ: MLP(hidden_sizes → F); ζ: MLP(zeta_hidden_sizes → F·D); Q: twin heads; policy: MLP(hidden_sizes →
+    A (TD3) or 2A (SAC)). `algo` ∈ {"td3", "sac"}."""
+    if not isinstance(cfg, SF2Config):
+        raise ConfigError(f"make_networks needs an SF2Config, got {type(cfg).__name__}")
+    if algo not in ALGOS:
+        raise ConfigError(f"algo = {algo!r} is invalid: must be one of {ALGOS}")
+    ln = cfg.layer_norm
+    policy_out = cfg.action_size if algo == "td3" else 2 * cfg.action_size
+    return Networks(
+        cfg=cfg,
+        algo=algo,
+        psi=MLP(cfg.hidden_sizes, cfg.feature_size, use_layer_norm=ln),
+        zeta=MLP(cfg.zeta_hidden_sizes, cfg.feature_size * cfg.obs_size, use_layer_norm=ln),
+        q=TwinQ(cfg.q_hidden_size),
+        policy=MLP(cfg.hidden_sizes, policy_out, use_layer_norm=ln),
+    )
+
+
+def init_normalizer(size: int, dtype=None) -> Params:
+    """Initial running statistics: count 0, mean 0, summed_var 0, std 1."""
+    dtype = _default_dtype(dtype)
+    return {
+        "count": jnp.zeros((), dtype),
+        "mean": jnp.zeros((size,), dtype),
+        "summed_var": jnp.zeros((size,), dtype),
+        "std": jnp.ones((size,), dtype),
+    }
+
+
+def init_params(nets: Networks, key: jax.Array, dtype=None) -> Params:
+    """Parameters of every canonical group: `obs_norm`, `psi`, `zeta`, `q`, `policy`, `target_psi`,
+    `target_zeta`, `target_q`, and `target_policy` (TD3) or `log_alpha` (SAC, = cfg.init_log_alpha).
+
+    Targets are copies of the online networks. `dtype` defaults to JAX's default float type (float64
+    under `jax_enable_x64`, else float32).
+    """
+    cfg = nets.cfg
+    dtype = _default_dtype(dtype)
+    D, A, E = cfg.obs_size, cfg.action_size, cfg.embedding_size
+    k_psi, k_zeta, k_q, k_policy = jax.random.split(key, 4)
+    f32 = jnp.float32
+
+    def cast(tree):
+        return jax.tree_util.tree_map(lambda v: jnp.asarray(v, dtype), tree)
+
+    online = {
+        "psi": nets.psi.init(k_psi, jnp.zeros((1, D + A), f32))["params"],
+        "zeta": nets.zeta.init(k_zeta, jnp.zeros((1, D + E), f32))["params"],
+        "q": nets.q.init(k_q, jnp.zeros((1, cfg.feature_size), f32))["params"],
+        "policy": nets.policy.init(k_policy, jnp.zeros((1, D), f32))["params"],
+    }
+    online = cast(online)
+    params = {"obs_norm": init_normalizer(D, dtype), **online}
+    copy = lambda tree: jax.tree_util.tree_map(jnp.copy, tree)  # noqa: E731
+    for name in ("psi", "zeta", "q"):
+        params[f"target_{name}"] = copy(online[name])
+    if nets.algo == "td3":
+        params["target_policy"] = copy(online["policy"])
+    else:
+        params["log_alpha"] = jnp.asarray(cfg.init_log_alpha, dtype)
+    return params
+
+
+def _default_dtype(dtype):
+    return jnp.dtype(jnp.result_type(float) if dtype is None else dtype)
+
+
+# ------------------------------------------------------------------------------------------ shape checks
+def _check_last(name: str, x, expected: int, what: str):
+    shape = jnp.shape(x)
+    if len(shape) == 0 or shape[-1] != expected:
+        found = shape[-1] if len(shape) else "a scalar"
+        raise ShapeError(f"{name}: expected last dimension {expected} ({what}), found {found} "
+                         f"(shape {tuple(shape)})")
+
+
+def _check_batch_dims(name: str, x, batch_shape: tuple, ref: str):
+    shape = tuple(jnp.shape(x))
+    if shape != tuple(batch_shape):
+        raise ShapeError(f"{name}: expected shape {tuple(batch_shape)} (the batch shape of {ref}), "
+                         f"found {shape}")
+
+
+def _check_leading(name: str, x, batch_shape: tuple, ref: str):
+    shape = tuple(jnp.shape(x))
+    if shape[:-1] != tuple(batch_shape):
+        raise ShapeError(f"{name}: expected batch shape {tuple(batch_shape)} (that of {ref}), "
+                         f"found {shape[:-1]} (shape {shape})")
+
+
+def _group(nets: Networks, params: Params, name: str, target: bool) -> Params:
+    key = f"target_{name}" if target else name
+    if key not in params:
+        raise ConfigError(f"params has no group {key!r} (algo {nets.algo!r}); groups: {sorted(params)}")
+    return params[key]
+
+
+# ------------------------------------------------------------------------------------------ normalizer
+def normalize(obs, stats: Params):
+    """(obs − mean) / std with the running statistics `stats` (Brax running_statistics)."""
+    _check_last("obs", obs, jnp.shape(stats["mean"])[-1], "obs_size")
+    return (obs - stats["mean"]) / stats["std"]
+
+
+def update_normalizer(stats: Params, obs_batch, cfg: SF2Config) -> Params:
+    """Brax's running-statistics update: Welford over a batch (every leading dim is a batch dim),
+    std = clip(√(summed_var / count), normalizer_std_min, normalizer_std_max)."""
+    _check_last("obs_batch", obs_batch, cfg.obs_size, "obs_size")
+    batch = jnp.reshape(obs_batch, (-1, cfg.obs_size))
+    count = stats["count"] + batch.shape[0]
+    diff_to_old_mean = batch - stats["mean"]
+    mean = stats["mean"] + jnp.sum(diff_to_old_mean, axis=0) / count
+    diff_to_new_mean = batch - mean
+    summed_var = stats["summed_var"] + jnp.sum(diff_to_old_mean * diff_to_new_mean, axis=0)
+    std = jnp.clip(jnp.sqrt(summed_var / count), cfg.normalizer_std_min, cfg.normalizer_std_max)
+    return {"count": count, "mean": mean, "summed_var": summed_var, "std": std}
+
+
+# ------------------------------------------------------------------------------------------ ψ and ζ
+def flow_time_embedding(k, size: int):
+    """Sinusoidal embedding of the flow time k (authors' `scalar_positional_embedding`), shape (..., size):
+    out[2i] = sin(10⁴·k·ω_i), out[2i+1] = cos(10⁴·k·ω_i), ω_i = exp(−2i·ln(10⁴)/size)."""
+    if size % 2:
+        raise ConfigError(f"embedding size = {size} is invalid: must be even")
+    k = jnp.asarray(k)
+    if not jnp.issubdtype(k.dtype, jnp.floating):
+        k = k.astype(jnp.result_type(float))
+    i = jnp.arange(size // 2, dtype=k.dtype)
+    omega = jnp.exp(-2.0 * i * math.log(1e4) / size)
+    arg = 1e4 * k[..., None] * omega
+    return jnp.stack([jnp.sin(arg), jnp.cos(arg)], axis=-1).reshape(*k.shape, size)
+
+
+def psi(nets: Networks, params: Params, obs, action, target: bool = False):
+    """ψ(s, a) (B, F) on concat[normalize(s), a] (Definition 3.1); `target=True` uses ψ̄."""
+    cfg = nets.cfg
+    _check_last("obs", obs, cfg.obs_size, "obs_size")
+    _check_last("action", action, cfg.action_size, "action_size")
+    x = jnp.concatenate([normalize(obs, params["obs_norm"]), action], axis=-1)
+    return nets.psi.apply({"params": _group(nets, params, "psi", target)}, x)
+
+
+def _zeta_input(nets: Networks, x, k):
+    cfg = nets.cfg
+    _check_last("x", x, cfg.obs_size, "obs_size")
+    x, k = jnp.asarray(x), jnp.asarray(k)
+    if k.ndim == 0:
+        k = jnp.broadcast_to(k, x.shape[:-1])
+    _check_batch_dims("flow_time", k, x.shape[:-1], "x")
+    dtype = jnp.result_type(x.dtype, k.dtype, float)
+    embedding = flow_time_embedding(k.astype(dtype), cfg.embedding_size)
+    return jnp.concatenate([x.astype(dtype), embedding], axis=-1)
+
+
+def zeta(nets: Networks, params: Params, x, k, target: bool = False):
+    """ζ(x, k) (B, D, F): the F·D outputs reshaped row-major, entry (d, f) = output d·F + f."""
+    cfg = nets.cfg
+    out = nets.zeta.apply({"params": _group(nets, params, "zeta", target)}, _zeta_input(nets, x, k))
+    return out.reshape(*out.shape[:-1], cfg.obs_size, cfg.feature_size)
+
+
+def zeta_hidden(nets: Networks, params: Params, x, k, target: bool = False):
+    """h(x, k) (B, H): ζ's MLP up to (not including) its last Dense (DESIGN.md §6)."""
+    return nets.zeta.apply({"params": _group(nets, params, "zeta", target)}, _zeta_input(nets, x, k),
+                           method=MLP.hidden)
+
+
+def zeta_last_layer(nets: Networks, params: Params, target: bool = False):
+    """ζ's last Dense: kernel W (H, F·D) and bias b (F·D,)."""
+    last = _group(nets, params, "zeta", target)[f"dense_{len(nets.cfg.zeta_hidden_sizes)}"]
+    return last["kernel"], last["bias"]
+
+
+def velocity(nets: Networks, params: Params, x, k, features, target: bool = False):
+    """Plain velocity u_d = Σ_f ζ(x, k)_{d f} ψ_f (Definition 3.1), shape (B, D). Materializes ζ."""
+    _check_last("features", features, nets.cfg.feature_size, "feature_size")
+    return jnp.einsum("...df,...f->...d", zeta(nets, params, x, k, target), features)
+
+
+def contract(nets: Networks, params: Params, features, target: bool = False):
+    """Contract ζ's last layer with ψ once (DESIGN.md §6): with W viewed (H, D, F) and b (D, F),
+    M = einsum('hdf,bf->bhd', W, ψ) (B, H, D) and c = einsum('df,bf->bd', b, ψ) (B, D)."""
+    cfg = nets.cfg
+    _check_last("features", features, cfg.feature_size, "feature_size")
+    W, b = zeta_last_layer(nets, params, target)
+    W = W.reshape(W.shape[0], cfg.obs_size, cfg.feature_size)
+    b = b.reshape(cfg.obs_size, cfg.feature_size)
+    return jnp.einsum("hdf,bf->bhd", W, features), jnp.einsum("df,bf->bd", b, features)
+
+
+def velocity_contracted(nets: Networks, params: Params, x, k, M, c, target: bool = False):
+    """Fast velocity u = einsum('bh,bhd->bd', h(x, k), M) + c, equal to `velocity` (DESIGN.md §6)."""
+    h = zeta_hidden(nets, params, x, k, target)
+    return jnp.einsum("bh,bhd->bd", h, M) + c
+
+
+# ------------------------------------------------------------------------------------------ Q and policies
+def q_values(nets: Networks, params: Params, features, target: bool = False):
+    """Twin Q(ψ) (B, 2): column j is head_j (Appendix D)."""
+    _check_last("features", features, nets.cfg.feature_size, "feature_size")
+    return nets.q.apply({"params": _group(nets, params, "q", target)}, features)
+
+
+def _require(nets: Networks, algo: str, fn: str):
+    if nets.algo != algo:
+        raise ConfigError(f"{fn} needs networks made with algo={algo!r}, these have algo={nets.algo!r}")
+
+
+def td3_action(nets: Networks, params: Params, obs, target: bool = False):
+    """TD3 deterministic policy tanh(MLP(normalize(s))) (B, A); `target=True` uses the target policy."""
+    _require(nets, "td3", "td3_action")
+    _check_last("obs", obs, nets.cfg.obs_size, "obs_size")
+    out = nets.policy.apply({"params": _group(nets, params, "policy", target)},
+                            normalize(obs, params["obs_norm"]))
+    return jnp.tanh(out)
+
+
+def sac_distribution(nets: Networks, params: Params, obs):
+    """SAC pre-tanh Gaussian: loc = out[:, :A], σ = softplus(out[:, A:]) + min_std."""
+    _require(nets, "sac", "sac_distribution")
+    cfg = nets.cfg
+    _check_last("obs", obs, cfg.obs_size, "obs_size")
+    out = nets.policy.apply({"params": params["policy"]}, normalize(obs, params["obs_norm"]))
+    A = cfg.action_size
+    return out[..., :A], jax.nn.softplus(out[..., A:]) + cfg.min_std
+
+
+def sac_sample(nets: Networks, params: Params, obs, noise):
+    """Tanh-Gaussian sample with explicit standard-normal ξ (B, A): u = loc + σξ, a = tanh(u),
+    log π(a|s) = Σ_i[−½ξ_i² − log σ_i − ½ log 2π] − Σ_i 2(log 2 − u_i − softplus(−2u_i)).
+    Returns (action (B, A), log_prob (B,))."""
+    _check_last("noise", noise, nets.cfg.action_size, "action_size")
+    loc, std = sac_distribution(nets, params, obs)
+    _check_batch_dims("noise", noise, loc.shape, "the policy output")
+    u = loc + std * noise
+    log_normal = jnp.sum(-0.5 * noise**2 - jnp.log(std) - 0.5 * math.log(2.0 * math.pi), axis=-1)
+    log_det_jacobian = jnp.sum(2.0 * (math.log(2.0) - u - jax.nn.softplus(-2.0 * u)), axis=-1)
+    return jnp.tanh(u), log_normal - log_det_jacobian
+
+
+def sac_mode(nets: Networks, params: Params, obs):
+    """SAC deterministic action tanh(loc) (B, A)."""
+    loc, _ = sac_distribution(nets, params, obs)
+    return jnp.tanh(loc)

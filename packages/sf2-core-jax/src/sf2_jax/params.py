@@ -1,0 +1,219 @@
+"""Canonical parameters: the framework-neutral interchange format of SF² (DESIGN.md §4.2).
+
+A canonical mapping is a flat ``dict[str, numpy.ndarray]`` whose keys are dot-joined paths. Loading the
+same canonical mapping into `sf2_jax` and `sf2_torch` gives networks that compute the same numbers.
+
+Groups (top-level names)
+------------------------
+==================  ===================================================================  ==========
+group               content                                                              algo
+==================  ===================================================================  ==========
+``obs_norm``        running statistics ``count`` (), ``mean`` (D,), ``summed_var`` (D,),  both
+                    ``std`` (D,)
+``psi``             ψ: MLP(hidden_sizes → F) on [normalize(s), a]                        both
+``zeta``            ζ: MLP(zeta_hidden_sizes → F·D) on [x, embedding(k)]                  both
+``q``               twin Q heads ``q.head_0.*`` and ``q.head_1.*``                        both
+``policy``          TD3: MLP(hidden_sizes → A); SAC: MLP(hidden_sizes → 2A)              both
+``target_psi``      EMA copy of ``psi``                                                  both
+``target_zeta``     EMA copy of ``zeta``                                                 both
+``target_q``        EMA copy of ``q``                                                    both
+``target_policy``   EMA copy of ``policy``                                               TD3 only
+``log_alpha``       SAC temperature log α, shape ()                                       SAC only
+==================  ===================================================================  ==========
+
+Inside a network, layer i (counted from 0, input side first) has
+``dense_{i}.kernel`` (in, out), ``dense_{i}.bias`` (out,) and, for each hidden layer when
+``cfg.layer_norm``, ``layer_norm_{i}.scale`` (out,) and ``layer_norm_{i}.bias`` (out,). The last layer is
+Dense only; Q heads have no LayerNorm. Kernels are always stored (in, out): JAX/flax layout; torch
+transposes its ``weight``. ζ's last kernel (H, F·D) has output column d·F + f for entry (d, f) of ζ.
+
+Examples with D = 5, A = 1 and the default sizes: ``psi.dense_0.kernel`` (6, 512),
+``psi.layer_norm_0.scale`` (512,), ``psi.dense_3.kernel`` (512, 512), ``zeta.dense_0.kernel`` (69, 512),
+``zeta.dense_2.kernel`` (512, 2560), ``q.head_1.dense_1.bias`` (1,), ``obs_norm.count`` ().
+
+Files
+-----
+``save(path, flat)`` writes ``.npz`` (numpy only, `numpy.savez`) or ``.safetensors`` (needs the
+`safetensors` package: ``pip install sf2-core-jax[safetensors]``), chosen by the suffix; ``load(path)``
+reads either back as a flat mapping. Arrays keep their dtype (float32 or float64). A missing, unreadable
+or corrupt file raises `ParamsError`.
+
+Checking
+--------
+``validate(flat, nets)`` (or ``validate(flat, cfg, algo)``) compares a mapping with the names and shapes
+that `networks.init_params` produces for that config and algorithm, and raises `ParamsError` listing every
+missing, unexpected and misshaped entry (expected and found shapes). ``from_canonical`` validates first.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import tempfile
+import zipfile
+from collections.abc import Mapping
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from sf2_jax import networks as nw
+from sf2_jax.config import SF2Config
+from sf2_jax.errors import ParamsError
+
+__all__ = ["to_canonical", "from_canonical", "validate", "expected_shapes", "save", "load", "FORMATS"]
+
+FORMATS = (".npz", ".safetensors")
+
+
+def _flatten(tree) -> dict:
+    """{dot-joined path: leaf} of a nested mapping, keys sorted."""
+    flat = {}
+
+    def walk(prefix: str, node):
+        if isinstance(node, Mapping):
+            for key in sorted(node):
+                walk(f"{prefix}.{key}" if prefix else str(key), node[key])
+        else:
+            flat[prefix] = node
+
+    walk("", tree)
+    return flat
+
+
+def to_canonical(params: Mapping) -> dict[str, np.ndarray]:
+    """Flatten a `params` dict of canonical groups to {dot-joined name: numpy array} (copies)."""
+    return {name: np.array(value) for name, value in _flatten(params).items()}
+
+
+@functools.lru_cache(maxsize=64)
+def _expected(nets: nw.Networks) -> dict[str, tuple[int, ...]]:
+    shapes = jax.eval_shape(lambda: nw.init_params(nets, jax.random.key(0)))
+    return {name: tuple(s.shape) for name, s in _flatten(shapes).items()}
+
+
+def _networks(nets_or_cfg, algo: str | None) -> nw.Networks:
+    if isinstance(nets_or_cfg, nw.Networks):
+        if algo is not None and algo != nets_or_cfg.algo:
+            raise ParamsError(f"algo={algo!r} given with networks made for algo={nets_or_cfg.algo!r}")
+        return nets_or_cfg
+    if isinstance(nets_or_cfg, SF2Config):
+        if algo is None:
+            raise ParamsError("validate(flat, cfg, algo) needs `algo` when given an SF2Config")
+        return nw.make_networks(nets_or_cfg, algo)
+    raise ParamsError(f"expected Networks or SF2Config, got {type(nets_or_cfg).__name__}")
+
+
+def expected_shapes(nets_or_cfg, algo: str | None = None) -> dict[str, tuple[int, ...]]:
+    """{canonical name: shape} that `init_params` gives for these networks (or this config and algo)."""
+    return dict(_expected(_networks(nets_or_cfg, algo)))
+
+
+def validate(flat: Mapping, nets_or_cfg, algo: str | None = None) -> None:
+    """Raise `ParamsError` naming every missing, unexpected and misshaped entry of `flat`.
+
+    Accepts `validate(flat, nets)` or `validate(flat, cfg, algo)`.
+    """
+    nets = _networks(nets_or_cfg, algo)
+    if not isinstance(flat, Mapping):
+        raise ParamsError(f"canonical parameters must be a mapping name → array, got {type(flat).__name__}")
+    expected = _expected(nets)
+    missing = [name for name in expected if name not in flat]
+    unexpected = sorted(name for name in flat if name not in expected)
+    misshaped = []
+    for name, shape in expected.items():
+        if name in flat:
+            found = tuple(np.shape(flat[name]))
+            if found != shape:
+                misshaped.append((name, shape, found))
+    if not (missing or unexpected or misshaped):
+        return
+    cfg = nets.cfg
+    lines = [f"canonical parameters do not match the networks (algo {nets.algo!r}, obs_size {cfg.obs_size}, "
+             f"action_size {cfg.action_size}, feature_size {cfg.feature_size}):"]
+    if missing:
+        lines.append(f"  missing ({len(missing)}):")
+        lines += [f"    {name} (expected shape {expected[name]})" for name in missing]
+    if unexpected:
+        lines.append(f"  unexpected ({len(unexpected)}):")
+        lines += [f"    {name} (shape {tuple(np.shape(flat[name]))})" for name in unexpected]
+    if misshaped:
+        lines.append(f"  misshaped ({len(misshaped)}):")
+        lines += [f"    {name}: expected shape {shape}, found {found}" for name, shape, found in misshaped]
+    raise ParamsError("\n".join(lines))
+
+
+def from_canonical(flat: Mapping, nets: nw.Networks, dtype=None) -> dict:
+    """Validate `flat` against `nets`, then build the nested `params` dict of JAX arrays.
+
+    `dtype` (e.g. `jnp.float64`) casts every array; None keeps each array's dtype (as JAX canonicalizes it).
+    """
+    validate(flat, nets)
+    params: dict = {}
+    for name in _expected(nets):
+        *path, leaf = name.split(".")
+        node = params
+        for key in path:
+            node = node.setdefault(key, {})
+        value = np.asarray(flat[name])
+        node[leaf] = jnp.asarray(value, dtype=dtype) if dtype is not None else jnp.asarray(value)
+    return params
+
+
+# ------------------------------------------------------------------------------------------------ files
+def _format(path: Path) -> str:
+    suffix = path.suffix.lower()
+    if suffix not in FORMATS:
+        raise ParamsError(f"parameter file {str(path)!r} has suffix {suffix!r}: must be one of {FORMATS}")
+    return suffix
+
+
+def _safetensors_numpy():
+    try:
+        import safetensors.numpy as st
+    except ImportError as err:
+        raise ParamsError("reading or writing .safetensors needs the `safetensors` package "
+                          "(pip install 'sf2-core-jax[safetensors]'); or use .npz") from err
+    return st
+
+
+def save(path, flat: Mapping) -> Path:
+    """Write a canonical mapping to `path` (.npz or .safetensors by suffix), atomically. Returns the path."""
+    path = Path(path)
+    fmt = _format(path)
+    arrays = {str(name): np.asarray(value, order="C") for name, value in flat.items()}  # keeps 0-d
+    st = _safetensors_numpy() if fmt == ".safetensors" else None
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            if st is None:
+                np.savez(f, **arrays)
+            else:
+                f.write(st.save(arrays))
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def load(path) -> dict[str, np.ndarray]:
+    """Read a canonical mapping written by `save` (either core). `ParamsError` if missing or corrupt."""
+    path = Path(path)
+    fmt = _format(path)
+    if not path.is_file():
+        raise ParamsError(f"no parameter file at {str(path)!r}")
+    if fmt == ".safetensors":
+        st = _safetensors_numpy()
+        try:
+            return dict(st.load_file(str(path)))
+        except Exception as err:
+            raise ParamsError(f"could not read {str(path)!r} as .safetensors (corrupt?): {err}") from err
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return {name: np.array(data[name]) for name in data.files}
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as err:
+        raise ParamsError(f"could not read {str(path)!r} as .npz (corrupt?): {err}") from err
