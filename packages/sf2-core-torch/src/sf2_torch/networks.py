@@ -1,0 +1,587 @@
+"""Networks of SF²: ψ, ζ, twin Q heads, TD3 and SAC policies, observation normalizer (DESIGN.md §5).
+
+Notation (DESIGN.md §3): B batch, D = obs_size, A = action_size, F = feature_size, H = width of ζ's last
+hidden layer, E = embedding_size; `flow_time` k ∈ [0, 1] is the flow time, never the MDP step.
+
+Every network is an `MLP` whose children are named `dense_{i}` (`nn.Linear`) and `layer_norm_{i}`
+(`nn.LayerNorm`, ε = 1e-6), so that `params.to_canonical` maps module paths to the canonical names
+(`psi.dense_0.kernel`, ...). A hidden layer is Dense → ReLU → LayerNorm; the last layer is Dense only.
+Initialization: LeCun-uniform kernels U(±√(3/fan_in)), zero biases, LayerNorm scale 1 and bias 0.
+
+`make_networks(cfg, algo)` builds an `SF2Networks` module holding the online networks, their target
+copies (`requires_grad=False`) and, for SAC, the `log_alpha` parameter. The functional helpers at the
+bottom (`psi`, `zeta`, `velocity`, `contract`, `velocity_contracted`, `q_values`, `td3_action`,
+`sac_sample`, `normalize`, `update_normalizer`, `flow_time_embedding`) have `sf2_jax`'s signatures
+without its `params` argument; they check shapes and raise `ShapeError` before any torch op fails.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections.abc import Mapping, Sequence
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from .config import SF2Config
+from .errors import ConfigError, ShapeError
+
+__all__ = [
+    "ALGOS",
+    "LAYER_NORM_EPS",
+    "MLP",
+    "Psi",
+    "Zeta",
+    "QHead",
+    "TwinQ",
+    "TD3Policy",
+    "SACPolicy",
+    "ObsNormalizer",
+    "SF2Networks",
+    "make_networks",
+    "lecun_uniform_",
+    "flow_time_embedding",
+    "normalize",
+    "update_normalizer",
+    "psi",
+    "zeta",
+    "zeta_hidden",
+    "velocity",
+    "contract",
+    "velocity_contracted",
+    "q_values",
+    "td3_action",
+    "sac_sample",
+    "sac_distribution",
+    "sac_mode",
+    "sac_deterministic",
+    "zeta_last_layer",
+    "init_normalizer",
+]
+
+ALGOS = ("td3", "sac")
+LAYER_NORM_EPS = 1e-6
+_LOG_2PI = math.log(2.0 * math.pi)
+_LOG_2 = math.log(2.0)
+
+
+# ----------------------------------------------------------------------------------------------- checks
+def _check_last(name: str, tensor: torch.Tensor, size: int, what: str) -> None:
+    if tensor.ndim < 1 or tensor.shape[-1] != size:
+        found = tuple(tensor.shape)
+        last = found[-1] if found else "none (a scalar)"
+        raise ShapeError(f"{name} must have last dimension {what} = {size}, found {last} (shape {found})")
+
+
+def _check_batch(name: str, tensor: torch.Tensor, other_name: str, other: torch.Tensor) -> None:
+    if tuple(tensor.shape[:-1]) != tuple(other.shape[:-1]):
+        raise ShapeError(
+            f"{name} has batch shape {tuple(tensor.shape[:-1])} but {other_name} has batch shape "
+            f"{tuple(other.shape[:-1])}; they must match"
+        )
+
+
+def _flow_time_column(k: torch.Tensor | float, x: torch.Tensor) -> torch.Tensor:
+    """k as a (B,) tensor matching x (B, D): accepts (B,), (B, 1) or a scalar."""
+    k = torch.as_tensor(k, dtype=x.dtype, device=x.device)
+    if k.ndim == 0:
+        return k.expand(x.shape[:-1])
+    if k.ndim == x.ndim and k.shape[-1] == 1:
+        k = k.squeeze(-1)
+    if tuple(k.shape) != tuple(x.shape[:-1]):
+        raise ShapeError(
+            f"flow_time must have shape {tuple(x.shape[:-1])} (one k per sample of x), found {tuple(k.shape)}"
+        )
+    return k
+
+
+# -------------------------------------------------------------------------------------------- building
+@torch.no_grad()
+def lecun_uniform_(layer: nn.Linear) -> nn.Linear:
+    """LeCun-uniform kernel U(±√(3/fan_in)) and zero bias, in place."""
+    bound = math.sqrt(3.0 / layer.in_features)
+    layer.weight.uniform_(-bound, bound)
+    if layer.bias is not None:
+        layer.bias.zero_()
+    return layer
+
+
+class MLP(nn.Module):
+    """Dense → ReLU → [LayerNorm] per hidden width, then a last Dense.
+
+    Children: `dense_0 .. dense_{n}` (`nn.Linear`) and, when `layer_norm`, `layer_norm_0 .. layer_norm_{n-1}`
+    (`nn.LayerNorm(eps=1e-6)`), n = len(hidden_sizes).
+    """
+
+    def __init__(
+        self,
+        in_size: int,
+        hidden_sizes: Sequence[int],
+        out_size: int,
+        layer_norm: bool = True,
+        *,
+        dtype: torch.dtype | None = None,
+        device: torch.device | str | None = None,
+    ) -> None:
+        super().__init__()
+        self.in_size = int(in_size)
+        self.out_size = int(out_size)
+        self.hidden_sizes = tuple(int(h) for h in hidden_sizes)
+        self.layer_norm = bool(layer_norm)
+        self.num_hidden = len(self.hidden_sizes)
+        fan_in = self.in_size
+        for i, width in enumerate(self.hidden_sizes):
+            self.add_module(
+                f"dense_{i}", lecun_uniform_(nn.Linear(fan_in, width, dtype=dtype, device=device))
+            )
+            if self.layer_norm:
+                self.add_module(
+                    f"layer_norm_{i}", nn.LayerNorm(width, eps=LAYER_NORM_EPS, dtype=dtype, device=device)
+                )
+            fan_in = width
+        self.add_module(
+            f"dense_{self.num_hidden}",
+            lecun_uniform_(nn.Linear(fan_in, self.out_size, dtype=dtype, device=device)),
+        )
+
+    @property
+    def last(self) -> nn.Linear:
+        """The last Dense layer."""
+        return getattr(self, f"dense_{self.num_hidden}")
+
+    @property
+    def hidden_size(self) -> int:
+        """Width of the input of the last layer (H for ζ)."""
+        return self.last.in_features
+
+    def trunk(self, x: torch.Tensor) -> torch.Tensor:
+        """Everything before the last Dense."""
+        for i in range(self.num_hidden):
+            x = F.relu(getattr(self, f"dense_{i}")(x))
+            if self.layer_norm:
+                x = getattr(self, f"layer_norm_{i}")(x)
+        return x
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.last(self.trunk(x))
+
+
+class Psi(MLP):
+    """ψ(s, a): MLP(hidden_sizes → F) on concat[normalized s, a] (input D + A). Returns (B, F)."""
+
+    def __init__(self, cfg: SF2Config, **kw) -> None:
+        super().__init__(
+            cfg.obs_size + cfg.action_size, cfg.hidden_sizes, cfg.feature_size, cfg.layer_norm, **kw
+        )
+        self.obs_size, self.action_size = cfg.obs_size, cfg.action_size
+
+    def forward(self, obs_normalized: torch.Tensor, action: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
+        _check_last("obs", obs_normalized, self.obs_size, "obs_size")
+        _check_last("action", action, self.action_size, "action_size")
+        _check_batch("action", action, "obs", obs_normalized)
+        return super().forward(torch.cat([obs_normalized, action], dim=-1))
+
+
+class Zeta(MLP):
+    """ζ(x, k): MLP(zeta_hidden_sizes → F·D) on concat[x, embedding(k)] (input D + E), reshaped (B, D, F).
+
+    Entry (d, f) of the (D, F) matrix is output index d·F + f (row-major). `hidden(x, k)` → (B, H) is
+    everything before the last Dense (`last`, weight (F·D, H) in torch layout), used by the fast path.
+    """
+
+    def __init__(self, cfg: SF2Config, **kw) -> None:
+        super().__init__(
+            cfg.obs_size + cfg.embedding_size,
+            cfg.zeta_hidden_sizes,
+            cfg.feature_size * cfg.obs_size,
+            cfg.layer_norm,
+            **kw,
+        )
+        self.obs_size, self.feature_size, self.embedding_size = (
+            cfg.obs_size,
+            cfg.feature_size,
+            cfg.embedding_size,
+        )
+
+    def hidden(self, x: torch.Tensor, k: torch.Tensor | float) -> torch.Tensor:
+        _check_last("x", x, self.obs_size, "obs_size")
+        k = _flow_time_column(k, x)
+        return self.trunk(torch.cat([x, flow_time_embedding(k, self.embedding_size)], dim=-1))
+
+    def forward(self, x: torch.Tensor, k: torch.Tensor | float) -> torch.Tensor:  # type: ignore[override]
+        out = self.last(self.hidden(x, k))
+        return out.reshape(*out.shape[:-1], self.obs_size, self.feature_size)
+
+    def last_dense(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """(W viewed as (D, F, H), b viewed as (D, F)): the torch-layout last layer, split by (d, f)."""
+        w, b = self.last.weight, self.last.bias
+        return w.view(self.obs_size, self.feature_size, w.shape[-1]), b.view(self.obs_size, self.feature_size)
+
+
+class QHead(MLP):
+    """One Q head: Dense(F → q_hidden_size) → ReLU → Dense(→ 1), no LayerNorm (authors' code)."""
+
+    def __init__(self, cfg: SF2Config, **kw) -> None:
+        super().__init__(cfg.feature_size, (cfg.q_hidden_size,), 1, False, **kw)
+
+
+class TwinQ(nn.Module):
+    """Two independent heads `head_0`, `head_1` on ψ features; `forward(features)` → (B, 2)."""
+
+    def __init__(self, cfg: SF2Config, **kw) -> None:
+        super().__init__()
+        self.feature_size = cfg.feature_size
+        self.head_0 = QHead(cfg, **kw)
+        self.head_1 = QHead(cfg, **kw)
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        _check_last("features", features, self.feature_size, "feature_size")
+        return torch.cat([self.head_0(features), self.head_1(features)], dim=-1)
+
+
+class TD3Policy(MLP):
+    """Deterministic policy: tanh(MLP(hidden_sizes → A)(normalized s)) ∈ [-1, 1]^A."""
+
+    def __init__(self, cfg: SF2Config, **kw) -> None:
+        super().__init__(cfg.obs_size, cfg.hidden_sizes, cfg.action_size, cfg.layer_norm, **kw)
+        self.obs_size = cfg.obs_size
+
+    def forward(self, obs_normalized: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
+        _check_last("obs", obs_normalized, self.obs_size, "obs_size")
+        return torch.tanh(super().forward(obs_normalized))
+
+
+class SACPolicy(MLP):
+    """Tanh-Gaussian policy: MLP(hidden_sizes → 2A)(normalized s) = [loc, pre-std].
+
+    σ = softplus(pre-std) + min_std. With standard-normal ξ: u = loc + σξ, a = tanh(u),
+    log π(a|s) = Σ_i [−½ξ_i² − log σ_i − ½ log 2π] − Σ_i 2(log 2 − u_i − softplus(−2u_i)).
+    """
+
+    def __init__(self, cfg: SF2Config, **kw) -> None:
+        super().__init__(cfg.obs_size, cfg.hidden_sizes, 2 * cfg.action_size, cfg.layer_norm, **kw)
+        self.obs_size, self.action_size, self.min_std = cfg.obs_size, cfg.action_size, cfg.min_std
+
+    def forward(self, obs_normalized: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:  # type: ignore[override]
+        """(loc, σ), each (B, A)."""
+        _check_last("obs", obs_normalized, self.obs_size, "obs_size")
+        out = super().forward(obs_normalized)
+        loc, pre_std = out[..., : self.action_size], out[..., self.action_size :]
+        return loc, F.softplus(pre_std) + self.min_std
+
+    def sample(self, obs_normalized: torch.Tensor, noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(action (B, A), log π(action|s) (B,)) for explicit standard-normal `noise` ξ (B, A)."""
+        _check_last("noise", noise, self.action_size, "action_size")
+        _check_batch("noise", noise, "obs", obs_normalized)
+        loc, std = self(obs_normalized)
+        u = loc + std * noise
+        gauss = (-0.5 * noise.square() - torch.log(std) - 0.5 * _LOG_2PI).sum(-1)
+        log_det = (2.0 * (_LOG_2 - u - F.softplus(-2.0 * u))).sum(-1)
+        return torch.tanh(u), gauss - log_det
+
+    def deterministic(self, obs_normalized: torch.Tensor) -> torch.Tensor:
+        """tanh(loc)."""
+        return torch.tanh(self(obs_normalized)[0])
+
+
+class ObsNormalizer(nn.Module):
+    """Running observation statistics (Brax `running_statistics`).
+
+    Buffers: count (), mean (D,), summed_var (D,), std (D,); initial state count 0, mean 0,
+    summed_var 0, std 1. `forward(obs)` = (obs − mean) / std.
+    """
+
+    count: torch.Tensor
+    mean: torch.Tensor
+    summed_var: torch.Tensor
+    std: torch.Tensor
+
+    def __init__(
+        self,
+        obs_size: int,
+        std_min: float = 1e-6,
+        std_max: float = 1e6,
+        *,
+        dtype: torch.dtype | None = None,
+        device: torch.device | str | None = None,
+    ) -> None:
+        super().__init__()
+        self.obs_size, self.std_min, self.std_max = int(obs_size), float(std_min), float(std_max)
+        kw = dict(dtype=dtype or torch.get_default_dtype(), device=device)
+        self.register_buffer("count", torch.zeros((), **kw))
+        self.register_buffer("mean", torch.zeros(self.obs_size, **kw))
+        self.register_buffer("summed_var", torch.zeros(self.obs_size, **kw))
+        self.register_buffer("std", torch.ones(self.obs_size, **kw))
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return normalize(obs, self)
+
+    @torch.no_grad()
+    def update(self, obs_batch: torch.Tensor) -> ObsNormalizer:
+        """Welford update over every leading dimension of `obs_batch` (..., D), in place."""
+        new = _running_update(self._stats(), obs_batch, self.obs_size, self.std_min, self.std_max)
+        for name, value in new.items():
+            getattr(self, name).copy_(value)
+        return self
+
+    def _stats(self) -> dict[str, torch.Tensor]:
+        return {"count": self.count, "mean": self.mean, "summed_var": self.summed_var, "std": self.std}
+
+
+class SF2Networks(nn.Module):
+    """All networks of one SF² agent (canonical groups of docs/core-contract.md as attributes).
+
+    `obs_norm`, `psi`, `zeta`, `q`, `policy`, `target_psi`, `target_zeta`, `target_q`, and
+    `target_policy` (TD3) or the `log_alpha` parameter (SAC, shape ()). Targets are deep copies of the
+    online networks with `requires_grad=False`. `cfg` and `algo` are kept as plain attributes.
+    """
+
+    def __init__(
+        self,
+        cfg: SF2Config,
+        algo: str = "td3",
+        *,
+        dtype: torch.dtype | None = None,
+        device: torch.device | str | None = None,
+    ) -> None:
+        super().__init__()
+        if not isinstance(cfg, SF2Config):
+            raise ConfigError(f"cfg must be an SF2Config, found {type(cfg).__name__}")
+        if algo not in ALGOS:
+            raise ConfigError(f"algo={algo!r} is invalid: must be one of {', '.join(repr(a) for a in ALGOS)}")
+        self.cfg, self.algo = cfg, algo
+        kw = dict(dtype=dtype, device=device)
+        self.obs_norm = ObsNormalizer(cfg.obs_size, cfg.normalizer_std_min, cfg.normalizer_std_max, **kw)
+        self.psi = Psi(cfg, **kw)
+        self.zeta = Zeta(cfg, **kw)
+        self.q = TwinQ(cfg, **kw)
+        self.policy = TD3Policy(cfg, **kw) if algo == "td3" else SACPolicy(cfg, **kw)
+        self.target_psi = _frozen_copy(self.psi)
+        self.target_zeta = _frozen_copy(self.zeta)
+        self.target_q = _frozen_copy(self.q)
+        if algo == "td3":
+            self.target_policy = _frozen_copy(self.policy)
+        else:
+            self.log_alpha = nn.Parameter(
+                torch.full((), cfg.init_log_alpha, dtype=dtype or torch.get_default_dtype(), device=device)
+            )
+
+    def online_modules(self) -> dict[str, nn.Module]:
+        """The trained networks by canonical group name (without `log_alpha`)."""
+        return {"psi": self.psi, "zeta": self.zeta, "q": self.q, "policy": self.policy}
+
+    def target_modules(self) -> dict[str, nn.Module]:
+        """The target networks by canonical group name."""
+        out = {"target_psi": self.target_psi, "target_zeta": self.target_zeta, "target_q": self.target_q}
+        if self.algo == "td3":
+            out["target_policy"] = self.target_policy
+        return out
+
+    def extra_repr(self) -> str:
+        return f"algo={self.algo!r}"
+
+
+def _frozen_copy(module: nn.Module) -> nn.Module:
+    return copy.deepcopy(module).requires_grad_(False)
+
+
+def make_networks(
+    cfg: SF2Config,
+    algo: str = "td3",
+    *,
+    dtype: torch.dtype | None = None,
+    device: torch.device | str | None = None,
+) -> SF2Networks:
+    """Build and initialise every network of `algo` ∈ {"td3", "sac"} (seed with `torch.manual_seed` first).
+
+    Draw order: ψ, ζ, Q head 0, Q head 1, policy; targets copy the online networks.
+    """
+    return SF2Networks(cfg, algo, dtype=dtype, device=device)
+
+
+# ------------------------------------------------------------------------------------ functional helpers
+def flow_time_embedding(k: torch.Tensor, size: int) -> torch.Tensor:
+    """Sinusoidal embedding of flow time k (B,) → (B, size), interleaved sin/cos.
+
+    For i = 0..size/2−1, ω_i = exp(−2i·ln(10⁴)/size): out[2i] = sin(10⁴·k·ω_i), out[2i+1] = cos(10⁴·k·ω_i).
+    """
+    if size < 2 or size % 2:
+        raise ConfigError(f"embedding size={size!r} is invalid: must be an even integer >= 2")
+    k = torch.as_tensor(k)
+    if not k.is_floating_point():
+        k = k.to(torch.get_default_dtype())
+    i = torch.arange(size // 2, dtype=k.dtype, device=k.device)
+    # ·(1/size) rather than /size: the reciprocal form XLA compiles a division by a constant into, so that
+    # float32 frequencies match sf2_jax bit for bit (see ode.integrate); equal in exact arithmetic.
+    omega = torch.exp(-2.0 * i * math.log(1e4) * (1.0 / size))
+    arg = (1e4 * k)[..., None] * omega
+    return torch.stack([torch.sin(arg), torch.cos(arg)], dim=-1).reshape(*k.shape, size)
+
+
+def init_normalizer(size: int, dtype: torch.dtype | None = None) -> dict[str, torch.Tensor]:
+    """Initial running statistics as a dict: count 0, mean 0, summed_var 0, std 1 (functional form)."""
+    kw = dict(dtype=dtype or torch.get_default_dtype())
+    return {
+        "count": torch.zeros((), **kw),
+        "mean": torch.zeros(size, **kw),
+        "summed_var": torch.zeros(size, **kw),
+        "std": torch.ones(size, **kw),
+    }
+
+
+def _stats_of(stats) -> Mapping[str, torch.Tensor]:
+    if isinstance(stats, SF2Networks):
+        stats = stats.obs_norm
+    if isinstance(stats, ObsNormalizer):
+        return stats._stats()
+    if isinstance(stats, Mapping):
+        return stats
+    raise TypeError(f"stats must be an ObsNormalizer or a mapping of tensors, found {type(stats).__name__}")
+
+
+def normalize(obs: torch.Tensor, stats) -> torch.Tensor:
+    """(obs − mean) / std with `stats` an `ObsNormalizer` (or a mapping with `mean` and `std`)."""
+    s = _stats_of(stats)
+    _check_last("obs", obs, s["mean"].shape[-1], "obs_size")
+    return (obs - s["mean"]) / s["std"]
+
+
+def _running_update(stats, obs_batch, obs_size, std_min, std_max) -> dict[str, torch.Tensor]:
+    _check_last("obs_batch", obs_batch, obs_size, "obs_size")
+    x = obs_batch.reshape(-1, obs_size).to(stats["mean"].dtype)
+    if x.shape[0] == 0:
+        return dict(stats)
+    count = stats["count"] + x.shape[0]
+    diff_old = x - stats["mean"]
+    mean = stats["mean"] + diff_old.sum(0) / count
+    summed_var = stats["summed_var"] + (diff_old * (x - mean)).sum(0)
+    std = torch.clamp(torch.sqrt(torch.clamp(summed_var, min=0.0) / count), std_min, std_max)
+    return {"count": count, "mean": mean, "summed_var": summed_var, "std": std}
+
+
+def update_normalizer(stats, obs_batch: torch.Tensor, cfg: SF2Config):
+    """Brax's running-statistics update (Welford over the batch, std = clip(√(summed_var/count))).
+
+    `stats` an `ObsNormalizer` (or `SF2Networks`): updated in place and returned. `stats` a mapping
+    {count, mean, summed_var, std}: a new dict is returned. Every leading dimension of `obs_batch` is a
+    sample.
+    """
+    with torch.no_grad():
+        if isinstance(stats, SF2Networks):
+            stats = stats.obs_norm
+        s = _stats_of(stats)
+        new = _running_update(s, obs_batch, cfg.obs_size, cfg.normalizer_std_min, cfg.normalizer_std_max)
+        if isinstance(stats, ObsNormalizer):
+            for name, value in new.items():
+                getattr(stats, name).copy_(value)
+            return stats
+        return new
+
+
+def psi(nets: SF2Networks, obs: torch.Tensor, action: torch.Tensor, target: bool = False) -> torch.Tensor:
+    """ψ(s, a) (B, F) on raw observations (normalized here with `nets.obs_norm`); `target` uses ψ̄."""
+    _check_last("obs", obs, nets.cfg.obs_size, "obs_size")
+    _check_last("action", action, nets.cfg.action_size, "action_size")
+    net = nets.target_psi if target else nets.psi
+    return net(normalize(obs, nets.obs_norm), action)
+
+
+def zeta(nets: SF2Networks, x: torch.Tensor, k: torch.Tensor, target: bool = False) -> torch.Tensor:
+    """ζ(x, k) (B, D, F); x lives in normalized-observation space."""
+    return (nets.target_zeta if target else nets.zeta)(x, k)
+
+
+def zeta_hidden(nets: SF2Networks, x: torch.Tensor, k: torch.Tensor, target: bool = False) -> torch.Tensor:
+    """h(x, k) (B, H): ζ up to (not including) its last Dense."""
+    return (nets.target_zeta if target else nets.zeta).hidden(x, k)
+
+
+def zeta_last_layer(nets: SF2Networks, target: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    """ζ's last Dense in canonical layout: kernel W (H, F·D) (a transposed view), bias b (F·D,)."""
+    last = (nets.target_zeta if target else nets.zeta).last
+    return last.weight.T, last.bias
+
+
+def velocity(
+    nets: SF2Networks, x: torch.Tensor, k: torch.Tensor, features: torch.Tensor, target: bool = False
+) -> torch.Tensor:
+    """Plain velocity u_d = Σ_f ζ(x, k)_{d f} ψ_f (Definition 3.1), (B, D). Materializes ζ (B, D, F)."""
+    _check_last("features", features, nets.cfg.feature_size, "feature_size")
+    return torch.einsum("bdf,bf->bd", zeta(nets, x, k, target), features)
+
+
+def contract(
+    nets: SF2Networks, features: torch.Tensor, target: bool = False
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(M (B, H, D), c (B, D)) of the fast path (DESIGN.md §6).
+
+    M = einsum('hdf,bf->bhd', W, ψ) and c = einsum('df,bf->bd', b, ψ).
+    W is ζ's last kernel (H, F·D) viewed as (H, D, F), b its bias viewed as (D, F). Compute once per
+    (ζ parameters, ψ) pair and reuse for every evaluation at new (x, k) with `velocity_contracted`.
+    """
+    _check_last("features", features, nets.cfg.feature_size, "feature_size")
+    w, b = (nets.target_zeta if target else nets.zeta).last_dense()  # (D, F, H), (D, F)
+    m = torch.einsum("dfh,bf->bhd", w, features)
+    c = torch.einsum("df,bf->bd", b, features)
+    return m, c
+
+
+def velocity_contracted(
+    nets: SF2Networks,
+    x: torch.Tensor,
+    k: torch.Tensor,
+    m: torch.Tensor,
+    c: torch.Tensor,
+    target: bool = False,
+) -> torch.Tensor:
+    """u = einsum('bh,bhd->bd', h(x, k), M) + c, (B, D): equal to `velocity` without building ζ (B, D, F)."""
+    h = zeta_hidden(nets, x, k, target)
+    if tuple(m.shape) != (*h.shape, x.shape[-1]) or tuple(c.shape) != tuple(x.shape):
+        raise ShapeError(
+            f"contracted (M, c) must have shapes {(*h.shape, x.shape[-1])} and {tuple(x.shape)}, "
+            f"found {tuple(m.shape)} and {tuple(c.shape)}"
+        )
+    return torch.einsum("bh,bhd->bd", h, m) + c
+
+
+def q_values(nets: SF2Networks, features: torch.Tensor, target: bool = False) -> torch.Tensor:
+    """[Q_0(ψ), Q_1(ψ)] (B, 2)."""
+    return (nets.target_q if target else nets.q)(features)
+
+
+def _require(nets: SF2Networks, algo: str, fn: str) -> None:
+    if nets.algo != algo:
+        raise ConfigError(f"{fn} needs networks built with algo={algo!r}, found algo={nets.algo!r}")
+
+
+def td3_action(nets: SF2Networks, obs: torch.Tensor, target: bool = False) -> torch.Tensor:
+    """TD3 policy action tanh(MLP(normalized s)) (B, A); `target` uses the target policy."""
+    _require(nets, "td3", "td3_action")
+    _check_last("obs", obs, nets.cfg.obs_size, "obs_size")
+    return (nets.target_policy if target else nets.policy)(normalize(obs, nets.obs_norm))
+
+
+def sac_sample(
+    nets: SF2Networks, obs: torch.Tensor, noise: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(action (B, A), log π(action|s) (B,)) from the online SAC policy with explicit noise ξ (B, A)."""
+    _require(nets, "sac", "sac_sample")
+    _check_last("obs", obs, nets.cfg.obs_size, "obs_size")
+    return nets.policy.sample(normalize(obs, nets.obs_norm), noise)
+
+
+def sac_distribution(nets: SF2Networks, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """SAC pre-tanh Gaussian (loc, σ), each (B, A): loc = out[:, :A], σ = softplus(out[:, A:]) + min_std."""
+    _require(nets, "sac", "sac_distribution")
+    _check_last("obs", obs, nets.cfg.obs_size, "obs_size")
+    return nets.policy(normalize(obs, nets.obs_norm))
+
+
+def sac_mode(nets: SF2Networks, obs: torch.Tensor) -> torch.Tensor:
+    """Deterministic SAC action tanh(loc) (B, A)."""
+    return torch.tanh(sac_distribution(nets, obs)[0])
+
+
+sac_deterministic = sac_mode

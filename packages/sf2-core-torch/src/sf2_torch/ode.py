@@ -1,0 +1,62 @@
+"""Fixed-step ODE integration of dx/dk = v(x, k) from flow time 0 to a per-sample end time.
+
+`integrate(velocity_fn, x0, k_end, steps, method)` takes exactly `steps` equal steps h = k_end / steps
+(the authors' loop runs one extra zero-width step, which changes nothing but costs two evaluations), with
+k_i = i·h:
+- "midpoint" (Algorithm 1, 2 evaluations per step): x_mid = x + (h/2)·v(x, k_i); x ← x + h·v(x_mid, k_i + h/2)
+- "euler" (1 evaluation per step): x ← x + h·v(x, k_i)
+`velocity_fn(x, k)` takes x (B, D) and k (B,) and returns (B, D).
+"""
+
+from __future__ import annotations
+
+import numbers
+from collections.abc import Callable
+
+import torch
+
+from .config import INTEGRATORS
+from .errors import ConfigError, ShapeError
+
+__all__ = ["integrate", "METHODS"]
+
+METHODS = INTEGRATORS
+
+
+def integrate(
+    velocity_fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
+    x0: torch.Tensor,
+    k_end: torch.Tensor | float,
+    steps: int,
+    method: str = "midpoint",
+) -> torch.Tensor:
+    """x(k_end) for dx/dk = velocity_fn(x, k), x(0) = x0 (B, D); `k_end` (B,) or a scalar."""
+    if method not in METHODS:
+        raise ConfigError(
+            f"method={method!r} is invalid: must be one of {', '.join(repr(m) for m in METHODS)}"
+        )
+    if not isinstance(steps, numbers.Integral) or isinstance(steps, bool) or steps < 1:
+        raise ConfigError(f"steps={steps!r} is invalid: must be an integer >= 1")
+    k_end = torch.as_tensor(k_end, dtype=x0.dtype, device=x0.device)
+    if k_end.ndim == 0:
+        k_end = k_end.expand(x0.shape[:-1])
+    if tuple(k_end.shape) != tuple(x0.shape[:-1]):
+        raise ShapeError(
+            f"k_end must have shape {tuple(x0.shape[:-1])} (one end time per sample of x0), "
+            f"found {tuple(k_end.shape)}"
+        )
+    # h = k_end·(1/steps): the form XLA compiles `k_end / steps` into (division by a constant becomes a
+    # multiplication by its rounded reciprocal). Equal in exact arithmetic and within 1 ulp in float64;
+    # in float32 it keeps the flow times bit-identical to sf2_jax, which matters because the 10⁴-frequency
+    # flow-time embedding turns a 1-ulp change of k into ~10⁻³ in its argument.
+    h = k_end * (1.0 / steps)
+    h_col = h[..., None]
+    x = x0
+    for i in range(int(steps)):
+        k_i = i * h
+        if method == "midpoint":
+            x_mid = x + (h_col / 2) * velocity_fn(x, k_i)
+            x = x + h_col * velocity_fn(x_mid, k_i + h / 2)
+        else:
+            x = x + h_col * velocity_fn(x, k_i)
+    return x

@@ -1,0 +1,245 @@
+"""Canonical parameter interchange: one flat mapping name → numpy array, shared with `sf2_jax`.
+
+The scheme (docs/core-contract.md "Canonical parameters")
+--------------------------------------------------------
+Names are dot-joined paths, grouped by network:
+
+=====================================  ==========================================================
+`obs_norm.count`                       () running count of observations (float)
+`obs_norm.mean`, `.summed_var`, `.std`  (D,) Brax running statistics
+`psi.*`, `zeta.*`, `policy.*`          online MLPs (`policy` is the TD3 or SAC head)
+`q.head_0.*`, `q.head_1.*`             the twin Q heads (no LayerNorm)
+`target_psi.*`, `target_zeta.*`,       target copies, same layout as their online networks
+`target_q.*`, `target_policy.*`        (`target_policy` only for TD3)
+`log_alpha`                            () SAC temperature (SAC only)
+=====================================  ==========================================================
+
+Inside a network, layer i is `dense_{i}.kernel` (in, out), `dense_{i}.bias` (out,) and, after each hidden
+layer when LayerNorm is on, `layer_norm_{i}.scale` and `layer_norm_{i}.bias` (width,). Kernels are always
+stored (in, out), as flax does: torch's `nn.Linear.weight` is (out, in) and is transposed on the way in
+and out; LayerNorm's `weight` is called `scale`. Examples with D = 5, A = 1, F = 16, hidden (32, 32):
+`psi.dense_0.kernel` (6, 32), `psi.dense_2.kernel` (32, 16), `zeta.dense_2.kernel` (32, 80) whose output
+index d·F + f is entry (d, f) of ζ's (D, F) matrix, `q.head_0.dense_1.kernel` (32, 1).
+
+Functions
+---------
+- `to_canonical(nets, grads=False)`: the flat dict (numpy copies, never views of the module's memory).
+  With `grads=True`, the `.grad` of every parameter in the same layout (zeros where `.grad` is None;
+  the normalizer's buffers, which are not parameters, are left out).
+- `from_canonical(flat, nets)`: `validate` first, then copy every entry into `nets` in place, cast to
+  the dtype and device `nets` already has. Returns `nets`.
+- `validate(flat, nets)` or `validate(flat, cfg, algo)`: raise `ParamsError` listing every missing,
+  unexpected and misshaped entry (expected and found shapes, canonical layout).
+- `expected_shapes(nets)` / `expected_shapes(cfg, algo)`: name → canonical shape.
+- `save(path, flat)`: `.npz` (numpy only) or `.safetensors` (needs the `safetensors` package), chosen by
+  the suffix (any other suffix is a `ParamsError`); written atomically (temporary file, then rename),
+  arrays keep their dtype. `load(path)`: the flat dict back; a missing, unreadable or corrupt file
+  raises `ParamsError`. Files are interchangeable with `sf2_jax.params` (docs/params.md).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import zipfile
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from .config import SF2Config
+from .errors import ParamsError
+
+__all__ = ["to_canonical", "from_canonical", "validate", "expected_shapes", "save", "load"]
+
+FORMATS = (".npz", ".safetensors")
+
+
+def _slots(nets: nn.Module, buffers: bool = True) -> Iterator[tuple[str, torch.Tensor, bool]]:
+    """(canonical name, tensor, stored transposed) for every parameter (and buffer) of `nets`.
+
+    Order: module registration order, the root's own entries (`log_alpha`) last.
+    """
+    modules = list(nets.named_modules())
+    for mod_name, module in modules[1:] + modules[:1]:
+        prefix = f"{mod_name}." if mod_name else ""
+        for leaf, p in module.named_parameters(recurse=False):
+            if isinstance(module, nn.Linear) and leaf == "weight":
+                yield f"{prefix}kernel", p, True
+            elif isinstance(module, nn.LayerNorm) and leaf == "weight":
+                yield f"{prefix}scale", p, False
+            else:
+                yield f"{prefix}{leaf}", p, False
+        if buffers:
+            for leaf, b in module.named_buffers(recurse=False):
+                yield f"{prefix}{leaf}", b, False
+
+
+def _canonical_shape(tensor: torch.Tensor, transposed: bool) -> tuple[int, ...]:
+    shape = tuple(tensor.shape)
+    return shape[::-1] if transposed else shape
+
+
+def _to_numpy(tensor: torch.Tensor, transposed: bool) -> np.ndarray:
+    arr = tensor.detach().cpu().numpy()
+    return np.ascontiguousarray(arr.T) if transposed else arr.copy()
+
+
+def to_canonical(nets: nn.Module, grads: bool = False) -> dict[str, np.ndarray]:
+    """The canonical flat dict of `nets` (or, with `grads=True`, of its parameters' `.grad`)."""
+    out: dict[str, np.ndarray] = {}
+    for name, tensor, transposed in _slots(nets, buffers=not grads):
+        if grads:
+            g = tensor.grad
+            out[name] = _to_numpy(torch.zeros_like(tensor) if g is None else g, transposed)
+        else:
+            out[name] = _to_numpy(tensor, transposed)
+    return out
+
+
+def _networks_for(nets_or_cfg, algo: str | None) -> nn.Module:
+    if isinstance(nets_or_cfg, SF2Config):
+        from .networks import make_networks
+
+        return make_networks(nets_or_cfg, algo if algo is not None else "td3", device="meta")
+    if isinstance(nets_or_cfg, nn.Module):
+        return nets_or_cfg
+    raise TypeError(f"expected SF2Networks or SF2Config, found {type(nets_or_cfg).__name__}")
+
+
+def expected_shapes(nets_or_cfg, algo: str | None = None) -> dict[str, tuple[int, ...]]:
+    """Canonical name → shape for networks `nets`, or for `make_networks(cfg, algo)` (built on 'meta')."""
+    nets = _networks_for(nets_or_cfg, algo)
+    return {name: _canonical_shape(t, tr) for name, t, tr in _slots(nets)}
+
+
+def _describe(nets: nn.Module) -> str:
+    cfg, algo = getattr(nets, "cfg", None), getattr(nets, "algo", None)
+    if cfg is None:
+        return type(nets).__name__
+    return (
+        f"algo={algo!r}, obs_size={cfg.obs_size}, action_size={cfg.action_size}, "
+        f"feature_size={cfg.feature_size}"
+    )
+
+
+def validate(flat: Mapping[str, object], nets_or_cfg, algo: str | None = None) -> None:
+    """Raise `ParamsError` naming every missing, unexpected and misshaped entry of `flat`.
+
+    `nets_or_cfg` is the networks the parameters are meant for, or an `SF2Config` with `algo`.
+    """
+    if not isinstance(flat, Mapping):
+        raise ParamsError(
+            f"canonical parameters must be a mapping name -> array, found {type(flat).__name__}"
+        )
+    nets = _networks_for(nets_or_cfg, algo)
+    expected = expected_shapes(nets)
+    missing, unexpected, misshaped, invalid = [], [], [], []
+    for name, shape in expected.items():
+        if name not in flat:
+            missing.append(f"  missing    {name}: expected shape {shape}")
+            continue
+        try:
+            arr = np.asarray(flat[name])
+        except Exception as exc:  # noqa: BLE001 - any conversion failure is reported, not raised
+            invalid.append(f"  invalid    {name}: not convertible to an array ({exc})")
+            continue
+        if arr.dtype.kind not in "fiub":
+            invalid.append(f"  invalid    {name}: expected a real numeric array, found dtype {arr.dtype}")
+        elif tuple(arr.shape) != shape:
+            misshaped.append(f"  misshaped  {name}: expected shape {shape}, found {tuple(arr.shape)}")
+    for name in flat:
+        if name not in expected:
+            unexpected.append(f"  unexpected {name}: found shape {tuple(np.shape(flat[name]))}")
+    problems = missing + unexpected + misshaped + invalid
+    if problems:
+        counts = f"{len(missing)} missing, {len(unexpected)} unexpected, {len(misshaped)} misshaped" + (
+            f", {len(invalid)} invalid" if invalid else ""
+        )
+        raise ParamsError(
+            f"canonical parameters do not match the networks ({_describe(nets)}): {counts}\n"
+            + "\n".join(problems)
+        )
+
+
+def from_canonical(flat: Mapping[str, object], nets: nn.Module) -> nn.Module:
+    """Copy canonical `flat` into `nets` in place (validated first; nets keep their dtype and device)."""
+    validate(flat, nets)
+    with torch.no_grad():
+        for name, tensor, transposed in _slots(nets):
+            src = torch.tensor(np.asarray(flat[name]))
+            tensor.copy_(src.T if transposed else src)
+    return nets
+
+
+def _arrays(flat: Mapping[str, object]) -> dict[str, np.ndarray]:
+    out = {}
+    for name, value in flat.items():
+        if isinstance(value, torch.Tensor):
+            value = value.detach().cpu().numpy()
+        arr = np.array(value, order="C")  # (np.ascontiguousarray would turn a 0-d array into (1,))
+        if arr.dtype.kind not in "fiub":
+            raise ParamsError(f"cannot save {name}: expected a real numeric array, found dtype {arr.dtype}")
+        out[str(name)] = arr
+    return out
+
+
+def _format(path: Path) -> str:
+    suffix = path.suffix.lower()
+    if suffix not in FORMATS:
+        raise ParamsError(f"parameter file {str(path)!r} has suffix {suffix!r}: must be one of {FORMATS}")
+    return suffix
+
+
+def _safetensors_numpy():
+    try:
+        import safetensors.numpy as st
+    except ImportError as exc:
+        raise ParamsError(
+            "reading or writing .safetensors needs the `safetensors` package "
+            "(pip install 'sf2-core-torch[safetensors]'); or use .npz"
+        ) from exc
+    return st
+
+
+def save(path: str | os.PathLike, flat: Mapping[str, object]) -> Path:
+    """Write `flat` to `path` (.npz or .safetensors, by suffix) atomically; returns the path."""
+    path = Path(path)
+    fmt = _format(path)
+    arrays = _arrays(flat)
+    st = _safetensors_numpy() if fmt == ".safetensors" else None
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            if st is None:
+                np.savez(f, **arrays)
+            else:
+                f.write(st.save(arrays))
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def load(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Read a canonical parameter file written by `save` (either core); `ParamsError` if it cannot."""
+    path = Path(path)
+    fmt = _format(path)
+    if not path.is_file():
+        raise ParamsError(f"parameter file not found: {str(path)!r}")
+    try:
+        if fmt == ".safetensors":
+            return dict(_safetensors_numpy().load_file(str(path)))
+        with np.load(path, allow_pickle=False) as data:
+            return {name: data[name] for name in data.files}
+    except ParamsError:
+        raise
+    except (Exception, zipfile.BadZipFile) as exc:  # noqa: BLE001 - every reader failure becomes ParamsError
+        raise ParamsError(
+            f"cannot read parameter file {str(path)!r} (corrupt or not a {fmt} parameter file): {exc}"
+        ) from exc

@@ -1,0 +1,159 @@
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from _torch_reference import A, B, D, make_batch, make_cfg, np_embedding, np_mlp, np_psi, np_q, np_zeta
+from sf2_torch import ConfigError, ShapeError, networks, params
+from torch import nn
+
+
+def test_shapes_td3(td3_nets):
+    cfg = td3_nets.cfg
+    batch, noise = make_batch()
+    f = networks.psi(td3_nets, batch.obs, batch.action)
+    assert f.shape == (B, cfg.feature_size)
+    assert networks.psi(td3_nets, batch.obs, batch.action, target=True).shape == (B, cfg.feature_size)
+    assert networks.zeta(td3_nets, noise["eps"], noise["flow_time"]).shape == (B, D, cfg.feature_size)
+    assert networks.zeta_hidden(td3_nets, noise["eps"], noise["flow_time"]).shape == (B, 32)
+    assert networks.velocity(td3_nets, noise["eps"], noise["flow_time"], f).shape == (B, D)
+    m, c = networks.contract(td3_nets, f, target=True)
+    assert m.shape == (B, 32, D) and c.shape == (B, D)
+    assert networks.q_values(td3_nets, f).shape == (B, 2)
+    a = networks.td3_action(td3_nets, batch.obs, target=True)
+    assert a.shape == (B, A) and a.abs().max() <= 1
+    assert networks.flow_time_embedding(noise["flow_time"], 8).shape == (B, 8)
+
+
+def test_shapes_sac(sac_nets):
+    batch, noise = make_batch()
+    a, logp = networks.sac_sample(sac_nets, batch.obs, noise["noise"])
+    assert a.shape == (B, A) and logp.shape == (B,)
+    assert networks.sac_mode(sac_nets, batch.obs).shape == (B, A)
+    assert sac_nets.log_alpha.shape == () and not hasattr(sac_nets, "target_policy")
+    with pytest.raises(ConfigError, match="algo='td3'"):
+        networks.td3_action(sac_nets, batch.obs)
+
+
+def test_structure_names_and_init():
+    torch.manual_seed(0)
+    nets = networks.make_networks(make_cfg(), "td3")
+    names = dict(nets.psi.named_children())
+    assert list(names) == ["dense_0", "layer_norm_0", "dense_1", "layer_norm_1", "dense_2"]
+    assert all(isinstance(m, nn.LayerNorm) and m.eps == 1e-6 for n, m in names.items() if "norm" in n)
+    assert list(dict(nets.q.head_0.named_children())) == ["dense_0", "dense_1"]
+    for name, mod in nets.named_modules():
+        if isinstance(mod, nn.Linear):
+            bound = math.sqrt(3.0 / mod.in_features)
+            assert mod.weight.abs().max() <= bound and torch.all(mod.bias == 0), name
+            assert mod.weight.std() > 0.3 * bound, name
+    for name, target in nets.target_modules().items():
+        online = getattr(nets, name.removeprefix("target_"))
+        for p, q in zip(target.parameters(), online.parameters()):
+            assert not p.requires_grad and torch.equal(p, q) and p.data_ptr() != q.data_ptr()
+    assert torch.equal(nets.obs_norm.std, torch.ones(D)) and nets.obs_norm.count == 0
+    with pytest.raises(ConfigError, match="'td3', 'sac'"):
+        networks.make_networks(make_cfg(), "ppo")
+
+
+def test_numpy_reference_forward(td3_nets):
+    """ψ, ζ (with its d·F + f reshape) and Q match a numpy re-implementation from canonical params."""
+    cfg, flat = td3_nets.cfg, params.to_canonical(td3_nets)
+    batch, noise = make_batch()
+    obs, act, eps, k = (
+        batch.obs.numpy(),
+        batch.action.numpy(),
+        noise["eps"].numpy(),
+        noise["flow_time"].numpy(),
+    )
+    f = networks.psi(td3_nets, batch.obs, batch.action)
+    np.testing.assert_allclose(f.detach().numpy(), np_psi(flat, cfg, obs, act), rtol=1e-12, atol=1e-12)
+    z = networks.zeta(td3_nets, noise["eps"], noise["flow_time"]).detach().numpy()
+    np.testing.assert_allclose(z, np_zeta(flat, cfg, eps, k), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(
+        networks.q_values(td3_nets, f).detach().numpy(),
+        np_q(flat, f.detach().numpy()),
+        rtol=1e-12,
+        atol=1e-12,
+    )
+    pol = np.tanh(np_mlp(flat, "policy", (obs - flat["obs_norm.mean"]) / flat["obs_norm.std"], 2))
+    np.testing.assert_allclose(networks.td3_action(td3_nets, batch.obs).detach().numpy(), pol, rtol=1e-12)
+
+
+def test_flow_time_embedding_formula():
+    k = torch.tensor([0.0, 0.25, 0.7, 1.0], dtype=torch.float64)
+    out = networks.flow_time_embedding(k, 6).numpy()
+    np.testing.assert_allclose(out, np_embedding(k.numpy(), 6), rtol=1e-13, atol=1e-13)
+    assert out[0].tolist() == [0.0, 1.0] * 3
+    with pytest.raises(ConfigError):
+        networks.flow_time_embedding(k, 5)
+
+
+def test_contracted_velocity_equals_plain(td3_nets):
+    batch, noise = make_batch()
+    f = networks.psi(td3_nets, batch.obs, batch.action)
+    for target in (False, True):
+        m, c = networks.contract(td3_nets, f, target=target)
+        fast = networks.velocity_contracted(td3_nets, noise["eps"], noise["flow_time"], m, c, target=target)
+        plain = networks.velocity(td3_nets, noise["eps"], noise["flow_time"], f, target=target)
+        torch.testing.assert_close(fast, plain, rtol=1e-12, atol=1e-12)
+
+
+def test_sac_log_prob_matches_change_of_variables(sac_nets):
+    batch, noise = make_batch()
+    a, logp = networks.sac_sample(sac_nets, batch.obs, noise["noise"])
+    loc, std = sac_nets.policy(networks.normalize(batch.obs, sac_nets.obs_norm))
+    u = loc + std * noise["noise"]
+    ref = torch.distributions.Normal(loc, std).log_prob(u).sum(-1) - torch.log1p(-(torch.tanh(u) ** 2)).sum(
+        -1
+    )
+    torch.testing.assert_close(logp, ref, rtol=1e-10, atol=1e-10)
+    torch.testing.assert_close(a, torch.tanh(u))
+    assert torch.all(std >= sac_nets.cfg.min_std)
+
+
+def test_normalizer_update_matches_batch_statistics():
+    cfg = make_cfg()
+    norm = networks.ObsNormalizer(D, dtype=torch.float64)
+    rng = np.random.default_rng(0)
+    x1, x2 = rng.normal(2.0, 3.0, (7, D)), rng.normal(-1.0, 0.5, (2, 5, D))
+    networks.update_normalizer(norm, torch.as_tensor(x1), cfg)
+    networks.update_normalizer(norm, torch.as_tensor(x2), cfg)
+    allx = np.concatenate([x1, x2.reshape(-1, D)])
+    assert float(norm.count) == 17
+    np.testing.assert_allclose(norm.mean.numpy(), allx.mean(0), rtol=1e-12)
+    np.testing.assert_allclose(norm.summed_var.numpy(), ((allx - allx.mean(0)) ** 2).sum(0), rtol=1e-12)
+    np.testing.assert_allclose(norm.std.numpy(), allx.std(0), rtol=1e-12)
+    obs = torch.as_tensor(rng.normal(size=(3, D)))
+    np.testing.assert_allclose(
+        networks.normalize(obs, norm).numpy(), (obs.numpy() - allx.mean(0)) / allx.std(0)
+    )
+    # functional form on a dict leaves the input alone; std is clipped at std_min for constant data
+    stats = {
+        "count": torch.zeros(()),
+        "mean": torch.zeros(D),
+        "summed_var": torch.zeros(D),
+        "std": torch.ones(D),
+    }
+    new = networks.update_normalizer(stats, torch.ones(4, D), cfg)
+    assert float(stats["count"]) == 0 and torch.all(new["std"] == cfg.normalizer_std_min)
+
+
+def test_shape_errors_name_expected_and_found(td3_nets):
+    batch, noise = make_batch()
+    with pytest.raises(ShapeError, match=r"obs_size = 3, found 4"):
+        networks.psi(td3_nets, torch.zeros(B, 4, dtype=torch.float64), batch.action)
+    with pytest.raises(ShapeError, match=r"action_size = 2, found 5"):
+        networks.psi(td3_nets, batch.obs, torch.zeros(B, 5, dtype=torch.float64))
+    with pytest.raises(ShapeError, match=r"obs_size = 3, found 7"):
+        networks.td3_action(td3_nets, torch.zeros(B, 7, dtype=torch.float64))
+    with pytest.raises(ShapeError, match=r"obs_size = 3, found 2"):
+        networks.zeta(td3_nets, torch.zeros(B, 2, dtype=torch.float64), noise["flow_time"])
+    with pytest.raises(ShapeError, match=r"flow_time must have shape \(6,\)"):
+        networks.zeta(td3_nets, noise["eps"], torch.zeros(5, dtype=torch.float64))
+    with pytest.raises(ShapeError, match=r"feature_size = 16, found 3"):
+        networks.q_values(td3_nets, torch.zeros(B, 3, dtype=torch.float64))
+    with pytest.raises(ShapeError, match="batch shape"):
+        networks.psi(td3_nets, batch.obs, batch.action[:2])
