@@ -293,8 +293,8 @@ class SAC(Algorithm):
         return keys
 
     def draw_noise(self, shape, generator):
-        out = {"next_action_noise": self._randn(shape, generator), "actor_noise": self._randn(shape, generator),
-               "alpha_noise": self._randn(shape, generator)}
+        out = {"next_action_noise": self._randn(shape, generator),
+               "actor_noise": self._randn(shape, generator), "alpha_noise": self._randn(shape, generator)}
         if self.rep.aux_loss is not None:
             out["flow_action_noise"] = self._randn(shape, generator)
             out.update(self.rep.aux_noise(shape, generator))

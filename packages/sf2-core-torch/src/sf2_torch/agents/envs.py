@@ -151,8 +151,8 @@ def _build_env_class():
     from torchrl.envs import MujocoPlaygroundWrapper
 
     class _PlaygroundEnv(MujocoPlaygroundWrapper):
-        """TorchRL env over a Brax-wrapped Playground task (see the module docstring).
-        `PlaygroundEnv(spec, num_envs, device)` with `spec = env_spec(task, episode_length, action_repeat)`."""
+        """TorchRL env over a Brax-wrapped Playground task (see the module docstring):
+        `PlaygroundEnv(spec, num_envs, device)`, `spec = env_spec(task, episode_length, action_repeat)`."""
 
         def __init__(self, spec: EnvSpec, num_envs: int, device="cpu"):
             self._spec = spec

@@ -1,4 +1,6 @@
-"""Learning curves (the same as `sf2_jax.agents.plotting`, duplicated): one run folder (per-seed lines, mean and 95% CI band) and several run folders
+"""(The same as `sf2_jax.agents.plotting`, duplicated so that sf2_torch does not import sf2_jax.)
+
+Learning curves: one run folder (per-seed lines, mean and 95% CI band) and several run folders
 (one line and band per method and task). The band is the Student-t 95% confidence interval of the mean
 over seeds, mean ± t(0.975, n−1)·s/√n (no band with one seed). matplotlib is imported lazily (Agg)."""
 

@@ -1,5 +1,8 @@
-"""A run folder (the same layout as `sf2_jax.agents.runfolder`, duplicated): `config.json` (resolved config, seeds, schedule, versions), `metrics.jsonl` (one row per
-evaluation and seed), `checkpoints/` (torch.save of the whole training state), `learning_curve.png`, and `final/params_seed{S}.npz`.
+"""(The same as `sf2_jax.agents.runfolder`, duplicated so that sf2_torch does not import sf2_jax.)
+
+A run folder: `config.json` (resolved config, seeds, schedule, versions), `metrics.jsonl` (one row per
+evaluation and seed), `checkpoints/` (torch checkpoints, see checkpoint.py), `learning_curve.png`, and
+`final/params_seed{S}.npz`.
 
 metrics.jsonl is append-safe: every row is one JSON line written with flush + fsync; a reader skips a
 torn last line (a kill mid-write) and keeps the first row of each (epoch, seed). When a run resumes from

@@ -1,0 +1,46 @@
+"""Replay buffer: TorchRL's `ReplayBuffer` on a `LazyTensorStorage` on the training device, uniform
+sampling with replacement (`RandomSampler`) from the filled part, round-robin writes over the oldest
+transitions: statistically the buffer of `sf2_jax.agents.replay` (a fixed-size ring, uniform over the last
+`capacity` transitions). The sampling generator is an explicit argument, so all randomness of a seed flows
+from that seed's `torch.Generator`. Transitions use TorchRL's layout (`observation`, `action`,
+`("next", observation | reward | done | terminated | truncated)`).
+"""
+
+from __future__ import annotations
+
+import logging
+
+import torch
+from tensordict import TensorDictBase
+
+__all__ = ["ReplayBuffer"]
+
+
+class ReplayBuffer:
+    def __init__(self, capacity: int, device, generator: torch.Generator):
+        from torchrl.data import LazyTensorStorage
+        from torchrl.data import ReplayBuffer as TorchRLReplayBuffer
+        from torchrl.data.replay_buffers.samplers import RandomSampler
+
+        logging.getLogger("torchrl").setLevel(logging.WARNING)  # "Initialized LazyTensorStorage ..."
+        self.capacity = int(capacity)
+        self.buffer = TorchRLReplayBuffer(storage=LazyTensorStorage(self.capacity, device=device),
+                                          sampler=RandomSampler(), batch_size=None)
+        self.buffer.set_rng(generator)
+
+    def insert(self, transitions: TensorDictBase) -> None:
+        """Write the n transitions of `transitions` (batch (n,), n ≤ capacity) over the oldest ones."""
+        self.buffer.extend(transitions)
+
+    def sample(self, n: int) -> TensorDictBase:
+        """`n` transitions drawn uniformly with replacement from the filled part."""
+        return self.buffer.sample(n)
+
+    def size(self) -> int:
+        return len(self.buffer)
+
+    def state_dict(self) -> dict:
+        return self.buffer.state_dict()
+
+    def load_state_dict(self, state: dict) -> None:
+        self.buffer.load_state_dict(state)

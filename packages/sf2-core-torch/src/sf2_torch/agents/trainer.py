@@ -1,0 +1,522 @@
+"""The one off-policy training loop (Brax style, on TorchRL), for every algorithm × representation: the
+torch mirror of `sf2_jax.agents.trainer` (same schedule, order of operations, run folder, rows, NaN guard,
+checkpoint/resume semantics and progress output).
+
+A `Program` is what one `TrainConfig` needs in a process (the jitted Playground env functions are cached
+per task). Seeds: the JAX trainer `vmap`s them; here every seed has its own agent (networks, Adam states,
+target updaters), TorchRL replay buffer and `torch.Generator`, and the seeds take their steps one after
+the other; all seeds' envs step together in one Playground batch. Per seed s:
+
+- init: `torch.manual_seed(s)` before the networks are built; a generator seeded with s draws every
+  action noise, replay index and loss noise; the envs reset from the JAX trainer's keys
+  (split(PRNGKey(s), 3)[1] split over `num_envs`), so both frameworks start from the same states.
+- prefill: ceil(min_replay_size / num_envs) actor steps with uniform random actions.
+- epoch: `actor_steps_per_epoch` actor steps; each acts with exploration noise, updates the observation
+  statistics (Brax's rule, with the observations acted on), inserts the transitions, samples
+  `grad_updates_per_step` batches at once and runs that many SGD steps (`Algorithm.sgd_step`, compiled
+  or not; the noise of all of them is drawn in one go). Metrics stay on the device until the epoch ends;
+  then the epoch mean of every metric and the index of its first non-finite value are computed.
+- evaluate: one episode in each of `num_eval_envs` fresh envs (deterministic or acting policy); the
+  reset keys are the JAX trainer's (fold_in(fold_in(PRNGKey(s), EVAL_STREAM), epoch)).
+
+The host loop between epochs: train → NaN guard → evaluate → append rows → checkpoint, as in JAX. A run
+killed at any moment resumes from its last checkpoint; rows of later epochs are dropped and produced
+again identically (runfolder.py). Vanilla (`none`) runs use TorchRL's TD3Loss/SACLoss, which draw their
+noise from torch's global generator: it is seeded with the first seed and checkpointed too.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import shutil
+import sys
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict import TensorDict
+
+from sf2_torch.errors import ConfigError
+
+from . import configs, envs, representations
+from .algorithms import Algorithm, make_algorithm
+from .checkpoint import Checkpointer, CheckpointMismatch
+from .configs import TrainConfig
+from .replay import ReplayBuffer
+from .runfolder import RunFolder, RunFolderMismatch
+
+__all__ = ["Program", "SeedState", "TrainState", "get_program", "TrainingDiverged", "TrainResult", "train",
+           "evaluate_checkpoint", "env_reset_keys", "eval_reset_keys", "EVAL_STREAM"]
+
+EVAL_STREAM = 0x5EED  # eval keys: fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), epoch), as in sf2_jax
+WALL_FIELDS = ("sps", "epoch_seconds", "eval_seconds", "walltime")  # differ between identical runs
+
+
+class TrainingDiverged(RuntimeError):
+    """A loss became NaN or inf; the run stopped before writing anything for that epoch."""
+
+
+def env_reset_keys(seed: int, num_envs: int):
+    """The JAX trainer's env reset keys of `seed`: split(split(PRNGKey(seed), 3)[1], num_envs)."""
+    import jax
+
+    return jax.random.split(jax.random.split(jax.random.PRNGKey(seed), 3)[1], num_envs)
+
+
+def eval_reset_keys(seed: int, epoch: int, num_envs: int):
+    import jax
+
+    key = jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(seed), EVAL_STREAM), epoch)
+    return jax.random.split(jax.random.split(key)[0], num_envs)
+
+
+@dataclasses.dataclass
+class SeedState:
+    seed: int
+    algo: Algorithm
+    replay: ReplayBuffer
+    generator: torch.Generator
+
+
+@dataclasses.dataclass
+class TrainState:
+    seeds: tuple[int, ...]
+    agents: list[SeedState]
+    env: Any                      # PlaygroundEnv of len(seeds) · num_envs envs
+    obs: torch.Tensor             # (seeds, num_envs, D): the observations to act on
+    env_steps: int = 0
+    grad_steps: int = 0
+
+
+class Program:
+    """What one config needs (module docstring). Build with `get_program(cfg)`."""
+
+    def __init__(self, cfg: TrainConfig):
+        self.cfg = cfg
+        self.device = configs.resolve_device(cfg)
+        self.compile_mode = configs.resolve_compile(cfg, self.device)
+        self.cudagraphs = configs.resolve_cudagraphs(cfg, self.device)
+        self.spec = envs.env_spec(cfg.task, cfg.episode_length, cfg.action_repeat)
+        self.sf2 = cfg.sf2_config(self.spec.obs_size, self.spec.action_size)
+        self.rep_cls = representations.get(cfg.representation)
+        self.sched = configs.schedule(cfg)
+
+    # ------------------------------------------------------------------ setup
+    def precision(self):
+        torch.backends.cuda.matmul.allow_tf32 = self.cfg.matmul_precision in ("high", "tensorfloat32")
+        torch.backends.cudnn.allow_tf32 = torch.backends.cuda.matmul.allow_tf32
+        return contextlib.nullcontext()
+
+    def make_agent(self, seed: int) -> SeedState:
+        torch.manual_seed(seed)
+        algo = make_algorithm(self.cfg.algo, self.sf2, self.rep_cls, device=self.device,
+                              compile_mode=self.compile_mode, cudagraphs=self.cudagraphs)
+        generator = torch.Generator(device=self.device).manual_seed(seed)
+        replay = ReplayBuffer(self.cfg.max_replay_size, self.device, generator)
+        return SeedState(seed, algo, replay, generator)
+
+    def init(self, seeds) -> TrainState:
+        self.precision()
+        agents = [self.make_agent(s) for s in seeds]
+        torch.manual_seed(seeds[0])  # torch's global generator: TorchRL's own losses draw from it
+        env = envs.make_env(self.cfg.task, self.cfg.episode_length, self.cfg.action_repeat,
+                            len(seeds) * self.cfg.num_envs, self.device)
+        import jax.numpy as jnp
+
+        keys = jnp.concatenate([env_reset_keys(s, self.cfg.num_envs) for s in seeds])
+        obs = env.reset_from_keys(keys).get("observation")
+        return TrainState(tuple(seeds), agents, env, obs.view(len(seeds), self.cfg.num_envs, -1))
+
+    # ------------------------------------------------------------------ acting
+    def _env_step(self, state: TrainState, actions: torch.Tensor) -> TensorDict:
+        """Step every env with `actions` (seeds, num_envs, A); returns the transitions (seeds, num_envs)."""
+        s, n = len(state.seeds), self.cfg.num_envs
+        td = TensorDict({"observation": state.obs.reshape(s * n, -1), "action": actions.reshape(s * n, -1)},
+                        [s * n], device=self.device)
+        out = state.env.step(td)
+        nxt = out.get("next")
+        trans = TensorDict({"observation": td.get("observation"), "action": td.get("action"),
+                            "next": nxt.select("observation", "reward", "done", "terminated", "truncated")},
+                           [s * n], device=self.device)
+        state.obs = nxt.get("observation").view(s, n, -1)
+        state.env_steps += self.sched.env_steps_per_actor_step
+        return trans.view(s, n)
+
+    def _observe(self, state: TrainState, trans: TensorDict) -> None:
+        for i, agent in enumerate(state.agents):
+            t = trans[i]
+            if self.cfg.normalize_observations:
+                agent.algo.observe(t.get("observation"))
+            agent.replay.insert(t)
+
+    def prefill(self, state: TrainState) -> TrainState:
+        a = self.spec.action_size
+        for _ in range(self.sched.prefill_actor_steps):
+            actions = torch.stack([
+                torch.rand(self.cfg.num_envs, a, device=self.device, generator=ag.generator) * 2.0 - 1.0
+                for ag in state.agents])
+            self._observe(state, self._env_step(state, actions))
+        return state
+
+    def _actor_step(self, state: TrainState, metrics: list[list[TensorDict]]) -> None:
+        cfg = self.cfg
+        actions = torch.stack([ag.algo.explore(state.obs[i], ag.generator)
+                               for i, ag in enumerate(state.agents)])
+        self._observe(state, self._env_step(state, actions))
+        G, B = cfg.grad_updates_per_step, cfg.batch_size
+        for i, ag in enumerate(state.agents):
+            batches = ag.replay.sample(G * B).reshape(G, B)
+            batches.update(ag.algo.draw_noise((G, B), ag.generator))
+            for g in range(G):
+                step = state.grad_steps + g
+                metrics[i].append(ag.algo.sgd_step(batches[g], actor_step=step % cfg.policy_delay == 0))
+        state.grad_steps += G
+
+    def epoch(self, state: TrainState) -> tuple[TrainState, dict, dict]:
+        """One epoch; returns (state, {metric: (seeds,) means}, {metric: (seeds,) first bad index | −1})."""
+        metrics: list[list[TensorDict]] = [[] for _ in state.agents]
+        for _ in range(self.sched.actor_steps_per_epoch):
+            self._actor_step(state, metrics)
+        means, first_bad = {}, {}
+        stacked = [torch.stack(m).to("cpu") for m in metrics]  # the epoch's one host transfer
+        for name in stacked[0].keys():
+            per_seed = [s.get(name).double().numpy() for s in stacked]
+            means[name] = np.array([v.mean() for v in per_seed])
+            first_bad[name] = np.array([-1 if np.isfinite(v).all() else int(np.argmin(np.isfinite(v)))
+                                        for v in per_seed])
+        return state, means, first_bad
+
+    @torch.no_grad()
+    def evaluate(self, state_or_agents, seeds, epoch: int, env=None) -> np.ndarray:
+        """Episode returns (n_seeds, num_eval_envs)."""
+        import jax.numpy as jnp
+
+        cfg = self.cfg
+        agents = state_or_agents.agents if isinstance(state_or_agents, TrainState) else state_or_agents
+        s, n = len(seeds), cfg.num_eval_envs
+        env = env or envs.make_env(cfg.task, cfg.episode_length, cfg.action_repeat, s * n, self.device)
+        keys = jnp.concatenate([eval_reset_keys(seed, epoch, n) for seed in seeds])
+        obs = env.reset_from_keys(keys).get("observation").view(s, n, -1)
+        gens = [torch.Generator(device=self.device).manual_seed(
+            (int(seed) * 1_000_003 + EVAL_STREAM * 7919 + int(epoch)) % (2**63)) for seed in seeds]
+        ret = torch.zeros(s, n, device=self.device)
+        alive = torch.ones(s, n, device=self.device)
+        for _ in range(-(-cfg.episode_length // cfg.action_repeat)):
+            actions = torch.stack([ag.algo.act(obs[i], gens[i], cfg.deterministic_eval)
+                                   for i, ag in enumerate(agents)])
+            td = TensorDict({"observation": obs.reshape(s * n, -1), "action": actions.reshape(s * n, -1)},
+                            [s * n], device=self.device)
+            nxt = env.step(td).get("next")
+            ret += nxt.get("reward").view(s, n) * alive
+            alive *= 1.0 - nxt.get("done").view(s, n).to(alive.dtype)
+            obs = nxt.get("observation").view(s, n, -1)
+        return ret.cpu().numpy()
+
+    # ------------------------------------------------------------------ checkpoints
+    def state_dict(self, state: TrainState) -> dict:
+        out = {"seeds": list(state.seeds), "env_steps": state.env_steps, "grad_steps": state.grad_steps,
+               "obs": state.obs.cpu(), "torch_rng": torch.get_rng_state(), "agents": []}
+        if self.device.type == "cuda":
+            out["cuda_rng"] = torch.cuda.get_rng_state(self.device)
+        for ag in state.agents:
+            out["agents"].append({"seed": ag.seed, "algo": ag.algo.state_dict(),
+                                  "replay": ag.replay.state_dict(), "generator": ag.generator.get_state()})
+        return out
+
+    def load_state_dict(self, state: TrainState, saved: dict, env_leaves) -> TrainState:
+        if list(saved["seeds"]) != list(state.seeds):
+            raise CheckpointMismatch(f"checkpoint seeds {saved['seeds']} differ from {list(state.seeds)}")
+        try:
+            for ag, s in zip(state.agents, saved["agents"]):
+                ag.algo.load_state_dict(s["algo"])
+                ag.replay.load_state_dict(s["replay"])
+                ag.generator.set_state(s["generator"])
+            state.env.set_state_leaves(env_leaves)
+        except (RuntimeError, ValueError, KeyError) as err:
+            raise CheckpointMismatch(f"checkpoint does not fit this program: {err}") from err
+        state.obs = saved["obs"].to(self.device)
+        state.env_steps, state.grad_steps = int(saved["env_steps"]), int(saved["grad_steps"])
+        torch.set_rng_state(saved["torch_rng"])
+        if "cuda_rng" in saved and self.device.type == "cuda":
+            torch.cuda.set_rng_state(saved["cuda_rng"], self.device)
+        return state
+
+
+_PROGRAMS: dict[TrainConfig, Program] = {}
+
+
+def get_program(cfg: TrainConfig) -> Program:
+    """The `Program` of `cfg`, cached (the env functions it compiles are cached per task as well)."""
+    if cfg not in _PROGRAMS:
+        if len(_PROGRAMS) >= 8:
+            _PROGRAMS.pop(next(iter(_PROGRAMS)))
+        _PROGRAMS[cfg] = Program(cfg)
+    return _PROGRAMS[cfg]
+
+
+# ------------------------------------------------------------------------------------------- host loop
+@dataclasses.dataclass
+class TrainResult:
+    run: RunFolder
+    rows: list[dict]
+    state: TrainState
+    seeds: tuple[int, ...]
+    resumed_from: int | None    # checkpoint epoch resumed from, if any
+
+
+def _diverged_message(first_bad: dict, sched, epoch: int, seeds, cfg, last_ckpt) -> str | None:
+    problems = []
+    per_actor = cfg.grad_updates_per_step
+    for name, idx in first_bad.items():
+        for s_i, i in enumerate(np.asarray(idx)):
+            if i >= 0:
+                actor_step, update = divmod(int(i), per_actor)
+                grad_step = ((epoch - 1) * sched.actor_steps_per_epoch + actor_step) * per_actor + update
+                env_step = (sched.env_steps_after(epoch - 1)
+                            + (actor_step + 1) * sched.env_steps_per_actor_step)
+                problems.append((grad_step, name, seeds[s_i], env_step))
+    if not problems:
+        return None
+    problems.sort()
+    g, name, seed, env_step = problems[0]
+    others = sorted({f"{n} (seed {s})" for _, n, s, _ in problems[1:]})
+    also = f"; also non-finite in the same epoch: {', '.join(others)}" if others else ""
+    keep = (f"the last good checkpoint (epoch {last_ckpt}) is kept" if last_ckpt is not None
+            else "no checkpoint was written yet")
+    return (f"training diverged: loss '{name}' became NaN/inf at gradient step {g} (env step ~{env_step}, "
+            f"epoch {epoch}, seed {seed}){also}. Nothing of epoch {epoch} was written; {keep}.")
+
+
+def _row_metrics(means: dict, s_i: int) -> dict:
+    return {name: float(np.asarray(v)[s_i]) for name, v in sorted(means.items())}
+
+
+def _save(ckpt: Checkpointer, program: Program, state: TrainState, epoch: int, env_steps: int, seeds) -> None:
+    ckpt.save(epoch, program.state_dict(state), state.env.get_state_leaves(),
+              {"env_steps": env_steps, "seeds": list(seeds), "framework": "torch"})
+
+
+def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = False,
+          progress: bool = True, hook: Callable[[str, int], None] | None = None,
+          stop_after_epoch: int | None = None, plot: bool = True) -> TrainResult:
+    """Train `cfg` for every seed of `seeds` into the run folder `out` (the same contract as
+    `sf2_jax.agents.train`): resumes from the folder's last checkpoint when it holds the same run
+    (`resume`); `fresh` deletes the folder's previous contents first; `hook(event, epoch)` is called after
+    "rows" are written and after the "checkpoint" is saved; `stop_after_epoch` ends the run early (after
+    that epoch's checkpoint), as a kill would. Raises `ConfigError` for bad input before anything is built
+    and `TrainingDiverged` on a NaN/inf loss.
+    """
+    seeds = configs.parse_seeds(seeds)
+    configs.validate(cfg, seeds)
+    if stop_after_epoch is not None and (not isinstance(stop_after_epoch, int) or stop_after_epoch < 0):
+        raise ConfigError(f"stop_after_epoch = {stop_after_epoch!r} is invalid: must be an int >= 0")
+    run = RunFolder(out)
+    if fresh and run.path.exists():
+        for name in (RunFolder.CONFIG, RunFolder.METRICS, RunFolder.CURVE):
+            (run.path / name).unlink(missing_ok=True)
+        shutil.rmtree(run.checkpoint_dir, ignore_errors=True)
+        shutil.rmtree(run.final_dir, ignore_errors=True)
+    existing = run.check_compatible(cfg.to_dict(), seeds)
+    sched = configs.schedule(cfg)
+    program = get_program(cfg)
+    if not existing:
+        run.write_config({"config": cfg.to_dict(), "seeds": list(seeds),
+                          "schedule": dataclasses.asdict(sched), "label": _label(cfg),
+                          "versions": _versions(), "framework": "torch",
+                          "device": str(program.device), "compile_mode": program.compile_mode,
+                          "cudagraphs": program.cudagraphs})
+    ckpt = Checkpointer(run.checkpoint_dir, keep=cfg.keep_checkpoints)
+    last = ckpt.latest() if (existing and resume) else None
+    resumed_from = last
+    if existing and not resume and ckpt.latest() is not None:
+        raise RunFolderMismatch(f"{run.path} already holds checkpoints; pass --fresh to start over")
+    title = f"{_label(cfg)} on {cfg.task} ({len(seeds)} seed{'s' if len(seeds) > 1 else ''})"
+
+    state = program.init(seeds)
+    if last is not None:
+        saved, leaves, meta = ckpt.restore(last, map_location=program.device)
+        program.load_state_dict(state, saved, leaves)
+        rows = run.truncate_rows(last)
+        walltime = max((r.get("walltime", 0.0) for r in rows), default=0.0)
+        start = last + 1
+    else:
+        run.truncate_rows(-1)
+        rows, walltime, start = [], 0.0, 0
+
+    bar = _progress_bar(progress, sched.total_env_steps, sched.env_steps_after(start - 1) if start else 0,
+                        title)
+    t_start = time.time() - walltime
+    try:
+        eval_env = None
+        if start == 0:  # evaluate the initial policy, prefill, checkpoint 0
+            t = time.time()
+            eval_env = _eval_env(program, seeds)
+            returns = program.evaluate(state, seeds, 0, eval_env)
+            new = [_row(0, s, 0, returns[i], {}, None, time.time() - t, time.time() - t_start)
+                   for i, s in enumerate(seeds)]
+            run.append_rows(new)
+            rows += new
+            _call(hook, "rows", 0)
+            program.prefill(state)
+            _save(ckpt, program, state, 0, sched.env_steps_after(0), seeds)
+            last = 0
+            _call(hook, "checkpoint", 0)
+            bar.update(sched.env_steps_after(0))
+            bar.set_postfix_str(f"eval {returns.mean():.1f}")
+            start = 1
+        for epoch in range(start, sched.num_epochs + 1):
+            t0 = time.time()
+            state, means, first_bad = program.epoch(state)
+            epoch_seconds = time.time() - t0
+            message = _diverged_message(first_bad, sched, epoch, seeds, cfg, last)
+            if message:
+                raise TrainingDiverged(message)
+            t1 = time.time()
+            eval_env = eval_env or _eval_env(program, seeds)
+            returns = program.evaluate(state, seeds, epoch, eval_env)
+            eval_seconds = time.time() - t1
+            sps = sched.env_steps_per_epoch / epoch_seconds
+            env_steps = sched.env_steps_after(epoch)
+            new = [_row(epoch, s, env_steps, returns[i], _row_metrics(means, i), sps, eval_seconds,
+                        time.time() - t_start, epoch_seconds) for i, s in enumerate(seeds)]
+            run.append_rows(new)
+            rows += new
+            _call(hook, "rows", epoch)
+            if epoch % cfg.checkpoint_every == 0 or epoch == sched.num_epochs or epoch == stop_after_epoch:
+                _save(ckpt, program, state, epoch, env_steps, seeds)
+                last = epoch
+                _call(hook, "checkpoint", epoch)
+            if plot:
+                _plot(rows, run, title)
+            bar.update(sched.env_steps_per_epoch)
+            bar.set_postfix_str(f"{sps:,.0f} steps/s, eval {returns.mean():.1f}")
+            if stop_after_epoch is not None and epoch >= stop_after_epoch:
+                break
+        else:
+            _write_final(run, state)
+            if plot:
+                _plot(rows, run, title)
+    finally:
+        bar.close()
+        ckpt.close()
+    return TrainResult(run=run, rows=rows, state=state, seeds=seeds, resumed_from=resumed_from)
+
+
+def _eval_env(program: Program, seeds):
+    cfg = program.cfg
+    return envs.make_env(cfg.task, cfg.episode_length, cfg.action_repeat, len(seeds) * cfg.num_eval_envs,
+                         program.device)
+
+
+def _row(epoch, seed, env_steps, returns, metrics, sps, eval_seconds, walltime, epoch_seconds=None):
+    row = {"epoch": epoch, "seed": int(seed), "env_steps": int(env_steps),
+           "eval_return": float(np.mean(returns)), "eval_return_std": float(np.std(returns)),
+           "eval_seconds": round(eval_seconds, 3), "walltime": round(walltime, 3), **metrics}
+    if sps is not None:
+        row["sps"] = round(sps, 1)
+        row["epoch_seconds"] = round(epoch_seconds, 3)
+    return row
+
+
+def _label(cfg: TrainConfig) -> str:
+    from .plotting import method_label
+
+    return method_label(cfg.algo, cfg.representation)
+
+
+def _plot(rows, run, title):
+    try:
+        from .plotting import plot_learning_curve
+
+        plot_learning_curve(rows, run.curve_path, title)
+    except Exception as err:  # a plot must never stop training
+        print(f"warning: could not write {run.curve_path}: {err}", file=sys.stderr)
+
+
+def _write_final(run: RunFolder, state: TrainState) -> None:
+    run.final_dir.mkdir(parents=True, exist_ok=True)
+    for ag in state.agents:
+        np.savez(run.final_dir / f"params_seed{ag.seed}.npz", **ag.algo.canonical())
+
+
+def _call(hook, event, epoch):
+    if hook is not None:
+        hook(event, epoch)
+
+
+def _versions() -> dict:
+    from importlib import metadata
+
+    out = {}
+    for dist in ("torch", "torchrl", "tensordict", "jax", "jaxlib", "playground", "mujoco", "mujoco-mjx",
+                 "sf2-core-torch"):
+        try:
+            out[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+class _NoBar:
+    def update(self, n):
+        pass
+
+    def set_postfix_str(self, s):
+        pass
+
+    def close(self):
+        pass
+
+
+def _progress_bar(enabled: bool, total: int, initial: int, title: str):
+    if not enabled:
+        return _NoBar()
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, initial=initial, desc=title, unit="step", unit_scale=True, dynamic_ncols=True,
+                file=sys.stderr, smoothing=0.3)
+
+
+def evaluate_checkpoint(out, epoch: int | None = None, num_eval_envs: int | None = None,
+                        deterministic: bool | None = None) -> dict:
+    """Evaluate the checkpoint `epoch` (default: the latest) of the run folder `out`:
+    {"epoch", "env_steps", "returns": {seed: [episode returns]}, "deterministic"}."""
+    run = RunFolder(out)
+    conf = run.read_config()
+    if conf is None:
+        raise FileNotFoundError(f"{out} is not a run folder (no {RunFolder.CONFIG})")
+    if conf.get("framework", "torch") != "torch":
+        raise ConfigError(f"{out} was trained by sf2-{conf.get('framework')}; evaluate it with that CLI")
+    cfg = TrainConfig.from_dict(conf["config"])
+    seeds = tuple(conf["seeds"])
+    ckpt = Checkpointer(run.checkpoint_dir, keep=cfg.keep_checkpoints)
+    available = ckpt.all()
+    if not available:
+        raise FileNotFoundError(f"{out} has no checkpoint yet")
+    epoch = max(available) if epoch is None else epoch
+    if epoch not in available:
+        raise FileNotFoundError(f"{out} has no checkpoint {epoch}; available: {available}")
+    changes = {}
+    if num_eval_envs is not None:
+        changes["num_eval_envs"] = num_eval_envs
+    if deterministic is not None:
+        changes["deterministic_eval"] = deterministic
+    eval_cfg = cfg.replace(**changes)
+    configs.validate(eval_cfg, seeds)
+    program = get_program(eval_cfg)
+    program.precision()
+    agents = [program.make_agent(s) for s in seeds]
+    saved, _, meta = ckpt.restore(epoch, map_location=program.device)
+    try:
+        for ag, s in zip(agents, saved["agents"]):
+            ag.algo.load_state_dict(s["algo"])
+    except (RuntimeError, KeyError) as err:
+        raise CheckpointMismatch(f"checkpoint {epoch} does not fit this program: {err}") from err
+    returns = program.evaluate(agents, seeds, 10_000 + epoch)
+    return {"epoch": epoch, "env_steps": meta.get("env_steps"),
+            "returns": {int(s): [float(x) for x in returns[i]] for i, s in enumerate(seeds)},
+            "deterministic": eval_cfg.deterministic_eval}
+
