@@ -19,9 +19,11 @@ from sf2_torch import networks as tnet
 from sf2_torch import params as tparams
 
 # Tolerances (relative, see the module docstring). float64: anything above ~1e-10 is a bug.
-# float32: both frameworks round differently (summation order, fused ops); the bounds below are what a
-# float32 computation of these sizes can promise, about 1e3 ulp of float32 for gradients.
-TOL = {"float64": 1e-10, "float32": {"value": 2e-5, "grad": 2e-4}}
+# float32: the two frameworks round differently (summation order, fused multiply-adds, XLA's reciprocal
+# rewrites), and the flow-time embedding multiplies k by 10⁴ (DESIGN.md §5): one float32 ulp of k (6e-8)
+# becomes 6e-4 rad of phase in the highest frequency. Outputs that pass through ζ at an ODE-integrated k
+# therefore differ by up to ~3e-5 relative (observed), gradients by up to ~1e-4; the bounds leave 3x room.
+TOL = {"float64": 1e-10, "float32": {"value": 1e-4, "grad": 5e-4}}
 
 RECORD: dict[tuple[str, str], list] = {}
 
@@ -52,18 +54,17 @@ def check(term: str, a, b, dtype: str, kind: str = "value") -> float:
 def canonical_file(tmp_path: Path, cfg_kwargs: dict, algo: str, seed: int = 0) -> Path:
     """One canonical parameter file with every entry non-trivial.
 
-    Shapes come from sf2_jax's initializer; values are then redrawn with numpy so that LayerNorm scales
-    and biases, the normalizer statistics and the targets all differ from their defaults (a test that
-    leaves them at 1/0/copies cannot catch a mix-up between them).
+    Names and shapes come from sf2_jax's `expected_shapes`; values are drawn with numpy so that
+    LayerNorm scales and biases, the normalizer statistics and the targets all differ from their
+    defaults (a test that leaves them at 1/0/copies cannot catch a mix-up between them).
     """
-    cfg = sf2_jax.SF2Config(**cfg_kwargs)
-    nets = jnet.make_networks(cfg, algo)
-    flat = jparams.to_canonical(jnet.init_params(nets, __import__("jax").random.key(seed)))
+    shapes = jparams.expected_shapes(sf2_jax.SF2Config(**cfg_kwargs), algo)
     rng = np.random.default_rng(seed)
     out = {}
-    for name, value in flat.items():
-        v = np.asarray(value, dtype=np.float64)
-        if name.endswith("obs_norm.std"):
+    for name, shape in shapes.items():
+        if name.endswith(".kernel"):  # LeCun-uniform scale, like the initializers
+            v = rng.uniform(-1.0, 1.0, shape) * np.sqrt(3.0 / shape[0])
+        elif name.endswith("obs_norm.std"):
             v = rng.uniform(0.5, 2.0, v.shape)
         elif name.endswith("obs_norm.count"):
             v = np.asarray(100.0)
@@ -73,10 +74,8 @@ def canonical_file(tmp_path: Path, cfg_kwargs: dict, algo: str, seed: int = 0) -
             v = rng.uniform(0.5, 1.5, v.shape)
         elif name == "log_alpha":
             v = np.asarray(rng.normal(-1.0, 0.3))
-        elif name.endswith(".kernel"):
-            v = v + rng.normal(0.0, 0.05, v.shape)
         else:
-            v = rng.normal(0.0, 0.1, v.shape)
+            v = rng.normal(0.0, 0.1, shape)
         out[name] = v
     path = tmp_path / f"{algo}-{seed}.npz"
     jparams.save(path, out)

@@ -7,7 +7,6 @@ authors' ε = 1e-5 and three consecutive steps the parameters, the targets and t
 from __future__ import annotations
 
 import jax
-import numpy as np
 import optax
 import pytest
 import sf2_jax
@@ -22,8 +21,14 @@ from sf2_torch import params as tparams
 @pytest.mark.parametrize("algo", ["td3", "sac"])
 def test_adam_and_ema_steps(tmp_path, dtype, algo):
     kw = dict(
-        obs_size=5, action_size=2, feature_size=16, hidden_sizes=(32, 32), q_hidden_size=32,
-        zeta_hidden_sizes=(32, 32), embedding_size=8, denoising_steps=2,
+        obs_size=5,
+        action_size=2,
+        feature_size=16,
+        hidden_sizes=(32, 32),
+        q_hidden_size=32,
+        zeta_hidden_sizes=(32, 32),
+        embedding_size=8,
+        denoising_steps=2,
     )
     path = canonical_file(tmp_path, kw, algo, seed=11)
     jn, jp, tn = build_pair(path, kw, algo, dtype)
@@ -38,10 +43,12 @@ def test_adam_and_ema_steps(tmp_path, dtype, algo):
     for step in range(3):
         batch, noise = make_batch(kw, 16, seed=100 + step, truncation=step == 1)
 
-        def f(sub, batch=batch, noise=noise):
-            return sf2_jax.losses.flow_loss(jn, {**jp, **sub}, jbatch(batch, dtype), *[jx(noise[k], dtype) for k in keys])
+        def f(sub, batch=batch, noise=noise, jp=jp):
+            return sf2_jax.losses.flow_loss(
+                jn, {**jp, **sub}, jbatch(batch, dtype), *[jx(noise[k], dtype) for k in keys]
+            )
 
-        (_, _), g = jax.value_and_grad(f, has_aux=True)({k: jp[k] for k in groups})
+        (_, _), g = jax.jit(jax.value_and_grad(f, has_aux=True))({k: jp[k] for k in groups})
         updates, jopt = opt.update(g, jopt)
         new = optax.apply_updates({k: jp[k] for k in groups}, updates)
         jp = {**jp, **new}
@@ -64,9 +71,10 @@ def test_adam_and_ema_steps(tmp_path, dtype, algo):
     assert moved > 0
     # The Adam moments agree too (canonical layout: torch's (out, in) weights transposed).
     mu = jparams.to_canonical(jopt[0].mu)
-    for pname, p in list(tn.psi.named_parameters(prefix="psi")) + list(tn.zeta.named_parameters(prefix="zeta")):
+    for pname, p in list(tn.psi.named_parameters(prefix="psi")) + list(
+        tn.zeta.named_parameters(prefix="zeta")
+    ):
         state = topt.state[p]
         m = np_(state["exp_avg"])
         cname = pname.replace(".weight", ".kernel" if m.ndim == 2 else ".scale")
         check("adam first moment", mu[cname], m.T if m.ndim == 2 else m, dtype, kind="grad")
-    del np

@@ -1,0 +1,392 @@
+"""JAX and torch baselines (sf2_baselines: Sim, SimLap, SPR) compute the same numbers.
+
+Same method as the core's suite: one canonical parameter file per (method, config, algo), built from the
+JAX initializer with every entry redrawn so that nothing sits at a default, loaded into both
+frameworks; identical batch and explicit noise; float64 to 1e-10 relative, float32 to _bridge.TOL. Each
+loss's value, aux and the gradient of every trained group are compared in canonical layout, and every
+parameter a loss must not train is checked to get exactly zero gradient in torch (JAX differentiates
+only the trained groups, whose other groups are stop-gradient inside the loss).
+"""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import optax
+import pytest
+import torch
+from _bridge import check, jbatch, jx, make_batch, np_, tbatch, th
+
+pytest.importorskip("sf2_baselines")
+import sf2_baselines.jax as bj  # noqa: E402
+import sf2_baselines.torch as bt  # noqa: E402
+import sf2_jax  # noqa: E402
+import sf2_torch  # noqa: E402
+
+SIZES = [dict(obs_size=5, action_size=1), dict(obs_size=3, action_size=2), dict(obs_size=8, action_size=4)]
+BATCH = 16
+
+
+def small(obs_size, action_size, **kw):
+    base = dict(
+        obs_size=obs_size,
+        action_size=action_size,
+        feature_size=16,
+        hidden_sizes=(32, 32),
+        q_hidden_size=24,
+        zeta_hidden_sizes=(32, 32),
+        embedding_size=8,
+    )
+    base.update(kw)
+    return base
+
+
+METHOD = {"sim": (bj.sim, bt.sim), "simlap": (bj.simlap, bt.simlap), "spr": (bj.spr, bt.spr)}
+
+
+def canonical_file(tmp_path, method, cfg_kwargs, algo, seed=0):
+    """A canonical file of `method`'s networks with every entry non-trivial (as _bridge.canonical_file):
+    names and shapes from `expected_shapes`, values drawn with numpy so that LayerNorm, the normalizer
+    and the targets all differ from their defaults and from the online networks."""
+    jmod = METHOD[method][0]
+    shapes = bj.params.expected_shapes(jmod.make_networks(sf2_jax.SF2Config(**cfg_kwargs), algo))
+    rng = np.random.default_rng(seed)
+    out = {}
+    for name, shape in shapes.items():
+        if name.endswith(".kernel"):  # LeCun-uniform scale, like the initializers
+            v = rng.uniform(-1.0, 1.0, shape) * np.sqrt(3.0 / shape[0])
+        elif name.endswith("obs_norm.std"):
+            v = rng.uniform(0.5, 2.0, shape)
+        elif name.endswith("obs_norm.count"):
+            v = np.asarray(100.0)
+        elif name.endswith("obs_norm.summed_var"):
+            v = rng.uniform(50.0, 400.0, shape)
+        elif name.endswith(".scale"):
+            v = rng.uniform(0.5, 1.5, shape)
+        elif name == "log_alpha":
+            v = np.asarray(rng.normal(-1.0, 0.3))
+        elif name == "task.w":
+            v = rng.normal(0.0, 1.0, shape)
+        else:
+            v = rng.normal(0.0, 0.1, shape)
+        out[name] = v
+    path = tmp_path / f"{method}-{algo}-{seed}.npz"
+    bj.params.save(path, out)
+    return path
+
+
+def build_pair(path, method, cfg_kwargs, algo, dtype):
+    jmod, tmod = METHOD[method]
+    jn = jmod.make_networks(sf2_jax.SF2Config(**cfg_kwargs), algo)
+    jp = bj.params.from_canonical(bj.params.load(path), jn, dtype=getattr(jax.numpy, dtype))
+    tn = tmod.make_networks(sf2_torch.SF2Config(**cfg_kwargs), algo).to(getattr(torch, dtype))
+    bt.params.from_canonical(bt.params.load(path), tn)
+    return jn, jp, tn
+
+
+def compare_loss(term, dtype, jax_fn, jparams_all, groups, torch_fn, tnets):
+    """One loss in both frameworks: value, aux, gradient of every trained group; zero gradient elsewhere."""
+
+    def f(sub):
+        return jax_fn({**jparams_all, **sub})
+
+    (jloss, jaux), jgrads = jax.value_and_grad(f, has_aux=True)({g: jparams_all[g] for g in groups})
+    tnets.zero_grad(set_to_none=True)
+    tloss, taux = torch_fn()
+    tloss.backward()
+    check(term, np_(jloss), np_(tloss), dtype)
+    assert set(jaux) == set(taux), f"{term}: aux keys differ {sorted(jaux)} vs {sorted(taux)}"
+    for key in jaux:
+        # aux metrics are batch means of signed terms (mean Q, mean cosine) that can cancel: in float32
+        # they get the gradient tolerance; float64 stays at 1e-10.
+        check(f"{term}.{key}", np_(jaux[key]), np_(taux[key]), dtype, kind="grad")
+    jflat = bj.params.to_canonical(jgrads)
+    tflat = bt.params.to_canonical(tnets, grads=True)
+    assert jflat, f"{term}: no gradient computed"
+    for name, g in jflat.items():
+        check(f"grad {term}", g, tflat[name], dtype, kind="grad")
+    assert any(np.any(g != 0) for g in jflat.values()), f"{term}: every gradient is zero"
+    for name, g in tflat.items():
+        if name not in jflat:
+            assert not np.any(np_(g)), (
+                f"{term}: torch put a gradient into {name}, which this loss must not train"
+            )
+    return float(np_(jloss))
+
+
+def _setup(tmp_path, method, algo, dtype, seed, truncation, **kw):
+    cfg_kwargs = small(**SIZES[seed % len(SIZES)], **kw)
+    path = canonical_file(tmp_path, method, cfg_kwargs, algo, seed=seed)
+    jn, jp, tn = build_pair(path, method, cfg_kwargs, algo, dtype)
+    batch, noise = make_batch(cfg_kwargs, BATCH, seed=seed, truncation=truncation)
+    noise["next_eps"] = np.random.default_rng(7000 + seed).normal(size=batch["obs"].shape)
+    return jn, jp, tn, batch, noise
+
+
+DTYPES = ["float64", "float32"]
+ALGOS = ["td3", "sac"]
+
+
+# ------------------------------------------------------------------------------------------- networks
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("algo", ALGOS)
+@pytest.mark.parametrize("method", ["sim", "spr"])
+def test_critic_and_features(tmp_path, dtype, algo, method):
+    jn, jp, tn, batch, noise = _setup(tmp_path, method, algo, dtype, seed=1, truncation=False)
+    jmod, tmod = METHOD[method]
+    obs, act = batch["obs"], batch["action"]
+    with torch.no_grad():
+        for target in (False, True):
+            check(
+                f"{method} features",
+                np_(jmod.features(jn, jp, jx(obs, dtype), jx(act, dtype), target)),
+                np_(tmod.features(tn, th(obs, dtype), th(act, dtype), target)),
+                dtype,
+            )
+            check(
+                f"{method} critic",
+                np_(jmod.critic(jn, jp, jx(obs, dtype), jx(act, dtype), target)),
+                np_(tmod.critic(tn, th(obs, dtype), th(act, dtype), target)),
+                dtype,
+            )
+        if method == "sim":
+            phi = jmod.features(jn, jp, jx(obs, dtype), jx(act, dtype))
+            tphi = tmod.features(tn, th(obs, dtype), th(act, dtype))
+            check(
+                "sim successor_features",
+                np_(jmod.successor_features(jn, jp, phi)),
+                np_(tmod.successor_features(tn, tphi)),
+                dtype,
+            )
+        else:
+            z = jmod.features(jn, jp, jx(obs, dtype), jx(act, dtype), obs_noise=jx(noise["eps"], dtype))
+            tz = tmod.features(tn, th(obs, dtype), th(act, dtype), obs_noise=th(noise["eps"], dtype))
+            check("spr augmented features", np_(z), np_(tz), dtype)
+            check(
+                "spr projection+prediction",
+                np_(jmod.predict(jn, jp, jmod.project(jn, jp, z))),
+                np_(tmod.predict(tn, tmod.project(tn, tz))),
+                dtype,
+            )
+
+
+# ------------------------------------------------------------------------------------------- Sim / SimLap
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("algo", ALGOS)
+@pytest.mark.parametrize("truncation", [False, True])
+def test_reward_loss(tmp_path, dtype, algo, truncation):
+    jn, jp, tn, batch, noise = _setup(
+        tmp_path, "sim", algo, dtype, seed=2 + truncation, truncation=truncation
+    )
+    na = noise["next_action"]
+    loss = compare_loss(
+        "sim.reward_loss",
+        dtype,
+        lambda p: bj.sim.reward_loss(jn, p, jbatch(batch, dtype), jx(na, dtype)),
+        jp,
+        ("task",),
+        lambda: bt.sim.reward_loss(tn, tbatch(batch, dtype), th(na, dtype)),
+        tn,
+    )
+    assert loss > 0
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("algo", ALGOS)
+@pytest.mark.parametrize("truncation", [False, True])
+def test_laplacian_and_simlap_loss(tmp_path, dtype, algo, truncation):
+    jn, jp, tn, batch, noise = _setup(
+        tmp_path, "simlap", algo, dtype, seed=4 + truncation, truncation=truncation
+    )
+    na = noise["next_action"]
+    compare_loss(
+        "simlap.laplacian_loss",
+        dtype,
+        lambda p: bj.simlap.laplacian_loss(jn, p, jbatch(batch, dtype), jx(na, dtype)),
+        jp,
+        ("phi",),
+        lambda: bt.simlap.laplacian_loss(tn, tbatch(batch, dtype), th(na, dtype)),
+        tn,
+    )
+    compare_loss(
+        "simlap.simlap_loss",
+        dtype,
+        lambda p: bj.simlap.simlap_loss(jn, p, jbatch(batch, dtype), jx(na, dtype)),
+        jp,
+        ("phi", "task"),
+        lambda: bt.simlap.simlap_loss(tn, tbatch(batch, dtype), th(na, dtype)),
+        tn,
+    )
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("algo", ALGOS)
+@pytest.mark.parametrize("train_features", [True, False])
+def test_sim_critic_and_actor_losses(tmp_path, dtype, algo, train_features):
+    jn, jp, tn, batch, noise = _setup(tmp_path, "sim", algo, dtype, seed=6 + train_features, truncation=True)
+    jb, tb = jbatch(batch, dtype), tbatch(batch, dtype)
+    xi = noise["smoothing"] if algo == "td3" else noise["noise"]
+    groups = ("q", "phi") if train_features else ("q",)
+    jcrit = getattr(bj.sim, f"{algo}_critic_loss")
+    tcrit = getattr(bt.sim, f"{algo}_critic_loss")
+    compare_loss(
+        f"sim.{algo}_critic_loss",
+        dtype,
+        lambda p: jcrit(jn, p, jb, jx(xi, dtype), train_features),
+        jp,
+        groups,
+        lambda: tcrit(tn, tb, th(xi, dtype), train_features),
+        tn,
+    )
+    if algo == "td3":
+        compare_loss(
+            "sim.td3_actor_loss",
+            dtype,
+            lambda p: bj.sim.td3_actor_loss(jn, p, jb),
+            jp,
+            ("policy",),
+            lambda: bt.sim.td3_actor_loss(tn, tb),
+            tn,
+        )
+    else:
+        compare_loss(
+            "sim.sac_actor_loss",
+            dtype,
+            lambda p: bj.sim.sac_actor_loss(jn, p, jb, jx(xi, dtype)),
+            jp,
+            ("policy",),
+            lambda: bt.sim.sac_actor_loss(tn, tb, th(xi, dtype)),
+            tn,
+        )
+
+
+# ------------------------------------------------------------------------------------------- SPR
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("algo", ALGOS)
+@pytest.mark.parametrize("truncation", [False, True])
+def test_spr_loss(tmp_path, dtype, algo, truncation):
+    jn, jp, tn, batch, noise = _setup(
+        tmp_path, "spr", algo, dtype, seed=8 + truncation, truncation=truncation
+    )
+    keys = ("next_action", "eps", "next_eps")
+    loss = compare_loss(
+        "spr.spr_loss",
+        dtype,
+        lambda p: bj.spr.spr_loss(jn, p, jbatch(batch, dtype), *[jx(noise[k], dtype) for k in keys]),
+        jp,
+        ("encoder", "projection", "prediction"),
+        lambda: bt.spr.spr_loss(tn, tbatch(batch, dtype), *[th(noise[k], dtype) for k in keys]),
+        tn,
+    )
+    assert 0 < loss < 4
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("algo", ALGOS)
+def test_spr_critic_and_actor_losses(tmp_path, dtype, algo):
+    jn, jp, tn, batch, noise = _setup(tmp_path, "spr", algo, dtype, seed=10, truncation=True)
+    jb, tb = jbatch(batch, dtype), tbatch(batch, dtype)
+    xi = noise["smoothing"] if algo == "td3" else noise["noise"]
+    jcrit, tcrit = getattr(bj.spr, f"{algo}_critic_loss"), getattr(bt.spr, f"{algo}_critic_loss")
+    compare_loss(
+        f"spr.{algo}_critic_loss",
+        dtype,
+        lambda p: jcrit(jn, p, jb, jx(xi, dtype)),
+        jp,
+        ("q", "encoder"),
+        lambda: tcrit(tn, tb, th(xi, dtype)),
+        tn,
+    )
+    if algo == "td3":
+        compare_loss(
+            "spr.td3_actor_loss",
+            dtype,
+            lambda p: bj.spr.td3_actor_loss(jn, p, jb),
+            jp,
+            ("policy",),
+            lambda: bt.spr.td3_actor_loss(tn, tb),
+            tn,
+        )
+    else:
+        compare_loss(
+            "spr.sac_actor_loss",
+            dtype,
+            lambda p: bj.spr.sac_actor_loss(jn, p, jb, jx(xi, dtype)),
+            jp,
+            ("policy",),
+            lambda: bt.spr.sac_actor_loss(tn, tb, th(xi, dtype)),
+            tn,
+        )
+
+
+# ------------------------------------------------------------------------------------------- optimizer steps
+STEP_CASES = {
+    # method: (aux loss name, trained groups, targets {target group: online group})
+    "simlap": ("simlap_loss", ("phi", "task"), {"target_phi": "phi"}),
+    "spr": (
+        "spr_loss",
+        ("encoder", "projection", "prediction"),
+        {"target_encoder": "encoder", "target_projection": "projection"},
+    ),
+}
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("method", list(STEP_CASES))
+def test_aux_adam_and_ema_steps(tmp_path, dtype, method):
+    """Three Adam steps on the representation's loss (one Adam state per group, as the agents keep them)
+    and EMA targets leave both frameworks with the same parameters."""
+    loss_name, groups, targets = STEP_CASES[method]
+    jn, jp, tn, _, _ = _setup(tmp_path, method, "td3", dtype, seed=12, truncation=False)
+    jmod, tmod = METHOD[method]
+    cfg = jn.cfg
+    opt = optax.adam(cfg.learning_rate, eps=cfg.adam_eps)
+    jopt = {g: opt.init(jp[g]) for g in groups}
+    topt = {
+        g: torch.optim.Adam(getattr(tn, g).parameters(), lr=cfg.learning_rate, eps=cfg.adam_eps)
+        for g in groups
+    }
+    kw = small(**SIZES[12 % len(SIZES)])
+    for step in range(3):
+        batch, noise = make_batch(kw, BATCH, seed=200 + step, truncation=step == 1)
+        noise["next_eps"] = np.random.default_rng(300 + step).normal(size=batch["obs"].shape)
+        keys = ("next_action", "eps", "next_eps") if method == "spr" else ("next_action",)
+
+        def f(sub, batch=batch, noise=noise, keys=keys, jp=jp):
+            return getattr(jmod, loss_name)(
+                jn, {**jp, **sub}, jbatch(batch, dtype), *[jx(noise[k], dtype) for k in keys]
+            )
+
+        _, grads = jax.value_and_grad(f, has_aux=True)({g: jp[g] for g in groups})
+        for g in groups:
+            updates, jopt[g] = opt.update(grads[g], jopt[g])
+            jp = {**jp, g: optax.apply_updates(jp[g], updates)}
+        for t, o in targets.items():
+            jp[t] = sf2_jax.losses.ema_update(jp[t], jp[o], cfg.tau)
+
+        for o in topt.values():
+            o.zero_grad(set_to_none=True)
+        loss, _ = getattr(tmod, loss_name)(tn, tbatch(batch, dtype), *[th(noise[k], dtype) for k in keys])
+        loss.backward()
+        for o in topt.values():
+            o.step()
+        for t, o in targets.items():
+            sf2_torch.losses.ema_update(getattr(tn, t), getattr(tn, o), cfg.tau)
+
+    jflat, tflat = bj.params.to_canonical(jp), bt.params.to_canonical(tn)
+    assert set(jflat) == set(tflat)
+    moved = 0
+    for name in jflat:
+        check(f"{method} params after 3 Adam+EMA steps", jflat[name], tflat[name], dtype, kind="grad")
+        moved += name.split(".")[0] in (*groups, *targets)
+    assert moved > 0
+
+
+def test_canonical_names_agree():
+    """Both frameworks name and shape every entry identically, for every method and algo."""
+    for method, (jmod, tmod) in METHOD.items():
+        for algo in ALGOS:
+            kw = small(**SIZES[0])
+            jshapes = bj.params.expected_shapes(jmod.make_networks(sf2_jax.SF2Config(**kw), algo))
+            tshapes = bt.params.expected_shapes(tmod.make_networks(sf2_torch.SF2Config(**kw), algo))
+            assert jshapes == tshapes, f"{method}/{algo}: {set(jshapes) ^ set(tshapes)}"
