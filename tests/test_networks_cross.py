@@ -101,7 +101,12 @@ def _outputs(kw, algo, dtype, batch_size, seed):
 
 @pytest.mark.parametrize("dtype", ["float64", "float32"])
 @pytest.mark.parametrize("algo", ["td3", "sac"])
-@settings(max_examples=6, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(
+    max_examples=6,
+    deadline=None,
+    derandomize=True,
+    suppress_health_check=[HealthCheck.function_scoped_fixture],
+)
 @given(kw=size_cases, batch_size=st.integers(1, 9), seed=st.integers(0, 10_000))
 def test_network_outputs_agree(dtype, algo, kw, batch_size, seed):
     for name, (a, b) in _outputs(kw, algo, dtype, batch_size, seed).items():

@@ -86,7 +86,7 @@ class Algorithm:
         eps = 1e-8 if group == "log_alpha" else cfg.adam_eps
         if capturable:
             lr = torch.tensor(lr, device=self.device)
-        return torch.optim.Adam(params, lr=lr, eps=eps, capturable=capturable)
+        return torch.optim.Adam(params, lr=lr, eps=eps, capturable=capturable, foreach=True)
 
     def trained_groups(self) -> tuple[str, ...]:
         groups = ["q", *self.rep.critic_groups, *self.rep.aux_groups, *self.policy_groups]
