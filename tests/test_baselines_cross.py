@@ -90,7 +90,8 @@ def compare_loss(term, dtype, jax_fn, jparams_all, groups, torch_fn, tnets):
     def f(sub):
         return jax_fn({**jparams_all, **sub})
 
-    (jloss, jaux), jgrads = jax.value_and_grad(f, has_aux=True)({g: jparams_all[g] for g in groups})
+    # one jit per case: eager JAX compiles every primitive on its own
+    (jloss, jaux), jgrads = jax.jit(jax.value_and_grad(f, has_aux=True))({g: jparams_all[g] for g in groups})
     tnets.zero_grad(set_to_none=True)
     tloss, taux = torch_fn()
     tloss.backward()
@@ -390,3 +391,106 @@ def test_canonical_names_agree():
             jshapes = bj.params.expected_shapes(jmod.make_networks(sf2_jax.SF2Config(**kw), algo))
             tshapes = bt.params.expected_shapes(tmod.make_networks(sf2_torch.SF2Config(**kw), algo))
             assert jshapes == tshapes, f"{method}/{algo}: {set(jshapes) ^ set(tshapes)}"
+
+
+# ------------------------------------------------------------------------------------------- agents
+AGENT_CASES = [(name, algo) for name in ("sim", "simlap", "simlap_authors", "spr") for algo in ALGOS]
+
+
+def _torch_td(batch: dict, noise: dict, dtype):
+    """TorchRL transition tensordict of a `_bridge.make_batch` batch (done = 1 − discount) plus noise."""
+    from tensordict import TensorDict
+
+    def t(x):
+        return torch.as_tensor(np.array(x), dtype=dtype)
+
+    done = torch.as_tensor(np.asarray(batch["discount"]) == 0).unsqueeze(-1)
+    trunc = torch.as_tensor(np.asarray(batch["truncation"]) > 0.5).unsqueeze(-1)
+    td = TensorDict(
+        {
+            "observation": t(batch["obs"]),
+            "action": t(batch["action"]),
+            "next": {
+                "observation": t(batch["next_obs"]),
+                "reward": t(batch["reward"]).unsqueeze(-1),
+                "done": done,
+                "terminated": done & ~trunc,
+                "truncated": trunc,
+            },
+        },
+        [len(batch["reward"])],
+    )
+    td.update({k: t(v) for k, v in noise.items()})
+    return td
+
+
+def _jax_step_noise(algo, jalg, key, batch) -> dict:
+    """The noise sf2_jax's `sgd_step` draws from `key`, under the torch agents' names (the split of
+    `sf2_jax.agents.algorithms.Algorithm.sgd_step`, as tests/test_step_agents_cross.py repeats it)."""
+    k_critic, k_aux, k_next, k_actor = jax.random.split(key, 4)
+    out = {}
+    aux = jalg.rep.aux_noise(k_aux, batch)
+    if aux is not None:  # SPR: (ξ, ξ′)
+        out["spr_obs_noise"], out["spr_next_obs_noise"] = aux
+    shape, dtype = batch.action.shape, batch.action.dtype
+    if algo == "td3":
+        out["smoothing_noise"] = jalg.critic_noise(k_critic, batch)
+    else:
+        k_alpha, k_pi = jax.random.split(k_actor)
+        out.update(
+            next_action_noise=jalg.critic_noise(k_critic, batch),
+            flow_action_noise=jax.random.normal(k_next, shape, dtype),
+            alpha_noise=jax.random.normal(k_alpha, shape, dtype),
+            actor_noise=jax.random.normal(k_pi, shape, dtype),
+        )
+    return {k: np.asarray(v) for k, v in out.items()}
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("name,algo", AGENT_CASES)
+def test_agent_sgd_steps(tmp_path, dtype, name, algo):
+    """Two SGD steps of the agents (sf2_jax's jitted `sgd_step`, sf2_torch's TorchRL step) with each
+    baseline, from one canonical file, fresh Adam states and the same batches and noise, leave every
+    parameter and target identical. Step indices are multiples of 80, where the task-vector schedule
+    (every 10 TD3 / 16 SAC steps) is due in either case."""
+    jalgs = pytest.importorskip("sf2_jax.agents.algorithms")
+    pytest.importorskip("torchrl")
+    talgs = pytest.importorskip("sf2_torch.agents.algorithms")
+    from sf2_jax.agents import representations as jreps
+    from sf2_torch.agents import representations as treps
+
+    jdt, tdt = getattr(jax.numpy, dtype), getattr(torch, dtype)
+    kw = small(obs_size=5, action_size=2)
+    method = "spr" if name == "spr" else "sim"
+    path = canonical_file(tmp_path, method, kw, algo, seed=31)
+
+    jalg = jalgs.make_algorithm(algo, sf2_jax.SF2Config(**kw), jreps.get(name), dtype=jdt)
+    jp = bj.params.from_canonical(bj.params.load(path), jalg.rep.baseline_nets, dtype=jdt)
+    cfg = jalg.cfg
+    adam = optax.adam(cfg.learning_rate, eps=cfg.adam_eps)
+    jopt = {g: (optax.adam(cfg.alpha_learning_rate) if g == "log_alpha" else adam).init(jp[g])
+            for g in jalg.trained_groups()}  # fmt: skip
+    jstep = jax.jit(jalg.sgd_step)
+
+    talg = talgs.make_algorithm(algo, sf2_torch.SF2Config(**kw), treps.get(name), dtype=tdt)
+    bt.params.from_canonical(bt.params.load(path), talg.rep.baseline_nets)  # shares obs_norm, policy, ...
+    assert set(talg.groups) == set(jalg.trained_groups())
+
+    first = talg.canonical()
+    for i in range(2):
+        raw, _ = make_batch(kw, BATCH, seed=400 + i, truncation=i == 1)
+        jb = sf2_jax.losses.Batch(**{k: jax.numpy.asarray(v, dtype=jdt) for k, v in raw.items()})
+        key = jax.random.PRNGKey(50 + i)
+        noise = _jax_step_noise(algo, jalg, key, jb)
+        jp, jopt, jm = jstep(jp, jopt, jb, key, 80 * i)
+        tm = talg.sgd_step(_torch_td(raw, noise, tdt), actor_step=True)
+        jflat, tflat = bj.params.to_canonical(jp), talg.canonical()
+        assert set(jflat) == set(tflat)
+        for pname in sorted(jflat):
+            check(f"agent step {name}: {pname.split('.')[0]}", jflat[pname], tflat[pname], dtype, kind="grad")
+        assert set(jm) == set(tm.keys()), (sorted(jm), sorted(tm.keys()))
+        for m in jm:
+            check(f"agent step {name}: metric", np.asarray(jm[m]), tm[m].numpy(), dtype, kind="grad")
+    last = talg.canonical()
+    for group in set(jalg.trained_groups()) | {g for g in jp if g.startswith("target_")}:
+        assert any(not np.array_equal(first[n], last[n]) for n in first if n.split(".")[0] == group), group

@@ -1,0 +1,103 @@
+"""Canonical parameters of the baselines (JAX): the core's scheme (docs/params.md) for Sim's and SPR's groups.
+
+Names are dot-joined paths, kernels (in, out), LayerNorm `scale`/`bias`, exactly as the core's:
+``phi.dense_0.kernel`` (D + A + F, h₀), ``q.head_0.dense_1.kernel`` (q_hidden_size, F) for Sim's SF heads,
+``task.w`` (F,), ``encoder.dense_0.kernel`` (D + A, h₀), ``projection.dense_0.kernel`` (F, q_hidden_size),
+``prediction.dense_0.kernel`` (q_hidden_size, q_hidden_size), plus the core's ``obs_norm.*``,
+``policy.*``, ``target_policy.*`` (TD3) / ``log_alpha`` (SAC). `save` and `load` are the core's.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Mapping
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from sf2_jax.errors import ParamsError
+from sf2_jax.params import load, save, to_canonical
+
+from . import sim, spr
+
+__all__ = ["to_canonical", "from_canonical", "validate", "expected_shapes", "save", "load"]
+
+
+def _init_fn(nets):
+    if isinstance(nets, sim.SimNetworks):
+        return sim.init_params
+    if isinstance(nets, spr.SPRNetworks):
+        return spr.init_params
+    raise ParamsError(f"expected SimNetworks or SPRNetworks, got {type(nets).__name__}")
+
+
+@functools.lru_cache(maxsize=64)
+def _expected(nets) -> dict[str, tuple[int, ...]]:
+    init = _init_fn(nets)
+    shapes = jax.eval_shape(lambda: init(nets, jax.random.key(0)))
+    return _shapes(shapes)
+
+
+def _shapes(tree) -> dict[str, tuple[int, ...]]:
+    out = {}
+
+    def walk(prefix, node):
+        if isinstance(node, Mapping):
+            for key in sorted(node):
+                walk(f"{prefix}.{key}" if prefix else str(key), node[key])
+        else:
+            out[prefix] = tuple(node.shape)
+
+    walk("", tree)
+    return out
+
+
+def expected_shapes(nets) -> dict[str, tuple[int, ...]]:
+    """{canonical name: shape} of every group `init_params` gives for these networks."""
+    return dict(_expected(nets))
+
+
+def validate(flat: Mapping, nets) -> None:
+    """Raise `ParamsError` naming every missing, unexpected and misshaped entry of `flat`."""
+    if not isinstance(flat, Mapping):
+        raise ParamsError(f"canonical parameters must be a mapping name → array, got {type(flat).__name__}")
+    expected = _expected(nets)
+    missing = [n for n in expected if n not in flat]
+    unexpected = sorted(n for n in flat if n not in expected)
+    misshaped = [
+        (n, s, tuple(np.shape(flat[n])))
+        for n, s in expected.items()
+        if n in flat and tuple(np.shape(flat[n])) != s
+    ]
+    if not (missing or unexpected or misshaped):
+        return
+    cfg = nets.cfg
+    lines = [
+        f"canonical parameters do not match the {type(nets).__name__} (algo {nets.algo!r}, obs_size "
+        f"{cfg.obs_size}, action_size {cfg.action_size}, feature_size {cfg.feature_size}):"
+    ]
+    if missing:
+        lines += [f"  missing ({len(missing)}):"] + [
+            f"    {n} (expected shape {expected[n]})" for n in missing
+        ]
+    if unexpected:
+        lines += [f"  unexpected ({len(unexpected)}):"]
+        lines += [f"    {n} (shape {tuple(np.shape(flat[n]))})" for n in unexpected]
+    if misshaped:
+        lines += [f"  misshaped ({len(misshaped)}):"]
+        lines += [f"    {n}: expected shape {s}, found {f}" for n, s, f in misshaped]
+    raise ParamsError("\n".join(lines))
+
+
+def from_canonical(flat: Mapping, nets, dtype=None) -> dict:
+    """Validate `flat` against `nets`, then build the nested params dict (cast to `dtype` if given)."""
+    validate(flat, nets)
+    params: dict = {}
+    for name in _expected(nets):
+        *path, leaf = name.split(".")
+        node = params
+        for key in path:
+            node = node.setdefault(key, {})
+        value = np.asarray(flat[name])
+        node[leaf] = jnp.asarray(value, dtype=dtype) if dtype is not None else jnp.asarray(value)
+    return params

@@ -1,0 +1,146 @@
+"""The baselines as pluggable representations of `sf2_jax.agents` (TD3 and SAC, `--repr NAME`).
+
+Each class wires one baseline's networks and pure losses into the interface of
+`sf2_jax.agents.representations.Representation` (critic, critic_groups, aux_groups, aux_noise, aux_loss,
+update_targets). `register_all()` adds them to the registry; `sf2_baselines.jax` calls it on import.
+
+==================  ==============  ==================  =====================================  ============
+name                critic trains   aux step trains     aux loss                               targets (τ)
+==================  ==============  ==================  =====================================  ============
+``sim``             q, phi          task                sim.reward_loss (every 10 TD3/16 SAC)  φ̄
+``simlap``          q               phi, task           simlap.simlap_loss (w every 10/16)     φ̄
+``simlap_authors``  q, phi          phi, task           simlap.simlap_loss (w every 10/16)     φ̄
+``spr``             q, encoder      encoder, proj, pred spr.spr_loss                           f̄, ḡ
+==================  ==============  ==================  =====================================  ============
+
+Schedules: `aux_every` maps a group to the period (in gradient steps) of its updates inside the aux
+step. A base algorithm that honours it keeps that group's parameters and Adam state unchanged on the
+other steps (the authors' `gradient_steps % 10 == 0` cond); one that does not updates it every step.
+"""
+
+from __future__ import annotations
+
+import jax
+from sf2_jax import losses as core_losses
+from sf2_jax.agents import representations as reps
+
+from . import sim, simlap, spr
+
+__all__ = [
+    "SimRepresentation",
+    "SimLapRepresentation",
+    "SimLapAuthorsRepresentation",
+    "SPRRepresentation",
+    "register_all",
+    "NAMES",
+]
+
+NAMES = ("sim", "simlap", "simlap_authors", "spr")
+
+
+class _SimBase(reps.Representation):
+    aux_loss_name = "reward_loss"
+
+    def __init__(self, cfg, nets):
+        super().__init__(cfg, nets)
+        self.baseline_nets = sim.make_networks(cfg, nets.algo)
+        self.aux_every = {"task": sim.REWARD_EVERY[nets.algo]}
+
+    def init(self, key, core_params):
+        dtype = core_params["obs_norm"]["mean"].dtype
+        return sim.init_representation(self.baseline_nets, key, dtype)
+
+    def critic(self, params, obs, action, target=False):
+        return sim.critic(self.baseline_nets, params, obs, action, target)
+
+    def update_targets(self, params):
+        return {"target_phi": core_losses.ema_update(params["target_phi"], params["phi"], self.cfg.tau)}
+
+
+@reps.register
+class SimRepresentation(_SimBase):
+    """`sim`: TD3Sim / SACSim (Chua et al. 2024 as the SF² paper runs it, §4.2). The TD loss trains the
+    SF heads and φ; the reward-prediction step trains w every `sim.REWARD_EVERY[algo]` steps."""
+
+    name = "sim"
+    label = "Sim"
+    critic_groups = ("phi",)
+    aux_groups = ("task",)
+
+    def aux_loss(self, params, batch, next_action, noise):
+        return sim.reward_loss(self.baseline_nets, params, batch, next_action)
+
+
+@reps.register
+class SimLapRepresentation(_SimBase):
+    """`simlap`: TD3SimLap / SACSimLap as the paper describes them (§4.2): no Q-alignment of φ (the TD
+    loss trains the SF heads only); φ trained by the Laplacian objective, w by reward prediction."""
+
+    name = "simlap"
+    label = "SimLap"
+    critic_groups = ()
+    aux_groups = ("phi", "task")
+    aux_loss_name = "simlap_loss"
+
+    def aux_loss(self, params, batch, next_action, noise):
+        return simlap.simlap_loss(self.baseline_nets, params, batch, next_action)
+
+
+@reps.register
+class SimLapAuthorsRepresentation(SimLapRepresentation):
+    """`simlap_authors`: SimLap as the authors' code runs it: the TD loss also trains φ (their
+    `critic_update` updates the feature parameters), then the Laplacian step trains φ again."""
+
+    name = "simlap_authors"
+    label = "SimLap(code)"
+    critic_groups = ("phi",)
+
+
+@reps.register
+class SPRRepresentation(reps.Representation):
+    """`spr`: TD3+SPR / SAC+SPR (Appendix B.1): the critic on the encoder z = f(s, a), trained by the TD
+    loss; the SPR step trains f, g and h on the K = 1 self-prediction loss with Gaussian augmentation."""
+
+    name = "spr"
+    label = "SPR"
+    critic_groups = ("encoder",)
+    aux_groups = ("encoder", "projection", "prediction")
+    aux_loss_name = "spr_loss"
+
+    def __init__(self, cfg, nets):
+        super().__init__(cfg, nets)
+        self.baseline_nets = spr.make_networks(cfg, nets.algo)
+
+    def init(self, key, core_params):
+        dtype = core_params["obs_norm"]["mean"].dtype
+        return spr.init_representation(self.baseline_nets, key, dtype, q=core_params["q"])
+
+    def critic(self, params, obs, action, target=False):
+        return spr.critic(self.baseline_nets, params, obs, action, target)
+
+    def aux_noise(self, key, batch):
+        k_obs, k_next = jax.random.split(key)
+        return (
+            jax.random.normal(k_obs, batch.obs.shape, batch.obs.dtype),
+            jax.random.normal(k_next, batch.next_obs.shape, batch.next_obs.dtype),
+        )
+
+    def aux_loss(self, params, batch, next_action, noise):
+        obs_noise, next_obs_noise = noise
+        return spr.spr_loss(self.baseline_nets, params, batch, next_action, obs_noise, next_obs_noise)
+
+    def update_targets(self, params):
+        tau = self.cfg.tau
+        return {
+            "target_encoder": core_losses.ema_update(params["target_encoder"], params["encoder"], tau),
+            "target_projection": core_losses.ema_update(
+                params["target_projection"], params["projection"], tau
+            ),
+        }
+
+
+def register_all() -> tuple[str, ...]:
+    """(Re-)register every baseline with `sf2_jax.agents.representations`; returns their names."""
+    for cls in (SimRepresentation, SimLapRepresentation, SimLapAuthorsRepresentation, SPRRepresentation):
+        reps.register(cls)
+    return NAMES

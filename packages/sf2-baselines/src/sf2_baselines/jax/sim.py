@@ -1,0 +1,232 @@
+"""Sim (JAX): successor features learned "the simple way" (Chua et al., 2024), as the SF² paper adapts
+them to TD3 and SAC (TD3Sim, SACSim; paper §4.2). Equations and every deviation: README.md "Sim".
+
+Networks (parameter groups, canonical names as docs/params.md):
+- ``phi`` / ``target_phi``: basis features φ(s, a, ŵ) = MLP(hidden_sizes → F) on
+  concat[normalize(s), a, ŵ], ŵ = sg(w) / (‖w‖ + 1e-8); hidden layers Dense → ReLU → LayerNorm (the
+  core's `MLP`).
+- ``q`` / ``target_q``: successor-feature heads ψ_j(φ) = Dense(F → q_hidden_size) → ReLU → Dense(→ F),
+  j = 0, 1 (``q.head_{j}.dense_{0,1}``), no LayerNorm.
+- ``task``: the task vector ``task.w`` of shape (F,) ~ N(0, 1) at init. Stored as one (F,) vector,
+  never in the replay (the authors' code stores it per insert with the wrong shape, which breaks
+  F = 512, DESIGN.md §5).
+
+Q_j(s, a) = wᵀψ_j(φ(s, a, ŵ)). The TD loss trains ψ_j and φ; the reward-prediction loss
+(wᵀφ(s′, ā′, ŵ) − rs·r)² trains w only, on its own schedule (`REWARD_EVERY`). Target critic:
+Q̄_j = wᵀψ̄_j(φ̄(s′, ã′, ŵ)) with EMA targets φ̄, ψ̄.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+from flax import struct
+from sf2_jax import networks as core_nw
+from sf2_jax.config import SF2Config
+from sf2_jax.errors import ConfigError
+from sf2_jax.losses import Batch
+
+from . import common
+
+__all__ = [
+    "GROUPS",
+    "REWARD_EVERY",
+    "SFHeads",
+    "SimNetworks",
+    "make_networks",
+    "init_representation",
+    "init_params",
+    "task_vector",
+    "features",
+    "successor_features",
+    "critic",
+    "reward_loss",
+    "td3_critic_loss",
+    "td3_actor_loss",
+    "sac_critic_loss",
+    "sac_actor_loss",
+]
+
+sg = jax.lax.stop_gradient
+Params = dict[str, Any]
+
+# The groups this representation owns (online, task vector, targets).
+GROUPS = ("phi", "q", "task", "target_phi", "target_q")
+# Gradient steps between two reward-prediction (task-vector) steps, per base algorithm: the authors'
+# TD3Sim and SACSim code (Chua et al. also update w on its own, slower schedule).
+REWARD_EVERY = {"td3": 10, "sac": 16}
+
+
+class SFHeads(nn.Module):
+    """Twin successor-feature heads `head_0`, `head_1`: the core `MLP((hidden,), F)` without LayerNorm.
+    `__call__(φ)` → (..., 2, F)."""
+
+    hidden_size: int
+    feature_size: int
+
+    def setup(self):
+        self.head_0 = core_nw.MLP((self.hidden_size,), self.feature_size, use_layer_norm=False)
+        self.head_1 = core_nw.MLP((self.hidden_size,), self.feature_size, use_layer_norm=False)
+
+    def __call__(self, phi):
+        return jnp.stack([self.head_0(phi), self.head_1(phi)], axis=-2)
+
+
+@struct.dataclass
+class SimNetworks:
+    """Config, algorithm, the core networks (policy) and the Sim modules; no parameters (hashable)."""
+
+    cfg: SF2Config = struct.field(pytree_node=False)
+    algo: str = struct.field(pytree_node=False)
+    core: core_nw.Networks = struct.field(pytree_node=False)
+    phi: core_nw.MLP = struct.field(pytree_node=False)
+    q: SFHeads = struct.field(pytree_node=False)
+
+
+def make_networks(cfg: SF2Config, algo: str) -> SimNetworks:
+    """φ: MLP(hidden_sizes → F) on D + A + F inputs; SF heads (q_hidden_size → F); the core's policy."""
+    core = core_nw.make_networks(cfg, algo)  # validates cfg and algo
+    return SimNetworks(
+        cfg=cfg,
+        algo=algo,
+        core=core,
+        phi=core_nw.MLP(cfg.hidden_sizes, cfg.feature_size, use_layer_norm=cfg.layer_norm),
+        q=SFHeads(cfg.q_hidden_size, cfg.feature_size),
+    )
+
+
+def _dtype(dtype):
+    return jnp.dtype(jnp.result_type(float) if dtype is None else dtype)
+
+
+def init_representation(nets: SimNetworks, key: jax.Array, dtype=None) -> Params:
+    """The Sim groups: `phi`, `q`, `task` ({"w": (F,)} ~ N(0, 1)), and targets copied from the online."""
+    cfg = nets.cfg
+    dtype = _dtype(dtype)
+    D, A, F = cfg.obs_size, cfg.action_size, cfg.feature_size
+    k_phi, k_q, k_task = jax.random.split(key, 3)
+    f32 = jnp.float32
+    online = {
+        "phi": nets.phi.init(k_phi, jnp.zeros((1, D + A + F), f32))["params"],
+        "q": nets.q.init(k_q, jnp.zeros((1, F), f32))["params"],
+        "task": {"w": jax.random.normal(k_task, (F,), f32)},
+    }
+    online = common.cast_tree(online, dtype)
+    return {
+        **online,
+        "target_phi": common.copy_tree(online["phi"]),
+        "target_q": common.copy_tree(online["q"]),
+    }
+
+
+def init_params(nets: SimNetworks, key: jax.Array, dtype=None) -> Params:
+    """Every group of a Sim agent: the core's `obs_norm`, `policy`, `target_policy` (TD3) or
+    `log_alpha` (SAC), plus `init_representation`'s groups."""
+    k_core, k_rep = jax.random.split(key)
+    core = core_nw.init_params(nets.core, k_core, dtype=_dtype(dtype))
+    params = {n: core[n] for n in ("obs_norm", "policy", "target_policy", "log_alpha") if n in core}
+    return {**params, **init_representation(nets, k_rep, dtype)}
+
+
+# ------------------------------------------------------------------------------------------ networks
+def task_vector(params: Params):
+    """w (F,)."""
+    return params["task"]["w"]
+
+
+def _task_input(params: Params, batch_shape):
+    """ŵ = sg(w) / (‖w‖ + 1e-8), broadcast to (*batch_shape, F): φ's task input. The gradient of every
+    loss into w goes through Q = wᵀψ or the reward prediction only (Chua et al.; authors' code)."""
+    w_hat = common.l2_normalize(sg(task_vector(params)))
+    return jnp.broadcast_to(w_hat, (*batch_shape, w_hat.shape[-1]))
+
+
+def features(nets: SimNetworks, params: Params, obs, action, target: bool = False):
+    """Basis features φ(s, a, ŵ) (B, F) on concat[normalize(s), a, ŵ]; `target` uses φ̄."""
+    cfg = nets.cfg
+    common.check_last("obs", obs, cfg.obs_size, "obs_size")
+    common.check_last("action", action, cfg.action_size, "action_size")
+    x = core_nw.normalize(obs, params["obs_norm"])
+    x = jnp.concatenate([x, action, _task_input(params, x.shape[:-1]).astype(x.dtype)], axis=-1)
+    return nets.phi.apply({"params": params["target_phi" if target else "phi"]}, x)
+
+
+def successor_features(nets: SimNetworks, params: Params, phi, target: bool = False):
+    """ψ_j(φ) (B, 2, F) of the twin heads; `target` uses ψ̄."""
+    common.check_last("phi", phi, nets.cfg.feature_size, "feature_size")
+    return nets.q.apply({"params": params["target_q" if target else "q"]}, phi)
+
+
+def critic(nets: SimNetworks, params: Params, obs, action, target: bool = False):
+    """Q_j(s, a) = wᵀψ_j(φ(s, a, ŵ)) (B, 2); `target` uses φ̄ and ψ̄ (w is the current task vector)."""
+    psi = successor_features(nets, params, features(nets, params, obs, action, target), target)
+    return jnp.einsum("...jf,f->...j", psi, task_vector(params))
+
+
+# ------------------------------------------------------------------------------------------ losses
+def reward_loss(nets: SimNetworks, params: Params, batch: Batch, next_action):
+    """Reward prediction (Chua et al. 2024; authors' `task_loss`):
+    loss = mean_b m_b (wᵀφ(s′, ā′, ŵ) − rs·r)². ā′ (B, A) is given (TD3: target policy at s′; SAC: a
+    policy sample) and gets no gradient. Trains `task` (w) only. aux: predicted_reward_rms (√mean (wᵀφ′)²)."""
+    cfg = nets.cfg
+    b = common.check_batch(cfg, batch)
+    common.check_noise("next_action", next_action, b, cfg.action_size, "action_size")
+    p = common.trainable(params, ("task",))
+    phi_next = features(nets, p, batch.next_obs, sg(next_action))
+    pred = phi_next @ task_vector(p)
+    err = pred - cfg.reward_scaling * batch.reward
+    loss = jnp.mean((1 - batch.truncation) * err**2)
+    return loss, {"predicted_reward_rms": jnp.sqrt(jnp.mean(sg(pred) ** 2))}
+
+
+def _critic_groups(train_features: bool) -> tuple[str, ...]:
+    return ("q", "phi") if train_features else ("q",)
+
+
+def td3_critic_loss(nets: SimNetworks, params: Params, batch: Batch, smoothing, train_features: bool = True):
+    """TD3Sim critic: `common.td3_critic_loss` on `critic`. Trains ψ_j (`q`) and, when `train_features`
+    (Sim's Q-alignment of φ), `phi`. `smoothing` ξ (B, A) ~ N(0, I)."""
+    return common.td3_critic_loss(
+        lambda p, o, a, target=False: critic(nets, p, o, a, target),
+        nets.core,
+        params,
+        batch,
+        smoothing,
+        _critic_groups(train_features),
+    )
+
+
+def td3_actor_loss(nets: SimNetworks, params: Params, batch: Batch):
+    """TD3Sim actor: −mean_b Q_0(s, π(s)). Trains the policy only."""
+    return common.td3_actor_loss(
+        lambda p, o, a, target=False: critic(nets, p, o, a, target), nets.core, params, batch
+    )
+
+
+def sac_critic_loss(nets: SimNetworks, params: Params, batch: Batch, noise, train_features: bool = True):
+    """SACSim critic: `common.sac_critic_loss` on `critic`; trains `q` and (if `train_features`) `phi`."""
+    _require_sac(nets)
+    return common.sac_critic_loss(
+        lambda p, o, a, target=False: critic(nets, p, o, a, target),
+        nets.core,
+        params,
+        batch,
+        noise,
+        _critic_groups(train_features),
+    )
+
+
+def sac_actor_loss(nets: SimNetworks, params: Params, batch: Batch, noise):
+    """SACSim actor: mean_b(α log π(a|s) − min_j Q_j(s, a)). Trains the policy only."""
+    _require_sac(nets)
+    return common.sac_actor_loss(
+        lambda p, o, a, target=False: critic(nets, p, o, a, target), nets.core, params, batch, noise
+    )
+
+
+def _require_sac(nets):
+    if nets.algo != "sac":
+        raise ConfigError(f"SAC losses need networks made with algo='sac', these have algo={nets.algo!r}")

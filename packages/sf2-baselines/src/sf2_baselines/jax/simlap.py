@@ -1,0 +1,120 @@
+"""SimLap (JAX): Sim without the Q-alignment of the features, plus a graph-Laplacian orthogonality
+objective on L2-normalized features (TD3SimLap, SACSimLap; SF² paper §4.2). README.md "SimLap".
+
+Same networks and parameter groups as `sim` (φ, SF heads ψ_j, task vector w, Q_j = wᵀψ_j(φ)).
+What changes is who trains φ:
+- paper (default, `TRAIN_FEATURES_BY_CRITIC = False`): the TD loss trains the SF heads only; φ is
+  trained by `laplacian_loss` alone;
+- the authors' code (`sf2_baselines` representation `simlap_authors`): the TD loss trains φ too, then
+  the Laplacian step trains φ again.
+w is trained by Sim's `reward_loss` on its own schedule in both.
+
+Laplacian objective on φ̂ = φ/(‖φ‖ + 1e-8), φ = φ(s, a, ŵ), φ̂′ = normalized φ(s′, ā′, ŵ) (both online):
+    L_lap  = (1/(B·F)) Σ_b m_b ‖φ̂_b − φ̂′_b‖²                 (graph-Laplacian smoothness)
+    L_diag = −(2/B) Σ_b m_b φ̂_bᵀφ̂′_b                          (orthogonality: positive pairs)
+    L_off  = (1/(B(B−1))) Σ_{i≠j} (φ̂_iᵀφ̂′_j)²                  (orthogonality: other pairs)
+    laplacian_loss = L_lap + L_diag + L_off
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from sf2_jax.errors import ShapeError
+from sf2_jax.losses import Batch
+
+from . import common, sim
+from .sim import (
+    GROUPS,
+    REWARD_EVERY,
+    SimNetworks,
+    critic,
+    features,
+    init_params,
+    init_representation,
+    make_networks,
+    reward_loss,
+    successor_features,
+    task_vector,
+)
+
+__all__ = [
+    "GROUPS",
+    "REWARD_EVERY",
+    "TRAIN_FEATURES_BY_CRITIC",
+    "SimNetworks",
+    "make_networks",
+    "init_representation",
+    "init_params",
+    "task_vector",
+    "features",
+    "successor_features",
+    "critic",
+    "reward_loss",
+    "laplacian_loss",
+    "simlap_loss",
+    "td3_critic_loss",
+    "td3_actor_loss",
+    "sac_critic_loss",
+    "sac_actor_loss",
+]
+
+sg = jax.lax.stop_gradient
+Params = dict[str, Any]
+
+# The paper's SimLap "removes the Q-function alignment constraint": the TD loss does not train φ.
+TRAIN_FEATURES_BY_CRITIC = False
+
+
+def laplacian_loss(nets: SimNetworks, params: Params, batch: Batch, next_action):
+    """Graph-Laplacian orthogonality objective (module docstring). ā′ (B, A) is given (TD3: target policy
+    at s′; SAC: a policy sample) and gets no gradient. Trains `phi` only (through both φ(s, a) and
+    φ(s′, ā′)). Needs B ≥ 2. aux: lap_term, orth_diag, orth_offdiag."""
+    cfg = nets.cfg
+    b = common.check_batch(cfg, batch)
+    common.check_noise("next_action", next_action, b, cfg.action_size, "action_size")
+    if len(b) != 1 or b[0] < 2:
+        raise ShapeError(f"laplacian_loss needs a batch of shape (B, ...) with B >= 2, found batch shape {b}")
+    B = b[0]
+    p = common.trainable(params, ("phi",))
+    phi = common.l2_normalize(features(nets, p, batch.obs, batch.action))
+    phi_next = common.l2_normalize(features(nets, p, batch.next_obs, sg(next_action)))
+    mask = 1 - batch.truncation
+    lap = jnp.sum(mask * jnp.sum((phi - phi_next) ** 2, axis=-1)) / (B * cfg.feature_size)
+    cov = phi @ phi_next.T
+    diag = -2.0 * jnp.mean(mask * jnp.diagonal(cov))
+    off = jnp.sum(cov**2 * (1 - jnp.eye(B, dtype=cov.dtype))) / (B * (B - 1))
+    return lap + diag + off, {"lap_term": lap, "orth_diag": diag, "orth_offdiag": off}
+
+
+def simlap_loss(nets: SimNetworks, params: Params, batch: Batch, next_action):
+    """The SimLap representation step: `laplacian_loss` (trains φ) + Sim's `reward_loss` (trains w).
+    Neither term sends gradient into the other's group, so one Adam step on (φ, w) with one Adam state
+    per group equals the two separate steps. aux: the Laplacian terms, laplacian_loss, reward_loss."""
+    lap, aux = laplacian_loss(nets, params, batch, next_action)
+    rew, rew_aux = reward_loss(nets, params, batch, next_action)
+    return lap + rew, {**aux, **rew_aux, "laplacian_loss": lap, "reward_loss": rew}
+
+
+def td3_critic_loss(
+    nets: SimNetworks,
+    params: Params,
+    batch: Batch,
+    smoothing,
+    train_features: bool = TRAIN_FEATURES_BY_CRITIC,
+):
+    """TD3SimLap critic: Sim's TD3 critic; by default (paper) it trains the SF heads only."""
+    return sim.td3_critic_loss(nets, params, batch, smoothing, train_features)
+
+
+def sac_critic_loss(
+    nets: SimNetworks, params: Params, batch: Batch, noise, train_features: bool = TRAIN_FEATURES_BY_CRITIC
+):
+    """SACSimLap critic: Sim's SAC critic; by default (paper) it trains the SF heads only."""
+    return sim.sac_critic_loss(nets, params, batch, noise, train_features)
+
+
+td3_actor_loss = sim.td3_actor_loss
+sac_actor_loss = sim.sac_actor_loss

@@ -1,0 +1,98 @@
+"""SimLap (PyTorch): Sim without the Q-alignment of the features, plus a graph-Laplacian orthogonality
+objective on L2-normalized features (TD3SimLap, SACSimLap; SF² paper §4.2). Mirror of
+`sf2_baselines.jax.simlap`; README.md "SimLap".
+
+With φ̂ = φ(s, a, ŵ)/(‖·‖ + 1e-8) and φ̂′ = φ(s′, ā′, ŵ)/(‖·‖ + 1e-8), both online:
+    L_lap  = (1/(B·F)) Σ_b m_b ‖φ̂_b − φ̂′_b‖²
+    L_diag = −(2/B) Σ_b m_b φ̂_bᵀφ̂′_b
+    L_off  = (1/(B(B−1))) Σ_{i≠j} (φ̂_iᵀφ̂′_j)²
+    laplacian_loss = L_lap + L_diag + L_off        (trains φ)
+The TD loss trains the SF heads only by default (`TRAIN_FEATURES_BY_CRITIC = False`, the paper); the
+authors' code also trains φ with it (representation `simlap_authors`).
+"""
+
+from __future__ import annotations
+
+import torch
+from sf2_torch.errors import ShapeError
+from sf2_torch.losses import Batch
+
+from . import common, sim
+from .sim import (
+    GROUPS,
+    REWARD_EVERY,
+    SimNetworks,
+    critic,
+    features,
+    make_networks,
+    reward_loss,
+    successor_features,
+    task_vector,
+)
+
+__all__ = [
+    "GROUPS",
+    "REWARD_EVERY",
+    "TRAIN_FEATURES_BY_CRITIC",
+    "SimNetworks",
+    "make_networks",
+    "task_vector",
+    "features",
+    "successor_features",
+    "critic",
+    "reward_loss",
+    "laplacian_loss",
+    "simlap_loss",
+    "td3_critic_loss",
+    "td3_actor_loss",
+    "sac_critic_loss",
+    "sac_actor_loss",
+]
+
+TRAIN_FEATURES_BY_CRITIC = False
+
+
+def laplacian_loss(nets: SimNetworks, batch: Batch, next_action: torch.Tensor):
+    """Graph-Laplacian orthogonality objective (module docstring); trains `phi` only; needs B ≥ 2.
+    aux: lap_term, orth_diag, orth_offdiag."""
+    cfg = nets.cfg
+    b = common.check_batch(cfg, batch)
+    common.check_noise("next_action", next_action, b, cfg.action_size, "action_size")
+    if len(b) != 1 or b[0] < 2:
+        raise ShapeError(f"laplacian_loss needs a batch of shape (B, ...) with B >= 2, found batch shape {b}")
+    B = b[0]
+    phi = common.l2_normalize(features(nets, batch.obs, batch.action))
+    phi_next = common.l2_normalize(features(nets, batch.next_obs, next_action.detach()))
+    mask = 1.0 - batch.truncation
+    lap = torch.sum(mask * (phi - phi_next).square().sum(-1)) / (B * cfg.feature_size)
+    cov = phi @ phi_next.T
+    diag = -2.0 * torch.mean(mask * torch.diagonal(cov))
+    off = torch.sum(cov.square() * (1.0 - torch.eye(B, dtype=cov.dtype, device=cov.device))) / (B * (B - 1))
+    loss = lap + diag + off
+    return loss, {"lap_term": lap.detach(), "orth_diag": diag.detach(), "orth_offdiag": off.detach()}
+
+
+def simlap_loss(nets: SimNetworks, batch: Batch, next_action: torch.Tensor):
+    """`laplacian_loss` (trains φ) + Sim's `reward_loss` (trains w): the SimLap representation step.
+    aux: the Laplacian terms, laplacian_loss, reward_loss."""
+    lap, aux = laplacian_loss(nets, batch, next_action)
+    rew, rew_aux = reward_loss(nets, batch, next_action)
+    return lap + rew, {**aux, **rew_aux, "laplacian_loss": lap.detach(), "reward_loss": rew.detach()}
+
+
+def td3_critic_loss(
+    nets: SimNetworks, batch: Batch, smoothing: torch.Tensor, train_features: bool = TRAIN_FEATURES_BY_CRITIC
+):
+    """TD3SimLap critic: Sim's TD3 critic; by default (paper) it trains the SF heads only."""
+    return sim.td3_critic_loss(nets, batch, smoothing, train_features)
+
+
+def sac_critic_loss(
+    nets: SimNetworks, batch: Batch, noise: torch.Tensor, train_features: bool = TRAIN_FEATURES_BY_CRITIC
+):
+    """SACSimLap critic: Sim's SAC critic; by default (paper) it trains the SF heads only."""
+    return sim.sac_critic_loss(nets, batch, noise, train_features)
+
+
+td3_actor_loss = sim.td3_actor_loss
+sac_actor_loss = sim.sac_actor_loss

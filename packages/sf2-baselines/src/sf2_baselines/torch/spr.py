@@ -1,0 +1,196 @@
+"""SPR (PyTorch): self-predictive representations (Schwarzer et al., 2021) adapted to state inputs as in
+the SF² paper's Appendix B.1 (K = 1, Gaussian-noise augmentation with std 0.05). Mirror of
+`sf2_baselines.jax.spr`; README.md "SPR".
+
+`SPRNetworks` holds `obs_norm`, `policy`, `target_policy` | `log_alpha` (the core's), `encoder` f
+(MLP(hidden_sizes → F) on concat[s̃, a]), `q` (the core's twin Q heads on z = f(s, a)), `projection` g
+(Dense F → q_hidden_size), `prediction` h (Dense q_hidden_size → q_hidden_size), and the targets
+`target_encoder`, `target_q`, `target_projection`.
+
+    s̃ = normalize(s) + σξ,  s̃′ = normalize(s′) + σξ′,  p = h(g(f(s̃, a))),  t = sg(ḡ(f̄(s̃′, ā′)))
+    spr_loss = mean_b m_b ‖p/‖p‖ − t/‖t‖‖²
+"""
+
+from __future__ import annotations
+
+import torch
+from sf2_torch import networks as core_nw
+from sf2_torch.config import SF2Config
+from sf2_torch.errors import ConfigError
+from sf2_torch.losses import Batch
+from torch import nn
+
+from . import common
+
+__all__ = [
+    "GROUPS",
+    "AUGMENTATION_STD",
+    "SPRNetworks",
+    "make_networks",
+    "augment",
+    "features",
+    "critic",
+    "project",
+    "predict",
+    "spr_loss",
+    "td3_critic_loss",
+    "td3_actor_loss",
+    "sac_critic_loss",
+    "sac_actor_loss",
+]
+
+GROUPS = ("encoder", "q", "projection", "prediction", "target_encoder", "target_q", "target_projection")
+AUGMENTATION_STD = 0.05
+
+
+class SPRNetworks(nn.Module):
+    """All modules of an SPR agent (module docstring). `cfg`, `algo`, `augmentation_std` are attributes."""
+
+    def __init__(
+        self,
+        cfg: SF2Config,
+        algo: str = "td3",
+        augmentation_std: float = AUGMENTATION_STD,
+        *,
+        dtype=None,
+        device=None,
+    ) -> None:
+        super().__init__()
+        if not isinstance(cfg, SF2Config):
+            raise ConfigError(f"cfg must be an SF2Config, found {type(cfg).__name__}")
+        if algo not in core_nw.ALGOS:
+            raise ConfigError(
+                f"algo={algo!r} is invalid: must be one of {', '.join(map(repr, core_nw.ALGOS))}"
+            )
+        if not (isinstance(augmentation_std, (int, float)) and augmentation_std >= 0):
+            raise ConfigError(f"augmentation_std = {augmentation_std!r} is invalid: must be a number >= 0")
+        self.cfg, self.algo, self.augmentation_std = cfg, algo, float(augmentation_std)
+        kw = dict(dtype=dtype, device=device)
+        D, A, F, P = cfg.obs_size, cfg.action_size, cfg.feature_size, cfg.q_hidden_size
+        self.obs_norm = core_nw.ObsNormalizer(D, cfg.normalizer_std_min, cfg.normalizer_std_max, **kw)
+        self.policy = core_nw.TD3Policy(cfg, **kw) if algo == "td3" else core_nw.SACPolicy(cfg, **kw)
+        self.encoder = core_nw.MLP(D + A, cfg.hidden_sizes, F, cfg.layer_norm, **kw)
+        self.q = core_nw.TwinQ(cfg, **kw)
+        self.projection = core_nw.MLP(F, (), P, False, **kw)
+        self.prediction = core_nw.MLP(P, (), P, False, **kw)
+        self.target_encoder = common.frozen_copy(self.encoder)
+        self.target_q = common.frozen_copy(self.q)
+        self.target_projection = common.frozen_copy(self.projection)
+        if algo == "td3":
+            self.target_policy = common.frozen_copy(self.policy)
+        else:
+            self.log_alpha = nn.Parameter(
+                torch.full((), cfg.init_log_alpha, dtype=dtype or torch.get_default_dtype(), device=device)
+            )
+
+    def extra_repr(self) -> str:
+        return f"algo={self.algo!r}, augmentation_std={self.augmentation_std}"
+
+
+def make_networks(
+    cfg: SF2Config,
+    algo: str = "td3",
+    augmentation_std: float = AUGMENTATION_STD,
+    *,
+    dtype=None,
+    device=None,
+    core=None,
+) -> SPRNetworks:
+    """Build and initialise an SPR agent's modules (seed with `torch.manual_seed` first). `core`: an agent's
+    `SF2Networks` whose `obs_norm`, `policy`, `target_policy` / `log_alpha` are shared, not copied."""
+    return common.share_core(SPRNetworks(cfg, algo, augmentation_std, dtype=dtype, device=device), core)
+
+
+# ------------------------------------------------------------------------------------------ networks
+def augment(nets: SPRNetworks, obs_normalized: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
+    """s̃ = s̄ + σξ: Gaussian-noise augmentation in normalized-observation space (Appendix B.1)."""
+    return obs_normalized + nets.augmentation_std * noise
+
+
+def _input(nets: SPRNetworks, obs, action, obs_noise=None) -> torch.Tensor:
+    cfg = nets.cfg
+    common.check_last("obs", obs, cfg.obs_size, "obs_size")
+    common.check_last("action", action, cfg.action_size, "action_size")
+    x = core_nw.normalize(obs, nets.obs_norm)
+    if obs_noise is not None:
+        common.check_noise("obs_noise", obs_noise, x.shape[:-1], cfg.obs_size, "obs_size")
+        x = augment(nets, x, obs_noise)
+    return torch.cat([x, action], dim=-1)
+
+
+def features(nets: SPRNetworks, obs, action, target: bool = False, obs_noise=None) -> torch.Tensor:
+    """z = f(s̃, a) (B, F); s̃ = normalize(s) (+ σξ with `obs_noise` ξ); `target` uses f̄."""
+    return (nets.target_encoder if target else nets.encoder)(_input(nets, obs, action, obs_noise))
+
+
+def critic(nets: SPRNetworks, obs, action, target: bool = False) -> torch.Tensor:
+    """Twin Q(f(s, a)) (B, 2) on clean observations; `target` uses f̄ and Q̄."""
+    return (nets.target_q if target else nets.q)(features(nets, obs, action, target))
+
+
+def project(nets: SPRNetworks, z: torch.Tensor, target: bool = False) -> torch.Tensor:
+    """g(z) (B, q_hidden_size); `target` uses ḡ."""
+    common.check_last("z", z, nets.cfg.feature_size, "feature_size")
+    return (nets.target_projection if target else nets.projection)(z)
+
+
+def predict(nets: SPRNetworks, y: torch.Tensor) -> torch.Tensor:
+    """h(y) (B, q_hidden_size)."""
+    common.check_last("y", y, nets.cfg.q_hidden_size, "q_hidden_size")
+    return nets.prediction(y)
+
+
+def _critic_frozen(nets: SPRNetworks):
+    def fn(obs, action, target=False):
+        return common.frozen(nets.q, common.frozen(nets.encoder, _input(nets, obs, action)))
+
+    return fn
+
+
+def _critic_fn(nets: SPRNetworks):
+    return lambda obs, action, target=False: critic(nets, obs, action, target)
+
+
+# ------------------------------------------------------------------------------------------ losses
+def spr_loss(
+    nets: SPRNetworks,
+    batch: Batch,
+    next_action: torch.Tensor,
+    obs_noise: torch.Tensor,
+    next_obs_noise: torch.Tensor,
+):
+    """SPR self-prediction loss, K = 1 (module docstring). Trains `encoder`, `projection`, `prediction`.
+    aux: spr_cosine (mean_b m_b cos(p, t))."""
+    cfg = nets.cfg
+    b = common.check_batch(cfg, batch)
+    common.check_noise("next_action", next_action, b, cfg.action_size, "action_size")
+    common.check_noise("obs_noise", obs_noise, b, cfg.obs_size, "obs_size")
+    common.check_noise("next_obs_noise", next_obs_noise, b, cfg.obs_size, "obs_size")
+    z = features(nets, batch.obs, batch.action, obs_noise=obs_noise)
+    pred = common.l2_normalize(predict(nets, project(nets, z)))
+    with torch.no_grad():
+        z_next = features(nets, batch.next_obs, next_action, target=True, obs_noise=next_obs_noise)
+        tgt = common.l2_normalize(project(nets, z_next, target=True))
+    mask = 1.0 - batch.truncation
+    loss = torch.mean(mask * (pred - tgt).square().sum(-1))
+    return loss, {"spr_cosine": torch.mean(mask * (pred.detach() * tgt).sum(-1))}
+
+
+def td3_critic_loss(nets: SPRNetworks, batch: Batch, smoothing: torch.Tensor):
+    """TD3+SPR critic; trains `q` and `encoder`."""
+    return common.td3_critic_loss(_critic_fn(nets), nets, batch, smoothing)
+
+
+def td3_actor_loss(nets: SPRNetworks, batch: Batch):
+    """TD3+SPR actor: −mean_b Q_0(s, π(s)); trains the policy only."""
+    return common.td3_actor_loss(_critic_frozen(nets), nets, batch)
+
+
+def sac_critic_loss(nets: SPRNetworks, batch: Batch, noise: torch.Tensor):
+    """SAC+SPR critic; trains `q` and `encoder`."""
+    return common.sac_critic_loss(_critic_fn(nets), nets, batch, noise)
+
+
+def sac_actor_loss(nets: SPRNetworks, batch: Batch, noise: torch.Tensor):
+    """SAC+SPR actor: mean_b(α log π(a|s) − min_j Q_j(s, a)); trains the policy only."""
+    return common.sac_actor_loss(_critic_frozen(nets), nets, batch, noise)

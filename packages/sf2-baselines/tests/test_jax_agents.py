@@ -1,0 +1,132 @@
+"""The baselines plugged into sf2_jax's agents: registration, the base algorithms' losses equal the
+baselines' pure (cross-tested) losses, and SGD steps train the right groups."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+jax = pytest.importorskip("jax")
+reps = pytest.importorskip("sf2_jax.agents.representations")
+
+import jax.numpy as jnp  # noqa: E402
+import sf2_baselines.jax as bj  # noqa: E402
+from _baseline_helpers import B, numpy_batch, small_kwargs  # noqa: E402
+from sf2_jax import SF2Config  # noqa: E402
+from sf2_jax.agents.algorithms import make_algorithm  # noqa: E402
+from sf2_jax.losses import Batch  # noqa: E402
+
+MODULES = {"sim": bj.sim, "simlap": bj.simlap, "simlap_authors": bj.simlap, "spr": bj.spr}
+CRITIC_GROUPS = {
+    "sim": ("q", "phi"),
+    "simlap": ("q",),
+    "simlap_authors": ("q", "phi"),
+    "spr": ("q", "encoder"),
+}
+AUX = {
+    "sim": ("task",),
+    "simlap": ("phi", "task"),
+    "simlap_authors": ("phi", "task"),
+    "spr": ("encoder", "projection", "prediction"),
+}
+
+
+def _batch(seed=0):
+    return Batch(**{k: jnp.asarray(v) for k, v in numpy_batch(seed).items()})
+
+
+def _setup(algo, name):
+    cfg = SF2Config(**small_kwargs())
+    agent = make_algorithm(algo, cfg, reps.get(name), dtype=jnp.float64)
+    params, opt = agent.init(jax.random.PRNGKey(0))
+    return cfg, agent, params, opt
+
+
+def test_registered():
+    assert bj.REGISTERED == ("sim", "simlap", "simlap_authors", "spr")
+    for name in bj.REGISTERED:
+        assert name in reps.names()
+        assert reps.get(name).supported_algos == ("td3", "sac")
+
+
+@pytest.mark.parametrize("algo", ["td3", "sac"])
+@pytest.mark.parametrize("name", list(MODULES))
+def test_agent_losses_equal_the_baseline_losses(algo, name):
+    cfg, agent, params, _ = _setup(algo, name)
+    module = MODULES[name]
+    nets = agent.rep.baseline_nets
+    expected_groups = {
+        "obs_norm",
+        "policy",
+        "target_policy" if algo == "td3" else "log_alpha",
+        *module.GROUPS,
+    }
+    assert set(params) == expected_groups
+    assert ("q", *agent.rep.critic_groups) == CRITIC_GROUPS[name]
+    assert agent.rep.aux_groups == AUX[name]
+    assert set(agent.trained_groups()) == {*CRITIC_GROUPS[name], *AUX[name], *agent.policy_groups}
+    b = _batch()
+    noise = jax.random.normal(jax.random.PRNGKey(2), (B, cfg.action_size), jnp.float64)
+    groups = CRITIC_GROUPS[name]
+    if name == "sim" or name == "simlap_authors":
+        pure = lambda p: getattr(module, f"{algo}_critic_loss")(nets, p, b, noise, train_features=True)  # noqa: E731
+    else:
+        pure = lambda p: getattr(module, f"{algo}_critic_loss")(nets, p, b, noise)  # noqa: E731
+    pairs = [(lambda p: agent.critic_loss(p, b, noise), pure, groups)]
+    if algo == "td3":
+        pairs.append(
+            (lambda p: agent.actor_loss(p, b), lambda p: module.td3_actor_loss(nets, p, b), ("policy",))
+        )
+    else:
+        pairs.append(
+            (
+                lambda p: agent.actor_loss(p, b, noise),
+                lambda p: module.sac_actor_loss(nets, p, b, noise),
+                ("policy",),
+            )
+        )
+    for mine, theirs, trained in pairs:
+        np.testing.assert_allclose(float(mine(params)[0]), float(theirs(params)[0]), rtol=1e-12)
+        g1 = jax.grad(lambda t, f=mine: f({**params, **t})[0])({g: params[g] for g in trained})
+        g2 = jax.grad(lambda t, f=theirs: f({**params, **t})[0])({g: params[g] for g in trained})
+        for x, y in zip(jax.tree_util.tree_leaves(g1), jax.tree_util.tree_leaves(g2)):
+            np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-10, atol=1e-14)
+
+
+@pytest.mark.parametrize("algo", ["td3", "sac"])
+@pytest.mark.parametrize("name", list(MODULES))
+def test_sgd_steps_train_the_right_groups(algo, name):
+    cfg, agent, params, opt = _setup(algo, name)
+    step = jax.jit(agent.sgd_step)
+    p, o = params, opt
+    for i in range(3):
+        p, o, metrics = step(p, o, _batch(i), jax.random.PRNGKey(10 + i), jnp.asarray(i))
+    assert all(np.isfinite(float(v)) for v in metrics.values())
+    assert agent.rep.aux_loss_name in metrics
+
+    def changed(g):
+        return any(
+            not np.array_equal(np.asarray(x), np.asarray(y))
+            for x, y in zip(jax.tree_util.tree_leaves(p[g]), jax.tree_util.tree_leaves(params[g]))
+        )
+
+    for g in (*CRITIC_GROUPS[name], *AUX[name], "policy"):
+        assert changed(g), f"{name}/{algo}: {g} was not trained"
+    for g in [g for g in params if g.startswith("target_")]:
+        assert changed(g), f"{name}/{algo}: {g} was not averaged"
+
+
+@pytest.mark.parametrize("algo,every", [("td3", 10), ("sac", 16)])
+def test_task_vector_schedule(algo, every):
+    """w is updated on gradient steps that are multiples of `aux_every['task']` only (authors' code)."""
+    _, agent, params, opt = _setup(algo, "sim")
+    assert agent.rep.aux_every == {"task": every}
+    b = _batch()
+    p1, _, _ = agent.sgd_step(params, opt, b, jax.random.PRNGKey(1), jnp.asarray(1))
+    p0, _, _ = agent.sgd_step(params, opt, b, jax.random.PRNGKey(1), jnp.asarray(every))
+    assert not np.array_equal(np.asarray(p0["task"]["w"]), np.asarray(params["task"]["w"]))
+    if not np.array_equal(np.asarray(p1["task"]["w"]), np.asarray(params["task"]["w"])):
+        pytest.xfail(
+            "sf2_jax's base algorithm does not honour Representation.aux_every yet: w is updated "
+            "every step (see the baselines' README, 'Integration')"
+        )

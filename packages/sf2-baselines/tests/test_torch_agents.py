@@ -1,0 +1,87 @@
+"""The baselines plugged into sf2_torch's agents (TorchRL loss modules): registration, shared modules,
+and SGD steps that train exactly the right groups."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("torchrl")
+reps = pytest.importorskip("sf2_torch.agents.representations")
+
+import sf2_baselines.torch as bt  # noqa: E402
+from _baseline_helpers import B, numpy_batch, small_kwargs  # noqa: E402
+from sf2_torch import SF2Config  # noqa: E402
+from sf2_torch.agents.algorithms import make_algorithm  # noqa: E402
+from tensordict import TensorDict  # noqa: E402
+
+CRITIC = {"sim": ("q", "phi"), "simlap": ("q",), "simlap_authors": ("q", "phi"), "spr": ("q", "encoder")}
+AUX = {
+    "sim": ("task",),
+    "simlap": ("phi", "task"),
+    "simlap_authors": ("phi", "task"),
+    "spr": ("encoder", "projection", "prediction"),
+}
+
+
+def _td(agent, seed=0):
+    raw = numpy_batch(seed)
+
+    def t(x):
+        return torch.as_tensor(np.asarray(x), dtype=torch.float64)
+
+    done = torch.as_tensor(raw["discount"] == 0).unsqueeze(-1)
+    trunc = torch.as_tensor(raw["truncation"] > 0.5).unsqueeze(-1)
+    td = TensorDict(
+        {
+            "observation": t(raw["obs"]),
+            "action": t(raw["action"]),
+            "next": {
+                "observation": t(raw["next_obs"]),
+                "reward": t(raw["reward"]).unsqueeze(-1),
+                "done": done,
+                "terminated": done & ~trunc,
+                "truncated": trunc,
+            },
+        },
+        [B],
+    )
+    td.update(agent.draw_noise((B,), torch.Generator().manual_seed(seed)))
+    return td
+
+
+def test_registered():
+    assert bt.REGISTERED == ("sim", "simlap", "simlap_authors", "spr")
+    assert set(bt.REGISTERED) <= set(reps.names())
+
+
+@pytest.mark.parametrize("algo", ["td3", "sac"])
+@pytest.mark.parametrize("name", list(CRITIC))
+def test_sgd_step_trains_the_right_groups(algo, name):
+    torch.manual_seed(0)
+    agent = make_algorithm(algo, SF2Config(**small_kwargs()), reps.get(name), dtype=torch.float64)
+    nets = agent.rep.baseline_nets
+    # the agent's normalizer, policy and log α are the baseline networks' own
+    assert nets.obs_norm is agent.nets.obs_norm and nets.policy is agent.nets.policy
+    if algo == "sac":
+        assert nets.log_alpha is agent.nets.log_alpha
+    assert ("q", *agent.rep.critic_groups) == CRITIC[name] and agent.rep.aux_groups == AUX[name]
+    before = agent.canonical()
+    metrics = agent.sgd_step(_td(agent), actor_step=True)
+    assert agent.rep.aux_loss_name in metrics.keys()
+    assert all(np.isfinite(float(v)) for v in metrics.values())
+    after = agent.canonical()
+    for group in {*CRITIC[name], *AUX[name], "policy", *(g for g in {n.split(".")[0] for n in before}
+                                                          if g.startswith("target_"))}:  # fmt: skip
+        assert any(not np.array_equal(before[n], after[n]) for n in before if n.split(".")[0] == group), group
+    assert set(after) == set(bt.params.expected_shapes(nets))
+
+
+def test_simlap_critic_does_not_train_features():
+    torch.manual_seed(0)
+    agent = make_algorithm("td3", SF2Config(**small_kwargs()), reps.get("simlap"), dtype=torch.float64)
+    agent._zero(agent.groups)
+    agent.loss(_td(agent)).get("loss_qvalue").backward()
+    assert all(p.grad is None or not torch.any(p.grad) for p in agent.rep.baseline_nets.phi.parameters())
+    assert any(p.grad is not None and torch.any(p.grad) for p in agent.rep.baseline_nets.q.parameters())
