@@ -42,13 +42,13 @@ from sf2_torch.networks import MLP, SF2Networks, normalize
 
 __all__ = [
     "SF2FlowLoss", "TD3SF2Loss", "SACSF2Loss", "VanillaTD3Loss", "VanillaSACLoss", "SF2SoftUpdate",
-    "VanillaQHead", "batch_from_tensordict", "target_pairs",
+    "VanillaQHead", "TanhGaussian", "batch_from_tensordict", "target_pairs",
 ]
 
 
 # ------------------------------------------------------------------------------------------------ helpers
 def _flat(x: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
-    """A (B, 1) or (B,) flag/reward as a (B,) tensor of `like`'s dtype."""
+    """A (B, 1) or (B,) flag/reward as a (B,) tensor of the dtype of `like`, an observation-like (B, D)."""
     if x.ndim == like.ndim:
         x = x.squeeze(-1)
     return x.to(like.dtype)
@@ -349,6 +349,27 @@ class VanillaQHead(nn.Module):
         return self.mlp(torch.cat([obs_normalized, action], dim=-1))
 
 
+class TanhGaussian(torch.distributions.TransformedDistribution):
+    """N(loc, scale) squashed by tanh, the core's SAC policy distribution, for TorchRL's `SACLoss`:
+    torch's `TanhTransform` with a cache, so log π(a) of a sample comes from its pre-tanh value u
+    (log π = Σ[−½ξ² − log σ − ½ log 2π] − Σ 2(log 2 − u − softplus(−2u)), exactly the core's formula; no
+    atanh of a saturated action, no clamping), and no argument validation (which would synchronize with
+    the host). TorchRL's `TanhNormal` checks its bounds with a host synchronization in eager mode."""
+
+    def __init__(self, loc: torch.Tensor, scale: torch.Tensor):
+        base = torch.distributions.Independent(torch.distributions.Normal(loc, scale, validate_args=False), 1,
+                                               validate_args=False)
+        super().__init__(base, [torch.distributions.TanhTransform(cache_size=1)], validate_args=False)
+
+    @property
+    def deterministic_sample(self) -> torch.Tensor:
+        return torch.tanh(self.base_dist.base_dist.loc)
+
+    @property
+    def mode(self) -> torch.Tensor:
+        return self.deterministic_sample
+
+
 def _prepare(td: TensorDictBase, obs_norm: nn.Module, reward_scaling: float) -> TensorDictBase:
     """A shallow copy of `td` with normalized observations and scaled rewards (TorchRL's TD3Loss and
     SACLoss feed the tensordict's entries to the networks as they are)."""
@@ -388,7 +409,7 @@ class VanillaTD3Loss(TD3Loss):
         tensordict = _prepare(tensordict, self.obs_norm, self.reward_scaling)
         out = super().forward(tensordict)
         q = out.get("pred_value")
-        m = 1.0 - _flat(tensordict.get(("next", "truncated")), q[0])
+        m = 1.0 - _flat(tensordict.get(("next", "truncated")), tensordict.get("observation"))
         return TensorDict({"loss_qvalue": 0.25 * torch.mean(m * out.get("loss_qvalue")),
                            "loss_actor": out.get("loss_actor").mean(), "pred_value": q.mean(),
                            "target_value": out.get("target_value").mean()}, [])
@@ -425,7 +446,7 @@ class VanillaSACLoss(SACLoss):
         loss_q, _ = self.qvalue_v2_loss(tensordict)
         loss_a, meta_a = self.actor_loss(tensordict)
         loss_t = self._alpha_loss(meta_a["log_prob"])
-        m = 1.0 - _flat(tensordict.get(("next", "truncated")), loss_q)
+        m = 1.0 - _flat(tensordict.get(("next", "truncated")), tensordict.get("observation"))
         with torch.no_grad():  # mean Q(s, a) of the batch, for the "q" metric
             q = self._vmap_qnetworkN0(tensordict.select(*self.qvalue_network.in_keys, strict=False),
                                       self.qvalue_network_params.detach())

@@ -26,6 +26,7 @@ class ReplayBuffer:
         self.capacity = int(capacity)
         self.buffer = TorchRLReplayBuffer(storage=LazyTensorStorage(self.capacity, device=device),
                                           sampler=RandomSampler(), batch_size=None)
+        self.generator = generator
         self.buffer.set_rng(generator)
 
     def insert(self, transitions: TensorDictBase) -> None:
@@ -43,4 +44,8 @@ class ReplayBuffer:
         return self.buffer.state_dict()
 
     def load_state_dict(self, state: dict) -> None:
+        """Restore the transitions and the write position. The generator stays the one this buffer was
+        built with (TorchRL's `load_state_dict` would install a new generator object, splitting the
+        seed's one random stream in two); its state is restored by the owner of the generator."""
         self.buffer.load_state_dict(state)
+        self.buffer.set_rng(self.generator)

@@ -116,7 +116,6 @@ class NoRepresentation(Representation):
 
     def critic_loss(self, algo: str):
         from tensordict.nn import ProbabilisticTensorDictModule, ProbabilisticTensorDictSequential
-        from torchrl.modules import TanhNormal
 
         cfg, nets = self.cfg, self.nets
         p = next(nets.policy.parameters())
@@ -131,8 +130,7 @@ class NoRepresentation(Representation):
         actor = ProbabilisticTensorDictSequential(
             loc_scale,
             ProbabilisticTensorDictModule(in_keys=["loc", "scale"], out_keys=["action"],
-                                          distribution_class=TanhNormal,
-                                          distribution_kwargs={"low": -1.0, "high": 1.0, "tanh_loc": False},
+                                          distribution_class=objectives.TanhGaussian,
                                           return_log_prob=True))
         return objectives.VanillaSACLoss(actor, heads, cfg, nets.obs_norm)
 

@@ -1,0 +1,56 @@
+"""Agent tests need the `[train]` extra (torchrl, tensordict, playground, mujoco-mjx, jax, matplotlib,
+tqdm); without it they are skipped.
+
+They run on the CPU in float32 (the trainer's dtype) with one torch thread. The Playground envs are JAX
+programs: their compilation (tens of seconds per batch size on a small CPU) is cached on disk in pytest's
+cache folder (JAX's persistent compilation cache) and in the process (one jitted reset/step per task),
+and the training tests share a few tiny configs with equal train/eval batch sizes so that one compiled
+env step serves all of them.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import tempfile
+
+os.environ.setdefault("JAX_PLATFORMS", "cpu")
+os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+
+_MISSING = [m for m in ("torchrl", "tensordict", "mujoco_playground", "jax", "matplotlib", "tqdm")
+            if importlib.util.find_spec(m) is None]
+if _MISSING:
+    collect_ignore_glob = ["test_*.py"]
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _agents_setup(request):
+    import torch
+
+    torch.set_num_threads(1)
+    if _MISSING:
+        return
+    import jax
+
+    cache = getattr(request.config, "cache", None)
+    folder = str(cache.mkdir("jax-compile-cache")) if cache is not None else tempfile.mkdtemp()
+    jax.config.update("jax_compilation_cache_dir", folder)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+
+
+TINY = dict(
+    num_envs=4, num_eval_envs=4, episode_length=60, num_evals=4, num_timesteps=64 + 3 * 8 * 4,
+    batch_size=16, grad_updates_per_step=2, min_replay_size=64, max_replay_size=512,
+    feature_size=8, hidden_sizes=(16,), q_hidden_size=16, zeta_hidden_sizes=(16,), embedding_size=4,
+    compile="off",
+)
+
+
+@pytest.fixture(scope="session")
+def tiny_cfg():
+    """Seconds per run: 4 envs, 60-step episodes, 16-wide networks, 3 epochs of 8 actor steps."""
+    from sf2_torch.agents import make_config
+
+    return make_config("quick", "CartpoleBalance", algo="td3", representation="sf2", overrides=TINY)

@@ -1,0 +1,180 @@
+"""Bad input gets a clear error (exit status 2 from the CLI) before anything is built; presets, overrides
+and seeds parse as documented; `sf2-torch` takes the same configs and flags as `sf2-jax`."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+
+import pytest
+from sf2_torch import cli
+from sf2_torch.agents import configs, envs, representations, trainer
+from sf2_torch.errors import ConfigError
+
+
+@pytest.fixture(autouse=True)
+def no_program(monkeypatch):
+    """Building a program (the first step that builds networks or envs) fails the test."""
+    def refuse(cfg):
+        raise AssertionError("a program was built: validation did not stop the bad input first")
+
+    monkeypatch.setattr(trainer, "get_program", refuse)
+
+
+@representations.register
+class _SacOnly(representations.NoRepresentation):
+    name = "test_sac_only"
+    supported_algos = ("sac",)
+
+
+def _cli_error(capsys, *args):
+    argv = ["train", "--config", "quick", "--out", "/nonexistent/should-not-be-created", *args]
+    assert cli.main(argv) == 2
+    return capsys.readouterr().err
+
+
+@pytest.mark.parametrize("args,expected", [
+    (["--task", "CartpoleBalanse"], ["unknown task 'CartpoleBalanse'", "Did you mean CartpoleBalance",
+                                     "AcrobotSwingup", "WalkerWalk"]),
+    (["--task", "CartpoleBalance", "--algo", "ddpg"], ["algo = 'ddpg'", "td3, sac"]),
+    (["--task", "CartpoleBalance", "--repr", "spr"], ["representation = 'spr'", "none", "sf2"]),
+    (["--task", "CartpoleBalance", "--repr", "test_sac_only"],
+     ["algo 'td3' with representation 'test_sac_only' does not exist", "sac+test_sac_only"]),
+    (["--task", "CartpoleBalance", "--num-timesteps", "1000"],
+     ["num_timesteps = 1000 is smaller than the prefill", "min_replay_size = 4096"]),
+    (["--task", "CartpoleBalance", "--set", "min_replay_size=300000"],
+     ["min_replay_size", "max_replay_size"]),
+    (["--task", "CartpoleBalance", "--set", "batch_size=0"], ["batch_size = 0", ">= 1"]),
+    (["--task", "CartpoleBalance", "--set", "batch_size=1.5"], ["batch_size", "integer"]),
+    (["--task", "CartpoleBalance", "--set", "bogus=1"], ["unknown config field 'bogus'"]),
+    (["--task", "CartpoleBalance", "--set", "gamma_su"], ["expected field=value"]),
+    (["--task", "CartpoleBalance", "--gamma-su", "1.0"], ["gamma_su", "0 <= gamma_su < 1"]),
+    (["--task", "CartpoleBalance", "--embedding-size", "7"], ["embedding_size", "even"]),
+    (["--task", "CartpoleBalance", "--integrator", "rk4"], ["integrator", "midpoint"]),
+    (["--task", "CartpoleBalance", "--seeds", "3-1"], ["seeds '3-1' are invalid"]),
+    (["--task", "CartpoleBalance", "--seeds", "0,0"], ["duplicates"]),
+    (["--task", "CartpoleBalance", "--repr", "sf2,sf2"], ["repeats"]),
+    # torch-only fields
+    (["--task", "CartpoleBalance", "--compile", "fast"], ["compile = 'fast'", "max-autotune-no-cudagraphs"]),
+    (["--task", "CartpoleBalance", "--cudagraphs", "maybe"], ["cudagraphs = 'maybe'", "auto, on, off"]),
+    (["--task", "CartpoleBalance", "--device", "tpu"], ["device = 'tpu'", "cpu, cuda"]),
+    (["--task", "CartpoleBalance", "--device", "cpu", "--cudagraphs", "on"], ["CUDA graphs need a CUDA"]),
+])
+def test_bad_train_input(capsys, args, expected):
+    err = _cli_error(capsys, *args)
+    for text in expected:
+        assert text in err, err
+    assert "Traceback" not in err and err.startswith("sf2-torch train: error:")
+
+
+def test_cuda_requested_without_cuda(capsys):
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    err = _cli_error(capsys, "--task", "CartpoleBalance", "--device", "cuda")
+    assert "CUDA is not available" in err
+
+
+def test_bad_preset(capsys):
+    assert cli.main(["train", "--task", "CartpoleBalance", "--config", "huge", "--out", "/x"]) == 2
+    assert "unknown config preset 'huge'" in capsys.readouterr().err
+
+
+def test_several_methods_all_checked_before_any_training(capsys):
+    err = _cli_error(capsys, "--task", "CartpoleBalance", "--repr", "sf2,test_sac_only")
+    assert "test_sac_only" in err
+
+
+def test_eval_of_missing_folder(capsys, tmp_path):
+    assert cli.main(["eval", str(tmp_path / "nothing")]) == 2
+    assert "not a run folder" in capsys.readouterr().err
+
+
+def test_presets():
+    paper = configs.make_config("paper", "PendulumSwingup", "sac", "sf2")
+    assert (paper.num_timesteps, paper.action_repeat, paper.learning_rate, paper.tau_zeta) == (
+        10_000_000, 4, 1e-3, 0.05)
+    assert (paper.num_envs, paper.batch_size, paper.grad_updates_per_step, paper.min_replay_size,
+            paper.max_replay_size, paper.num_evals, paper.hidden_sizes, paper.feature_size) == (
+        128, 512, 8, 8192, 4_194_304, 100, (512, 512, 512), 512)
+    assert (paper.device, paper.compile, paper.cudagraphs) == ("auto", "auto", "auto")
+    assert configs.make_config("paper", "FishSwim").num_timesteps == 5_000_000
+    assert set(envs.PAPER_TASKS) <= set(envs.valid_tasks())
+    quick = configs.make_config("quick", "CartpoleBalance", overrides={"hidden_sizes": "64,64",
+                                                                       "deterministic_eval": "false"})
+    assert quick.hidden_sizes == (64, 64) and quick.deterministic_eval is False
+    configs.validate(quick, "0-3")
+    sf2 = quick.sf2_config(5, 1)
+    for name in configs.SF2_FIELDS:
+        assert getattr(sf2, name) == getattr(quick, name)
+
+
+def test_compile_and_device_resolution():
+    import torch
+
+    cfg = configs.make_config("quick", "CartpoleBalance")
+    cpu, cuda = torch.device("cpu"), torch.device("cuda", 0)
+    assert configs.resolve_compile(cfg, cpu) is None and configs.resolve_compile(cfg, cuda) == "default"
+    assert not configs.resolve_cudagraphs(cfg, cpu) and configs.resolve_cudagraphs(cfg, cuda)
+    cfg = cfg.replace(compile="max-autotune-no-cudagraphs", cudagraphs="off")
+    assert configs.resolve_compile(cfg, cpu) == "max-autotune-no-cudagraphs"
+    assert not configs.resolve_cudagraphs(cfg, cuda)
+    assert configs.resolve_compile(cfg.replace(compile="off"), cuda) is None
+    assert configs.resolve_device(cfg.replace(device="cpu")) == cpu
+
+
+def test_schedule_and_seeds():
+    cfg = configs.make_config("quick", "CartpoleBalance")
+    s = configs.schedule(cfg)
+    assert s.prefill_env_steps >= cfg.min_replay_size and s.total_env_steps >= cfg.num_timesteps
+    assert s.total_env_steps - cfg.num_timesteps < s.num_epochs * s.env_steps_per_actor_step
+    assert configs.parse_seeds("0-3") == (0, 1, 2, 3)
+    assert configs.parse_seeds("0-2,9") == (0, 1, 2, 9)
+    assert configs.parse_seeds(7) == (7,)
+    with pytest.raises(ConfigError):
+        configs.parse_seeds("-1")
+
+
+def test_cli_tasks_lists_paper_tasks(capsys):
+    assert cli.main(["tasks"]) == 0
+    out = capsys.readouterr().out
+    assert "PendulumSwingup" in out and "10,000,000" in out
+
+
+# ------------------------------------------------------------------------------- the same as sf2-jax
+_JAX_AGENTS = importlib.util.find_spec("sf2_jax") is not None
+
+
+@pytest.mark.skipif(not _JAX_AGENTS, reason="sf2_jax is not installed")
+@pytest.mark.parametrize("preset", ["paper", "quick"])
+@pytest.mark.parametrize("task", ["CartpoleBalance", "PendulumSwingup", "CheetahRun"])
+def test_presets_equal_sf2_jax(preset, task):
+    """Switching framework changes nothing of a run's config (the torch-only fields aside)."""
+    jconfigs = pytest.importorskip("sf2_jax.agents.configs")
+    j = jconfigs.make_config(preset, task, "sac", "sf2").to_dict()
+    t = configs.make_config(preset, task, "sac", "sf2").to_dict()
+    assert set(t) - set(j) == set(configs.TORCH_FIELDS)
+    assert {k: v for k, v in t.items() if k not in configs.TORCH_FIELDS} == j
+
+
+@pytest.mark.skipif(not _JAX_AGENTS, reason="sf2_jax is not installed")
+def test_cli_flags_equal_sf2_jax():
+    jcli = pytest.importorskip("sf2_jax.cli")
+
+    def flags(parser):
+        sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+        return {name: {opt for a in p._actions for opt in a.option_strings}
+                for name, p in sub.choices.items()}
+
+    j, t = flags(jcli.build_parser()), flags(cli.build_parser())
+    assert set(j) == set(t)
+    torch_only = {f"--{f}" for f in configs.TORCH_FIELDS}
+    for command in j:
+        assert t[command] - j[command] <= torch_only, command
+        assert j[command] <= t[command], command
+
+
+def test_train_config_fields_are_documented():
+    names = [f.name for f in dataclasses.fields(configs.TrainConfig)]
+    assert names[-3:] == list(configs.TORCH_FIELDS)

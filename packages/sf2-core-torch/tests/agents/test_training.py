@@ -1,0 +1,193 @@
+"""Training runs (tiny, seconds each once the env is compiled): the run folder, determinism, several
+seeds == seeds one by one, kill-and-resume == uninterrupted, the NaN guard, every algorithm ×
+representation, `sf2-torch train|eval|plot`; and a small run that learns (test_learns)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from sf2_torch import cli
+from sf2_torch.agents import representations
+from sf2_torch.agents.trainer import WALL_FIELDS, TrainingDiverged, train
+from tensordict import TensorDict
+
+
+def _strip(rows):
+    return [{k: v for k, v in r.items() if k not in WALL_FIELDS} for r in rows]
+
+
+def _seed_rows(rows, seed):
+    return [r for r in _strip(rows) if r["seed"] == seed]
+
+
+def _state(result, i=0):
+    """Every tensor of seed i's agent (parameters, targets, Adam states) as numpy, by name."""
+    state = result.state.agents[i].algo.state_dict()
+    out = {f"m.{k}": v.numpy() for k, v in state["modules"].items()}
+    for g, opt in state["optimizers"].items():
+        for pid, st in opt["state"].items():
+            for k, v in st.items():
+                out[f"o.{g}.{pid}.{k}"] = np.asarray(v)
+    return out
+
+
+def _assert_same_state(a, b, i=0, j=0):
+    sa, sb = _state(a, i), _state(b, j)
+    assert set(sa) == set(sb)
+    for k in sa:
+        np.testing.assert_array_equal(sa[k], sb[k], err_msg=k)
+
+
+@pytest.fixture(scope="module")
+def reference(tiny_cfg, tmp_path_factory):
+    """An uninterrupted single-seed run."""
+    return train(tiny_cfg, (0,), tmp_path_factory.mktemp("ref"), progress=False)
+
+
+def test_reference_run_folder(reference, tiny_cfg):
+    run = reference.run
+    conf = json.loads(run.config_path.read_text())
+    assert conf["config"]["representation"] == "sf2" and conf["framework"] == "torch"
+    assert conf["compile_mode"] is None and conf["device"] == "cpu"
+    rows = run.read_rows()
+    assert [r["epoch"] for r in rows] == [0, 1, 2, 3]
+    assert rows[-1]["env_steps"] >= tiny_cfg.num_timesteps
+    for name in ("critic_loss", "q", "flow_loss", "loss_p", "loss_boot", "actor_loss", "sps"):
+        assert np.isfinite(rows[-1][name])
+    assert run.curve_path.exists() and (run.final_dir / "params_seed0.npz").exists()
+    flat = dict(np.load(run.final_dir / "params_seed0.npz"))
+    assert "psi.dense_0.kernel" in flat and "target_zeta.dense_1.bias" in flat
+    from sf2_torch import params
+
+    nets = reference.state.agents[0].algo.nets
+    params.validate(flat, nets)  # the canonical layout both frameworks read
+
+
+def test_same_seed_same_metrics(reference, tiny_cfg, tmp_path):
+    again = train(tiny_cfg, (0,), tmp_path / "again", progress=False)
+    assert _strip(again.rows) == _strip(reference.rows)
+    _assert_same_state(again, reference)
+
+
+def test_several_seeds_equal_seeds_one_by_one(reference, tiny_cfg, tmp_path):
+    both = train(tiny_cfg, (0, 1), tmp_path / "both", progress=False)
+    one = train(tiny_cfg, (1,), tmp_path / "one", progress=False)
+    assert _seed_rows(both.rows, 0) == _seed_rows(reference.rows, 0)
+    assert _seed_rows(both.rows, 1) == _seed_rows(one.rows, 1)
+    assert _seed_rows(both.rows, 0) != _seed_rows(both.rows, 1)  # the seeds really differ
+    _assert_same_state(both, reference, 0, 0)
+    _assert_same_state(both, one, 1, 0)
+
+
+class _Killed(Exception):
+    pass
+
+
+def _kill_at(event, epoch):
+    def hook(e, n):
+        if (e, n) == (event, epoch):
+            raise _Killed(f"killed at {event} {epoch}")
+    return hook
+
+
+@pytest.mark.parametrize("event,epoch", [("rows", 2), ("checkpoint", 1), ("rows", 0)])
+def test_kill_and_resume_equals_uninterrupted(reference, tiny_cfg, tmp_path, event, epoch):
+    """Killed after an epoch's rows but before its checkpoint (rows must not be duplicated), right after
+    a checkpoint, and before the first checkpoint; a torn last line is tolerated too."""
+    out = tmp_path / "killed"
+    with pytest.raises(_Killed):
+        train(tiny_cfg, (0,), out, progress=False, hook=_kill_at(event, epoch))
+    with open(out / "metrics.jsonl", "a") as f:
+        f.write('{"epoch": 3, "seed": 0, "eval_ret')  # a kill in the middle of a write
+    resumed = train(tiny_cfg, (0,), out, progress=False)
+    expected_resume = {("rows", 2): 1, ("checkpoint", 1): 1, ("rows", 0): None}[(event, epoch)]
+    assert resumed.resumed_from == expected_resume
+    assert _strip(resumed.run.read_rows()) == _strip(reference.rows)
+    _assert_same_state(resumed, reference)
+
+
+def test_finished_run_is_not_retrained(reference, tiny_cfg):
+    again = train(tiny_cfg, (0,), reference.run.path, progress=False)
+    assert again.resumed_from == 3 and _strip(again.rows) == _strip(reference.rows)
+
+
+class _NaNLoss(torch.nn.Module):
+    """A loss on the Q heads that turns NaN at its 40th call (SGD step 40: epoch 3 of the tiny config,
+    8 actor steps x 2 updates = 16 per epoch)."""
+
+    class tensor_keys:  # noqa: N801 (the LossModule attribute the algorithm reads)
+        next_action = "next_action"
+
+    def __init__(self, params):
+        super().__init__()
+        self.params = params
+        self.register_buffer("counter", torch.zeros(()))
+
+    def forward(self, td):
+        self.counter += 1
+        zero = sum(p.sum() for p in self.params) * 0.0
+        return TensorDict({"loss_nan": zero + torch.where(self.counter > 40, torch.nan, 0.0)}, [])
+
+
+@representations.register
+class _NaNAfter(representations.NoRepresentation):
+    name = "test_nan_after"
+    aux_groups = ("q",)
+    aux_loss_name = "nan_loss"
+    aux_loss_key = "loss_nan"
+
+    def critic_loss(self, algo):
+        loss = super().critic_loss(algo)
+        self.aux_loss = _NaNLoss(self.groups(loss)["q"])
+        return loss
+
+
+def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tiny_cfg, tmp_path):
+    cfg = tiny_cfg.replace(representation="test_nan_after")
+    with pytest.raises(TrainingDiverged) as err:
+        train(cfg, (0,), tmp_path / "nan", progress=False)
+    msg = str(err.value)
+    assert "'nan_loss'" in msg and "gradient step 40" in msg and "epoch 3" in msg and "(epoch 2)" in msg
+    from sf2_torch.agents.checkpoint import Checkpointer
+
+    assert Checkpointer(tmp_path / "nan" / "checkpoints").latest() == 2
+    rows = [json.loads(line) for line in (tmp_path / "nan" / "metrics.jsonl").read_text().splitlines()]
+    assert [r["epoch"] for r in rows] == [0, 1, 2]
+
+
+@pytest.mark.parametrize("algo,rep", [("sac", "sf2"), ("td3", "none"), ("sac", "none")])
+def test_every_algorithm_and_representation_trains(tiny_cfg, tmp_path, algo, rep):
+    res = train(tiny_cfg.replace(algo=algo, representation=rep, num_evals=2), (0,), tmp_path / "run",
+                progress=False)
+    last = res.rows[-1]
+    expected = {"critic_loss", "q", "actor_loss"} | ({"flow_loss", "loss_p", "loss_boot"} if rep == "sf2"
+                                                     else set()) | (
+        {"alpha_loss", "alpha", "entropy"} if algo == "sac" else set())
+    assert expected <= set(last) and all(np.isfinite(last[k]) for k in expected)
+    flat = dict(np.load(res.run.final_dir / "params_seed0.npz"))
+    assert "q.head_1.dense_0.kernel" in flat and "target_q.head_0.dense_0.bias" in flat
+    assert ("log_alpha" in flat) == (algo == "sac")
+    assert ("target_policy.dense_0.kernel" in flat) == (algo == "td3")
+
+
+def test_cli_train_eval_and_plot(reference, tiny_cfg, tmp_path, capsys):
+    out = tmp_path / "cli"
+    args = ["train", "--task", "CartpoleBalance", "--config", "quick", "--seeds", "0", "--out", str(out),
+            "--no-progress"]
+    for name, value in tiny_cfg.to_dict().items():
+        if name not in ("task", "algo", "representation"):
+            args += [f"--{name.replace('_', '-')}", ",".join(map(str, value)) if isinstance(value, list)
+                     else str(value)]
+    assert cli.main(args) == 0
+    assert "TD3+SF²" in capsys.readouterr().out
+    assert _strip(json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()) == \
+        _strip(reference.rows)
+    assert cli.main(["eval", str(reference.run.path), "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["epoch"] == 3 and len(res["returns"]["0"]) == tiny_cfg.num_eval_envs
+    png = tmp_path / "curves.png"
+    assert cli.main(["plot", str(reference.run.path), str(out), "--out", str(png)]) == 0
+    assert png.exists() and "TD3+SF²" in capsys.readouterr().out
