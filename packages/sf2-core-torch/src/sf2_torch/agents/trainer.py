@@ -319,6 +319,10 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
             (run.path / name).unlink(missing_ok=True)
         shutil.rmtree(run.checkpoint_dir, ignore_errors=True)
         shutil.rmtree(run.final_dir, ignore_errors=True)
+    conf = run.read_config()
+    if conf is not None and _framework(conf) != "torch":
+        raise RunFolderMismatch(f"run folder {run.path} holds a run of sf2-{_framework(conf)}; use another "
+                                f"--out (or --fresh to overwrite it)")
     existing = run.check_compatible(cfg.to_dict(), seeds)
     sched = configs.schedule(cfg)
     program = get_program(cfg)
@@ -405,6 +409,13 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
     return TrainResult(run=run, rows=rows, state=state, seeds=seeds, resumed_from=resumed_from)
 
 
+def _framework(conf: dict) -> str:
+    """"torch" or "jax": who wrote a run folder's config.json (sf2-jax writes no "framework" entry)."""
+    if "framework" in conf:
+        return conf["framework"]
+    return "torch" if "torch" in conf.get("versions", {}) else "jax"
+
+
 def _eval_env(program: Program, seeds):
     cfg = program.cfg
     return envs.make_env(cfg.task, cfg.episode_length, cfg.action_repeat, len(seeds) * cfg.num_eval_envs,
@@ -488,8 +499,8 @@ def evaluate_checkpoint(out, epoch: int | None = None, num_eval_envs: int | None
     conf = run.read_config()
     if conf is None:
         raise FileNotFoundError(f"{out} is not a run folder (no {RunFolder.CONFIG})")
-    if conf.get("framework", "torch") != "torch":
-        raise ConfigError(f"{out} was trained by sf2-{conf.get('framework')}; evaluate it with that CLI")
+    if _framework(conf) != "torch":
+        raise ConfigError(f"{out} was trained by sf2-{_framework(conf)}; evaluate it with that CLI")
     cfg = TrainConfig.from_dict(conf["config"])
     seeds = tuple(conf["seeds"])
     ckpt = Checkpointer(run.checkpoint_dir, keep=cfg.keep_checkpoints)
