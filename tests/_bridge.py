@@ -23,7 +23,10 @@ from sf2_torch import params as tparams
 # rewrites), and the flow-time embedding multiplies k by 10⁴ (DESIGN.md §5): one float32 ulp of k (6e-8)
 # becomes 6e-4 rad of phase in the highest frequency. Outputs that pass through ζ at an ODE-integrated k
 # therefore differ by up to ~3e-5 relative (observed), gradients by up to ~1e-4; the bounds leave 3x room.
-TOL = {"float64": 1e-10, "float32": {"value": 1e-4, "grad": 5e-4}}
+# A bare ODE solution compared at several intermediate flow times (kind "ode") is the worst-conditioned
+# output: compilers may fuse k_i + h/2 into one rounding or two, and that ulp is amplified 10⁴-fold;
+# observed up to 1.8e-4 relative, bound 1e-3.
+TOL = {"float64": 1e-10, "float32": {"value": 1e-4, "grad": 5e-4, "ode": 1e-3}}
 
 RECORD: dict[tuple[str, str], list] = {}
 

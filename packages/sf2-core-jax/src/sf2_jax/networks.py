@@ -19,6 +19,7 @@ from typing import Any
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from sf2_jax.config import SF2Config
@@ -226,9 +227,11 @@ def flow_time_embedding(k, size: int):
     k = jnp.asarray(k)
     if not jnp.issubdtype(k.dtype, jnp.floating):
         k = k.astype(jnp.result_type(float))
-    i = jnp.arange(size // 2, dtype=k.dtype)
-    omega = jnp.exp(-2.0 * i * math.log(1e4) / size)
-    arg = 1e4 * k[..., None] * omega
+    # Frequencies 10⁴·ω_i in float64 numpy, then one multiply in k's dtype: that product is correctly
+    # rounded in every framework, so float32 phases agree bit for bit with sf2_torch (the 10⁴ factor turns
+    # any reassociation of k·10⁴·ω_i into ~1e-4 relative output differences).
+    freq = 1e4 * np.exp(-2.0 * np.arange(size // 2) * math.log(1e4) / size)
+    arg = k[..., None] * jnp.asarray(freq, dtype=k.dtype)
     return jnp.stack([jnp.sin(arg), jnp.cos(arg)], axis=-1).reshape(*k.shape, size)
 
 

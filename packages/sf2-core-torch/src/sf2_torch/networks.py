@@ -21,6 +21,7 @@ import copy
 import math
 from collections.abc import Mapping, Sequence
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -412,11 +413,10 @@ def flow_time_embedding(k: torch.Tensor, size: int) -> torch.Tensor:
     k = torch.as_tensor(k)
     if not k.is_floating_point():
         k = k.to(torch.get_default_dtype())
-    i = torch.arange(size // 2, dtype=k.dtype, device=k.device)
-    # ·(1/size) rather than /size: the reciprocal form XLA compiles a division by a constant into, so that
-    # float32 frequencies match sf2_jax bit for bit (see ode.integrate); equal in exact arithmetic.
-    omega = torch.exp(-2.0 * i * math.log(1e4) * (1.0 / size))
-    arg = (1e4 * k)[..., None] * omega
+    # Frequencies 10⁴·ω_i in float64 numpy, then one multiply in k's dtype: correctly rounded in both
+    # frameworks, so float32 phases agree bit for bit with sf2_jax.
+    freq = 1e4 * np.exp(-2.0 * np.arange(size // 2) * math.log(1e4) / size)
+    arg = k[..., None] * torch.as_tensor(freq, dtype=k.dtype, device=k.device)
     return torch.stack([torch.sin(arg), torch.cos(arg)], dim=-1).reshape(*k.shape, size)
 
 
