@@ -1,0 +1,165 @@
+"""Pluggable representations: what the critic sees, and the representation's own loss step.
+
+A representation is the part of an agent between the raw (s, a) and the twin Q values:
+
+- `init(key, core_params)` → the parameter groups it owns. It always owns the Q heads `q`/`target_q`
+  (their input is its features); SF² adds ψ, ζ and their targets. `core_params` are the groups
+  `sf2_jax.networks.init_params` made, so a representation that reuses core networks can take them.
+- `critic(params, obs, action, target)` → (B, 2): twin Q on its features (online or target groups).
+- `critic_groups`: groups besides `q` that the critic (TD) loss trains (SF²: ψ, the authors'
+  `back_critic_grad=True`).
+- `aux_groups`, `aux_noise(key, batch)`, `aux_loss(params, batch, next_action, noise)`: its own loss,
+  one Adam step on `aux_groups` right after the critic step of every SGD step (SF²: the flow loss on
+  ψ and ζ). `aux_noise` is the thin wrapper that draws the loss's random inputs; the loss is pure.
+  `next_action` is ā′, given by the base algorithm (TD3: target policy at s′; SAC: a policy sample).
+- `update_targets(params)` → the EMA-updated target groups it owns other than `target_q` (the base
+  algorithm updates `target_q` on its own schedule).
+
+The base algorithms (algorithms.py) are written once against this interface; the trainer never looks
+inside a representation. Baselines (Sim, SimLap, SPR) plug in by subclassing `Representation` and
+calling `register`. Every group a representation returns is saved, restored and EMA'd by name.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+from sf2_jax import losses, networks
+from sf2_jax.config import SF2Config
+
+__all__ = ["Representation", "NoRepresentation", "SF2Representation", "VanillaQ", "register", "get",
+           "names"]
+
+Params = dict[str, Any]
+
+
+class Representation:
+    """Base class (see the module docstring). Subclasses set the class attributes and override the
+    methods; the defaults describe a representation with no loss of its own."""
+
+    name: ClassVar[str] = ""
+    label: ClassVar[str] = ""                  # shown in tables and plots, e.g. "SF²"
+    supported_algos: ClassVar[tuple[str, ...]] = ("td3", "sac")
+    critic_groups: ClassVar[tuple[str, ...]] = ()
+    aux_groups: ClassVar[tuple[str, ...]] = ()
+    aux_loss_name: ClassVar[str] = "aux_loss"
+
+    def __init__(self, cfg: SF2Config, nets: networks.Networks):
+        self.cfg = cfg
+        self.nets = nets
+
+    def init(self, key: jax.Array, core_params: Params) -> Params:
+        raise NotImplementedError
+
+    def critic(self, params: Params, obs, action, target: bool = False):
+        raise NotImplementedError
+
+    def aux_noise(self, key: jax.Array, batch: losses.Batch):
+        return None
+
+    def aux_loss(self, params: Params, batch: losses.Batch, next_action, noise):
+        raise NotImplementedError(f"representation {self.name!r} has no loss of its own")
+
+    def update_targets(self, params: Params) -> Params:
+        return {}
+
+
+_REGISTRY: dict[str, type[Representation]] = {}
+
+
+def register(cls: type[Representation]) -> type[Representation]:
+    """Make `cls` selectable by `cls.name` (`--repr NAME`). Usable as a class decorator."""
+    if not cls.name:
+        raise ValueError(f"{cls.__name__}.name is empty")
+    _REGISTRY[cls.name] = cls
+    return cls
+
+
+def names() -> tuple[str, ...]:
+    return tuple(_REGISTRY)
+
+
+def get(name: str) -> type[Representation]:
+    return _REGISTRY[name]
+
+
+# ------------------------------------------------------------------------------------------- none
+class VanillaQ(nn.Module):
+    """Twin Q(s, a): two heads `head_0`, `head_1`, each the core `MLP(hidden_sizes → 1)` with LayerNorm,
+    on concat[normalize(s), a] (Brax's Q network with `q_network_layer_norm=True`, as the authors ran
+    vanilla TD3 and SAC)."""
+
+    hidden_sizes: tuple[int, ...]
+    layer_norm: bool = True
+
+    def setup(self):
+        self.head_0 = networks.MLP(self.hidden_sizes, 1, use_layer_norm=self.layer_norm)
+        self.head_1 = networks.MLP(self.hidden_sizes, 1, use_layer_norm=self.layer_norm)
+
+    def __call__(self, x):
+        return jnp.concatenate([self.head_0(x), self.head_1(x)], axis=-1)
+
+
+@register
+class NoRepresentation(Representation):
+    """`none`: vanilla TD3/SAC, the critic on (s, a) directly; no loss of its own."""
+
+    name = "none"
+    label = ""
+
+    def __init__(self, cfg: SF2Config, nets: networks.Networks):
+        super().__init__(cfg, nets)
+        self.q_net = VanillaQ(cfg.hidden_sizes, cfg.layer_norm)
+
+    def init(self, key, core_params):
+        dtype = core_params["obs_norm"]["mean"].dtype
+        x = jnp.zeros((1, self.cfg.obs_size + self.cfg.action_size), jnp.float32)
+        q = jax.tree_util.tree_map(lambda v: v.astype(dtype), self.q_net.init(key, x)["params"])
+        return {"q": q, "target_q": jax.tree_util.tree_map(jnp.copy, q)}
+
+    def critic(self, params, obs, action, target=False):
+        x = jnp.concatenate([networks.normalize(obs, params["obs_norm"]), action], axis=-1)
+        return self.q_net.apply({"params": params["target_q" if target else "q"]}, x)
+
+
+# ------------------------------------------------------------------------------------------- sf2
+@register
+class SF2Representation(Representation):
+    """`sf2`: the critic on ψ(s, a) (twin Q heads of the core), ψ also trained by the TD loss; the flow
+    step trains (ψ, ζ) on `sf2_jax.losses.flow_loss` (eq. 3–4, Algorithm 1); targets ψ̄ (τ) and ζ̄ (τ_ζ)."""
+
+    name = "sf2"
+    label = "SF²"
+    critic_groups = ("psi",)
+    aux_groups = ("psi", "zeta")
+    aux_loss_name = "flow_loss"
+
+    def init(self, key, core_params):
+        del key  # the core already initialised ψ, ζ and the Q heads
+        names_ = ("psi", "zeta", "q", "target_psi", "target_zeta", "target_q")
+        return {n: core_params[n] for n in names_}
+
+    def critic(self, params, obs, action, target=False):
+        features = networks.psi(self.nets, params, obs, action, target=target)
+        return networks.q_values(self.nets, params, features, target=target)
+
+    def aux_noise(self, key, batch):
+        k_eps, k_time = jax.random.split(key)
+        obs = batch.obs
+        eps = jax.random.normal(k_eps, obs.shape, obs.dtype)
+        flow_time = jax.random.uniform(k_time, obs.shape[:-1], obs.dtype)
+        return eps, flow_time
+
+    def aux_loss(self, params, batch, next_action, noise):
+        eps, flow_time = noise
+        return losses.flow_loss(self.nets, params, batch, next_action, eps, flow_time)
+
+    def update_targets(self, params):
+        return {
+            "target_psi": losses.ema_update(params["target_psi"], params["psi"], self.cfg.tau),
+            "target_zeta": losses.ema_update(params["target_zeta"], params["zeta"], self.cfg.tau_zeta),
+        }

@@ -1,0 +1,505 @@
+"""The one off-policy training loop (Brax style, current JAX), for every algorithm × representation.
+
+A `Program` is everything compiled for one `TrainConfig`; all of it is `vmap`ped over seeds, so
+`--seeds 0-3` trains four independent agents in one jitted program (a single seed is a vmap of one,
+the same code path). Per seed:
+
+- state: parameters, Adam states, the vectorized env state, the replay buffer, a PRNG key, counters,
+  and the start states of the evaluation envs; the running observation statistics are the
+  `obs_norm` parameter group (Brax's update rule, `sf2_jax.networks.update_normalizer`).
+- `init`: parameters (keyed by PRNGKey(seed)), one reset of `num_envs + num_eval_envs` envs (split
+  into the training envs and the evaluation start states), an empty buffer.
+- `epoch(state, first_actor_step)` (jitted, the state donated): `lax.scan` over
+  `actor_steps_per_epoch` actor steps. The first `prefill_actor_steps` actor steps of the run act
+  uniformly at random and skip the SGD (`lax.cond` on the unbatched step index, so only one branch
+  runs); every later one acts with exploration noise, updates the observation statistics, inserts
+  the transitions, samples `grad_updates_per_step` batches and runs that many SGD steps via
+  `lax.scan`. It returns the mean of every metric over the epoch's SGD steps and, per metric, the
+  index of its first non-finite value. The prefill lives in the epoch program so that the env step
+  is compiled once for training (the env dominates compile time on a CPU).
+- `evaluate`: one episode from each evaluation start state (deterministic or acting policy; the
+  policy's noise key changes with every evaluation, the start states do not).
+
+The host loop between epochs does everything that needs the host: the NaN guard (before anything is
+written), evaluation rows, checkpoints, the progress bar and the learning-curve PNG. Order per epoch:
+train → NaN guard → evaluate → append rows → checkpoint. A run killed at any moment resumes from its
+last checkpoint; rows of later epochs are dropped and produced again identically (runfolder.py).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import sys
+import time
+import warnings
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from sf2_jax import networks
+from sf2_jax.losses import Batch
+
+from . import configs, envs, representations
+from .algorithms import make_algorithm
+from .checkpoint import Checkpointer
+from .configs import TrainConfig
+from .replay import ReplayBuffer
+from .runfolder import RunFolder
+
+__all__ = ["TrainState", "Program", "get_program", "TrainingDiverged", "TrainResult", "train",
+           "seed_keys", "eval_keys", "flatten_params"]
+
+EVAL_STREAM = 0x5EED  # eval keys: fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), epoch)
+WALL_FIELDS = ("sps", "epoch_seconds", "eval_seconds", "walltime")  # differ between identical runs
+
+
+class TrainState(NamedTuple):
+    params: dict
+    opt_state: dict
+    env_state: Any
+    replay: dict
+    key: jax.Array
+    env_steps: jax.Array
+    grad_steps: jax.Array
+    eval_start: Any
+
+
+class TrainingDiverged(RuntimeError):
+    """A loss became NaN or inf; the run stopped before writing anything for that epoch."""
+
+
+def seed_keys(seeds) -> jax.Array:
+    return jnp.stack([jax.random.PRNGKey(s) for s in seeds])
+
+
+def eval_keys(seeds, epoch: int) -> jax.Array:
+    return jnp.stack([jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(s), EVAL_STREAM), epoch)
+                      for s in seeds])
+
+
+class Program:
+    """The compiled pieces of one config (see the module docstring). Build with `get_program(cfg)`."""
+
+    def __init__(self, cfg: TrainConfig):
+        self.cfg = cfg
+        self.spec = envs.make_envs(cfg.task, cfg.episode_length, cfg.action_repeat)
+        self.sf2 = cfg.sf2_config(self.spec.obs_size, self.spec.action_size)
+        self.algo = make_algorithm(cfg.algo, self.sf2, representations.get(cfg.representation))
+        self.buffer = ReplayBuffer(cfg.max_replay_size, self.spec.obs_size, self.spec.action_size)
+        self.sched = configs.schedule(cfg)
+        # the order an SGD step computes its losses in (names the first NaN when several appear at once)
+        self.loss_order = ("critic_loss", self.algo.rep.aux_loss_name, "alpha_loss", "actor_loss")
+        self._init = jax.jit(jax.vmap(self._init_one))
+        self._epoch = jax.jit(jax.vmap(self._epoch_one, in_axes=(0, None)), donate_argnums=0)
+        self._evaluate = jax.jit(jax.vmap(self._eval_one))
+        self._eval_starts = jax.jit(jax.vmap(self._eval_starts_one, in_axes=(0, None)), static_argnums=1)
+
+    # ------------------------------------------------------------------ host entry points
+    def _precision(self):
+        return jax.default_matmul_precision(self.cfg.matmul_precision)
+
+    def init(self, seeds) -> TrainState:
+        with self._precision():
+            return self.place(self._init(seed_keys(seeds)))
+
+    def abstract_state(self, seeds) -> TrainState:
+        with self._precision():
+            return jax.eval_shape(self._init, seed_keys(seeds))
+
+    def place(self, state):
+        """Spread the seeds over the local devices (DESIGN.md §9) when their number divides evenly;
+        the jitted functions then run each device's seeds where they live. One device: unchanged."""
+        devices = jax.local_devices()
+        n = jax.tree_util.tree_leaves(state)[0].shape[0]
+        if len(devices) < 2 or n % len(devices):
+            return state
+        mesh = jax.sharding.Mesh(np.array(devices), ("seed",))
+        sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("seed"))
+        return jax.device_put(state, sharding)
+
+    def epoch(self, state: TrainState, epoch: int) -> tuple[TrainState, dict, dict]:
+        """Run epoch `epoch` (1-based). Returns (state, metric means, first non-finite index)."""
+        first = jnp.asarray((epoch - 1) * self.sched.actor_steps_per_epoch, jnp.int32)
+        with self._precision(), warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=".*donated buffers were not usable.*")
+            return self._epoch(state, first)
+
+    def evaluate(self, params, eval_start, seeds, epoch: int) -> jax.Array:
+        """Episode returns (n_seeds, n_eval_envs) from the start states `eval_start`."""
+        with self._precision():
+            return self._evaluate(params, eval_start, eval_keys(seeds, epoch))
+
+    def fresh_eval_starts(self, seeds, n: int, epoch: int):
+        """`n` new evaluation start states per seed (for `sf2-jax eval --episodes`)."""
+        with self._precision():
+            return self._eval_starts(eval_keys(seeds, epoch), n)
+
+    # ------------------------------------------------------------------ per-seed pieces (vmapped)
+    def _init_one(self, key) -> TrainState:
+        k_params, k_env, k_train = jax.random.split(key, 3)
+        params, opt_state = self.algo.init(k_params)
+        n, m = self.cfg.num_envs, self.cfg.num_eval_envs
+        both = self.spec.train_env.reset(jax.random.split(k_env, n + m))  # one reset compiled, not two
+        for leaf in jax.tree_util.tree_leaves(both):
+            assert leaf.shape[:1] == (n + m,), f"env state leaf without the env axis: {leaf.shape}"
+        env_state = jax.tree_util.tree_map(lambda x: x[:n], both)
+        eval_start = jax.tree_util.tree_map(lambda x: x[n:], both)
+        zero = jnp.zeros((), jnp.int32)
+        return TrainState(params, opt_state, env_state, self.buffer.init(), k_train, zero, zero, eval_start)
+
+    def _eval_starts_one(self, key, n):
+        return self.spec.eval_env.reset(jax.random.split(jax.random.fold_in(key, 1), n))
+
+    def _env_step(self, env_state, action):
+        nstate = self.spec.train_env.step(env_state, action)
+        batch = Batch(obs=env_state.obs, action=action, reward=nstate.reward,
+                      discount=1.0 - nstate.done, next_obs=nstate.obs,
+                      truncation=nstate.info["truncation"])
+        return nstate, jax.tree_util.tree_map(lambda x: x.astype(jnp.float32), batch)
+
+    def _sgd_steps(self, state: TrainState, key):
+        """`grad_updates_per_step` SGD steps on fresh batches from the buffer."""
+        G, B = self.cfg.grad_updates_per_step, self.cfg.batch_size
+        k_sample, k_sgd = jax.random.split(key)
+        batches = jax.tree_util.tree_map(lambda x: x.reshape((G, B) + x.shape[1:]),
+                                         self.buffer.sample(state.replay, k_sample, G * B))
+
+        def sgd(carry, xs):
+            params, opt_state, step = carry
+            batch, k = xs
+            params, opt_state, metrics = self.algo.sgd_step(params, opt_state, batch, k, step)
+            return (params, opt_state, step + 1), metrics
+
+        (params, opt_state, grad_steps), metrics = jax.lax.scan(
+            sgd, (state.params, state.opt_state, state.grad_steps), (batches, jax.random.split(k_sgd, G)))
+        return state._replace(params=params, opt_state=opt_state, grad_steps=grad_steps), metrics
+
+    def _actor_step(self, state: TrainState, actor_step):
+        """One actor step; `actor_step` (the run's global index) is unbatched, so the prefill/train
+        `lax.cond`s stay real branches under the seed vmap."""
+        cfg, A = self.cfg, self.spec.action_size
+        prefill = actor_step < self.sched.prefill_actor_steps
+        key, k_act, k_sgd = jax.random.split(state.key, 3)
+        obs = state.env_state.obs
+        action = jax.lax.cond(
+            prefill,
+            lambda: jax.random.uniform(k_act, (cfg.num_envs, A), jnp.float32, -1.0, 1.0),
+            lambda: self.algo.explore(state.params, obs, k_act).astype(jnp.float32))
+        env_state, batch = self._env_step(state.env_state, action)
+        params = state.params
+        if cfg.normalize_observations:
+            params = {**params, "obs_norm": networks.update_normalizer(params["obs_norm"], batch.obs,
+                                                                       self.sf2)}
+        state = state._replace(params=params, env_state=env_state, key=key,
+                               replay=self.buffer.insert(state.replay, batch),
+                               env_steps=state.env_steps + self.sched.env_steps_per_actor_step)
+        zeros = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype),
+                                       jax.eval_shape(self._sgd_steps, state, k_sgd)[1])
+        state, metrics = jax.lax.cond(prefill, lambda s, k: (s, zeros), self._sgd_steps, state, k_sgd)
+        return state, (metrics, ~prefill)
+
+    def _epoch_one(self, state: TrainState, first_actor_step):
+        steps = first_actor_step + jnp.arange(self.sched.actor_steps_per_epoch, dtype=jnp.int32)
+        state, (metrics, trained) = jax.lax.scan(self._actor_step, state, steps)
+        mask = trained.astype(jnp.float32)[:, None]              # (actor steps, 1)
+        count = jnp.maximum(jnp.sum(trained) * self.cfg.grad_updates_per_step, 1)
+        means, first_bad = {}, {}
+        for name, m in metrics.items():                          # m: (actor steps, grad updates)
+            finite = jnp.isfinite(m) | (mask == 0)
+            means[name] = jnp.sum(jnp.where(mask > 0, m, 0.0)) / count
+            flat = finite.reshape(-1)
+            first_bad[name] = jnp.where(jnp.all(flat), -1, jnp.argmin(flat))
+        means["sgd_steps"] = jnp.sum(trained) * self.cfg.grad_updates_per_step
+        return state, means, first_bad
+
+    def _eval_one(self, params, eval_start, key):
+        cfg = self.cfg
+        env = self.spec.eval_env
+        n_envs = jax.tree_util.tree_leaves(eval_start)[0].shape[0]
+        n_steps = -(-cfg.episode_length // cfg.action_repeat)
+
+        def step(carry, k):
+            env_state, ret, alive = carry
+            action = self.algo.act(params, env_state.obs, k, cfg.deterministic_eval)
+            env_state = env.step(env_state, action)
+            ret = ret + env_state.reward.astype(jnp.float32) * alive
+            alive = alive * (1.0 - env_state.done.astype(jnp.float32))
+            return (env_state, ret, alive), None
+
+        zeros = jnp.zeros((n_envs,), jnp.float32)
+        (_, ret, _), _ = jax.lax.scan(step, (eval_start, zeros, zeros + 1.0), jax.random.split(key, n_steps))
+        return ret
+
+
+@functools.lru_cache(maxsize=8)
+def get_program(cfg: TrainConfig) -> Program:
+    """The `Program` of `cfg`, cached: runs with equal configs reuse the compiled functions."""
+    return Program(cfg)
+
+
+# ------------------------------------------------------------------------------------------- host loop
+@dataclasses.dataclass
+class TrainResult:
+    run: RunFolder
+    rows: list[dict]
+    state: TrainState           # final state of all seeds (leading axis = seed)
+    seeds: tuple[int, ...]
+    resumed_from: int | None    # checkpoint epoch resumed from, if any
+
+
+def flatten_params(params: dict, seed_index: int | None = None) -> dict[str, np.ndarray]:
+    """Dot-joined names → numpy arrays (the canonical naming of `sf2_jax.params`)."""
+    out = {}
+    for path, leaf in jax.tree_util.tree_flatten_with_path(params)[0]:
+        name = ".".join(str(getattr(p, "key", getattr(p, "idx", p))) for p in path)
+        arr = np.asarray(leaf)
+        out[name] = arr if seed_index is None else arr[seed_index]
+    return out
+
+
+def _diverged_message(first_bad: dict, sched, epoch: int, seeds, cfg, last_ckpt,
+                      order=()) -> str | None:
+    """The message naming the first non-finite loss of the epoch: lowest SGD step, then the order the
+    SGD step computes them in (`order`), or None if every metric is finite."""
+    G = cfg.grad_updates_per_step
+    rank = {name: i for i, name in enumerate(order)}
+    problems = []
+    for name, idx in first_bad.items():
+        for s_i, i in enumerate(np.asarray(idx)):
+            if i >= 0:
+                local, update = divmod(int(i), G)
+                actor_step = (epoch - 1) * sched.actor_steps_per_epoch + local
+                grad_step = sched.grad_steps_before(actor_step) * G + update
+                env_step = (actor_step + 1) * sched.env_steps_per_actor_step
+                problems.append((grad_step, rank.get(name, len(rank)), name, seeds[s_i], env_step))
+    if not problems:
+        return None
+    problems.sort()
+    g, _, name, seed, env_step = problems[0]
+    others = sorted({f"{n} (seed {s})" for _, _, n, s, _ in problems[1:]})
+    also = f"; also non-finite in the same epoch: {', '.join(others)}" if others else ""
+    keep = (f"the last good checkpoint (epoch {last_ckpt}) is kept" if last_ckpt is not None
+            else "no checkpoint was written yet")
+    return (f"training diverged: loss '{name}' became NaN/inf at gradient step {g} (env step {env_step}, "
+            f"epoch {epoch}, seed {seed}){also}. Nothing of epoch {epoch} was written; {keep}.")
+
+
+def _row_metrics(means: dict, s_i: int) -> dict:
+    """Epoch means of the training metrics of seed `s_i` (none for an epoch that was all prefill)."""
+    row = {name: float(np.asarray(v)[s_i]) for name, v in sorted(means.items())}
+    row["sgd_steps"] = int(row["sgd_steps"])
+    return row if row["sgd_steps"] else {"sgd_steps": 0}
+
+
+def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = False,
+          progress: bool = True, hook: Callable[[str, int], None] | None = None,
+          stop_after_epoch: int | None = None, plot: bool = True) -> TrainResult:
+    """Train `cfg` for every seed of `seeds` (vmapped) into the run folder `out`.
+
+    Resumes from the folder's last checkpoint when it holds the same run (`resume`); `fresh` deletes
+    the folder's previous contents first. `hook(event, epoch)` is called after "rows" are written and
+    after the "checkpoint" is saved (tests use it to simulate a kill). `stop_after_epoch` ends the run
+    early (after that epoch's checkpoint), as a kill would. Raises `ConfigError` for bad input before
+    anything is compiled and `TrainingDiverged` on a NaN/inf loss.
+    """
+    import shutil
+
+    seeds = configs.parse_seeds(seeds)
+    configs.validate(cfg, seeds)
+    run = RunFolder(out)
+    if fresh and run.path.exists():
+        for name in (RunFolder.CONFIG, RunFolder.METRICS, RunFolder.CURVE):
+            (run.path / name).unlink(missing_ok=True)
+        shutil.rmtree(run.checkpoint_dir, ignore_errors=True)
+        shutil.rmtree(run.final_dir, ignore_errors=True)
+    existing = run.check_compatible(cfg.to_dict(), seeds)
+    sched = configs.schedule(cfg)
+    if not existing:
+        run.write_config({"config": cfg.to_dict(), "seeds": list(seeds),
+                          "schedule": dataclasses.asdict(sched), "label": _label(cfg),
+                          "versions": _versions()})
+
+    if not existing:  # checkpoints without the config that made them are not this run's
+        shutil.rmtree(run.checkpoint_dir, ignore_errors=True)
+    program = get_program(cfg)
+    ckpt = Checkpointer(run.checkpoint_dir, keep=cfg.keep_checkpoints)
+    last = ckpt.latest() if (existing and resume) else None
+    resumed_from = last
+    if existing and not resume and ckpt.latest() is not None:
+        from .runfolder import RunFolderMismatch
+
+        raise RunFolderMismatch(f"{run.path} already holds checkpoints; pass --fresh to start over")
+    title = f"{_label(cfg)} on {cfg.task} ({len(seeds)} seed{'s' if len(seeds) > 1 else ''})"
+
+    if last is not None:
+        state, meta = ckpt.restore(last, program.abstract_state(seeds))
+        state = program.place(state)
+        rows = run.truncate_rows(last)
+        walltime = max((r.get("walltime", 0.0) for r in rows), default=0.0)
+        start = last + 1
+    else:
+        run.truncate_rows(-1)
+        rows, walltime, start = [], 0.0, 0
+
+    bar = _progress_bar(progress, sched.total_env_steps, sched.env_steps_after(max(start - 1, 0)), title)
+    t_start = time.time() - walltime
+    try:
+        if start == 0:  # evaluate the initial policy, checkpoint 0
+            state = program.init(seeds)
+            t = time.time()
+            returns = np.asarray(program.evaluate(state.params, state.eval_start, seeds, 0))
+            new = [_row(0, s, 0, returns[i], {}, None, time.time() - t, time.time() - t_start)
+                   for i, s in enumerate(seeds)]
+            run.append_rows(new)
+            rows += new
+            _call(hook, "rows", 0)
+            ckpt.save(0, state, {"env_steps": 0, "seeds": list(seeds)})
+            last = 0
+            _call(hook, "checkpoint", 0)
+            bar.set_postfix_str(f"eval {returns.mean():.1f}")
+            start = 1
+        for epoch in range(start, sched.num_epochs + 1):
+            t0 = time.time()
+            state, means, first_bad = program.epoch(state, epoch)
+            means = jax.device_get(means)
+            epoch_seconds = time.time() - t0
+            message = _diverged_message(first_bad, sched, epoch, seeds, cfg, last, program.loss_order)
+            if message:
+                raise TrainingDiverged(message)
+            t1 = time.time()
+            returns = np.asarray(program.evaluate(state.params, state.eval_start, seeds, epoch))
+            eval_seconds = time.time() - t1
+            sps = sched.env_steps_per_epoch / epoch_seconds
+            env_steps = sched.env_steps_after(epoch)
+            new = [_row(epoch, s, env_steps, returns[i], _row_metrics(means, i), sps, eval_seconds,
+                        time.time() - t_start, epoch_seconds) for i, s in enumerate(seeds)]
+            run.append_rows(new)
+            rows += new
+            _call(hook, "rows", epoch)
+            if epoch % cfg.checkpoint_every == 0 or epoch == sched.num_epochs or epoch == stop_after_epoch:
+                ckpt.save(epoch, state, {"env_steps": env_steps, "seeds": list(seeds)})
+                last = epoch
+                _call(hook, "checkpoint", epoch)
+            if plot:
+                _plot(rows, run, title)
+            bar.update(sched.env_steps_per_epoch)
+            bar.set_postfix_str(f"{sps:,.0f} steps/s, eval {returns.mean():.1f}")
+            if stop_after_epoch is not None and epoch >= stop_after_epoch:
+                break
+        else:
+            _write_final(run, state, seeds)
+            if plot:
+                _plot(rows, run, title)
+    finally:
+        bar.close()
+        ckpt.close()
+    return TrainResult(run=run, rows=rows, state=state, seeds=seeds, resumed_from=resumed_from)
+
+
+def _row(epoch, seed, env_steps, returns, metrics, sps, eval_seconds, walltime, epoch_seconds=None):
+    row = {"epoch": epoch, "seed": int(seed), "env_steps": int(env_steps),
+           "eval_return": float(np.mean(returns)), "eval_return_std": float(np.std(returns)),
+           "eval_seconds": round(eval_seconds, 3), "walltime": round(walltime, 3), **metrics}
+    if sps is not None:
+        row["sps"] = round(sps, 1)
+        row["epoch_seconds"] = round(epoch_seconds, 3)
+    return row
+
+
+def _label(cfg: TrainConfig) -> str:
+    from .plotting import method_label
+
+    return method_label(cfg.algo, cfg.representation)
+
+
+def _plot(rows, run, title):
+    try:
+        from .plotting import plot_learning_curve
+
+        plot_learning_curve(rows, run.curve_path, title)
+    except Exception as err:  # a plot must never stop training
+        print(f"warning: could not write {run.curve_path}: {err}", file=sys.stderr)
+
+
+def _write_final(run: RunFolder, state: TrainState, seeds) -> None:
+    run.final_dir.mkdir(parents=True, exist_ok=True)
+    params = jax.device_get(state.params)
+    for i, s in enumerate(seeds):
+        np.savez(run.final_dir / f"params_seed{s}.npz", **flatten_params(params, i))
+
+
+def _call(hook, event, epoch):
+    if hook is not None:
+        hook(event, epoch)
+
+
+def _versions() -> dict:
+    from importlib import metadata
+
+    out = {}
+    for dist in ("jax", "jaxlib", "flax", "optax", "orbax-checkpoint", "brax", "playground", "mujoco",
+                 "mujoco-mjx", "sf2-core-jax"):
+        try:
+            out[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+class _NoBar:
+    def update(self, n):
+        pass
+
+    def set_postfix_str(self, s):
+        pass
+
+    def close(self):
+        pass
+
+
+def _progress_bar(enabled: bool, total: int, initial: int, title: str):
+    if not enabled:
+        return _NoBar()
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, initial=initial, desc=title, unit="step", unit_scale=True, dynamic_ncols=True,
+                file=sys.stderr, smoothing=0.3)
+
+
+def evaluate_checkpoint(out, epoch: int | None = None, num_eval_envs: int | None = None,
+                        deterministic: bool | None = None) -> dict:
+    """Evaluate the checkpoint `epoch` (default: the latest) of the run folder `out`:
+    {"epoch", "env_steps", "returns": {seed: [episode returns]}}."""
+    run = RunFolder(out)
+    conf = run.read_config()
+    if conf is None:
+        raise FileNotFoundError(f"{out} is not a run folder (no {RunFolder.CONFIG})")
+    cfg = TrainConfig.from_dict(conf["config"])
+    seeds = tuple(conf["seeds"])
+    ckpt = Checkpointer(run.checkpoint_dir, keep=cfg.keep_checkpoints)
+    try:
+        available = ckpt.all()
+        if not available:
+            raise FileNotFoundError(f"{out} has no checkpoint yet")
+        epoch = max(available) if epoch is None else epoch
+        if epoch not in available:
+            raise FileNotFoundError(f"{out} has no checkpoint {epoch}; available: {available}")
+        state, meta = ckpt.restore(epoch, get_program(cfg).abstract_state(seeds))
+    finally:
+        ckpt.close()
+    eval_cfg = cfg if deterministic is None else cfg.replace(deterministic_eval=bool(deterministic))
+    program = get_program(eval_cfg)
+    starts = state.eval_start
+    if num_eval_envs is not None and num_eval_envs != cfg.num_eval_envs:
+        if num_eval_envs < 1:
+            raise configs.ConfigError(f"episodes = {num_eval_envs} is invalid: must be >= 1")
+        starts = program.fresh_eval_starts(seeds, num_eval_envs, 10_000 + epoch)
+    returns = np.asarray(program.evaluate(state.params, starts, seeds, 10_000 + epoch))
+    return {"epoch": epoch, "env_steps": meta.get("env_steps"),
+            "returns": {int(s): [float(x) for x in returns[i]] for i, s in enumerate(seeds)},
+            "deterministic": eval_cfg.deterministic_eval}
+

@@ -1,0 +1,40 @@
+"""Agent tests need the [train] extra (brax, playground, orbax-checkpoint); without it they are skipped.
+
+They run on the CPU in float32, the trainer's dtype (x64, which the unit tests turn on, is off here).
+Training tests share a few tiny configs, so compiled programs are reused (`get_program` caches them).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+
+os.environ.setdefault("JAX_PLATFORMS", "cpu")
+
+_MISSING = [m for m in ("brax", "mujoco_playground", "orbax.checkpoint", "matplotlib", "tqdm")
+            if importlib.util.find_spec(m.split(".")[0]) is None]
+if _MISSING:
+    collect_ignore_glob = ["test_*.py"]
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture(scope="module", autouse=True)
+def float32_jax():
+    """The unit tests' conftest turns on x64 for the whole session; the trainer runs in float32."""
+    import jax
+
+    with jax.enable_x64(False):
+        yield
+
+
+@pytest.fixture(scope="session")
+def tiny_cfg():
+    """Seconds per run: 4 envs, 60-step episodes, 16-wide networks; 3 epochs of 12 actor steps, the
+    first 8 of them the prefill; 2 SGD steps per actor step (8, 24, 24 SGD steps per epoch)."""
+    from sf2_jax.agents import make_config
+
+    return make_config("quick", "CartpoleBalance", algo="td3", representation="sf2", overrides=dict(
+        num_timesteps=4 * 36, num_evals=4, num_envs=4, num_eval_envs=2, episode_length=60,
+        batch_size=16, grad_updates_per_step=2, min_replay_size=32, max_replay_size=512,
+        feature_size=8, hidden_sizes=(16,), q_hidden_size=16, zeta_hidden_sizes=(16,), embedding_size=4))

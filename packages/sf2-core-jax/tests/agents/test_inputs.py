@@ -1,0 +1,112 @@
+"""Bad input gets a clear error (exit status 2 from the CLI) before anything is compiled; presets,
+overrides and seeds parse as documented."""
+
+from __future__ import annotations
+
+import pytest
+from sf2_jax import cli
+from sf2_jax.agents import configs, envs, representations, trainer
+from sf2_jax.errors import ConfigError
+
+
+@pytest.fixture(autouse=True)
+def no_compilation(monkeypatch):
+    """Building a program (the first step that compiles anything) fails the test."""
+    def refuse(cfg):
+        raise AssertionError("a program was built: validation did not stop the bad input first")
+
+    monkeypatch.setattr(trainer, "get_program", refuse)
+
+
+@representations.register
+class _SacOnly(representations.NoRepresentation):
+    name = "test_sac_only"
+    supported_algos = ("sac",)
+
+
+def _cli_error(capsys, *args):
+    argv = ["train", "--config", "quick", "--out", "/nonexistent/should-not-be-created", *args]
+    assert cli.main(argv) == 2
+    return capsys.readouterr().err
+
+
+@pytest.mark.parametrize("args,expected", [
+    (["--task", "CartpoleBalanse"], ["unknown task 'CartpoleBalanse'", "Did you mean CartpoleBalance",
+                                     "AcrobotSwingup", "WalkerWalk"]),
+    (["--task", "CartpoleBalance", "--algo", "ddpg"], ["algo = 'ddpg'", "td3, sac"]),
+    (["--task", "CartpoleBalance", "--repr", "spr"], ["representation = 'spr'", "none", "sf2"]),
+    (["--task", "CartpoleBalance", "--repr", "test_sac_only"],
+     ["algo 'td3' with representation 'test_sac_only' does not exist", "sac+test_sac_only"]),
+    (["--task", "CartpoleBalance", "--num-timesteps", "1000"],
+     ["num_timesteps = 1000 does not exceed the prefill", "min_replay_size = 4096"]),
+    (["--task", "CartpoleBalance", "--set", "min_replay_size=300000"],
+     ["min_replay_size", "max_replay_size"]),
+    (["--task", "CartpoleBalance", "--set", "batch_size=0"], ["batch_size = 0", ">= 1"]),
+    (["--task", "CartpoleBalance", "--set", "batch_size=1.5"], ["batch_size", "integer"]),
+    (["--task", "CartpoleBalance", "--set", "bogus=1"], ["unknown config field 'bogus'"]),
+    (["--task", "CartpoleBalance", "--set", "gamma_su"], ["expected field=value"]),
+    (["--task", "CartpoleBalance", "--gamma-su", "1.0"], ["gamma_su", "0 <= gamma_su < 1"]),
+    (["--task", "CartpoleBalance", "--embedding-size", "7"], ["embedding_size", "even"]),
+    (["--task", "CartpoleBalance", "--integrator", "rk4"], ["integrator", "midpoint"]),
+    (["--task", "CartpoleBalance", "--seeds", "3-1"], ["seeds '3-1' are invalid"]),
+    (["--task", "CartpoleBalance", "--seeds", "0,0"], ["duplicates"]),
+    (["--task", "CartpoleBalance", "--repr", "sf2,sf2"], ["repeats"]),
+])
+def test_bad_train_input(capsys, args, expected):
+    err = _cli_error(capsys, *args)
+    for text in expected:
+        assert text in err, err
+    assert "Traceback" not in err
+
+
+def test_bad_preset(capsys):
+    assert cli.main(["train", "--task", "CartpoleBalance", "--config", "huge", "--out", "/x"]) == 2
+    assert "unknown config preset 'huge'" in capsys.readouterr().err
+
+
+def test_several_methods_all_checked_before_any_training(capsys):
+    err = _cli_error(capsys, "--task", "CartpoleBalance", "--repr", "sf2,test_sac_only")
+    assert "test_sac_only" in err
+
+
+def test_eval_of_missing_folder(capsys, tmp_path):
+    assert cli.main(["eval", str(tmp_path / "nothing")]) == 2
+    assert "not a run folder" in capsys.readouterr().err
+
+
+def test_presets():
+    paper = configs.make_config("paper", "PendulumSwingup", "sac", "sf2")
+    assert (paper.num_timesteps, paper.action_repeat, paper.learning_rate, paper.tau_zeta) == (
+        10_000_000, 4, 1e-3, 0.05)
+    assert (paper.num_envs, paper.batch_size, paper.grad_updates_per_step, paper.min_replay_size,
+            paper.max_replay_size, paper.num_evals, paper.hidden_sizes, paper.feature_size) == (
+        128, 512, 8, 8192, 4_194_304, 100, (512, 512, 512), 512)
+    assert configs.make_config("paper", "FishSwim").num_timesteps == 5_000_000
+    assert set(envs.PAPER_TASKS) <= set(envs.valid_tasks())
+    quick = configs.make_config("quick", "CartpoleBalance", overrides={"hidden_sizes": "64,64",
+                                                                       "deterministic_eval": "false"})
+    assert quick.hidden_sizes == (64, 64) and quick.deterministic_eval is False
+    configs.validate(quick, "0-3")
+    sf2 = quick.sf2_config(5, 1)
+    for name in configs.SF2_FIELDS:
+        assert getattr(sf2, name) == getattr(quick, name)
+
+
+def test_schedule_and_seeds():
+    cfg = configs.make_config("quick", "CartpoleBalance")
+    s = configs.schedule(cfg)
+    assert s.prefill_env_steps >= cfg.min_replay_size and s.total_env_steps >= cfg.num_timesteps
+    assert s.total_env_steps - cfg.num_timesteps < s.num_epochs * s.env_steps_per_actor_step
+    assert s.env_steps_after(s.num_epochs) == s.total_env_steps
+    assert s.grad_steps_before(s.prefill_actor_steps + 3) == 3 and s.grad_steps_before(1) == 0
+    assert configs.parse_seeds("0-3") == (0, 1, 2, 3)
+    assert configs.parse_seeds("0-2,9") == (0, 1, 2, 9)
+    assert configs.parse_seeds(7) == (7,)
+    with pytest.raises(ConfigError):
+        configs.parse_seeds("-1")
+
+
+def test_cli_tasks_lists_paper_tasks(capsys):
+    assert cli.main(["tasks"]) == 0
+    out = capsys.readouterr().out
+    assert "PendulumSwingup" in out and "10,000,000" in out

@@ -1,0 +1,163 @@
+"""Training runs (tiny, seconds each): determinism, vmapped seeds == seeds one by one, kill-and-resume ==
+uninterrupted, the NaN guard, `sf2-jax eval` and `plot` on a run folder."""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from sf2_jax import cli
+from sf2_jax.agents.trainer import WALL_FIELDS, TrainingDiverged, train
+
+
+def _strip(rows):
+    return [{k: v for k, v in r.items() if k not in WALL_FIELDS} for r in rows]
+
+
+def _seed_rows(rows, seed):
+    return [r for r in _strip(rows) if r["seed"] == seed]
+
+
+def _assert_same_params(a, b, index_a=None, index_b=None):
+    la, lb = jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)
+    assert len(la) == len(lb)
+    for x, y in zip(la, lb):
+        x = np.asarray(x if index_a is None else x[index_a])
+        y = np.asarray(y if index_b is None else y[index_b])
+        np.testing.assert_array_equal(x, y)
+
+
+@pytest.fixture(scope="module")
+def reference(tiny_cfg, tmp_path_factory):
+    """An uninterrupted single-seed run."""
+    return train(tiny_cfg, (0,), tmp_path_factory.mktemp("ref"), progress=False)
+
+
+def test_reference_run_folder(reference, tiny_cfg):
+    run = reference.run
+    assert json.loads(run.config_path.read_text())["config"]["representation"] == "sf2"
+    rows = run.read_rows()
+    assert [r["epoch"] for r in rows] == [0, 1, 2, 3]
+    assert rows[-1]["env_steps"] >= tiny_cfg.num_timesteps
+    assert [r["env_steps"] for r in rows] == [0, 48, 96, 144]
+    assert [r.get("sgd_steps") for r in rows] == [None, 8, 24, 24]
+    for name in ("critic_loss", "flow_loss", "loss_p", "loss_boot", "actor_loss", "sps"):
+        assert np.isfinite(rows[-1][name])
+    assert run.curve_path.exists() and (run.final_dir / "params_seed0.npz").exists()
+    flat = np.load(run.final_dir / "params_seed0.npz")
+    assert "psi.dense_0.kernel" in flat and "target_zeta.dense_1.bias" in flat
+
+
+def test_same_seed_same_metrics(reference, tiny_cfg, tmp_path):
+    again = train(tiny_cfg, (0,), tmp_path / "again", progress=False)
+    assert _strip(again.rows) == _strip(reference.rows)
+    _assert_same_params(again.state.params, reference.state.params)
+
+
+def _assert_close_rows(a, b):
+    assert [(r["epoch"], r["seed"], r["env_steps"]) for r in a] == [(r["epoch"], r["seed"], r["env_steps"])
+                                                                    for r in b]
+    for ra, rb in zip(a, b):
+        assert set(ra) == set(rb)
+        for k in ra:
+            np.testing.assert_allclose(ra[k], rb[k], rtol=1e-4, atol=1e-5, err_msg=k)
+
+
+def _assert_close_params(a, b, index_a, index_b):
+    for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)):
+        np.testing.assert_allclose(np.asarray(x)[index_a], np.asarray(y)[index_b], rtol=1e-4, atol=1e-6)
+
+
+def test_vmapped_seeds_equal_seeds_one_by_one(reference, tiny_cfg, tmp_path):
+    """Seeds 0 and 1 in one vmapped program equal seed 0 alone and seed 1 alone.
+
+    Exactly equal across vmapped programs of >= 2 seeds (a seed's numbers do not depend on its batch
+    mates or its position: (0, 1) vs (2, 0)); equal up to float32 rounding against a one-seed program,
+    where XLA drops the unit seed axis and sums bias gradients in another order (last-bit differences,
+    checked here on a short run; like any chaotic dynamics they grow over long runs)."""
+    both = train(tiny_cfg, (0, 1), tmp_path / "both", progress=False)
+    swapped = train(tiny_cfg, (2, 0), tmp_path / "swapped", progress=False)
+    one = train(tiny_cfg, (1,), tmp_path / "one", progress=False)
+    assert _seed_rows(both.rows, 0) == _seed_rows(swapped.rows, 0)
+    _assert_same_params(both.state.params, swapped.state.params, 0, 1)
+    _assert_same_params(both.state.opt_state, swapped.state.opt_state, 0, 1)
+    assert _seed_rows(both.rows, 0) != _seed_rows(both.rows, 1)  # the seeds really differ
+    _assert_close_rows(_seed_rows(both.rows, 0), _seed_rows(reference.rows, 0))
+    _assert_close_rows(_seed_rows(both.rows, 1), _seed_rows(one.rows, 1))
+    _assert_close_params(both.state.params, reference.state.params, 0, 0)
+    _assert_close_params(both.state.params, one.state.params, 1, 0)
+
+
+class _Killed(Exception):
+    pass
+
+
+def _kill_at(event, epoch):
+    def hook(e, n):
+        if (e, n) == (event, epoch):
+            raise _Killed(f"killed at {event} {epoch}")
+    return hook
+
+
+@pytest.mark.parametrize("event,epoch", [("rows", 2), ("checkpoint", 1), ("rows", 0)])
+def test_kill_and_resume_equals_uninterrupted(reference, tiny_cfg, tmp_path, event, epoch):
+    """Killed after an epoch's rows but before its checkpoint (rows must not be duplicated), right after
+    a checkpoint, and before the first checkpoint; a torn last line is tolerated too."""
+    out = tmp_path / "killed"
+    with pytest.raises(_Killed):
+        train(tiny_cfg, (0,), out, progress=False, hook=_kill_at(event, epoch))
+    with open(out / "metrics.jsonl", "a") as f:
+        f.write('{"epoch": 3, "seed": 0, "eval_ret')  # a kill in the middle of a write
+    resumed = train(tiny_cfg, (0,), out, progress=False)
+    expected_resume = {("rows", 2): 1, ("checkpoint", 1): 1, ("rows", 0): None}[(event, epoch)]
+    assert resumed.resumed_from == expected_resume
+    assert _strip(resumed.run.read_rows()) == _strip(reference.rows)
+    _assert_same_params(resumed.state.params, reference.state.params)
+    _assert_same_params(resumed.state.opt_state, reference.state.opt_state)
+
+
+def test_finished_run_is_not_retrained(reference, tiny_cfg):
+    again = train(tiny_cfg, (0,), reference.run.path, progress=False)
+    assert again.resumed_from == 3 and _strip(again.rows) == _strip(reference.rows)
+
+
+def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tiny_cfg, tmp_path, monkeypatch):
+    """A NaN in the Q heads at the start of epoch 3 (as if an update had diverged there) makes every loss
+    of that epoch's first SGD step non-finite; the run stops naming the loss, the SGD step (32: epochs
+    1 and 2 hold SGD steps 0-31) and the epoch, and keeps checkpoint 2 and rows 0-2. The poisoning wraps
+    the cached program's `epoch`, so no new program is compiled."""
+    from sf2_jax.agents.checkpoint import Checkpointer
+    from sf2_jax.agents.trainer import get_program
+
+    program = get_program(tiny_cfg)
+    real_epoch = program.epoch
+
+    def poisoned_epoch(state, epoch):
+        if epoch == 3:
+            q = jax.tree_util.tree_map(lambda x: x * jnp.nan, state.params["q"])
+            state = state._replace(params={**state.params, "q": q})
+        return real_epoch(state, epoch)
+
+    monkeypatch.setattr(program, "epoch", poisoned_epoch)
+    with pytest.raises(TrainingDiverged) as err:
+        train(tiny_cfg, (0,), tmp_path / "nan", progress=False)
+    msg = str(err.value)
+    assert "loss 'critic_loss' became NaN/inf" in msg and "actor_loss (seed 0)" in msg, msg
+    assert "gradient step 32 (env step 100, epoch 3, seed 0)" in msg, msg
+    assert "last good checkpoint (epoch 2) is kept" in msg, msg
+    assert Checkpointer(tmp_path / "nan" / "checkpoints").latest() == 2
+    rows = [json.loads(line) for line in (tmp_path / "nan" / "metrics.jsonl").read_text().splitlines()]
+    assert [r["epoch"] for r in rows] == [0, 1, 2]
+
+
+def test_cli_eval_and_plot(reference, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("SF2_JAX_COMPILE_CACHE", "")  # no persistent cache from inside the tests
+    assert cli.main(["eval", str(reference.run.path), "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["epoch"] == 3 and len(res["returns"]["0"]) == 2
+    png = tmp_path / "curves.png"
+    assert cli.main(["plot", str(reference.run.path), "--out", str(png)]) == 0
+    assert png.exists() and "TD3+SF²" in capsys.readouterr().out
