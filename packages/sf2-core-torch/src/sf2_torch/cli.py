@@ -1,6 +1,7 @@
 """`sf2-torch`: train, evaluate and plot TD3/SAC agents, vanilla or with SF², on MuJoCo Playground,
 with PyTorch and TorchRL. The same commands, flags, run folders and exit statuses as `sf2-jax`: switch
-framework by changing that one word. Torch-only flags: `--device`, `--compile`, `--cudagraphs`.
+framework by changing that one word. Torch-only flags: `--device`, `--compile`, `--cudagraphs`. JAX still
+runs the Playground envs, so `--compile-cache` (JAX's persistent compilation cache) applies here too.
 
     sf2-torch train --task CartpoleBalance --algo td3 --repr sf2 --config quick --seeds 0-3 --out runs/cp
     sf2-torch train --task CartpoleBalance --algo td3 --repr sf2,none --config quick --seeds 0-1 \
@@ -13,7 +14,8 @@ Every `TrainConfig` field can be overridden, either with its own flag (`--batch-
 `--hidden-sizes 64,64`) or with `--set batch_size=128` (repeatable). Bad input (unknown task, algo or
 representation, a combination that does not exist, a budget smaller than the prefill, ...) is reported
 before anything is compiled; exit status 2. A NaN/inf loss stops the run with exit status 3.
-Heavy imports (torch, torchrl, jax, playground) happen after the arguments are parsed, so `--help` is instant.
+Heavy imports (torch, torchrl, jax, playground) happen after the arguments are parsed, so `--help` is
+instant.
 """
 
 from __future__ import annotations
@@ -61,9 +63,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="refuse to continue a run folder that holds checkpoints")
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
     t.add_argument("--stop-after-epoch", type=int, default=None, help=argparse.SUPPRESS)
-    t.add_argument("--compile-cache", default=os.environ.get("SF2_TORCH_COMPILE_CACHE", ""),
-                   help="folder for JAX's persistent compilation cache, used by the Playground envs "
-                   "(empty: off)")
+    t.add_argument("--compile-cache", default=os.environ.get(
+                       "SF2_TORCH_COMPILE_CACHE", str(Path.home() / ".cache" / "sf2-torch" / "xla")),
+                   help="folder for JAX's persistent compilation cache, reused by later runs of the same "
+                   "config ('' turns it off; env SF2_TORCH_COMPILE_CACHE)")
     fields = t.add_argument_group("config fields (each overrides the preset)")
     for name in _field_names():
         fields.add_argument(f"--{name.replace('_', '-')}", dest=f"field_{name}", default=None, metavar="V",
@@ -172,6 +175,7 @@ def _print_table(table, seconds=None):
 def _eval(args) -> int:
     from sf2_torch.agents.trainer import evaluate_checkpoint
 
+    _setup_jax(os.environ.get("SF2_TORCH_COMPILE_CACHE", str(Path.home() / ".cache" / "sf2-torch" / "xla")))
     deterministic = True if args.deterministic else (False if args.stochastic else None)
     res = evaluate_checkpoint(args.run, epoch=args.epoch, num_eval_envs=args.episodes,
                               deterministic=deterministic)

@@ -41,8 +41,8 @@ def _agents_setup(request):
 
 
 TINY = dict(
-    num_envs=4, num_eval_envs=4, episode_length=60, num_evals=4, num_timesteps=64 + 3 * 8 * 4,
-    batch_size=16, grad_updates_per_step=2, min_replay_size=64, max_replay_size=512,
+    num_envs=4, num_eval_envs=4, episode_length=60, num_evals=4, num_timesteps=4 * 36,
+    batch_size=16, grad_updates_per_step=2, min_replay_size=32, max_replay_size=512,
     feature_size=8, hidden_sizes=(16,), q_hidden_size=16, zeta_hidden_sizes=(16,), embedding_size=4,
     compile="off",
 )
@@ -50,7 +50,10 @@ TINY = dict(
 
 @pytest.fixture(scope="session")
 def tiny_cfg():
-    """Seconds per run: 4 envs, 60-step episodes, 16-wide networks, 3 epochs of 8 actor steps."""
+    """Seconds per run: 4 envs, 60-step episodes, 16-wide networks; 3 epochs of 12 actor steps, the
+    first 8 of them the prefill; 2 SGD steps per actor step (8, 24, 24 SGD steps per epoch). The same
+    schedule as sf2_jax's agent tests (which use 2 evaluation envs; 4 here share the training envs'
+    compiled JAX step)."""
     from sf2_torch.agents import make_config
 
     return make_config("quick", "CartpoleBalance", algo="td3", representation="sf2", overrides=TINY)

@@ -41,7 +41,7 @@ def _cli_error(capsys, *args):
     (["--task", "CartpoleBalance", "--repr", "test_sac_only"],
      ["algo 'td3' with representation 'test_sac_only' does not exist", "sac+test_sac_only"]),
     (["--task", "CartpoleBalance", "--num-timesteps", "1000"],
-     ["num_timesteps = 1000 is smaller than the prefill", "min_replay_size = 4096"]),
+     ["num_timesteps = 1000 does not exceed the prefill", "min_replay_size = 4096"]),
     (["--task", "CartpoleBalance", "--set", "min_replay_size=300000"],
      ["min_replay_size", "max_replay_size"]),
     (["--task", "CartpoleBalance", "--set", "batch_size=0"], ["batch_size = 0", ">= 1"]),
@@ -129,6 +129,8 @@ def test_schedule_and_seeds():
     s = configs.schedule(cfg)
     assert s.prefill_env_steps >= cfg.min_replay_size and s.total_env_steps >= cfg.num_timesteps
     assert s.total_env_steps - cfg.num_timesteps < s.num_epochs * s.env_steps_per_actor_step
+    assert s.env_steps_after(s.num_epochs) == s.total_env_steps
+    assert s.grad_steps_before(s.prefill_actor_steps + 3) == 3 and s.grad_steps_before(1) == 0
     assert configs.parse_seeds("0-3") == (0, 1, 2, 3)
     assert configs.parse_seeds("0-2,9") == (0, 1, 2, 9)
     assert configs.parse_seeds(7) == (7,)

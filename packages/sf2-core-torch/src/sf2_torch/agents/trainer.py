@@ -8,16 +8,18 @@ target updaters), TorchRL replay buffer and `torch.Generator`, and the seeds tak
 the other; all seeds' envs step together in one Playground batch. Per seed s:
 
 - init: `torch.manual_seed(s)` before the networks are built; a generator seeded with s draws every
-  action noise, replay index and loss noise; the envs reset from the JAX trainer's keys
-  (split(PRNGKey(s), 3)[1] split over `num_envs`), so both frameworks start from the same states.
-- prefill: ceil(min_replay_size / num_envs) actor steps with uniform random actions.
-- epoch: `actor_steps_per_epoch` actor steps; each acts with exploration noise, updates the observation
-  statistics (Brax's rule, with the observations acted on), inserts the transitions, samples
-  `grad_updates_per_step` batches at once and runs that many SGD steps (`Algorithm.sgd_step`, compiled
-  or not; the noise of all of them is drawn in one go). Metrics stay on the device until the epoch ends;
-  then the epoch mean of every metric and the index of its first non-finite value are computed.
-- evaluate: one episode in each of `num_eval_envs` fresh envs (deterministic or acting policy); the
-  reset keys are the JAX trainer's (fold_in(fold_in(PRNGKey(s), EVAL_STREAM), epoch)).
+  action noise, replay index and loss noise. The envs reset from the JAX trainer's keys
+  (split(split(PRNGKey(s), 3)[1], num_envs + num_eval_envs): the first `num_envs` for training, the
+  rest the evaluation start states), so both frameworks start from the same states.
+- `epoch(state, epoch)`: `actor_steps_per_epoch` actor steps. The first `prefill_actor_steps` actor
+  steps of the run act uniformly at random and do no SGD (the prefill); every later one acts with
+  exploration noise, updates the observation statistics (Brax's rule, with the observations acted on),
+  inserts the transitions, samples `grad_updates_per_step` batches at once and runs that many SGD steps
+  (`Algorithm.sgd_step`, compiled or not; the noise of all of them is drawn in one go). Metrics stay on
+  the device until the epoch ends; then the mean of every metric over the epoch's SGD steps and the
+  index of its first non-finite value are computed (indexed as the JAX trainer's: actor step · G + g).
+- `evaluate`: one episode from each evaluation start state (deterministic or acting policy; the acting
+  noise changes with every evaluation, the start states do not).
 
 The host loop between epochs: train → NaN guard → evaluate → append rows → checkpoint, as in JAX. A run
 killed at any moment resumes from its last checkpoint; rows of later epochs are dropped and produced
@@ -49,7 +51,7 @@ from .replay import ReplayBuffer
 from .runfolder import RunFolder, RunFolderMismatch
 
 __all__ = ["Program", "SeedState", "TrainState", "get_program", "TrainingDiverged", "TrainResult", "train",
-           "evaluate_checkpoint", "env_reset_keys", "eval_reset_keys", "EVAL_STREAM"]
+           "evaluate_checkpoint", "env_reset_keys", "eval_key", "fresh_eval_start_keys", "EVAL_STREAM"]
 
 EVAL_STREAM = 0x5EED  # eval keys: fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), epoch), as in sf2_jax
 WALL_FIELDS = ("sps", "epoch_seconds", "eval_seconds", "walltime")  # differ between identical runs
@@ -59,18 +61,27 @@ class TrainingDiverged(RuntimeError):
     """A loss became NaN or inf; the run stopped before writing anything for that epoch."""
 
 
-def env_reset_keys(seed: int, num_envs: int):
-    """The JAX trainer's env reset keys of `seed`: split(split(PRNGKey(seed), 3)[1], num_envs)."""
+def env_reset_keys(seed: int, num_envs: int, num_eval_envs: int):
+    """The JAX trainer's reset keys of `seed`: split(split(PRNGKey(seed), 3)[1], n + m); the first n reset
+    the training envs, the other m the evaluation start states."""
     import jax
 
-    return jax.random.split(jax.random.split(jax.random.PRNGKey(seed), 3)[1], num_envs)
+    keys = jax.random.split(jax.random.split(jax.random.PRNGKey(seed), 3)[1], num_envs + num_eval_envs)
+    return keys[:num_envs], keys[num_envs:]
 
 
-def eval_reset_keys(seed: int, epoch: int, num_envs: int):
+def eval_key(seed: int, epoch: int):
+    """fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), epoch), the JAX trainer's evaluation key."""
     import jax
 
-    key = jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(seed), EVAL_STREAM), epoch)
-    return jax.random.split(jax.random.split(key)[0], num_envs)
+    return jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(seed), EVAL_STREAM), epoch)
+
+
+def fresh_eval_start_keys(seed: int, epoch: int, n: int):
+    """Reset keys of `n` new evaluation start states (`sf2-torch eval --episodes n`), as sf2_jax."""
+    import jax
+
+    return jax.random.split(jax.random.fold_in(eval_key(seed, epoch), 1), n)
 
 
 @dataclasses.dataclass
@@ -87,6 +98,7 @@ class TrainState:
     agents: list[SeedState]
     env: Any                      # PlaygroundEnv of len(seeds) · num_envs envs
     obs: torch.Tensor             # (seeds, num_envs, D): the observations to act on
+    eval_keys: Any = None         # JAX reset keys (seeds · num_eval_envs, 2) of the evaluation start states
     env_steps: int = 0
     grad_steps: int = 0
 
@@ -126,9 +138,10 @@ class Program:
                             len(seeds) * self.cfg.num_envs, self.device)
         import jax.numpy as jnp
 
-        keys = jnp.concatenate([env_reset_keys(s, self.cfg.num_envs) for s in seeds])
-        obs = env.reset_from_keys(keys).get("observation")
-        return TrainState(tuple(seeds), agents, env, obs.view(len(seeds), self.cfg.num_envs, -1))
+        keys = [env_reset_keys(s, self.cfg.num_envs, self.cfg.num_eval_envs) for s in seeds]
+        obs = env.reset_from_keys(jnp.concatenate([k[0] for k in keys])).get("observation")
+        return TrainState(tuple(seeds), agents, env, obs.view(len(seeds), self.cfg.num_envs, -1),
+                          eval_keys=jnp.concatenate([k[1] for k in keys]))
 
     # ------------------------------------------------------------------ acting
     def _env_step(self, state: TrainState, actions: torch.Tensor) -> TensorDict:
@@ -152,54 +165,60 @@ class Program:
                 agent.algo.observe(t.get("observation"))
             agent.replay.insert(t)
 
-    def prefill(self, state: TrainState) -> TrainState:
-        a = self.spec.action_size
-        for _ in range(self.sched.prefill_actor_steps):
-            actions = torch.stack([
-                torch.rand(self.cfg.num_envs, a, device=self.device, generator=ag.generator) * 2.0 - 1.0
-                for ag in state.agents])
-            self._observe(state, self._env_step(state, actions))
-        return state
-
-    def _actor_step(self, state: TrainState, metrics: list[list[TensorDict]]) -> None:
+    def _actor_step(self, state: TrainState, actor_step: int, metrics, sgd_index) -> None:
+        """Global actor step `actor_step` (0-based): prefill (uniform random actions, no SGD) or act,
+        observe and take `grad_updates_per_step` SGD steps."""
         cfg = self.cfg
+        if actor_step < self.sched.prefill_actor_steps:
+            actions = torch.stack([
+                torch.rand(cfg.num_envs, self.spec.action_size, device=self.device, generator=ag.generator)
+                * 2.0 - 1.0 for ag in state.agents])
+            self._observe(state, self._env_step(state, actions))
+            return
         actions = torch.stack([ag.algo.explore(state.obs[i], ag.generator)
                                for i, ag in enumerate(state.agents)])
         self._observe(state, self._env_step(state, actions))
         G, B = cfg.grad_updates_per_step, cfg.batch_size
+        local = actor_step % self.sched.actor_steps_per_epoch
         for i, ag in enumerate(state.agents):
             batches = ag.replay.sample(G * B).reshape(G, B)
             batches.update(ag.algo.draw_noise((G, B), ag.generator))
             for g in range(G):
                 step = state.grad_steps + g
                 metrics[i].append(ag.algo.sgd_step(batches[g], actor_step=step % cfg.policy_delay == 0))
+        sgd_index.extend(local * G + g for g in range(G))
         state.grad_steps += G
 
-    def epoch(self, state: TrainState) -> tuple[TrainState, dict, dict]:
-        """One epoch; returns (state, {metric: (seeds,) means}, {metric: (seeds,) first bad index | −1})."""
+    def epoch(self, state: TrainState, epoch: int) -> tuple[TrainState, dict, dict]:
+        """Run epoch `epoch` (1-based). Returns (state, {metric: (seeds,) means over the epoch's SGD
+        steps, "sgd_steps": (seeds,) counts}, {metric: (seeds,) first non-finite index | −1})."""
         metrics: list[list[TensorDict]] = [[] for _ in state.agents]
-        for _ in range(self.sched.actor_steps_per_epoch):
-            self._actor_step(state, metrics)
-        means, first_bad = {}, {}
-        stacked = [torch.stack(m).to("cpu") for m in metrics]  # the epoch's one host transfer
-        for name in stacked[0].keys():
-            per_seed = [s.get(name).double().numpy() for s in stacked]
-            means[name] = np.array([v.mean() for v in per_seed])
-            first_bad[name] = np.array([-1 if np.isfinite(v).all() else int(np.argmin(np.isfinite(v)))
-                                        for v in per_seed])
+        sgd_index: list[int] = []
+        first = (epoch - 1) * self.sched.actor_steps_per_epoch
+        for actor_step in range(first, first + self.sched.actor_steps_per_epoch):
+            self._actor_step(state, actor_step, metrics, sgd_index)
+        n = len(state.agents)
+        means = {"sgd_steps": np.full(n, len(sgd_index))}
+        first_bad: dict[str, np.ndarray] = {}
+        if sgd_index:
+            stacked = [torch.stack(m).to("cpu") for m in metrics]  # the epoch's one host transfer
+            for name in stacked[0].keys():
+                per_seed = [s.get(name).double().numpy() for s in stacked]
+                means[name] = np.array([v.mean() for v in per_seed])
+                first_bad[name] = np.array([
+                    -1 if np.isfinite(v).all() else sgd_index[int(np.argmin(np.isfinite(v)))]
+                    for v in per_seed])
         return state, means, first_bad
 
     @torch.no_grad()
-    def evaluate(self, state_or_agents, seeds, epoch: int, env=None) -> np.ndarray:
-        """Episode returns (n_seeds, num_eval_envs)."""
-        import jax.numpy as jnp
-
+    def evaluate(self, agents, start_keys, seeds, epoch: int, env=None) -> np.ndarray:
+        """Episode returns (n_seeds, n) of one episode from each start state, the envs reset from the JAX
+        keys `start_keys` (n_seeds · n, 2); the acting noise depends on (seed, epoch)."""
         cfg = self.cfg
-        agents = state_or_agents.agents if isinstance(state_or_agents, TrainState) else state_or_agents
-        s, n = len(seeds), cfg.num_eval_envs
+        s = len(seeds)
+        n = start_keys.shape[0] // s
         env = env or envs.make_env(cfg.task, cfg.episode_length, cfg.action_repeat, s * n, self.device)
-        keys = jnp.concatenate([eval_reset_keys(seed, epoch, n) for seed in seeds])
-        obs = env.reset_from_keys(keys).get("observation").view(s, n, -1)
+        obs = env.reset_from_keys(start_keys).get("observation").view(s, n, -1)
         gens = [torch.Generator(device=self.device).manual_seed(
             (int(seed) * 1_000_003 + EVAL_STREAM * 7919 + int(epoch)) % (2**63)) for seed in seeds]
         ret = torch.zeros(s, n, device=self.device)
@@ -214,6 +233,10 @@ class Program:
             alive *= 1.0 - nxt.get("done").view(s, n).to(alive.dtype)
             obs = nxt.get("observation").view(s, n, -1)
         return ret.cpu().numpy()
+
+    def loss_order(self, state: TrainState) -> tuple[str, ...]:
+        """The order the SGD step computes its losses in (ties of the NaN guard's report)."""
+        return ("critic_loss", state.agents[0].algo.rep.aux_loss_name, "alpha_loss", "actor_loss")
 
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self, state: TrainState) -> dict:
@@ -267,31 +290,38 @@ class TrainResult:
     resumed_from: int | None    # checkpoint epoch resumed from, if any
 
 
-def _diverged_message(first_bad: dict, sched, epoch: int, seeds, cfg, last_ckpt) -> str | None:
+def _diverged_message(first_bad: dict, sched, epoch: int, seeds, cfg, last_ckpt,
+                      order=()) -> str | None:
+    """The message naming the first non-finite loss of the epoch: lowest SGD step, then the order the
+    SGD step computes them in (`order`), or None if every metric is finite."""
+    G = cfg.grad_updates_per_step
+    rank = {name: i for i, name in enumerate(order)}
     problems = []
-    per_actor = cfg.grad_updates_per_step
     for name, idx in first_bad.items():
         for s_i, i in enumerate(np.asarray(idx)):
             if i >= 0:
-                actor_step, update = divmod(int(i), per_actor)
-                grad_step = ((epoch - 1) * sched.actor_steps_per_epoch + actor_step) * per_actor + update
-                env_step = (sched.env_steps_after(epoch - 1)
-                            + (actor_step + 1) * sched.env_steps_per_actor_step)
-                problems.append((grad_step, name, seeds[s_i], env_step))
+                local, update = divmod(int(i), G)
+                actor_step = (epoch - 1) * sched.actor_steps_per_epoch + local
+                grad_step = sched.grad_steps_before(actor_step) * G + update
+                env_step = (actor_step + 1) * sched.env_steps_per_actor_step
+                problems.append((grad_step, rank.get(name, len(rank)), name, seeds[s_i], env_step))
     if not problems:
         return None
     problems.sort()
-    g, name, seed, env_step = problems[0]
-    others = sorted({f"{n} (seed {s})" for _, n, s, _ in problems[1:]})
+    g, _, name, seed, env_step = problems[0]
+    others = sorted({f"{n} (seed {s})" for _, _, n, s, _ in problems[1:]})
     also = f"; also non-finite in the same epoch: {', '.join(others)}" if others else ""
     keep = (f"the last good checkpoint (epoch {last_ckpt}) is kept" if last_ckpt is not None
             else "no checkpoint was written yet")
-    return (f"training diverged: loss '{name}' became NaN/inf at gradient step {g} (env step ~{env_step}, "
+    return (f"training diverged: loss '{name}' became NaN/inf at gradient step {g} (env step {env_step}, "
             f"epoch {epoch}, seed {seed}){also}. Nothing of epoch {epoch} was written; {keep}.")
 
 
 def _row_metrics(means: dict, s_i: int) -> dict:
-    return {name: float(np.asarray(v)[s_i]) for name, v in sorted(means.items())}
+    """Epoch means of the training metrics of seed `s_i` (none for an epoch that was all prefill)."""
+    row = {name: float(np.asarray(v)[s_i]) for name, v in sorted(means.items())}
+    row["sgd_steps"] = int(row["sgd_steps"])
+    return row if row["sgd_steps"] else {"sgd_steps": 0}
 
 
 def _save(ckpt: Checkpointer, program: Program, state: TrainState, epoch: int, env_steps: int, seeds) -> None:
@@ -325,6 +355,8 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
                                 f"--out (or --fresh to overwrite it)")
     existing = run.check_compatible(cfg.to_dict(), seeds)
     sched = configs.schedule(cfg)
+    if not existing:  # checkpoints without the config that made them are not this run's
+        shutil.rmtree(run.checkpoint_dir, ignore_errors=True)
     program = get_program(cfg)
     if not existing:
         run.write_config({"config": cfg.to_dict(), "seeds": list(seeds),
@@ -350,37 +382,34 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
         run.truncate_rows(-1)
         rows, walltime, start = [], 0.0, 0
 
-    bar = _progress_bar(progress, sched.total_env_steps, sched.env_steps_after(start - 1) if start else 0,
-                        title)
+    bar = _progress_bar(progress, sched.total_env_steps, sched.env_steps_after(max(start - 1, 0)), title)
     t_start = time.time() - walltime
     try:
         eval_env = None
-        if start == 0:  # evaluate the initial policy, prefill, checkpoint 0
+        if start == 0:  # evaluate the initial policy, checkpoint 0
             t = time.time()
             eval_env = _eval_env(program, seeds)
-            returns = program.evaluate(state, seeds, 0, eval_env)
+            returns = program.evaluate(state.agents, state.eval_keys, seeds, 0, eval_env)
             new = [_row(0, s, 0, returns[i], {}, None, time.time() - t, time.time() - t_start)
                    for i, s in enumerate(seeds)]
             run.append_rows(new)
             rows += new
             _call(hook, "rows", 0)
-            program.prefill(state)
-            _save(ckpt, program, state, 0, sched.env_steps_after(0), seeds)
+            _save(ckpt, program, state, 0, 0, seeds)
             last = 0
             _call(hook, "checkpoint", 0)
-            bar.update(sched.env_steps_after(0))
             bar.set_postfix_str(f"eval {returns.mean():.1f}")
             start = 1
         for epoch in range(start, sched.num_epochs + 1):
             t0 = time.time()
-            state, means, first_bad = program.epoch(state)
+            state, means, first_bad = program.epoch(state, epoch)
             epoch_seconds = time.time() - t0
-            message = _diverged_message(first_bad, sched, epoch, seeds, cfg, last)
+            message = _diverged_message(first_bad, sched, epoch, seeds, cfg, last, program.loss_order(state))
             if message:
                 raise TrainingDiverged(message)
             t1 = time.time()
             eval_env = eval_env or _eval_env(program, seeds)
-            returns = program.evaluate(state, seeds, epoch, eval_env)
+            returns = program.evaluate(state.agents, state.eval_keys, seeds, epoch, eval_env)
             eval_seconds = time.time() - t1
             sps = sched.env_steps_per_epoch / epoch_seconds
             env_steps = sched.env_steps_after(epoch)
@@ -510,15 +539,17 @@ def evaluate_checkpoint(out, epoch: int | None = None, num_eval_envs: int | None
     epoch = max(available) if epoch is None else epoch
     if epoch not in available:
         raise FileNotFoundError(f"{out} has no checkpoint {epoch}; available: {available}")
-    changes = {}
-    if num_eval_envs is not None:
-        changes["num_eval_envs"] = num_eval_envs
-    if deterministic is not None:
-        changes["deterministic_eval"] = deterministic
-    eval_cfg = cfg.replace(**changes)
-    configs.validate(eval_cfg, seeds)
+    eval_cfg = cfg if deterministic is None else cfg.replace(deterministic_eval=bool(deterministic))
     program = get_program(eval_cfg)
     program.precision()
+    import jax.numpy as jnp
+
+    if num_eval_envs is not None and num_eval_envs != cfg.num_eval_envs:
+        if not isinstance(num_eval_envs, int) or num_eval_envs < 1:
+            raise ConfigError(f"episodes = {num_eval_envs} is invalid: must be >= 1")
+        starts = jnp.concatenate([fresh_eval_start_keys(s, 10_000 + epoch, num_eval_envs) for s in seeds])
+    else:
+        starts = jnp.concatenate([env_reset_keys(s, cfg.num_envs, cfg.num_eval_envs)[1] for s in seeds])
     agents = [program.make_agent(s) for s in seeds]
     saved, _, meta = ckpt.restore(epoch, map_location=program.device)
     try:
@@ -526,7 +557,7 @@ def evaluate_checkpoint(out, epoch: int | None = None, num_eval_envs: int | None
             ag.algo.load_state_dict(s["algo"])
     except (RuntimeError, KeyError) as err:
         raise CheckpointMismatch(f"checkpoint {epoch} does not fit this program: {err}") from err
-    returns = program.evaluate(agents, seeds, 10_000 + epoch)
+    returns = program.evaluate(agents, starts, seeds, 10_000 + epoch)
     return {"epoch": epoch, "env_steps": meta.get("env_steps"),
             "returns": {int(s): [float(x) for x in returns[i]] for i, s in enumerate(seeds)},
             "deterministic": eval_cfg.deterministic_eval}
