@@ -232,3 +232,16 @@ def test_compiled_step_equals_eager(name):
     a, b = params_mod.to_canonical(eager.nets), params_mod.to_canonical(compiled.nets)
     for k in a:
         np.testing.assert_allclose(a[k], b[k], rtol=1e-4, atol=1e-5)
+
+
+def test_timing_tool_runs(tmp_path, capsys):
+    from sf2_torch.agents import timing
+
+    out = tmp_path / "t.json"
+    args = ["--feature-size", "8", "--width", "16", "--embedding-size", "4", "--batch-size", "8",
+            "--variants", "torch-eager", "--warmup", "1", "--steps", "3", "--json", str(out)]
+    assert timing.main(args) == 0
+    import json
+
+    res = json.loads(out.read_text())["results"]["torch-eager"]
+    assert res["steps"] == 3 and res["median_ms"] > 0

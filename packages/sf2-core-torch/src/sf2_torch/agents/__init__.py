@@ -7,7 +7,8 @@ Needs the `[train]` extra (torchrl, tensordict, playground, mujoco-mjx, jax, mat
 `objectives` (TorchRL loss modules: SF² flow loss, TD3/SAC on SF² features, TorchRL's TD3Loss/SACLoss as
 the vanilla baselines), `representations` (the pluggable interface: `none`, `sf2`), `algorithms` (TD3,
 SAC: `sgd_step(td, actor_step)` with explicit noise), `replay` (TorchRL replay buffer), `trainer` (the
-one training loop), `checkpoint`, `runfolder`, `plotting`. The CLI is `sf2_torch.cli` (`sf2-torch`).
+one training loop), `checkpoint`, `runfolder`, `plotting`, `timing` (update time: torch eager, compiled,
+CUDA graphs, against sf2_jax). The CLI is `sf2_torch.cli` (`sf2-torch`).
 
     from sf2_torch.agents import make_config, train
     cfg = make_config("quick", "CartpoleBalance", algo="td3", representation="sf2")
