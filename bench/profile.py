@@ -1,0 +1,125 @@
+"""Where the device time of one update goes: a `jax.profiler` trace of a few updates, summarized.
+
+For each device (GPU) process of the Perfetto trace: kernels per update, device-busy time per update
+(union of kernel intervals), wall time per update, and the kernels that take the most time, grouped
+into GEMM (cuBLAS/CUTLASS/Triton matmul), fusion (XLA-generated) and other. On a CPU backend the XLA
+worker threads stand in for the device.
+"""
+
+from __future__ import annotations
+
+import collections
+import glob
+import gzip
+import json
+import os
+import tempfile
+import time
+
+
+def _category(name: str) -> str:
+    n = name.lower()
+    if any(k in n for k in ("gemm", "cutlass", "xmma", "sm90", "cublas", "matmul", "dot", "wgmma")):
+        return "gemm"
+    if any(k in n for k in ("fusion", "loop_", "input_", "reduce", "triton", "concatenate", "transpose",
+                             "copy", "broadcast")):
+        return "fusion"
+    if "memcpy" in n or "memset" in n:
+        return "memcpy/memset"
+    return "other"
+
+
+def _union(intervals) -> float:
+    total, end = 0.0, -float("inf")
+    for s, e in sorted(intervals):
+        if s > end:
+            total += e - s
+            end = e
+        elif e > end:
+            total += e - end
+            end = e
+    return total
+
+
+def trace(runner, updates: int = 10, label: str = "") -> dict:
+    """Trace `updates` calls of `runner` (warm) and summarize the device activity per update."""
+    import jax
+
+    runner.step()
+    runner.sync()
+    d = tempfile.mkdtemp(prefix="sf2prof")
+    t0 = time.perf_counter()
+    with jax.profiler.trace(d, create_perfetto_trace=True):
+        for _ in range(updates):
+            runner.step()
+        runner.sync()
+    wall = (time.perf_counter() - t0) / updates
+    updates *= getattr(runner, "per_call", 1)
+    wall /= getattr(runner, "per_call", 1)
+    files = glob.glob(os.path.join(d, "**", "*perfetto_trace.json.gz"), recursive=True)
+    if not files:
+        return {"label": label, "error": "no perfetto trace written"}
+    with gzip.open(files[0]) as f:
+        data = json.load(f)
+    events = data["traceEvents"] if isinstance(data, dict) else data
+    pname, tname = {}, {}
+    for e in events:
+        if e.get("ph") == "M" and e.get("name") == "process_name":
+            pname[e.get("pid")] = e.get("args", {}).get("name", "")
+        if e.get("ph") == "M" and e.get("name") == "thread_name":
+            tname[(e.get("pid"), e.get("tid"))] = e.get("args", {}).get("name", "")
+    devices = [p for p, n in pname.items() if "gpu" in n.lower() or "device" in n.lower()]
+    if not devices:   # CPU backend: the XLA worker threads
+        devices = list(pname)
+    out = {"label": label, "updates": updates, "wall_ms_per_update": wall * 1e3, "devices": []}
+    for pid in devices:
+        ks = [e for e in events if e.get("ph") == "X" and e.get("pid") == pid and "dur" in e
+              and not tname.get((pid, e.get("tid")), "").lower().startswith(("python", "tf_xlapjrt"))]
+        if not ks:
+            continue
+        by_name = collections.defaultdict(lambda: [0, 0.0])
+        by_cat = collections.defaultdict(lambda: [0, 0.0])
+        for e in ks:
+            name = e.get("name", "?")
+            hlo = e.get("args", {}).get("hlo_op") or e.get("args", {}).get("long_name") or ""
+            key = f"{name} [{hlo[:60]}]" if hlo and hlo != name else name
+            by_name[key][0] += 1
+            by_name[key][1] += e["dur"]
+            c = by_cat[_category(name)]
+            c[0] += 1
+            c[1] += e["dur"]
+        busy = _union((e["ts"], e["ts"] + e["dur"]) for e in ks) / 1e3 / updates
+        top = sorted(by_name.items(), key=lambda kv: -kv[1][1])[:12]
+        out["devices"].append({
+            "device": pname.get(pid, str(pid)),
+            "kernels_per_update": len(ks) / updates,
+            "busy_ms_per_update": busy,
+            "kernel_ms_per_update": sum(e["dur"] for e in ks) / 1e3 / updates,
+            "by_category": {k: {"count": v[0] / updates, "ms": v[1] / 1e3 / updates}
+                            for k, v in by_cat.items()},
+            "top": [{"name": k, "count": v[0] / updates, "ms": v[1] / 1e3 / updates} for k, v in top],
+        })
+    return out
+
+
+def markdown(summaries: list[dict]) -> str:
+    out = ["# Device profile of single updates (jax.profiler)", "",
+           "Per update: wall time (dispatch to completion, traced), kernels launched, device-busy time "
+           "(union of kernel intervals) and its split by kernel category; then the costliest kernels.", ""]
+    for s in summaries:
+        out.append(f"## {s['label']}")
+        if "error" in s:
+            out += ["", f"profile failed: {s['error']}", ""]
+            continue
+        out.append("")
+        out.append(f"wall {s['wall_ms_per_update']:.3f} ms per update (under the profiler)")
+        for d in s["devices"]:
+            cats = ", ".join(f"{k} {v['count']:.0f} kernels / {v['ms']:.3f} ms"
+                             for k, v in sorted(d["by_category"].items(), key=lambda kv: -kv[1]["ms"]))
+            out += ["", f"- {d['device']}: {d['kernels_per_update']:.0f} kernels, "
+                    f"busy {d['busy_ms_per_update']:.3f} ms, "
+                    f"sum of kernel times {d['kernel_ms_per_update']:.3f} ms; {cats}", "",
+                    "| kernel [HLO op] | per update | ms per update |", "|---|---|---|"]
+            out += [f"| `{t['name'][:110]}` | {t['count']:.0f} | {t['ms']:.4f} |" for t in d["top"]]
+        out.append("")
+    return "\n".join(out)

@@ -1,0 +1,258 @@
+"""Prototypes for issue #6 target 5 (make the SF² update fast), timed next to the cores' code.
+
+Nothing here changes `sf2_jax`; each variant is a drop-in replacement of `sf2_jax.losses.flow_loss`
+(same signature, same value up to rounding), usable two ways:
+- `python -m bench flow-step --variants merged,x3tf32` times it in the bare flow-loss step;
+- the representations registered below (`sf2-merged`, `sf2-x3tf32`, `sf2-x6bf16`) plug it into the
+  agents' full `sgd_step`, so `python -m bench run --reps none,sf2,sf2-merged` times whole updates.
+`psi-only` is TD3/SAC on ψ features with no flow loss at all: SF² update − psi-only = cost of the flow
+step inside the update.
+
+Variants (all on the fast path of DESIGN.md §6):
+- `bhd`: the cores' fast path with one change: the contraction is written `einsum("bf,hdf->bhd", ψ, W)`
+  (ψ first) instead of `einsum("hdf,bf->bhd", W, ψ)`, so M comes out of its GEMM in the layout the
+  per-evaluation product h·M reads, and XLA no longer transposes M̄ in every ODE evaluation.
+- `bdh`: M and M̄ stored (B, D, H) (one transpose per contraction) and read with
+  `einsum("bh,bdh->bd")`, so the per-evaluation product reduces over the minor axis. Tests whether
+  XLA's per-evaluation `input_transpose_fusion` (H200 profile) is a re-layout of M̄ for that product.
+  (H200, jax 0.11.2: XLA sank that transpose back into every evaluation in the one-call-per-update
+  program, but not inside `lax.scan`.)
+- `bdhb`: `bdh` with the (B, D, H) value behind `lax.optimization_barrier`, so it is materialized once.
+- `wt`: ζ's last kernel re-laid (D, H, F) once per contraction, so the GEMM itself emits M as
+  (B, D·H): no per-evaluation transpose can be needed.
+- `wt-ode3xtf32` / `wt-ode6xbf16`: `wt`, and the target field's evaluations (the ODE and the target
+  velocity: no gradient flows through them) run their matmuls with an error-compensated algorithm
+  (3 TF32 / 6 bf16 tensor-core passes, fp32 accumulation); everything else stays fp32 'highest'.
+- `merged-bhd`: `bhd` and `merged` together.
+- `merged`: the two online velocity evaluations (at x_k and at x̂) run as one batch of 2B through ζ's
+  hidden MLP and one batched product with M ('nbh,bhd->nbd'), instead of two separate chains (the torch
+  core already does this). Fewer, larger kernels; same FLOPs.
+- `x3tf32` / `x6bf16`: `merged`, and the two contractions M = Wψ, M̄ = W̄ψ̄′ (and, through autodiff,
+  their transposes dW, dψ), which hold ~half the update's FLOPs, use XLA's error-compensated dot
+  algorithms (3 TF32 or 6 bf16 tensor-core passes with fp32 accumulation, accuracy close to fp32,
+  `jax.lax.DotAlgorithmPreset`). TF32_TF32_F32_X3 is GPU-only. Accuracy is measured by `grad_errors`.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+from sf2_jax import networks as nw
+from sf2_jax.agents import representations
+from sf2_jax.losses import _check_batch, _check_noise, _trainable
+from sf2_jax.ode import integrate
+
+sg = jax.lax.stop_gradient
+
+
+def _contract(nets, p, features, target, precision, order="bhd"):
+    """(M, c). `order="bhd"`: ψ is the *left* operand, so XLA's dot_general emits M directly in the
+    (b, h, d) layout every evaluation reads; the cores' `einsum("hdf,bf->bhd", W, ψ)` emits (h, d, b)
+    and XLA then re-transposes M̄ inside every ODE evaluation (`input_transpose_fusion` in the H200
+    profile, ~9 µs each). `order="core"` reproduces the cores' operand order."""
+    cfg = nets.cfg
+    W, b = nw.zeta_last_layer(nets, p, target)
+    W = W.reshape(W.shape[0], cfg.obs_size, cfg.feature_size)
+    b = b.reshape(cfg.obs_size, cfg.feature_size)
+    if order == "core":
+        return (jnp.einsum("hdf,bf->bhd", W, features, precision=precision),
+                jnp.einsum("df,bf->bd", b, features))
+    if order == "bdh":
+        return (jnp.einsum("bf,hdf->bdh", features, W, precision=precision),
+                jnp.einsum("bf,df->bd", features, b))
+    if order == "bdhb":   # bdh, and the (B, D, H) value materialized once (XLA may not sink the transpose)
+        return (jax.lax.optimization_barrier(jnp.einsum("bf,hdf->bdh", features, W, precision=precision)),
+                jnp.einsum("bf,df->bd", features, b))
+    if order == "wt":     # the GEMM itself emits (B, D·H): W re-laid (D, H, F) once per contraction
+        W_t = jnp.transpose(W, (1, 0, 2))
+        return (jnp.einsum("bf,dhf->bdh", features, W_t, precision=precision),
+                jnp.einsum("bf,df->bd", features, b))
+    return (jnp.einsum("bf,hdf->bhd", features, W, precision=precision),
+            jnp.einsum("bf,df->bd", features, b))
+
+
+def _velocity_bdh(nets, p, x, k, M_bdh, c, target=False):
+    """u = Σ_h h(x, k)_h M[b, d, h] + c with M stored (B, D, H): the reduction runs over the minor axis."""
+    h = nw.zeta_hidden(nets, p, x, k, target)
+    return jnp.einsum("bh,bdh->bd", h, M_bdh) + c
+
+
+def flow_loss_bhd(nets, params, batch, next_action, eps, flow_time, order="bhd", ode_precision=None):
+    """`sf2_jax.losses.flow_loss` (fast path) with the one change of `_contract(order=...)`:
+    "bhd" (ψ the left operand), "bdh" / "bdhb" / "wt" (M stored (B, D, H), read by `_velocity_bdh`).
+    `ode_precision`: a matmul precision (e.g. "TF32_TF32_F32_X3") for the target field's evaluations
+    only (the ODE and the target velocity, which carry no gradient)."""
+    vel = _velocity_bdh if order in ("bdh", "bdhb", "wt") else nw.velocity_contracted
+    cfg = nets.cfg
+    b = _check_batch(nets, batch)
+    _check_noise(nets, "next_action", next_action, b, cfg.action_size, "action_size")
+    _check_noise(nets, "eps", eps, b, cfg.obs_size, "obs_size")
+    p = _trainable(params, ("psi", "zeta"))
+    next_action = sg(next_action)
+    next_obs_n = nw.normalize(batch.next_obs, p["obs_norm"])
+    features = nw.psi(nets, p, batch.obs, batch.action)
+    k = flow_time
+    x_k = k[..., None] * next_obs_n + (1 - k[..., None]) * eps
+    M, c = _contract(nets, p, features, False, None, order)
+
+    def online(x):
+        return vel(nets, p, x, k, M, c)
+
+    loss_p = jnp.sum((online(x_k) - (next_obs_n - eps)) ** 2, axis=-1)
+    mask = 1 - batch.truncation
+    if cfg.gamma_su == 0:
+        return jnp.mean(mask * loss_p), {"loss_p": jnp.mean(mask * loss_p), "loss_boot": jnp.zeros(())}
+    next_features = sg(nw.psi(nets, p, batch.next_obs, next_action, target=True))
+    M_bar, c_bar = _contract(nets, p, next_features, True, None, order)
+
+    def target_velocity(x, kk):
+        if ode_precision is None:
+            return vel(nets, p, x, kk, M_bar, c_bar, target=True)
+        with jax.default_matmul_precision(ode_precision):
+            return vel(nets, p, x, kk, M_bar, c_bar, target=True)
+
+    x_hat = sg(integrate(target_velocity, eps, k, cfg.denoising_steps, cfg.integrator))
+    loss_b = jnp.sum((online(x_hat) - sg(target_velocity(x_hat, k))) ** 2, axis=-1)
+    loss = jnp.mean(mask * ((1 - cfg.gamma_su) * loss_p + cfg.gamma_su * loss_b))
+    return loss, {"loss_p": jnp.mean(mask * loss_p), "loss_boot": jnp.mean(mask * loss_b)}
+
+
+def flow_loss_merged(nets, params, batch, next_action, eps, flow_time, precision=None, order="core"):
+    """`sf2_jax.losses.flow_loss` (fast path), online evaluations merged; `precision` for M and M̄;
+    `order` of the contraction's operands (see `_contract`)."""
+    cfg = nets.cfg
+    b = _check_batch(nets, batch)
+    _check_noise(nets, "next_action", next_action, b, cfg.action_size, "action_size")
+    _check_noise(nets, "eps", eps, b, cfg.obs_size, "obs_size")
+    p = _trainable(params, ("psi", "zeta"))
+    next_action = sg(next_action)
+    next_obs_n = nw.normalize(batch.next_obs, p["obs_norm"])
+    features = nw.psi(nets, p, batch.obs, batch.action)
+    k = flow_time
+    x_k = k[..., None] * next_obs_n + (1 - k[..., None]) * eps
+    M, c = _contract(nets, p, features, False, precision, order)
+    mask = 1 - batch.truncation
+    if cfg.gamma_su == 0:
+        u_p = nw.velocity_contracted(nets, p, x_k, k, M, c)
+        loss_p = jnp.sum((u_p - (next_obs_n - eps)) ** 2, axis=-1)
+        return jnp.mean(mask * loss_p), {"loss_p": jnp.mean(mask * loss_p), "loss_boot": jnp.zeros(())}
+    next_features = sg(nw.psi(nets, p, batch.next_obs, next_action, target=True))
+    M_bar, c_bar = _contract(nets, p, next_features, True, precision, order)
+
+    def target_velocity(x, kk):
+        return nw.velocity_contracted(nets, p, x, kk, M_bar, c_bar, target=True)
+
+    x_hat = sg(integrate(target_velocity, eps, k, cfg.denoising_steps, cfg.integrator))
+    u_bar = sg(target_velocity(x_hat, k))
+    h = nw.zeta_hidden(nets, p, jnp.concatenate([x_k, x_hat]), jnp.concatenate([k, k]))
+    h = h.reshape(2, *x_k.shape[:-1], h.shape[-1])
+    u = jnp.einsum("nbh,bhd->nbd", h, M) + c
+    loss_p = jnp.sum((u[0] - (next_obs_n - eps)) ** 2, axis=-1)
+    loss_b = jnp.sum((u[1] - u_bar) ** 2, axis=-1)
+    loss = jnp.mean(mask * ((1 - cfg.gamma_su) * loss_p + cfg.gamma_su * loss_b))
+    return loss, {"loss_p": jnp.mean(mask * loss_p), "loss_boot": jnp.mean(mask * loss_b)}
+
+
+_P = jax.lax.DotAlgorithmPreset
+VARIANTS = {
+    "bhd": flow_loss_bhd,
+    "bdh": functools.partial(flow_loss_bhd, order="bdh"),
+    "bdhb": functools.partial(flow_loss_bhd, order="bdhb"),
+    "wt": functools.partial(flow_loss_bhd, order="wt"),
+    "wt-ode3xtf32": functools.partial(flow_loss_bhd, order="wt", ode_precision="TF32_TF32_F32_X3"),
+    "wt-ode6xbf16": functools.partial(flow_loss_bhd, order="wt", ode_precision="BF16_BF16_F32_X6"),
+    "merged-bhd": functools.partial(flow_loss_merged, order="bhd"),
+    "merged": flow_loss_merged,
+    "x3tf32": functools.partial(flow_loss_merged, precision=_P.TF32_TF32_F32_X3),
+    "x6bf16": functools.partial(flow_loss_merged, precision=_P.BF16_BF16_F32_X6),
+}
+
+
+# ------------------------------------------------------------------------- representations (full update)
+def _sf2_variant(name: str, label: str, fn):
+    class Variant(representations.SF2Representation):
+        def aux_loss(self, params, batch, next_action, noise):
+            eps, flow_time = noise
+            return fn(self.nets, params, batch, next_action, eps, flow_time)
+
+    Variant.name, Variant.label = name, label
+    Variant.__name__ = Variant.__qualname__ = f"SF2_{name.replace('-', '_')}"
+    return representations.register(Variant)
+
+
+@representations.register
+class PsiOnly(representations.SF2Representation):
+    """TD3/SAC on ψ features with no flow loss (ζ untouched): the SF² update minus its flow step."""
+
+    name = "psi-only"
+    label = "ψ critic, no flow loss"
+    aux_groups = ()
+
+    def update_targets(self, params):
+        from sf2_jax.losses import ema_update
+
+        return {"target_psi": ema_update(params["target_psi"], params["psi"], self.cfg.tau)}
+
+
+for _name, _fn in VARIANTS.items():
+    _sf2_variant(f"sf2-{_name}", f"SF² ({_name})", _fn)
+
+REPRESENTATIONS = ("psi-only", *(f"sf2-{n}" for n in VARIANTS))
+
+
+# ------------------------------------------------------------------------------------------ accuracy
+def grad_errors(obs_size: int, action_size: int, size: str, steps: int, variants,
+                seed: int = 0) -> list[dict]:
+    """Relative error (‖g − g64‖∞ / ‖g64‖∞ per parameter group, worst leaf) of the flow-loss gradient
+    of the fast path and of each variant in float32, against the fast path in float64, at one batch.
+    Shows whether a variant is as accurate as the fp32 'highest' fast path."""
+    import numpy as np
+    from sf2_jax import losses, networks
+    from sf2_jax.config import SF2Config
+    from sf2_jax.losses import Batch
+
+    from .data import FIELDS, make_batches
+    from .sizes import SIZES
+
+    kw = {k: v for k, v in SIZES[size].items() if k != "batch_size"}
+    B = SIZES[size]["batch_size"]
+    cfg = SF2Config(obs_size=obs_size, action_size=action_size, denoising_steps=steps, **kw)
+    nets = networks.make_networks(cfg, "td3")
+    raw = make_batches(obs_size, action_size, B, 1, seed)[0]
+    rng = np.random.default_rng(seed + 1)
+    na = rng.uniform(-1, 1, (B, action_size)).astype(np.float32)
+    eps = rng.standard_normal((B, obs_size), np.float32)
+    k = rng.uniform(size=B).astype(np.float32)
+    params32 = networks.init_params(nets, jax.random.key(seed), dtype=jnp.float32)
+    host = jax.tree_util.tree_map(np.asarray, params32)
+
+    def grads(fn, dtype):
+        p = jax.tree_util.tree_map(lambda v: jnp.asarray(v, dtype), host)
+        batch = Batch(*(jnp.asarray(raw[f], dtype) for f in FIELDS))
+        inputs = (jnp.asarray(na, dtype), jnp.asarray(eps, dtype), jnp.asarray(k, dtype))
+
+        def f(sub, p, batch, inputs):   # everything an argument: no constants for XLA to fold
+            return fn(nets, {**p, **sub}, batch, *inputs)[0]
+
+        g = jax.jit(jax.grad(f))({"psi": p["psi"], "zeta": p["zeta"]}, p, batch, inputs)
+        return jax.tree_util.tree_map(lambda v: np.asarray(v, np.float64), g)
+
+    with jax.enable_x64(True):
+        ref = grads(losses.flow_loss, jnp.float64)
+    out = []
+    for name, fn in [("fast", losses.flow_loss), *((v, VARIANTS[v]) for v in variants)]:
+        try:
+            g = grads(fn, jnp.float32)
+        except Exception as e:  # noqa: BLE001
+            out.append(dict(variant=name, steps=steps, error=f"{type(e).__name__}: {str(e)[:120]}"))
+            continue
+        row = dict(variant=name, steps=steps)
+        for group in ("psi", "zeta"):
+            worst = 0.0
+            for a, b in zip(jax.tree_util.tree_leaves(g[group]), jax.tree_util.tree_leaves(ref[group])):
+                worst = max(worst, float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-30)))
+            row[f"{group}_rel_err"] = worst
+        out.append(row)
+    return out

@@ -1,0 +1,209 @@
+"""Tests of the harness itself: the torch step it times is the JAX agents' step, the reports render."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from bench import report, sizes, timing
+from bench.sizes import Case
+
+
+# ----------------------------------------------------------------------------- torch step == JAX step
+def _leaves(tree, prefix=()):
+    if isinstance(tree, dict):
+        for k, v in tree.items():
+            yield from _leaves(v, (*prefix, k))
+    else:
+        yield prefix, tree
+
+
+def _torch_tensor(upd, path):
+    """The torch tensor holding the JAX leaf at `path` (group, *module path, leaf) and whether the
+    JAX value is its transpose."""
+    group, *rest = path
+    if group == "log_alpha":
+        return upd.nets.log_alpha, False
+    if group in ("q", "target_q") and not upd.sf2:
+        module = upd.vq if group == "q" else upd.target_vq
+    else:
+        module = getattr(upd.nets, group)
+    if group == "obs_norm":
+        return getattr(module, rest[-1]), False
+    sub = module.get_submodule(".".join(rest[:-1]))
+    leaf = rest[-1]
+    if leaf == "kernel":
+        return sub.weight, True
+    if leaf == "scale":
+        return sub.weight, False
+    return getattr(sub, leaf), False
+
+
+def _load(upd, params):
+    import torch
+
+    with torch.no_grad():
+        for path, value in _leaves(params):
+            t, transposed = _torch_tensor(upd, path)
+            v = np.array(value)
+            t.copy_(torch.as_tensor(v.T.copy() if transposed else v, dtype=t.dtype))
+
+
+def _jax_noise(algo, sf2, key, B, A, D):
+    """The agents' random draws of one sgd_step (sf2_jax/agents/algorithms.py, representations.py)."""
+    import jax
+
+    k_critic, k_aux, k_next, k_actor = jax.random.split(key, 4)
+    noise = {"critic": jax.random.normal(k_critic, (B, A), "float64")}
+    if sf2:
+        k_eps, k_time = jax.random.split(k_aux)
+        noise["eps"] = jax.random.normal(k_eps, (B, D), "float64")
+        noise["flow_time"] = jax.random.uniform(k_time, (B,), "float64")
+    if algo == "sac":
+        noise["next"] = jax.random.normal(k_next, (B, A), "float64")
+        k_alpha, k_act = jax.random.split(k_actor)
+        noise["alpha"] = jax.random.normal(k_alpha, (B, A), "float64")
+        noise["actor"] = jax.random.normal(k_act, (B, A), "float64")
+    return {k: np.asarray(v) for k, v in noise.items()}
+
+
+@pytest.mark.parametrize("algo", ["td3", "sac"])
+@pytest.mark.parametrize("rep", ["none", "sf2"])
+def test_torch_step_equals_jax_agent_step(algo, rep):
+    """Two full SGD steps of the torch step timed here and of `sf2_jax.agents` give the same parameters
+    (float64, same initial parameters, same batches, same noise): the torch/JAX ratios compare equal work."""
+    jax = pytest.importorskip("jax")
+    torch = pytest.importorskip("torch")
+    from sf2_jax.agents import algorithms, representations
+    from sf2_jax.config import SF2Config
+    from sf2_jax.losses import Batch
+
+    from bench import data, torch_steps
+
+    case = Case("torch", algo, rep, "HopperHop", "small", 2 if rep == "sf2" else 0,
+                "midpoint" if rep == "sf2" else "")
+    D, A = case.obs_size, case.action_size
+    with jax.enable_x64(True):
+        import jax.numpy as jnp
+
+        cfg = SF2Config(obs_size=D, action_size=A, **case.sf2_overrides())
+        alg = algorithms.make_algorithm(algo, cfg, representations.get(rep), dtype=jnp.float64)
+        params, opt_state = alg.init(jax.random.key(3))
+        upd = torch_steps.ComposedUpdate(case, "cpu", seed=0, dtype=torch.float64)
+        _load(upd, params)
+        initial = {path: np.array(v) for path, v in _leaves(params)}
+        raw = data.make_batches(D, A, case.batch_size, 4, seed=0)
+        step = jax.jit(alg.sgd_step)
+        for i in range(2):
+            batch = Batch(*(jnp.asarray(raw[i][f], jnp.float64) for f in data.FIELDS))
+            key = jax.random.key(100 + i)
+            noise = _jax_noise(algo, rep == "sf2", key, case.batch_size, A, D)
+            upd.draw = lambda name, shape, like, noise=noise: torch.tensor(noise[name], dtype=like.dtype)
+            params, opt_state, _ = step(params, opt_state, batch, key, jnp.asarray(i))
+            upd.step()
+        worst = 0.0
+        for path, value in _leaves(params):
+            t, transposed = _torch_tensor(upd, path)
+            a = np.asarray(value, np.float64)
+            b = t.detach().numpy().astype(np.float64)
+            b = b.T if transposed else b
+            r = float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-30))
+            worst = max(worst, r)
+            assert r < 1e-9, f"{'.'.join(path)}: torch and JAX differ by {r:.2e} relative"
+        assert worst < 1e-9
+        moved = [p for p, v in _leaves(params) if np.max(np.abs(np.asarray(v) - initial[p])) > 1e-7]
+        trained = {"q", "target_q", "policy"} | ({"psi", "zeta", "target_psi", "target_zeta"} if rep == "sf2"
+                                                 else set())
+        moved_groups = {p[0] for p in moved}
+        assert trained <= moved_groups, f"groups that did not move: {trained - moved_groups}"
+
+
+# ------------------------------------------------------------------------------------------ reports
+def test_grid_and_keys():
+    cases = sizes.grid(("jax", "torch-compile"), ("td3",), ("none", "sf2"), ["CheetahRun"], "small",
+                       (1, 2, 8), ("midpoint", "euler"), compiled_steps=(1, 8))
+    keys = [c.key for c in cases]
+    assert len(keys) == len(set(keys))
+    assert "jax/td3/sf2/T2/euler/CheetahRun/small" in keys
+    assert "torch-compile/td3/sf2/T2/midpoint/CheetahRun/small" not in keys
+    assert sizes.unique_sizes(list(sizes.TASKS)) == [
+        "AcrobotSwingup", "CartpoleBalanceSparse", "CheetahRun", "FishSwim", "HopperHop", "PendulumSwingup"]
+
+
+def test_timing_protocol_counts_every_update():
+    calls = {"step": 0, "sync": 0}
+
+    def step():
+        calls["step"] += 1
+
+    def sync():
+        calls["sync"] += 1
+
+    r = timing.Runner("x", step, sync)
+    timing.calibrate(r, warmup=2, block_s=0.001, max_n=64)
+    before = calls["step"]
+    timing.measure([r], repeats=3, log=lambda s: None)
+    assert calls["step"] - before == 3 * r.n
+    assert len(r.times) == 3
+    m, lo, hi = timing.paired_ratio([2.0, 4.0, 6.0], [1.0, 2.0, 2.0])
+    assert m == 2.0 and lo <= m <= hi
+
+
+def _fake_rows():
+    rows = []
+    for fw, scale in (("jax", 1.0), ("torch", 2.0)):
+        rows.append(dict(framework=fw, algo="td3", rep="none", task="CheetahRun", size="small",
+                         steps=0, integrator="", median_ms=1.0 * scale, q25_ms=0.9 * scale,
+                         q75_ms=1.1 * scale, min_ms=0.8 * scale, times_ms=[scale] * 3, flops=1e9,
+                         bytes=1e6, obs_size=17, action_size=6, batch_size=256, repeats=3, n_per_block=1))
+        for T in (1, 2, 4, 8):
+            t = (1.2 + 0.02 * (T - 1)) * scale
+            rows.append(dict(framework=fw, algo="td3", rep="sf2", task="CheetahRun", size="small", steps=T,
+                             integrator="midpoint", median_ms=t, q25_ms=t, q75_ms=t, min_ms=t,
+                             times_ms=[t] * 3, flops=2e9, bytes=1e6, obs_size=17, action_size=6,
+                             batch_size=256, repeats=3, n_per_block=1))
+    return rows
+
+
+def test_report_ratios_targets_and_rerender(tmp_path):
+    rows = _fake_rows()
+    idx = report._index(rows)
+    assert report.per_step_pct(idx, "jax", "td3", "CheetahRun", "small", "midpoint") == pytest.approx(
+        0.02 / 1.2 * 100)
+    res = {r["target"]: r for r in report.targets(idx, ["CheetahRun"], ["jax"], "small", [1, 2, 4, 8],
+                                                  ["midpoint"])}
+    assert res["JAX (jit): SF² (T=1) / vanilla TD3 ≤ 1.3×"]["met"]
+    assert res["JAX (jit): each extra denoising step (midpoint) ≤ 3% of T=1"]["met"]
+    machine = {"name": "test", "command": "python -m bench", "peak": {"jax": 1.0}}
+    md = report.markdown(rows, machine)
+    assert "SF² T=1 / vanilla" in md and "1.20×" in md and "torch eager / JAX" in md and "2.00×" in md
+    report.write_csv(rows, tmp_path / "updates.csv")
+    (tmp_path / "machine.json").write_text(json.dumps(machine))
+    report.render(tmp_path)
+    assert (tmp_path / "updates.png").stat().st_size > 1000
+    with open(tmp_path / "updates.csv") as f:
+        assert len(list(csv.DictReader(f))) == len(rows)
+    again = report.read_csv(tmp_path / "updates.csv")
+    assert again[1]["times_ms"] == pytest.approx(rows[1]["times_ms"])
+
+
+def test_cli_end_to_end(tmp_path):
+    """A tiny run writes every output; `report` re-renders them."""
+    pytest.importorskip("jax")
+    from bench import cli
+
+    out = tmp_path / "res"
+    cli.main(["run", "--size", "small", "--tasks", "pendulum", "--frameworks", "jax,torch", "--algos", "td3",
+              "--steps", "1,2", "--integrators", "euler", "--repeats", "3", "--warmup", "1",
+              "--block-s", "0.01", "--out", str(out), "--no-peak"])
+    for name in ("updates.csv", "updates.md", "updates.png", "machine.json", "log.txt"):
+        assert (out / name).exists(), name
+    rows = report.read_csv(out / "updates.csv")
+    assert {r["framework"] for r in rows} == {"jax", "torch"} and len(rows) == 6
+    assert all(r["finite"] == "True" for r in rows)
+    md = (out / "updates.md").read_text()
+    assert "PendulumSwingup" in md and "python -m bench run" in md
+    cli.main(["report", str(out)])
