@@ -93,7 +93,10 @@ def parser() -> argparse.ArgumentParser:
     _common(r)
     r.add_argument("--frameworks", default="jax,torch,torch-compile")
     r.add_argument("--algos", default="td3,sac")
-    r.add_argument("--reps", default="none,sf2", help="representations: none (vanilla), sf2, baselines")
+    r.add_argument("--reps", default="auto",
+                   help="representations: none (vanilla), sf2, the baselines (sim, simlap, simlap_authors, "
+                        "spr: sf2_baselines), bench prototypes (psi-only, sf2-*); auto = none,sf2 + the "
+                        "baselines when sf2_baselines imports")
     r.add_argument("--steps", default="1,2,4,8", help="denoising steps T")
     r.add_argument("--integrators", default="midpoint,euler")
     r.add_argument("--compiled-steps", default="1,8",
@@ -274,7 +277,12 @@ def run(args, out: Path, info: dict, log) -> None:
     steps = _ints(args.steps)
     compiled_steps = None if args.compiled_steps == "all" else _ints(args.compiled_steps)
     tasks = _tasks(args.tasks)
-    reps = list(_names(args.reps))
+    if args.reps == "auto":
+        from .jax_steps import baselines_available
+
+        reps = ["none", "sf2", *baselines_available("jax")]
+    else:
+        reps = list(_names(args.reps))
     if any(fw.startswith("torch") for fw in frameworks):
         from . import torch_steps
 

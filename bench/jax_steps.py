@@ -66,10 +66,25 @@ def _device_batches(case: Case, count: int, seed: int):
     return [Batch(*(jnp.asarray(b[f]) for f in FIELDS)) for b in raw]
 
 
+def baselines_available(framework: str = "jax") -> tuple[str, ...]:
+    """Import `sf2_baselines.<framework>` (it registers Sim, SimLap, SPR with that framework's agents)
+    and return the baseline names, or () when the package is absent."""
+    import importlib
+
+    try:
+        mod = importlib.import_module(f"sf2_baselines.{framework}")
+    except Exception:  # noqa: BLE001
+        return ()
+    reps = getattr(mod, "representations", None)
+    return tuple(getattr(reps, "NAMES", ()) or getattr(mod, "REGISTERED", ()) or ())
+
+
 def _algorithm(case: Case):
     from sf2_jax.agents import algorithms, representations
     from sf2_jax.config import SF2Config
 
+    if case.rep not in representations.names():
+        baselines_available("jax")
     if case.rep not in representations.names():
         from . import prototypes  # noqa: F401 — registers the bench-only representations
     cfg = SF2Config(obs_size=case.obs_size, action_size=case.action_size, **case.sf2_overrides())

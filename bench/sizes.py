@@ -123,7 +123,7 @@ def grid(frameworks, algos, reps, tasks, size, steps=DEFAULT_STEPS, integrators=
     integrators (None: all)."""
     cases = []
     for task, fw, algo, rep in itertools.product(tasks, frameworks, algos, reps):
-        bench_only = rep not in ("none", "sf2")
+        bench_only = rep == "psi-only" or rep.startswith("sf2-")   # bench/prototypes.py, JAX only
         if bench_only and (fw not in JAX or (variant_algos and algo not in variant_algos)):
             continue
         if fw in COMPILED and compiled_algos and algo not in compiled_algos:

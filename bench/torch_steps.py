@@ -263,6 +263,10 @@ class AgentsUpdate:
         compile_mode = "default" if case.framework in ("torch-compile", "torch-cudagraphs") else None
         cudagraphs = case.framework == "torch-cudagraphs"
         torch.manual_seed(seed)
+        if case.rep not in representations.names():
+            import importlib
+
+            importlib.import_module("sf2_baselines.torch")   # registers Sim, SimLap, SPR
         self.alg = algorithms.make_algorithm(case.algo, cfg, representations.get(case.rep), dtype=dtype,
                                              device=self.device, compile_mode=compile_mode,
                                              cudagraphs=cudagraphs)
