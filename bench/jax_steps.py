@@ -126,10 +126,14 @@ def update_runner(case: Case, seed: int = 0, scan: int = 1) -> tuple[Runner, dic
     cost = _cost(lowered, compiled, raw, args)
     # with lax.scan, XLA's cost analysis counts the loop body (one update) once: already per update
     state = {"p": params, "o": opt_state, "i": 0}
+    # Baselines update some groups every k-th step (`aux_every`): give them a growing step counter so a
+    # timed block averages over their schedule. SF² and vanilla ignore the step (policy_delay = 1).
+    counting = case.rep not in ("none", "sf2", "psi-only") and not case.rep.startswith("sf2-")
 
     def step():
         i = state["i"] % len(batches)
-        state["p"], state["o"], _ = compiled(state["p"], state["o"], batches[i], keys[i], steps[i])
+        s = jnp.asarray(state["i"] * scan, jnp.int32) if counting else steps[i]
+        state["p"], state["o"], _ = compiled(state["p"], state["o"], batches[i], keys[i], s)
         state["i"] += 1
 
     def sync():
