@@ -197,6 +197,7 @@ def test_cli_end_to_end(tmp_path):
 
     out = tmp_path / "res"
     cli.main(["run", "--size", "small", "--tasks", "pendulum", "--frameworks", "jax,torch", "--algos", "td3",
+              "--reps", "none,sf2",
               "--steps", "1,2", "--integrators", "euler", "--repeats", "3", "--warmup", "1",
               "--block-s", "0.01", "--out", str(out), "--no-peak"])
     for name in ("updates.csv", "updates.md", "updates.png", "machine.json", "log.txt"):
