@@ -204,9 +204,13 @@ def _expand_runs(paths) -> list[Path]:
 
 def _plot(args) -> int:
     from sf2_jax.agents import plotting
+    from sf2_jax.errors import ConfigError
 
     runs = _expand_runs(args.runs)
-    table = plotting.plot_runs(runs, args.out)
+    try:
+        table = plotting.plot_runs(runs, args.out)
+    except ValueError as err:
+        raise ConfigError(str(err)) from None
     _print_table(table)
     print(f"wrote {args.out}")
     return 0

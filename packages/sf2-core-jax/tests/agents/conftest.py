@@ -20,6 +20,11 @@ if _MISSING:  # test_algorithms.py needs only jax, flax and optax
 import pytest  # noqa: E402
 
 
+def pytest_configure(config):
+    config.addinivalue_line("markers", "slow: a real learning run (about a minute of training on a CPU); "
+                            "deselect with -m 'not slow'")
+
+
 @pytest.fixture(scope="module", autouse=True)
 def float32_jax():
     """The unit tests' conftest turns on x64 for the whole session; the trainer runs in float32."""

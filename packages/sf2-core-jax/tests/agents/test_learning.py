@@ -19,6 +19,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from sf2_jax.agents import envs, make_config
 from sf2_jax.agents.trainer import train
 
@@ -44,6 +45,7 @@ def _random_policy_returns(cfg, n=64, seed=123):
     return np.asarray(run(jax.random.PRNGKey(seed)))
 
 
+@pytest.mark.slow
 def test_td3_sf2_learns_cartpole_balance(tmp_path):
     cfg = make_config("quick", "CartpoleBalance", algo="td3", representation="sf2",
                       overrides=dict(num_timesteps=44_000, num_evals=2))

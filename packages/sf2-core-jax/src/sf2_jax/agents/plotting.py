@@ -76,7 +76,8 @@ def plot_learning_curve(rows: list[dict], path, title: str) -> None:
     mean, lo, hi = mean_ci(np.stack(list(per_seed.values())))
     ax.plot(steps, mean, color="k", lw=2, label="mean")
     if len(per_seed) > 1:
-        ax.fill_between(steps, lo, hi, color="k", alpha=0.15, label="95% CI")
+        ax.fill_between(steps, lo, hi, color="k", alpha=0.15, label=f"95% CI (t, n={len(per_seed)})")
+    _limit_to_lines(ax, list(per_seed.values()))
     ax.set_xlabel("env steps")
     ax.set_ylabel("eval return")
     ax.set_title(title)
@@ -87,6 +88,14 @@ def plot_learning_curve(rows: list[dict], path, title: str) -> None:
     fig.savefig(tmp, dpi=100)
     plt.close(fig)
     tmp.replace(path)
+
+
+def _limit_to_lines(ax, lines) -> None:
+    """y range of the plotted curves (a CI band of few seeds can be far wider than any curve)."""
+    values = np.concatenate([np.ravel(x) for x in lines]) if lines else np.zeros(1)
+    lo, hi = float(values.min()), float(values.max())
+    pad = 0.08 * max(hi - lo, 1.0)
+    ax.set_ylim(lo - pad, hi + pad)
 
 
 def _load(run_dirs) -> dict[tuple[str, str], list[tuple[np.ndarray, dict]]]:
@@ -105,11 +114,20 @@ def _load(run_dirs) -> dict[tuple[str, str], list[tuple[np.ndarray, dict]]]:
 
 
 def _pool(entries) -> tuple[np.ndarray, np.ndarray]:
-    """Pool seeds of several folders of one method on their common evaluation points."""
-    n = min(len(steps) for steps, _ in entries)
-    steps = entries[0][0][:n]
-    mats = [ret[:n] for _, per_seed in entries for ret in per_seed.values()]
-    return steps, np.stack(mats)
+    """Pool the seeds of several folders of one method on the evaluation points (env steps) they all
+    have. Folders of one method with disjoint evaluation points are a user error (different budgets or
+    num_evals): `ValueError`."""
+    common = sorted(set.intersection(*(set(steps.tolist()) for steps, _ in entries)))
+    ends = sorted({int(steps[-1]) for steps, _ in entries})
+    if not common or common[-1] != ends[0]:
+        raise ValueError(f"run folders of the same method and task do not share their evaluation points "
+                         f"(they end at env steps {ends}); plot together only runs with the same "
+                         f"num_timesteps, num_evals and num_envs")
+    mats = []
+    for steps, per_seed in entries:
+        index = [steps.tolist().index(x) for x in common]
+        mats += [ret[index] for ret in per_seed.values()]
+    return np.asarray(common), np.stack(mats)
 
 
 def plot_runs(run_dirs, path) -> list[dict]:
@@ -127,6 +145,8 @@ def plot_runs(run_dirs, path) -> list[dict]:
             line, = ax.plot(steps, mean, lw=2, label=f"{method} (n={mat.shape[0]})")
             if mat.shape[0] > 1:
                 ax.fill_between(steps, lo, hi, color=line.get_color(), alpha=0.2)
+        _limit_to_lines(ax, [_pool(e)[1].mean(axis=0) for (t, _), e in data.items() if t == task]
+                        + [row for (t, _), e in data.items() if t == task for row in _pool(e)[1]])
         ax.set_title(task)
         ax.set_xlabel("env steps")
         ax.set_ylabel("eval return")
