@@ -25,7 +25,7 @@ def test_output_shapes(td3, sac, data):
         assert W.shape == (H, F * D) and b.shape == (F * D,)
         assert nw.velocity(nets, params, x, k, feats).shape == (B, D)
         M, c = nw.contract(nets, params, feats)
-        assert M.shape == (B, H, D) and c.shape == (B, D)
+        assert M.shape == (B, D, H) and c.shape == (B, D)
         assert nw.velocity_contracted(nets, params, x, k, M, c).shape == (B, D)
         assert nw.q_values(nets, params, feats).shape == (B, 2)
         assert nw.q_values(nets, params, feats, target=True).shape == (B, 2)

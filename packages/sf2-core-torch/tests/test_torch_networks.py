@@ -20,7 +20,7 @@ def test_shapes_td3(td3_nets):
     assert networks.zeta_hidden(td3_nets, noise["eps"], noise["flow_time"]).shape == (B, 32)
     assert networks.velocity(td3_nets, noise["eps"], noise["flow_time"], f).shape == (B, D)
     m, c = networks.contract(td3_nets, f, target=True)
-    assert m.shape == (B, 32, D) and c.shape == (B, D)
+    assert m.shape == (B, D, 32) and c.shape == (B, D)
     assert networks.q_values(td3_nets, f).shape == (B, 2)
     a = networks.td3_action(td3_nets, batch.obs, target=True)
     assert a.shape == (B, A) and a.abs().max() <= 1

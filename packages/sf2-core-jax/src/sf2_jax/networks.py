@@ -282,20 +282,29 @@ def velocity(nets: Networks, params: Params, x, k, features, target: bool = Fals
 
 
 def contract(nets: Networks, params: Params, features, target: bool = False):
-    """Contract ζ's last layer with ψ once (DESIGN.md §6): with W viewed (H, D, F) and b (D, F),
-    M = einsum('hdf,bf->bhd', W, ψ) (B, H, D) and c = einsum('df,bf->bd', b, ψ) (B, D)."""
+    """Contract ζ's last layer with ψ once (DESIGN.md §6): M (B, D, H) and c (B, D) with
+    M[b, d, h] = Σ_f W[h, d·F + f] ψ[b, f] and c[b, d] = Σ_f b[d·F + f] ψ[b, f].
+
+    Layout: the kernel W (H, F·D) is re-laid (D, H, F) here, once per contraction (an internal transpose;
+    the stored parameter keeps its canonical (in, out) layout), so the single GEMM ψ·W_tᵀ emits M already
+    as (B, D·H) and every evaluation of `velocity_contracted` reduces over M's minor axis with no
+    per-evaluation re-layout of M (bench/results/h200/4-layout-fix: variant `wt`)."""
     cfg = nets.cfg
     _check_last("features", features, cfg.feature_size, "feature_size")
     W, b = zeta_last_layer(nets, params, target)
-    W = W.reshape(W.shape[0], cfg.obs_size, cfg.feature_size)
+    W_t = jnp.transpose(W.reshape(W.shape[0], cfg.obs_size, cfg.feature_size), (1, 0, 2))  # (D, H, F)
     b = b.reshape(cfg.obs_size, cfg.feature_size)
-    return jnp.einsum("hdf,bf->bhd", W, features), jnp.einsum("df,bf->bd", b, features)
+    return jnp.einsum("bf,dhf->bdh", features, W_t), jnp.einsum("bf,df->bd", features, b)
 
 
 def velocity_contracted(nets: Networks, params: Params, x, k, M, c, target: bool = False):
-    """Fast velocity u = einsum('bh,bhd->bd', h(x, k), M) + c, equal to `velocity` (DESIGN.md §6)."""
+    """Fast velocity u = einsum('bh,bdh->bd', h(x, k), M) + c with (M, c) from `contract`; equal to
+    `velocity` (DESIGN.md §6)."""
     h = zeta_hidden(nets, params, x, k, target)
-    return jnp.einsum("bh,bhd->bd", h, M) + c
+    if jnp.shape(M) != (*jnp.shape(h)[:-1], nets.cfg.obs_size, jnp.shape(h)[-1]):
+        raise ShapeError(f"M: expected shape {(*jnp.shape(h)[:-1], nets.cfg.obs_size, jnp.shape(h)[-1])} "
+                         f"(B, D, H) from `contract`, found {tuple(jnp.shape(M))}")
+    return jnp.einsum("bh,bdh->bd", h, M) + c
 
 
 # ------------------------------------------------------------------------------------------ Q and policies

@@ -175,7 +175,7 @@ def flow_loss(
             x_hat, u_bar = _bootstrap_target(nets, batch, next_action, eps, flow_time, contracted=True)
             b = x_k.shape[0]
             h = zeta_hidden(nets, torch.cat([x_k, x_hat]), torch.cat([flow_time, flow_time]))
-            u = torch.einsum("nbh,bhd->nbd", h.view(2, b, h.shape[-1]), m) + c
+            u = torch.einsum("nbh,bdh->nbd", h.view(2, b, h.shape[-1]), m) + c
             u_p, u_b = u[0], u[1]
         else:
             u_p = velocity_contracted(nets, x_k, flow_time, m, c)

@@ -515,16 +515,21 @@ def velocity(
 def contract(
     nets: SF2Networks, features: torch.Tensor, target: bool = False
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """(M (B, H, D), c (B, D)) of the fast path (DESIGN.md §6).
+    """(M (B, D, H), c (B, D)) of the fast path (DESIGN.md §6).
 
-    M = einsum('hdf,bf->bhd', W, ψ) and c = einsum('df,bf->bd', b, ψ).
-    W is ζ's last kernel (H, F·D) viewed as (H, D, F), b its bias viewed as (D, F). Compute once per
-    (ζ parameters, ψ) pair and reuse for every evaluation at new (x, k) with `velocity_contracted`.
+    M[b, d, h] = Σ_f W[h, d·F + f] ψ[b, f] and c[b, d] = Σ_f b[d·F + f] ψ[b, f], with W ζ's last kernel
+    (H, F·D) in canonical layout and b its bias. Layout (as `sf2_jax.networks.contract`): the torch weight
+    (F·D, H), i.e. (D, F, H), is re-laid (D, H, F) once per contraction (an internal copy; the parameter
+    keeps its layout), so one GEMM ψ·W_tᵀ emits M contiguous as (B, D·H) and every evaluation of
+    `velocity_contracted` reduces over M's minor axis. Compute once per (ζ parameters, ψ) pair and reuse
+    for every evaluation at new (x, k).
     """
     _check_last("features", features, nets.cfg.feature_size, "feature_size")
     w, b = (nets.target_zeta if target else nets.zeta).last_dense()  # (D, F, H), (D, F)
-    m = torch.einsum("dfh,bf->bhd", w, features)
-    c = torch.einsum("df,bf->bd", b, features)
+    d, h = w.shape[0], w.shape[-1]
+    w_t = w.transpose(1, 2).reshape(d * h, w.shape[1])  # (D·H, F), a copy
+    m = (features @ w_t.T).view(*features.shape[:-1], d, h)
+    c = features @ b.T
     return m, c
 
 
@@ -536,14 +541,15 @@ def velocity_contracted(
     c: torch.Tensor,
     target: bool = False,
 ) -> torch.Tensor:
-    """u = einsum('bh,bhd->bd', h(x, k), M) + c, (B, D): equal to `velocity` without building ζ (B, D, F)."""
+    """u = einsum('bh,bdh->bd', h(x, k), M) + c, (B, D), with (M, c) from `contract`: equal to `velocity`
+    without building ζ (B, D, F)."""
     h = zeta_hidden(nets, x, k, target)
-    if tuple(m.shape) != (*h.shape, x.shape[-1]) or tuple(c.shape) != tuple(x.shape):
+    if tuple(m.shape) != (*x.shape, h.shape[-1]) or tuple(c.shape) != tuple(x.shape):
         raise ShapeError(
-            f"contracted (M, c) must have shapes {(*h.shape, x.shape[-1])} and {tuple(x.shape)}, "
+            f"contracted (M, c) must have shapes {(*x.shape, h.shape[-1])} (B, D, H) and {tuple(x.shape)}, "
             f"found {tuple(m.shape)} and {tuple(c.shape)}"
         )
-    return torch.einsum("bh,bhd->bd", h, m) + c
+    return torch.einsum("bh,bdh->bd", h, m) + c
 
 
 def q_values(nets: SF2Networks, features: torch.Tensor, target: bool = False) -> torch.Tensor:
