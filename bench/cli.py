@@ -460,7 +460,7 @@ def flow_step(args, out: Path, info: dict, log, steps=None, variants=None, write
     if variants:
         from . import prototypes
 
-        protos = {v: prototypes.VARIANTS[v] for v in variants}
+        protos = {v: prototypes.variant(v) for v in variants}
     runners, meta = [], {}
     for task in tasks:
         D, A = sizes.TASKS[task]

@@ -8,25 +8,27 @@ Nothing here changes `sf2_jax`; each variant is a drop-in replacement of `sf2_ja
 `psi-only` is TD3/SAC on ψ features with no flow loss at all: SF² update − psi-only = cost of the flow
 step inside the update.
 
-Variants (all on the fast path of DESIGN.md §6):
-- `bhd`: the cores' fast path with one change: the contraction is written `einsum("bf,hdf->bhd", ψ, W)`
-  (ψ first) instead of `einsum("hdf,bf->bhd", W, ψ)`, so M comes out of its GEMM in the layout the
-  per-evaluation product h·M reads, and XLA no longer transposes M̄ in every ODE evaluation.
-- `bdh`: M and M̄ stored (B, D, H) (one transpose per contraction) and read with
-  `einsum("bh,bdh->bd")`, so the per-evaluation product reduces over the minor axis. Tests whether
-  XLA's per-evaluation `input_transpose_fusion` (H200 profile) is a re-layout of M̄ for that product.
+Variants (all on the fast path of DESIGN.md §6). The cores store M as (B, D, H) since the `wt` port
+(issue #6; before it, `pre-wt` below); the layout variants are kept as references for the recorded runs
+of bench/results/h200 (their README lists the commands):
+- `pre-wt`: the cores' fast path before the port: M = einsum("hdf,bf->bhd", W, ψ) stored (B, H, D) and
+  read with einsum("bh,bhd->bd"). Time it next to `sf2` to see the port's gain in one run.
+- `bhd`: `pre-wt` with the contraction written `einsum("bf,hdf->bhd", ψ, W)` (ψ first), so M comes out of
+  its GEMM in the layout the per-evaluation product reads.
+- `bdh`: M and M̄ stored (B, D, H) by one transpose per contraction, `einsum("bf,hdf->bdh")`.
   (H200, jax 0.11.2: XLA sank that transpose back into every evaluation in the one-call-per-update
   program, but not inside `lax.scan`.)
 - `bdhb`: `bdh` with the (B, D, H) value behind `lax.optimization_barrier`, so it is materialized once.
-- `wt`: ζ's last kernel re-laid (D, H, F) once per contraction, so the GEMM itself emits M as
-  (B, D·H): no per-evaluation transpose can be needed.
-- `wt-ode3xtf32` / `wt-ode6xbf16`: `wt`, and the target field's evaluations (the ODE and the target
-  velocity: no gradient flows through them) run their matmuls with an error-compensated algorithm
-  (3 TF32 / 6 bf16 tensor-core passes, fp32 accumulation); everything else stays fp32 'highest'.
-- `merged-bhd`: `bhd` and `merged` together.
-- `merged`: the two online velocity evaluations (at x_k and at x̂) run as one batch of 2B through ζ's
-  hidden MLP and one batched product with M ('nbh,bhd->nbd'), instead of two separate chains (the torch
-  core already does this). Fewer, larger kernels; same FLOPs.
+- `wt` — now the cores' layout (`sf2`), no longer a variant: ζ's last kernel re-laid (D, H, F) once per
+  contraction, so the GEMM itself emits M as (B, D·H) (bench/results/h200/4-layout-fix).
+- `wt-ode3xtf32` / `wt-ode6xbf16`: the cores' fast path, and the target field's evaluations (the ODE and
+  the target velocity: no gradient flows through them) run their matmuls with an error-compensated
+  algorithm (3 TF32 / 6 bf16 tensor-core passes, fp32 accumulation); everything else stays fp32 'highest'.
+- `merged`: the cores' fast path with the two online velocity evaluations (at x_k and at x̂) run as one
+  batch of 2B through ζ's hidden MLP and one batched product with M ('nbh,bdh->nbd'), instead of two
+  separate chains (the torch core already does this). Fewer, larger kernels; same FLOPs. (Runs 1–2 of
+  bench/results/h200 timed it on the `pre-wt` layout.)
+- `merged-bhd`: `merged` on the `bhd` layout.
 - `x3tf32` / `x6bf16`: `merged`, and the two contractions M = Wψ, M̄ = W̄ψ̄′ (and, through autodiff,
   their transposes dW, dψ), which hold ~half the update's FLOPs, use XLA's error-compensated dot
   algorithms (3 TF32 or 6 bf16 tensor-core passes with fp32 accumulation, accuracy close to fp32,
@@ -46,45 +48,50 @@ from sf2_jax.ode import integrate
 
 sg = jax.lax.stop_gradient
 
+ORDERS_BHD = ("pre-wt", "bhd")            # M stored (B, H, D)
+ORDERS_BDH = ("bdh", "bdhb", "wt")        # M stored (B, D, H), the cores' layout
 
-def _contract(nets, p, features, target, precision, order="bhd"):
-    """(M, c). `order="bhd"`: ψ is the *left* operand, so XLA's dot_general emits M directly in the
-    (b, h, d) layout every evaluation reads; the cores' `einsum("hdf,bf->bhd", W, ψ)` emits (h, d, b)
-    and XLA then re-transposes M̄ inside every ODE evaluation (`input_transpose_fusion` in the H200
-    profile, ~9 µs each). `order="core"` reproduces the cores' operand order."""
+
+def _contract(nets, p, features, target, precision, order="wt"):
+    """(M, c), M laid out as `order` says (ORDERS_BHD: (B, H, D); ORDERS_BDH: (B, D, H)).
+    `order="wt"` is `sf2_jax.networks.contract` (with an optional dot `precision`); `"pre-wt"` is the
+    cores' contraction before the port, `einsum("hdf,bf->bhd", W, ψ)`, whose GEMM emits (h, d, b), so
+    XLA re-transposed M̄ inside every ODE evaluation (`input_transpose_fusion` in the H200 profile,
+    ~9 µs each)."""
     cfg = nets.cfg
     W, b = nw.zeta_last_layer(nets, p, target)
     W = W.reshape(W.shape[0], cfg.obs_size, cfg.feature_size)
-    b = b.reshape(cfg.obs_size, cfg.feature_size)
-    if order == "core":
-        return (jnp.einsum("hdf,bf->bhd", W, features, precision=precision),
-                jnp.einsum("df,bf->bd", b, features))
+    c = jnp.einsum("bf,df->bd", features, b.reshape(cfg.obs_size, cfg.feature_size))
+    if order == "pre-wt":
+        return jnp.einsum("hdf,bf->bhd", W, features, precision=precision), c
+    if order == "bhd":
+        return jnp.einsum("bf,hdf->bhd", features, W, precision=precision), c
     if order == "bdh":
-        return (jnp.einsum("bf,hdf->bdh", features, W, precision=precision),
-                jnp.einsum("bf,df->bd", features, b))
+        return jnp.einsum("bf,hdf->bdh", features, W, precision=precision), c
     if order == "bdhb":   # bdh, and the (B, D, H) value materialized once (XLA may not sink the transpose)
-        return (jax.lax.optimization_barrier(jnp.einsum("bf,hdf->bdh", features, W, precision=precision)),
-                jnp.einsum("bf,df->bd", features, b))
+        return jax.lax.optimization_barrier(jnp.einsum("bf,hdf->bdh", features, W, precision=precision)), c
     if order == "wt":     # the GEMM itself emits (B, D·H): W re-laid (D, H, F) once per contraction
-        W_t = jnp.transpose(W, (1, 0, 2))
-        return (jnp.einsum("bf,dhf->bdh", features, W_t, precision=precision),
-                jnp.einsum("bf,df->bd", features, b))
-    return (jnp.einsum("bf,hdf->bhd", features, W, precision=precision),
-            jnp.einsum("bf,df->bd", features, b))
+        return jnp.einsum("bf,dhf->bdh", features, jnp.transpose(W, (1, 0, 2)), precision=precision), c
+    raise ValueError(f"order = {order!r} is invalid: must be one of {ORDERS_BHD + ORDERS_BDH}")
 
 
-def _velocity_bdh(nets, p, x, k, M_bdh, c, target=False):
-    """u = Σ_h h(x, k)_h M[b, d, h] + c with M stored (B, D, H): the reduction runs over the minor axis."""
-    h = nw.zeta_hidden(nets, p, x, k, target)
-    return jnp.einsum("bh,bdh->bd", h, M_bdh) + c
+def _velocity(order):
+    """The per-evaluation product for M laid out as `order` says."""
+    if order in ORDERS_BDH:
+        return nw.velocity_contracted
+
+    def velocity_bhd(nets, p, x, k, M_bhd, c, target=False):
+        """u = Σ_h h(x, k)_h M[b, h, d] + c with M stored (B, H, D) (the pre-port layout)."""
+        return jnp.einsum("bh,bhd->bd", nw.zeta_hidden(nets, p, x, k, target), M_bhd) + c
+
+    return velocity_bhd
 
 
 def flow_loss_bhd(nets, params, batch, next_action, eps, flow_time, order="bhd", ode_precision=None):
-    """`sf2_jax.losses.flow_loss` (fast path) with the one change of `_contract(order=...)`:
-    "bhd" (ψ the left operand), "bdh" / "bdhb" / "wt" (M stored (B, D, H), read by `_velocity_bdh`).
+    """`sf2_jax.losses.flow_loss` (fast path) with M laid out by `_contract(order=...)`.
     `ode_precision`: a matmul precision (e.g. "TF32_TF32_F32_X3") for the target field's evaluations
     only (the ODE and the target velocity, which carry no gradient)."""
-    vel = _velocity_bdh if order in ("bdh", "bdhb", "wt") else nw.velocity_contracted
+    vel = _velocity(order)
     cfg = nets.cfg
     b = _check_batch(nets, batch)
     _check_noise(nets, "next_action", next_action, b, cfg.action_size, "action_size")
@@ -119,9 +126,11 @@ def flow_loss_bhd(nets, params, batch, next_action, eps, flow_time, order="bhd",
     return loss, {"loss_p": jnp.mean(mask * loss_p), "loss_boot": jnp.mean(mask * loss_b)}
 
 
-def flow_loss_merged(nets, params, batch, next_action, eps, flow_time, precision=None, order="core"):
+def flow_loss_merged(nets, params, batch, next_action, eps, flow_time, precision=None, order="wt"):
     """`sf2_jax.losses.flow_loss` (fast path), online evaluations merged; `precision` for M and M̄;
-    `order` of the contraction's operands (see `_contract`)."""
+    M laid out by `_contract(order=...)`."""
+    vel = _velocity(order)
+    product = "nbh,bdh->nbd" if order in ORDERS_BDH else "nbh,bhd->nbd"
     cfg = nets.cfg
     b = _check_batch(nets, batch)
     _check_noise(nets, "next_action", next_action, b, cfg.action_size, "action_size")
@@ -135,20 +144,20 @@ def flow_loss_merged(nets, params, batch, next_action, eps, flow_time, precision
     M, c = _contract(nets, p, features, False, precision, order)
     mask = 1 - batch.truncation
     if cfg.gamma_su == 0:
-        u_p = nw.velocity_contracted(nets, p, x_k, k, M, c)
+        u_p = vel(nets, p, x_k, k, M, c)
         loss_p = jnp.sum((u_p - (next_obs_n - eps)) ** 2, axis=-1)
         return jnp.mean(mask * loss_p), {"loss_p": jnp.mean(mask * loss_p), "loss_boot": jnp.zeros(())}
     next_features = sg(nw.psi(nets, p, batch.next_obs, next_action, target=True))
     M_bar, c_bar = _contract(nets, p, next_features, True, precision, order)
 
     def target_velocity(x, kk):
-        return nw.velocity_contracted(nets, p, x, kk, M_bar, c_bar, target=True)
+        return vel(nets, p, x, kk, M_bar, c_bar, target=True)
 
     x_hat = sg(integrate(target_velocity, eps, k, cfg.denoising_steps, cfg.integrator))
     u_bar = sg(target_velocity(x_hat, k))
     h = nw.zeta_hidden(nets, p, jnp.concatenate([x_k, x_hat]), jnp.concatenate([k, k]))
     h = h.reshape(2, *x_k.shape[:-1], h.shape[-1])
-    u = jnp.einsum("nbh,bhd->nbd", h, M) + c
+    u = jnp.einsum(product, h, M) + c
     loss_p = jnp.sum((u[0] - (next_obs_n - eps)) ** 2, axis=-1)
     loss_b = jnp.sum((u[1] - u_bar) ** 2, axis=-1)
     loss = jnp.mean(mask * ((1 - cfg.gamma_su) * loss_p + cfg.gamma_su * loss_b))
@@ -157,10 +166,10 @@ def flow_loss_merged(nets, params, batch, next_action, eps, flow_time, precision
 
 _P = jax.lax.DotAlgorithmPreset
 VARIANTS = {
+    "pre-wt": functools.partial(flow_loss_bhd, order="pre-wt"),
     "bhd": flow_loss_bhd,
     "bdh": functools.partial(flow_loss_bhd, order="bdh"),
     "bdhb": functools.partial(flow_loss_bhd, order="bdhb"),
-    "wt": functools.partial(flow_loss_bhd, order="wt"),
     "wt-ode3xtf32": functools.partial(flow_loss_bhd, order="wt", ode_precision="TF32_TF32_F32_X3"),
     "wt-ode6xbf16": functools.partial(flow_loss_bhd, order="wt", ode_precision="BF16_BF16_F32_X6"),
     "merged-bhd": functools.partial(flow_loss_merged, order="bhd"),
@@ -168,13 +177,25 @@ VARIANTS = {
     "x3tf32": functools.partial(flow_loss_merged, precision=_P.TF32_TF32_F32_X3),
     "x6bf16": functools.partial(flow_loss_merged, precision=_P.BF16_BF16_F32_X6),
 }
+RETIRED = {"wt": "now the cores' layout: time `sf2` (representation) or `fast` (flow step)"}
+
+
+def variant(name: str):
+    """The flow-loss function of prototype `name`, or a ValueError naming the valid ones."""
+    if name in VARIANTS:
+        return VARIANTS[name]
+    why = f" ({RETIRED[name]})" if name in RETIRED else ""
+    raise ValueError(f"unknown prototype {name!r}{why}: valid are {', '.join(VARIANTS)}")
 
 
 # ------------------------------------------------------------------------- representations (full update)
 def _sf2_variant(name: str, label: str, fn):
     class Variant(representations.SF2Representation):
         def aux_loss(self, params, batch, next_action, noise):
-            eps, flow_time = noise
+            # noise: SF2Representation.aux_noise's draw, {"flow_noise": ε, "flow_time": k} (the agents'
+            # tensordict keys), or the pair (ε, k) of the agents before that naming.
+            eps, flow_time = ((noise["flow_noise"], noise["flow_time"]) if isinstance(noise, dict)
+                              else noise)
             return fn(self.nets, params, batch, next_action, eps, flow_time)
 
     Variant.name, Variant.label = name, label
@@ -242,7 +263,7 @@ def grad_errors(obs_size: int, action_size: int, size: str, steps: int, variants
     with jax.enable_x64(True):
         ref = grads(losses.flow_loss, jnp.float64)
     out = []
-    for name, fn in [("fast", losses.flow_loss), *((v, VARIANTS[v]) for v in variants)]:
+    for name, fn in [("fast", losses.flow_loss), *((v, variant(v)) for v in variants)]:
         try:
             g = grads(fn, jnp.float32)
         except Exception as e:  # noqa: BLE001

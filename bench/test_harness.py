@@ -121,6 +121,52 @@ def test_torch_step_equals_jax_agent_step(algo, rep):
         assert trained <= moved_groups, f"groups that did not move: {trained - moved_groups}"
 
 
+# ------------------------------------------------------------------------------------------ prototypes
+LAYOUT_VARIANTS = ("pre-wt", "bhd", "bdh", "bdhb", "merged", "merged-bhd")   # no reduced-precision dots
+
+
+@pytest.mark.parametrize("gamma_su", [0.0, 0.99])
+def test_prototypes_equal_the_cores_flow_loss(gamma_su):
+    """Every layout prototype is `sf2_jax.losses.flow_loss` rearranged: same loss, aux and (ψ, ζ) gradient
+    in float64; a retired name (`wt`, now the cores' layout) is refused with the valid names."""
+    jax = pytest.importorskip("jax")
+    from sf2_jax import losses, networks
+    from sf2_jax.config import SF2Config
+    from sf2_jax.losses import Batch
+
+    from bench import data, prototypes
+
+    D, A, B = 5, 2, 8
+    cfg = SF2Config(obs_size=D, action_size=A, hidden_sizes=(16,), zeta_hidden_sizes=(16, 12),
+                    feature_size=8, q_hidden_size=8, embedding_size=4, denoising_steps=2, gamma_su=gamma_su)
+    with jax.enable_x64(True):
+        import jax.numpy as jnp
+
+        nets = networks.make_networks(cfg, "td3")
+        params = networks.init_params(nets, jax.random.key(0), dtype=jnp.float64)
+        raw = data.make_batches(D, A, B, 1, seed=0)[0]
+        batch = Batch(*(jnp.asarray(raw[f], jnp.float64) for f in data.FIELDS))
+        rng = np.random.default_rng(1)
+        inputs = (jnp.asarray(rng.uniform(-1, 1, (B, A))), jnp.asarray(rng.standard_normal((B, D))),
+                  jnp.asarray(rng.uniform(size=B)))
+
+        def run(fn):
+            return jax.jit(jax.value_and_grad(lambda p: fn(nets, p, batch, *inputs), has_aux=True))(params)
+
+        (ref, ref_aux), ref_grad = run(losses.flow_loss)
+        for name in LAYOUT_VARIANTS:
+            (loss, aux), grad = run(prototypes.variant(name))
+            np.testing.assert_allclose(loss, ref, rtol=1e-12, err_msg=name)
+            for key in ref_aux:
+                np.testing.assert_allclose(aux[key], ref_aux[key], rtol=1e-12, atol=1e-300, err_msg=name)
+            leaves = jax.tree_util.tree_leaves
+            for group in ("psi", "zeta"):
+                for a, b in zip(leaves(grad[group]), leaves(ref_grad[group])):
+                    np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-12 * np.max(np.abs(b)), err_msg=name)
+    with pytest.raises(ValueError, match="now the cores' layout.*valid are pre-wt"):
+        prototypes.variant("wt")
+
+
 # ------------------------------------------------------------------------------------------ reports
 def test_grid_and_keys():
     cases = sizes.grid(("jax", "torch-compile"), ("td3",), ("none", "sf2"), ["CheetahRun"], "small",
