@@ -1,0 +1,33 @@
+"""The framework-free parts of the SF² agents, shared by `sf2_jax.agents` and `sf2_torch.agents`.
+
+Modules: `configs` (TrainConfig, presets, parsing, validation), `tasks` (the DM Control task table),
+`registry` (representations by name, entry points), `runfolder`, `plotting`, `hostloop` (the training
+loop's framework-free helpers). `EXPORTS` and `lazy_getattr` give both cores' `agents` packages the same
+lazily imported top-level names.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+__all__ = ["EXPORTS", "lazy_getattr"]
+
+# name → module of a core's agents package that defines it (the same module names in both cores)
+EXPORTS = {
+    "TrainConfig": "configs", "make_config": "configs", "parse_seeds": "configs", "validate": "configs",
+    "Representation": "representations", "register": "representations",
+    "TrainingDiverged": "trainer", "evaluate_checkpoint": "trainer", "get_program": "trainer",
+    "train": "trainer",
+}
+
+
+def lazy_getattr(package: str):
+    """The module `__getattr__` of the agents package `package` (e.g. "sf2_jax.agents"): `EXPORTS` are
+    imported on first access, so importing a light module (e.g. `configs`) does not pull in the trainer."""
+
+    def __getattr__(name):
+        if name in EXPORTS:
+            return getattr(importlib.import_module(f"{package}.{EXPORTS[name]}"), name)
+        raise AttributeError(f"module {package!r} has no attribute {name!r}")
+
+    return __getattr__

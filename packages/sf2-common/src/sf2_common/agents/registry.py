@@ -1,0 +1,87 @@
+"""The representation registry of one framework: `--repr NAME` → the `Representation` class.
+
+A representation is selectable when it was `register`ed in this process (the core's own `none` and `sf2`,
+a test's or the bench's variants) or when an installed distribution declares it as an entry point of the
+framework's group, `sf2.representations.jax` or `sf2.representations.torch`:
+
+    [project.entry-points."sf2.representations.jax"]          # pyproject.toml of sf2-baselines
+    sim = "sf2_baselines.jax.representations:SimRepresentation"
+
+`names()` lists entry points without importing them; `get(name)` imports one only when it is asked for,
+so `import sf2_jax.agents` stays cheap and never imports a baseline it does not use. An unknown name is a
+`ConfigError` that lists the valid names and, when sf2-baselines is not installed, how to install it.
+"""
+
+from __future__ import annotations
+
+from importlib import metadata
+
+from sf2_common.errors import ConfigError
+
+__all__ = ["Registry", "GROUP", "BASELINES", "INSTALL_BASELINES"]
+
+GROUP = "sf2.representations.{framework}"   # the entry-point group of a framework
+BASELINES = ("sim", "simlap", "spr")        # the paper's baselines, provided by sf2-baselines
+INSTALL_BASELINES = "pip install packages/sf2-baselines"
+
+
+class Registry:
+    """Representations of one framework ("jax" or "torch"): registered classes, then entry points."""
+
+    def __init__(self, framework: str):
+        self.framework = framework
+        self.group = GROUP.format(framework=framework)
+        self._classes: dict[str, type] = {}
+        self._entry_points: dict[str, metadata.EntryPoint] | None = None
+
+    def register(self, cls: type) -> type:
+        """Make `cls` selectable by `cls.name` (`--repr NAME`). Usable as a class decorator."""
+        if not getattr(cls, "name", ""):
+            raise ValueError(f"{cls.__name__}.name is empty")
+        self._classes[cls.name] = cls
+        return cls
+
+    def entry_points(self) -> dict[str, metadata.EntryPoint]:
+        """{name: entry point} of the installed distributions (read once per process)."""
+        if self._entry_points is None:
+            found: dict[str, metadata.EntryPoint] = {}
+            for ep in metadata.entry_points(group=self.group):
+                found.setdefault(ep.name, ep)
+            self._entry_points = found
+        return self._entry_points
+
+    def names(self) -> tuple[str, ...]:
+        """Registered names (in registration order), then the entry points not loaded yet (sorted)."""
+        return tuple(self._classes) + tuple(sorted(set(self.entry_points()) - set(self._classes)))
+
+    def get(self, name: str) -> type:
+        """The class of `name`, importing its entry point if needed; `ConfigError` if there is none."""
+        if name in self._classes:
+            return self._classes[name]
+        ep = self.entry_points().get(name)
+        if ep is None:
+            raise ConfigError(f"unknown representation {name!r}; {self.valid_text()}")
+        try:
+            cls = ep.load()
+        except ImportError as err:
+            dist = getattr(ep.dist, "name", None) or "its package"
+            raise ConfigError(f"representation {name!r} ({ep.value}, from {dist}) could not be imported: "
+                              f"{err}") from err
+        return self._classes.setdefault(name, cls)
+
+    def label(self, name: str) -> str:
+        """The class's `label` (shown in tables and plots), or `name` when it cannot be loaded."""
+        try:
+            return self.get(name).label
+        except ConfigError:
+            return name
+
+    def valid_text(self) -> str:
+        """'must be one of none, sf2, sim, ...', with the install line when the baselines are missing."""
+        names = self.names()
+        text = f"must be one of {', '.join(names)}"
+        missing = [b for b in BASELINES if b not in names]
+        if missing:
+            text += (f" (the baselines {', '.join(missing)} come with sf2-baselines: "
+                     f"{INSTALL_BASELINES})")
+        return text

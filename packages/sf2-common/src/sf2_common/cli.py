@@ -1,0 +1,279 @@
+"""The command line of both cores, written once: `sf2-jax` and `sf2-torch` are this module with a
+`Framework` (the program name, the core's package, its help texts and environment). Both cores' agents
+have the same module names (`agents.configs`, `agents.trainer`, `agents.plotting`, ...), which the
+handlers import from `Framework.package` only after the arguments are parsed.
+
+    PROG train --task CartpoleBalance --algo td3 --repr sf2 --config quick --seeds 0-3 --out runs/cp
+    PROG train --task CartpoleBalance --algo td3 --repr sf2,none,sim --config quick --seeds 0-1 --out runs/cmp
+    PROG eval runs/cp [--epoch N] [--episodes 20] [--stochastic]
+    PROG plot runs/cmp/td3-sf2 runs/cmp/td3-none --out curves.png
+    PROG tasks
+
+Every `TrainConfig` field can be overridden, either with its own flag (`--batch-size 128`,
+`--hidden-sizes 64,64`) or with `--set batch_size=128` (repeatable). Bad input (unknown task, algo or
+representation, a combination that does not exist, a budget smaller than the prefill, ...) is reported
+before anything is compiled; exit status 2. A NaN/inf loss stops the run with exit status 3.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import importlib
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+__all__ = ["Framework", "build_parser", "main", "print_table", "expand_runs"]
+
+_RUN_FIELDS_SKIPPED = ("task", "algo", "representation")
+
+
+@dataclasses.dataclass(frozen=True)
+class Framework:
+    """What differs between `sf2-jax` and `sf2-torch`."""
+
+    prog: str                     # "sf2-jax"
+    package: str                  # "sf2_jax": its `agents` modules are imported from here
+    doc: str                      # the CLI module's docstring (its first paragraph is the --help text)
+    seeds_help: str               # how the seeds run
+    cache_env: str                # environment variable of the JAX compilation cache folder
+    env_defaults: tuple[tuple[str, str], ...] = ()   # environment defaults set before JAX is imported
+
+    def module(self, name: str):
+        return importlib.import_module(f"{self.package}.{name}")
+
+    def compile_cache(self) -> str:
+        return os.environ.get(self.cache_env, str(Path.home() / ".cache" / self.prog / "xla"))
+
+
+def _field_names(fw: Framework) -> list[str]:
+    config_class = fw.module("agents.configs").TrainConfig
+    return [f.name for f in dataclasses.fields(config_class) if f.name not in _RUN_FIELDS_SKIPPED]
+
+
+def build_parser(fw: Framework) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog=fw.prog, description=fw.doc.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    t = sub.add_parser("train", help="train one or more methods over several seeds",
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    t.add_argument("--task", required=True, help="Playground DM Control task, e.g. CartpoleBalance "
+                   f"(`{fw.prog} tasks` lists them)")
+    t.add_argument("--algo", default="td3", help="td3 or sac")
+    t.add_argument("--repr", default="sf2", dest="representation",
+                   help="representation: none (vanilla), sf2; with sf2-baselines installed also sim, simlap, "
+                   "simlap_authors, spr; a comma list trains each and compares them")
+    t.add_argument("--config", default="quick", help="preset: paper (Table 1 + the authors' settings) or "
+                   "quick (small networks and budget for a CPU)")
+    t.add_argument("--seeds", default="0", help=f"e.g. 0-3 or 0,2,5; {fw.seeds_help}")
+    t.add_argument("--out", required=True, help="run folder (one method) or parent folder (several)")
+    t.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                   help="override any config field (repeatable)")
+    t.add_argument("--fresh", action="store_true", help="discard what --out holds and start over")
+    t.add_argument("--no-resume", action="store_true",
+                   help="refuse to continue a run folder that holds checkpoints")
+    t.add_argument("--no-progress", action="store_true", help="no progress bar")
+    t.add_argument("--stop-after-epoch", type=int, default=None, help=argparse.SUPPRESS)
+    t.add_argument("--compile-cache", default=fw.compile_cache(),
+                   help="folder for JAX's persistent compilation cache, reused by later runs of the same "
+                   f"config ('' turns it off; env {fw.cache_env})")
+    fields = t.add_argument_group("config fields (each overrides the preset)")
+    for name in _field_names(fw):
+        fields.add_argument(f"--{name.replace('_', '-')}", dest=f"field_{name}", default=None, metavar="V",
+                            help=argparse.SUPPRESS if name in ("keep_checkpoints",) else None)
+
+    e = sub.add_parser("eval", help="evaluate a run folder's checkpoint")
+    e.add_argument("run", help="run folder")
+    e.add_argument("--epoch", type=int, default=None, help="checkpoint epoch (default: latest)")
+    e.add_argument("--episodes", type=int, default=None, help="episodes per seed (default: the config's "
+                   "num_eval_envs)")
+    mode = e.add_mutually_exclusive_group()
+    mode.add_argument("--deterministic", action="store_true", default=None, help="act without noise")
+    mode.add_argument("--stochastic", action="store_true", default=None, help="act with the acting noise")
+    e.add_argument("--json", action="store_true", help="print the returns as JSON")
+
+    p = sub.add_parser("plot", help="learning curves of several run folders (mean and 95%% CI per method)")
+    p.add_argument("runs", nargs="+", help="run folders (folders holding run folders are expanded)")
+    p.add_argument("--out", default="learning_curves.png", help="PNG to write")
+
+    sub.add_parser("tasks", help="list the valid tasks and the paper preset's budget and action repeat")
+    return parser
+
+
+# ------------------------------------------------------------------------------------------- train
+def resolve_configs(fw: Framework, args):
+    """All configs of the command, validated; raises ConfigError before anything is compiled."""
+    from sf2_common.errors import ConfigError
+
+    configs = fw.module("agents.configs")
+    overrides = configs.parse_overrides(args.set)
+    for name in _field_names(fw):
+        value = getattr(args, f"field_{name}")
+        if value is not None:
+            overrides[name] = configs.parse_value(name, value)
+    seeds = configs.parse_seeds(args.seeds)
+    reps = [r.strip() for r in args.representation.split(",") if r.strip()]
+    if not reps:
+        raise ConfigError("--repr: give at least one representation, e.g. sf2 or none,sf2")
+    if len(set(reps)) != len(reps):
+        raise ConfigError(f"--repr {args.representation!r} repeats a representation")
+    cfgs = []
+    for rep in reps:
+        cfg = configs.make_config(args.config, args.task, algo=args.algo, representation=rep,
+                                  overrides=overrides)
+        cfgs.append(configs.validate(cfg, seeds))
+    return cfgs, seeds
+
+
+def _setup_jax(compile_cache: str):
+    """JAX's persistent compilation cache (both cores: the Playground envs are JAX programs)."""
+    import jax
+
+    if compile_cache:
+        Path(compile_cache).mkdir(parents=True, exist_ok=True)
+        jax.config.update("jax_compilation_cache_dir", compile_cache)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+
+
+def _train(fw: Framework, args) -> int:
+    plotting = fw.module("agents.plotting")
+    train = fw.module("agents.trainer").train
+
+    cfgs, seeds = resolve_configs(fw, args)
+    _setup_jax(args.compile_cache)
+    out = Path(args.out)
+    several = len(cfgs) > 1
+    folders, seconds = [], {}
+    for cfg in cfgs:
+        folder = out / f"{cfg.algo}-{cfg.representation}" if several else out
+        label = plotting.method_label(cfg.algo, cfg.representation)
+        print(f"== {label} on {cfg.task}, seeds {','.join(map(str, seeds))} → {folder}", file=sys.stderr)
+        t0 = time.time()
+        train(cfg, seeds, folder, resume=not args.no_resume, fresh=args.fresh,
+              progress=not args.no_progress, stop_after_epoch=args.stop_after_epoch)
+        seconds[label] = time.time() - t0
+        folders.append(folder)
+    table = plotting.final_table(folders)
+    if several:
+        plotting.plot_runs(folders, out / "comparison.png")
+    print_table(table, seconds)
+    if several:
+        print(f"curves: {out / 'comparison.png'}")
+    else:
+        print(f"run folder: {folders[0]} (metrics.jsonl, learning_curve.png, checkpoints/)")
+    return 0
+
+
+def print_table(table, seconds=None) -> None:
+    """The final-return table of `plotting.final_table` (and the wall time per method, if given)."""
+    head = f"{'task':22} {'method':10} {'seeds':>5} {'env steps':>10} {'final eval return':>22}"
+    if seconds:
+        head += f" {'wall time':>10}"
+    print(head)
+    print("-" * len(head))
+    for row in table:
+        ret = f"{row['final_return']:.1f}"
+        if row["seeds"] > 1:
+            ret += f" ± {row['ci95']:.1f}"
+        line = f"{row['task']:22} {row['method']:10} {row['seeds']:>5} {row['env_steps']:>10} {ret:>22}"
+        if seconds:
+            s = seconds.get(row["method"])
+            line += f" {(f'{s:.0f} s' if s is not None else ''):>10}"
+        print(line)
+    if any(r["seeds"] > 1 for r in table):
+        print("(± is the 95% t-interval of the mean over seeds; per-seed returns are in metrics.jsonl)")
+
+
+# ------------------------------------------------------------------------------------------- eval, plot
+def _eval(fw: Framework, args) -> int:
+    import numpy as np
+
+    evaluate_checkpoint = fw.module("agents.trainer").evaluate_checkpoint
+    _setup_jax(fw.compile_cache())
+    deterministic = True if args.deterministic else (False if args.stochastic else None)
+    res = evaluate_checkpoint(args.run, epoch=args.epoch, num_eval_envs=args.episodes,
+                              deterministic=deterministic)
+    if args.json:
+        print(json.dumps(res))
+        return 0
+    print(f"{args.run}: checkpoint epoch {res['epoch']} ({res['env_steps']} env steps), "
+          f"{'deterministic' if res['deterministic'] else 'stochastic'} policy")
+    means = []
+    for seed, rets in res["returns"].items():
+        means.append(np.mean(rets))
+        print(f"  seed {seed}: return {np.mean(rets):8.1f} ± {np.std(rets):6.1f} over {len(rets)} episodes")
+    print(f"  mean over seeds: {np.mean(means):.1f}")
+    return 0
+
+
+def expand_runs(paths) -> list[Path]:
+    """Run folders, with folders that hold run folders replaced by those."""
+    from sf2_common.agents.runfolder import RunFolder
+
+    out = []
+    for p in map(Path, paths):
+        if (p / RunFolder.CONFIG).exists():
+            out.append(p)
+        elif p.is_dir() and (subs := sorted(c.parent for c in p.glob(f"*/{RunFolder.CONFIG}"))):
+            out.extend(subs)
+        else:
+            raise FileNotFoundError(f"{p} is not a run folder (no {RunFolder.CONFIG}) and holds none")
+    return out
+
+
+def _plot(fw: Framework, args) -> int:
+    from sf2_common.errors import ConfigError
+
+    plotting = fw.module("agents.plotting")
+    runs = expand_runs(args.runs)
+    try:
+        table = plotting.plot_runs(runs, args.out)
+    except ValueError as err:  # runs of one method that share no evaluation points
+        raise ConfigError(str(err)) from None
+    print_table(table)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _tasks(fw: Framework, args) -> int:
+    from sf2_common.agents import tasks
+
+    print(f"{'task':24} {'paper budget':>12} {'action repeat':>13}  in paper")
+    for task in tasks.valid_tasks():
+        print(f"{task:24} {tasks.paper_budget(task):>12,} {tasks.paper_action_repeat(task):>13}  "
+              f"{'yes' if task in tasks.PAPER_TASKS else ''}")
+    return 0
+
+
+_HANDLERS = {"train": _train, "eval": _eval, "plot": _plot, "tasks": _tasks}
+
+
+def main(fw: Framework, argv=None) -> int:
+    """Run one command; the exit status: 0 done, 2 bad input, 3 training diverged, 130 interrupted."""
+    from sf2_common.agents.hostloop import TrainingDiverged
+    from sf2_common.errors import ConfigError
+
+    for name, value in fw.env_defaults:
+        os.environ.setdefault(name, value)
+    args = build_parser(fw).parse_args(argv)
+    try:
+        return _HANDLERS[args.command](fw, args)
+    except (ConfigError, FileNotFoundError) as err:
+        print(f"{fw.prog} {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except TrainingDiverged as err:
+        print(f"{fw.prog} {args.command}: {err}", file=sys.stderr)
+        return 3
+    except KeyboardInterrupt:
+        print(f"{fw.prog} {args.command}: interrupted; rerun the same command to resume from the last "
+              f"checkpoint", file=sys.stderr)
+        return 130
+    except Exception as err:
+        if isinstance(err, fw.module("agents.checkpoint").CheckpointMismatch):
+            print(f"{fw.prog} {args.command}: error: {err}", file=sys.stderr)
+            return 2
+        raise

@@ -1,0 +1,178 @@
+"""sf2_common without a framework: config parsing and validation, the representation registry (entry
+points, the unknown-name message), run folders, the NaN guard's message, pooled curves and tables.
+
+Playground is not needed: the task list is replaced by a fixed one where a test validates a config.
+"""
+
+from __future__ import annotations
+
+import json
+from importlib import metadata
+
+import numpy as np
+import pytest
+from sf2_common import cli
+from sf2_common.agents import configs, hostloop, plotting, registry, tasks
+from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch
+from sf2_common.errors import ConfigError
+
+
+class _Rep:
+    """A stand-in representation class (the registry only reads `name`, `label`, `supported_algos`)."""
+
+    name = "fake"
+    label = "Fake"
+    supported_algos = ("sac",)
+
+
+@pytest.fixture
+def known_tasks(monkeypatch):
+    monkeypatch.setattr(tasks, "valid_tasks", lambda: ("CartpoleBalance", "PendulumSwingup"))
+
+
+@pytest.fixture
+def reg():
+    """A registry of a group nothing is installed under, holding `none` and `fake`."""
+    r = registry.Registry("nothing-installed-under-this-group")
+    none = type("NoRep", (), {"name": "none", "label": "", "supported_algos": ("td3", "sac")})
+    r.register(none)
+    r.register(_Rep)
+    return r
+
+
+# ------------------------------------------------------------------------------------------- registry
+def test_registry_unknown_name_lists_valid_ones_and_the_baselines_install(reg):
+    assert reg.names() == ("none", "fake")
+    with pytest.raises(ConfigError) as err:
+        reg.get("sim")
+    msg = str(err.value)
+    assert "unknown representation 'sim'" in msg and "must be one of none, fake" in msg
+    assert "sim, simlap, spr" in msg and registry.INSTALL_BASELINES in msg
+    assert reg.label("sim") == "sim" and reg.label("fake") == "Fake"
+    with pytest.raises(ValueError, match="name is empty"):
+        reg.register(type("Nameless", (), {"name": ""}))
+
+
+def test_registry_loads_entry_points_on_first_use(reg, monkeypatch):
+    ep = metadata.EntryPoint(name="late", value="sf2_common.agents.registry:Registry", group=reg.group)
+    monkeypatch.setattr(reg, "_entry_points", {"late": ep, "fake": ep})
+    assert reg.names() == ("none", "fake", "late")          # listed, not imported
+    assert reg.get("late") is registry.Registry and reg.get("fake") is _Rep   # registered names win
+    broken = metadata.EntryPoint(name="broken", value="no_such_module_xyz:Cls", group=reg.group)
+    reg._entry_points["broken"] = broken
+    with pytest.raises(ConfigError, match="'broken'.*could not be imported"):
+        reg.get("broken")
+
+
+# ------------------------------------------------------------------------------------------- configs
+def test_validate_checks_the_representation_against_the_registry(reg, known_tasks):
+    cfg = configs.make_config("quick", "CartpoleBalance", algo="sac", representation="fake")
+    assert configs.validate(cfg, "0-1", reg) is cfg
+    with pytest.raises(ConfigError, match="algo 'td3' with representation 'fake' does not exist; valid "
+                       "combinations: td3\\+none, sac\\+none, sac\\+fake"):
+        configs.validate(cfg.replace(algo="td3"), (0,), reg)
+    with pytest.raises(ConfigError, match="representation = 'spr' is invalid: must be one of none, fake"):
+        configs.validate(cfg.replace(representation="spr"), (0,), reg)
+    with pytest.raises(ConfigError, match="unknown task 'Cartpole'.*Did you mean CartpoleBalance"):
+        configs.make_config("quick", "Cartpole")
+
+
+def test_parsing_follows_the_field_types():
+    assert configs.parse_overrides(["batch_size=1_024", "hidden_sizes=(32, 16)", "layer_norm=off",
+                                    "tau=0.5", "integrator= euler"]) == dict(
+        batch_size=1024, hidden_sizes=(32, 16), layer_norm=False, tau=0.5, integrator="euler")
+    with pytest.raises(ConfigError, match="did you mean 'batch_size'"):
+        configs.parse_value("batch-size", "3")
+    with pytest.raises(ConfigError, match="batch_size = '1.5' is invalid: expected an integer"):
+        configs.parse_value("batch_size", "1.5")
+    assert configs.parse_seeds("0-2,9") == (0, 1, 2, 9) and configs.parse_seeds([4, 2]) == (4, 2)
+    cfg = configs.TrainConfig(hidden_sizes=(8,))
+    assert configs.TrainConfig.from_dict(json.loads(cfg.to_json())) == cfg
+    with pytest.raises(ConfigError, match="unknown config fields \\['nope'\\]"):
+        configs.TrainConfig.from_dict({"nope": 1})
+
+
+def test_a_subclass_adds_fields_that_parse_and_round_trip():
+    """How sf2_torch adds its run fields: a frozen subclass, passed as `config_class`."""
+    from dataclasses import dataclass
+
+    @dataclass(frozen=True)
+    class WithDevice(configs.TrainConfig):
+        device: str = "auto"
+
+    assert configs.parse_overrides(["device=cpu"], WithDevice) == {"device": "cpu"}
+    with pytest.raises(ConfigError, match="unknown config field 'device'"):
+        configs.parse_overrides(["device=cpu"])
+    cfg = WithDevice(device="cpu")
+    assert type(cfg.replace(batch_size=3)) is WithDevice and WithDevice.from_dict(cfg.to_dict()) == cfg
+
+
+def test_schedule_counts_env_steps_after_action_repeat():
+    cfg = configs.TrainConfig(num_timesteps=1000, num_envs=4, action_repeat=2, num_evals=3,
+                              min_replay_size=10)
+    s = configs.schedule(cfg)
+    # 8 env steps per actor step; ceil(10 / 4) = 3 prefill actor steps; 125 actor steps in 2 epochs of 63
+    assert (s.env_steps_per_actor_step, s.prefill_actor_steps, s.num_epochs, s.actor_steps_per_epoch) == (
+        8, 3, 2, 63)
+    assert s.total_env_steps == 2 * 63 * 8 and s.grad_steps_before(5) == 2
+
+
+# ------------------------------------------------------------------------------------------- run folder
+def test_run_folder_rows_survive_a_torn_line_and_clear_removes_only_the_run(tmp_path):
+    run = RunFolder(tmp_path / "r")
+    assert run.check_compatible({"a": 1}, (0,)) is False
+    run.write_config({"config": {"a": 1}, "seeds": [0]})
+    run.append_rows([{"epoch": 0, "seed": 0}, {"epoch": 1, "seed": 0}])
+    with open(run.metrics_path, "a") as f:
+        f.write('{"epoch": 2, "se')                           # a kill mid-write
+    assert [r["epoch"] for r in run.read_rows()] == [0, 1]
+    assert [r["epoch"] for r in run.truncate_rows(0)] == [0]
+    with pytest.raises(RunFolderMismatch, match="a: 1 \\(folder\\) vs 2 \\(now\\)"):
+        run.check_compatible({"a": 2}, (0,))
+    (run.path / "notes.txt").write_text("mine")
+    run.checkpoint_dir.mkdir()
+    run.clear()
+    assert sorted(p.name for p in run.path.iterdir()) == ["notes.txt"]
+
+
+# ------------------------------------------------------------------------------------------- host loop
+def test_diverged_message_names_the_first_bad_loss():
+    cfg = configs.TrainConfig(num_timesteps=1000, num_envs=4, num_evals=3, min_replay_size=8,
+                              grad_updates_per_step=2)
+    sched = configs.schedule(cfg)                 # 2 prefill actor steps, 125 per epoch
+    first_bad = {"actor_loss": np.array([-1, 7]), "critic_loss": np.array([-1, 7]),
+                 "flow_loss": np.array([9, -1])}
+    msg = hostloop.diverged_message(first_bad, sched, 1, (5, 6), cfg, None,
+                                    order=("critic_loss", "flow_loss", "actor_loss"))
+    # index 7 = actor step 3, update 1: gradient step (3 − 2) · 2 + 1 = 3, env step 4 · 4 = 16;
+    # flow_loss's index 9 is gradient step 5, later
+    assert msg.startswith("training diverged: loss 'critic_loss' became NaN/inf at gradient step 3 "
+                          "(env step 16, epoch 1, seed 6); also non-finite in the same epoch: "
+                          "actor_loss (seed 6), flow_loss (seed 5)")
+    assert "no checkpoint was written yet" in msg
+    assert hostloop.diverged_message({"x": np.array([-1])}, sched, 1, (0,), cfg, 0) is None
+    assert hostloop.row_metrics({"sgd_steps": np.array([0]), "x": np.array([1.0])}, 0) == {"sgd_steps": 0}
+
+
+# ------------------------------------------------------------------------------------------- plots
+def _write_run(path, label, steps, returns_per_seed):
+    run = RunFolder(path)
+    run.write_config({"config": {"task": "T", "algo": "td3", "representation": "r"}, "seeds": [0],
+                      "label": label})
+    run.append_rows([{"epoch": e, "seed": s, "env_steps": x, "eval_return": ret[e]}
+                     for s, ret in enumerate(returns_per_seed) for e, x in enumerate(steps)])
+    return run.path
+
+
+def test_final_table_pools_folders_of_one_method_and_refuses_disjoint_points(tmp_path):
+    a = _write_run(tmp_path / "a", "TD3+X", [0, 10, 20], [[0.0, 1.0, 2.0], [0.0, 1.0, 4.0]])
+    b = _write_run(tmp_path / "b", "TD3+X", [0, 10, 20], [[0.0, 1.0, 6.0]])
+    (row,) = plotting.final_table([a, b])
+    assert (row["method"], row["seeds"], row["env_steps"], row["final_return"]) == ("TD3+X", 3, 20, 4.0)
+    # 95% t-interval of (2, 4, 6): t(0.975, 2) · s / √3 with s = 2
+    assert row["ci95"] == pytest.approx(4.303 * 2.0 / np.sqrt(3.0))
+    c = _write_run(tmp_path / "c", "TD3+X", [0, 15, 30], [[0.0, 1.0, 2.0]])
+    with pytest.raises(ValueError, match="do not share their evaluation points"):
+        plotting.final_table([a, c])
+    assert plotting.method_label("sac", "none") == "SAC" and plotting.method_label("td3", "sim") == "TD3+sim"
+    assert cli.expand_runs([tmp_path]) == [a, b, c]
