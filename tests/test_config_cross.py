@@ -1,7 +1,8 @@
 """The two cores' `SF2Config` are one contract: same fields, same order, same defaults, same validation.
 
-Each core must install alone, so the dataclass is written twice (docs/core-contract.md); this test is
-what keeps the copies from drifting apart.
+Both cores re-export the one class of `sf2_common.config` (the framework-free package each core depends
+on), so today the copies cannot drift; this test keeps the contract checked should a core ever define its
+own class again.
 """
 
 from __future__ import annotations

@@ -1,20 +1,11 @@
-"""Errors raised by sf2_jax (docs/core-contract.md, "Modules").
+"""Errors raised by sf2_jax (docs/core-contract.md, "Modules"): the classes of `sf2_common.errors`, shared
+with sf2_torch (catching `sf2_jax.ConfigError` also catches the other core's).
 
-All three subclass `ValueError`, so code that already catches bad values keeps working.
+All of them subclass `ValueError`, so code that already catches bad values keeps working.
 """
 
 from __future__ import annotations
 
-__all__ = ["ConfigError", "ShapeError", "ParamsError"]
+from sf2_common.errors import ConfigError, ParamsError, SF2Error, ShapeError
 
-
-class ConfigError(ValueError):
-    """A configuration value (or `algo`, or integrator name) is invalid; the message names it."""
-
-
-class ShapeError(ValueError):
-    """An array has the wrong size; the message names the expected and the found sizes."""
-
-
-class ParamsError(ValueError):
-    """A canonical parameter mapping or file does not match the networks; every bad entry is named."""
+__all__ = ["SF2Error", "ConfigError", "ShapeError", "ParamsError"]

@@ -1,24 +1,11 @@
-"""Errors raised by `sf2_torch` (the same three classes, with the same meaning, as `sf2_jax.errors`).
+"""Errors raised by sf2_torch (docs/core-contract.md, "Modules"): the classes of `sf2_common.errors`, shared
+with sf2_jax (catching `sf2_torch.ConfigError` also catches the other core's).
 
-All of them subclass `ValueError`, so code that already catches `ValueError` keeps working.
+All of them subclass `ValueError`, so code that already catches bad values keeps working.
 """
 
 from __future__ import annotations
 
+from sf2_common.errors import ConfigError, ParamsError, SF2Error, ShapeError
+
 __all__ = ["SF2Error", "ConfigError", "ShapeError", "ParamsError"]
-
-
-class SF2Error(ValueError):
-    """Base class of every error this package raises on purpose."""
-
-
-class ConfigError(SF2Error):
-    """An invalid configuration value or option (the message names the field, the value, what is valid)."""
-
-
-class ShapeError(SF2Error):
-    """An input whose shape does not fit the networks (the message names the expected and found sizes)."""
-
-
-class ParamsError(SF2Error):
-    """Canonical parameters that do not fit the networks, or a parameter file that cannot be read."""
