@@ -1,343 +1,38 @@
 """`TrainConfig`: everything one training run needs, the `paper` and `quick` presets, CLI overrides, and
 validation that fails before any compilation with a message naming the field, the value and what is valid.
 
-The SF² network/loss fields are the fields of `sf2_jax.config.SF2Config` (same names, same defaults),
-minus `obs_size`/`action_size`, which come from the task. `TrainConfig.sf2_config(obs, act)` builds it.
-
-Where the `paper` preset follows the authors' code rather than Table 1 (DESIGN.md §5):
-learning_rate 1e-3 (table: 1e-4), tau_zeta 0.05 (table: 0.005), denoising_steps 1 midpoint step = 2
-function evaluations (the table's "2 Function Evaluations"), evaluation with the acting noise
-(Brax's `deterministic_eval=False` default, which the authors kept). Per-task budgets and action repeat
-follow Table 1 (see envs.py for PendulumSwingup).
+All of it is `sf2_common.agents.configs` (shared with `sf2_torch.agents.configs`, which adds its
+torch-only run fields); this module re-exports it and binds `validate` to the JAX agents' representation
+registry. See that module for the presets and where the `paper` preset follows the authors' code rather
+than Table 1 (DESIGN.md §5).
 """
 
 from __future__ import annotations
 
-import dataclasses
-import json
-import math
-import typing
-from dataclasses import dataclass, fields
-
-from sf2_jax.config import INTEGRATORS, SF2Config
-from sf2_jax.errors import ConfigError
-
-from . import envs
+from sf2_common.agents.configs import (
+    ALGOS,
+    PRESETS,
+    SF2_FIELDS,
+    ConfigError,
+    Schedule,
+    TrainConfig,
+    make_config,
+    parse_overrides,
+    parse_seeds,
+    parse_value,
+    schedule,
+)
+from sf2_common.agents.configs import validate as _validate
 
 __all__ = [
     "TrainConfig", "PRESETS", "ALGOS", "SF2_FIELDS", "make_config", "parse_overrides", "parse_value",
-    "parse_seeds", "validate", "Schedule", "schedule",
+    "parse_seeds", "validate", "Schedule", "schedule", "ConfigError",
 ]
-
-ALGOS = ("td3", "sac")
-PRESETS = ("paper", "quick")
-_SF2_DEFAULTS = {f.name: f.default for f in fields(SF2Config)}
-SF2_FIELDS = tuple(name for name in _SF2_DEFAULTS if name not in ("obs_size", "action_size"))
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    """One training run (all seeds share it). Frozen and hashable: it keys the compiled-program cache."""
-
-    # what to train
-    task: str = "CartpoleBalance"
-    algo: str = "td3"
-    representation: str = "sf2"
-    # budget and environment (env steps count every physics step after action repeat, as Brax does)
-    num_timesteps: int = 5_000_000
-    episode_length: int = 1000
-    action_repeat: int = 1
-    num_envs: int = 128
-    num_evals: int = 100          # evaluations including the one of the initial policy (Brax semantics)
-    num_eval_envs: int = 128      # one episode per eval env
-    deterministic_eval: bool = False
-    # replay and updates
-    batch_size: int = 512
-    grad_updates_per_step: int = 8
-    min_replay_size: int = 8192   # prefill with uniform random actions
-    max_replay_size: int = 4_194_304
-    normalize_observations: bool = True
-    # networks and losses: the fields of SF2Config
-    feature_size: int = _SF2_DEFAULTS["feature_size"]
-    hidden_sizes: tuple[int, ...] = _SF2_DEFAULTS["hidden_sizes"]
-    q_hidden_size: int = _SF2_DEFAULTS["q_hidden_size"]
-    zeta_hidden_sizes: tuple[int, ...] = _SF2_DEFAULTS["zeta_hidden_sizes"]
-    embedding_size: int = _SF2_DEFAULTS["embedding_size"]
-    layer_norm: bool = _SF2_DEFAULTS["layer_norm"]
-    gamma_su: float = _SF2_DEFAULTS["gamma_su"]
-    denoising_steps: int = _SF2_DEFAULTS["denoising_steps"]
-    integrator: str = _SF2_DEFAULTS["integrator"]
-    contract_zeta: bool = _SF2_DEFAULTS["contract_zeta"]
-    discount: float = _SF2_DEFAULTS["discount"]
-    reward_scaling: float = _SF2_DEFAULTS["reward_scaling"]
-    tau: float = _SF2_DEFAULTS["tau"]
-    tau_zeta: float = _SF2_DEFAULTS["tau_zeta"]
-    learning_rate: float = _SF2_DEFAULTS["learning_rate"]
-    alpha_learning_rate: float = _SF2_DEFAULTS["alpha_learning_rate"]
-    adam_eps: float = _SF2_DEFAULTS["adam_eps"]
-    smoothing_noise: float = _SF2_DEFAULTS["smoothing_noise"]
-    noise_clip: float = _SF2_DEFAULTS["noise_clip"]
-    exploration_noise: float = _SF2_DEFAULTS["exploration_noise"]
-    policy_delay: int = _SF2_DEFAULTS["policy_delay"]
-    min_std: float = _SF2_DEFAULTS["min_std"]
-    target_entropy_scale: float = _SF2_DEFAULTS["target_entropy_scale"]
-    init_log_alpha: float = _SF2_DEFAULTS["init_log_alpha"]
-    normalizer_std_min: float = _SF2_DEFAULTS["normalizer_std_min"]
-    normalizer_std_max: float = _SF2_DEFAULTS["normalizer_std_max"]
-    # run management
-    checkpoint_every: int = 1     # evaluations between checkpoints (the last one is always saved)
-    keep_checkpoints: int = 2
-    matmul_precision: str = "highest"   # DESIGN.md §4: TF32 breaks training on these tasks
-
-    def sf2_config(self, obs_size: int, action_size: int) -> SF2Config:
-        return SF2Config(obs_size=obs_size, action_size=action_size,
-                         **{name: getattr(self, name) for name in SF2_FIELDS})
-
-    def replace(self, **changes) -> TrainConfig:
-        return dataclasses.replace(self, **changes)
-
-    def to_dict(self) -> dict:
-        return {f.name: (list(v) if isinstance(v := getattr(self, f.name), tuple) else v)
-                for f in fields(self)}
-
-    def to_json(self) -> str:
-        return json.dumps(self.to_dict(), indent=2, sort_keys=True)
-
-    @classmethod
-    def from_dict(cls, d: dict) -> TrainConfig:
-        known = {f.name: f for f in fields(cls)}
-        unknown = sorted(set(d) - set(known))
-        if unknown:
-            raise ConfigError(f"unknown config fields {unknown}; valid fields: {sorted(known)}")
-        return cls(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items()})
-
-
-# ------------------------------------------------------------------------------------------- presets
-def _paper(task: str) -> dict:
-    """Table 1 + the authors' effective settings (the TrainConfig defaults) with the task's budget and
-    action repeat. A checkpoint holds the 4M-transition replay buffers (~0.7 GB per seed on CheetahRun),
-    so the preset writes one every 10 evaluations."""
-    return dict(num_timesteps=envs.paper_budget(task), action_repeat=envs.paper_action_repeat(task),
-                checkpoint_every=10)
-
-
-def _quick(task: str) -> dict:
-    """Small networks and budget for a 2-core CPU: TD3+SF² on CartpoleBalance passes 800 in minutes.
-
-    On a 2-core CPU an env step costs microseconds and an SGD step milliseconds, so wall time is set
-    by the number of SGD steps and their size. Widths 64 with F = 32 (ζ emits F·D = 160 numbers) and
-    batch 128 make an SF² SGD step ~4x cheaper than widths 128 / batch 256 and are ample for 5-dim
-    observations; 16 envs x 8 updates per actor step (an update-to-data ratio of 1/2; the paper's
-    128 x 8 is 1/16) gives ~40k SGD steps in 80k env steps.
-    tau = 0.02 instead of 0.005 (for both methods; τ_ζ stays 0.05): values propagate through the
-    target networks with a time constant of about 1/(τ(1−γ)) SGD steps, 20k at τ = 0.005, which is the
-    whole quick budget; measured on CartpoleBalance (2 seeds), τ = 0.005 left TD3+SF² at 680/997 after
-    100k env steps, τ = 0.02 reached 891/898 at 30k/40k. Evaluation is deterministic (the paper
-    preset keeps the authors' noisy evaluation)."""
-    return dict(
-        num_timesteps=80_000, action_repeat=envs.paper_action_repeat(task),
-        num_envs=16, num_evals=9, num_eval_envs=10, deterministic_eval=True,
-        batch_size=128, grad_updates_per_step=8, min_replay_size=4096, max_replay_size=100_000,
-        feature_size=32, hidden_sizes=(64, 64), q_hidden_size=64, zeta_hidden_sizes=(64, 64),
-        embedding_size=16, tau=0.02,
-    )
-
-
-_PRESET_FNS = {"paper": _paper, "quick": _quick}
-
-
-def make_config(preset: str, task: str, algo: str = "td3", representation: str = "sf2",
-                overrides: dict | None = None) -> TrainConfig:
-    """The `preset` for `task` with `overrides` (field → value, already typed or strings) applied.
-    Raises `ConfigError` for an unknown preset, task or field; call `validate` for the rest."""
-    if preset not in _PRESET_FNS:
-        raise ConfigError(f"unknown config preset {preset!r}; valid presets: {', '.join(PRESETS)}")
-    envs.validate_task(task)
-    values = dict(task=task, algo=algo, representation=representation, **_PRESET_FNS[preset](task))
-    for name, value in (overrides or {}).items():
-        values[name] = parse_value(name, value) if isinstance(value, str) else value
-    return TrainConfig.from_dict(values)
-
-
-# ------------------------------------------------------------------------------------------- parsing
-_HINTS = typing.get_type_hints(TrainConfig)
-
-
-def parse_value(name: str, text: str):
-    """Parse the string `text` for the field `name` by the field's type (int, float, bool, str, tuple)."""
-    if name not in _HINTS:
-        close = [n for n in _HINTS if name.replace("-", "_") == n]
-        hint = f" (did you mean {close[0]!r}?)" if close else ""
-        raise ConfigError(f"unknown config field {name!r}{hint}; valid fields: {', '.join(sorted(_HINTS))}")
-    kind = _HINTS[name]
-    text = text.strip()
-    try:
-        if kind is bool:
-            low = text.lower()
-            if low in ("1", "true", "yes", "on"):
-                return True
-            if low in ("0", "false", "no", "off"):
-                return False
-            raise ValueError("expected true/false")
-        if kind is int:
-            value = float(text.replace("_", ""))
-            if not value.is_integer():
-                raise ValueError("expected an integer")
-            return int(value)
-        if kind is float:
-            return float(text)
-        if kind is str:
-            return text
-        # tuple[int, ...]: "128,128" or "(128, 128)" or "[128]"
-        items = [t for t in text.strip("()[] ").replace(" ", "").split(",") if t]
-        return tuple(int(t) for t in items)
-    except ValueError as err:
-        raise ConfigError(f"config field {name} = {text!r} is invalid: {err} ({_type_name(kind)})") from None
-
-
-def _type_name(kind) -> str:
-    return {int: "an int", float: "a float", bool: "a bool", str: "a string"}.get(
-        kind, "comma-separated ints, e.g. 256,256")
-
-
-def parse_overrides(items) -> dict:
-    """['field=value', ...] → {field: typed value}."""
-    out = {}
-    for item in items or ():
-        if "=" not in item:
-            raise ConfigError(f"override {item!r} is invalid: expected field=value, e.g. batch_size=256")
-        name, text = item.split("=", 1)
-        name = name.strip().replace("-", "_")
-        out[name] = parse_value(name, text)
-    return out
-
-
-def parse_seeds(text) -> tuple[int, ...]:
-    """'0-3' → (0, 1, 2, 3); '0,2,5' → (0, 2, 5); '7' → (7,); mixtures like '0-2,9' work too."""
-    if isinstance(text, int):
-        text = str(text)
-    if not isinstance(text, str):
-        seeds = tuple(text)
-    else:
-        seeds = []
-        for part in text.replace(" ", "").split(","):
-            if not part:
-                continue
-            try:
-                if "-" in part[1:]:
-                    lo, hi = part.split("-", 1)
-                    lo, hi = int(lo), int(hi)
-                    if hi < lo:
-                        raise ValueError
-                    seeds.extend(range(lo, hi + 1))
-                else:
-                    seeds.append(int(part))
-            except ValueError:
-                raise ConfigError(f"seeds {text!r} are invalid: use '0-3', '0,2,5' or '7' "
-                                  f"(non-negative ints)") from None
-        seeds = tuple(seeds)
-    if not seeds:
-        raise ConfigError("seeds: at least one seed is needed, e.g. --seeds 0-3")
-    if any((not isinstance(s, int)) or s < 0 or s >= 2**31 for s in seeds):
-        raise ConfigError(f"seeds {seeds} are invalid: each must be an int in [0, 2**31)")
-    if len(set(seeds)) != len(seeds):
-        raise ConfigError(f"seeds {seeds} contain duplicates")
-    return seeds
-
-
-# ------------------------------------------------------------------------------------------- schedule
-@dataclass(frozen=True)
-class Schedule:
-    """How the budget splits into epochs. The run is `num_epochs` epochs of `actor_steps_per_epoch`
-    actor steps (each steps all `num_envs` envs once, `action_repeat` physics steps each); the first
-    `prefill_actor_steps` of them act uniformly at random and do no SGD (the prefill), every later one
-    acts with exploration noise and is followed by `grad_updates_per_step` SGD steps. Evaluation
-    happens before the first epoch and after each. Env steps are counted after action repeat, as
-    Brax does, and include the prefill; the total is num_timesteps rounded up to whole epochs."""
-
-    env_steps_per_actor_step: int   # num_envs · action_repeat
-    prefill_actor_steps: int        # ceil(min_replay_size / num_envs)
-    prefill_env_steps: int
-    num_epochs: int                 # max(num_evals − 1, 1)
-    actor_steps_per_epoch: int
-    env_steps_per_epoch: int
-    total_env_steps: int            # ≥ num_timesteps
-
-    def env_steps_after(self, epoch: int) -> int:
-        """Env steps done once epoch `epoch` ends (0: none)."""
-        return epoch * self.env_steps_per_epoch
-
-    def grad_steps_before(self, actor_step: int) -> int:
-        """SGD steps done before the global actor step `actor_step` (0-based)."""
-        return max(0, actor_step - self.prefill_actor_steps)
-
-
-def schedule(cfg: TrainConfig) -> Schedule:
-    per = cfg.num_envs * cfg.action_repeat
-    prefill = -(-cfg.min_replay_size // cfg.num_envs)
-    epochs = max(cfg.num_evals - 1, 1)
-    total_actor = -(-cfg.num_timesteps // per)
-    steps = -(-total_actor // epochs)
-    return Schedule(per, prefill, prefill * per, epochs, steps, steps * per, epochs * steps * per)
-
-
-# ------------------------------------------------------------------------------------------- validation
-def _bad(field: str, value, valid: str):
-    raise ConfigError(f"config field {field} = {value!r} is invalid: {valid}")
-
-
-def _is_int(v) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
 
 
 def validate(cfg: TrainConfig, seeds=(0,)) -> TrainConfig:
-    """Check everything that can be checked without building a program. Raises `ConfigError`."""
+    """Check everything that can be checked without building a program (the representation against the
+    JAX agents' registry). Raises `ConfigError`."""
     from . import representations
 
-    envs.validate_task(cfg.task)
-    if cfg.algo not in ALGOS:
-        _bad("algo", cfg.algo, f"must be one of {', '.join(ALGOS)}")
-    known = representations.names()
-    if cfg.representation not in known:
-        _bad("representation", cfg.representation, f"must be one of {', '.join(known)}")
-    rep_cls = representations.get(cfg.representation)
-    if cfg.algo not in rep_cls.supported_algos:
-        combos = ", ".join(f"{a}+{r}" for r in known for a in representations.get(r).supported_algos)
-        raise ConfigError(f"algo {cfg.algo!r} with representation {cfg.representation!r} does not exist; "
-                          f"valid combinations: {combos}")
-    for name in ("num_timesteps", "episode_length", "action_repeat", "num_envs", "num_evals",
-                 "num_eval_envs", "batch_size", "grad_updates_per_step", "max_replay_size",
-                 "checkpoint_every", "keep_checkpoints"):
-        v = getattr(cfg, name)
-        if not _is_int(v) or v < 1:
-            _bad(name, v, "must be an int >= 1")
-    if not _is_int(cfg.min_replay_size) or cfg.min_replay_size < 0:
-        _bad("min_replay_size", cfg.min_replay_size, "must be an int >= 0")
-    for name in ("deterministic_eval", "normalize_observations"):
-        if not isinstance(getattr(cfg, name), bool):
-            _bad(name, getattr(cfg, name), "must be a bool")
-    if cfg.action_repeat > cfg.episode_length:
-        _bad("action_repeat", cfg.action_repeat, f"must be <= episode_length ({cfg.episode_length})")
-    if cfg.max_replay_size < cfg.num_envs:
-        _bad("max_replay_size", cfg.max_replay_size, f"must hold one step of all envs (>= num_envs = "
-             f"{cfg.num_envs})")
-    if cfg.min_replay_size > cfg.max_replay_size:
-        _bad("min_replay_size", cfg.min_replay_size, f"must be <= max_replay_size ({cfg.max_replay_size})")
-    if cfg.matmul_precision not in ("highest", "high", "default", "float32", "bfloat16", "tensorfloat32"):
-        _bad("matmul_precision", cfg.matmul_precision, "must be one of highest, high, default")
-    for name in ("reward_scaling", "exploration_noise", "smoothing_noise", "noise_clip"):
-        v = getattr(cfg, name)
-        if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v) or v < 0:
-            _bad(name, v, "must be a finite number >= 0")
-    if cfg.integrator not in INTEGRATORS:
-        _bad("integrator", cfg.integrator, f"must be one of {INTEGRATORS}")
-    sched = schedule(cfg)
-    if sched.prefill_env_steps >= cfg.num_timesteps:
-        raise ConfigError(
-            f"num_timesteps = {cfg.num_timesteps} does not exceed the prefill: min_replay_size = "
-            f"{cfg.min_replay_size} with num_envs = {cfg.num_envs} and action_repeat = {cfg.action_repeat} "
-            f"takes {sched.prefill_env_steps} env steps before any training; raise num_timesteps or lower "
-            f"min_replay_size")
-    seeds = parse_seeds(seeds)
-    cfg.sf2_config(1, 1)  # network and loss fields: SF2Config's own validation (placeholder sizes)
-    return cfg
+    return _validate(cfg, seeds, representations.REGISTRY)

@@ -1,170 +1,18 @@
-"""Learning curves: one run folder (per-seed lines, mean and 95% CI band) and several run folders
-(one line and band per method and task). The band is the Student-t 95% confidence interval of the mean
-over seeds, mean ± t(0.975, n−1)·s/√n (no band with one seed). matplotlib is imported lazily (Agg)."""
+"""Learning curves: one run folder (per-seed lines, mean and 95% CI band) and several run folders (one line
+and band per method and task); the final-return table. All of it is `sf2_common.agents.plotting`, the same
+for both cores; `method_label` here names methods with the jax agents' representation labels.
+"""
 
 from __future__ import annotations
 
-import math
-from collections import defaultdict
-from pathlib import Path
-
-import numpy as np
-
-from .runfolder import RunFolder
+from sf2_common.agents import plotting as _plotting
+from sf2_common.agents.plotting import curves, final_table, mean_ci, plot_learning_curve, plot_runs
 
 __all__ = ["method_label", "mean_ci", "curves", "plot_learning_curve", "plot_runs", "final_table"]
 
-# t(0.975, df) for df = 1..30; larger df use 1.96.
-_T975 = [12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160,
-         2.145, 2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052,
-         2.048, 2.045, 2.042]
-
 
 def method_label(algo: str, representation: str) -> str:
-    """'TD3+SF²', 'SAC', ... (vanilla has no suffix)."""
+    """'TD3+SF²', 'SAC', ... (vanilla has no suffix), with the representation's registered label."""
     from . import representations
 
-    try:
-        label = representations.get(representation).label
-    except KeyError:
-        label = representation
-    return algo.upper() + (f"+{label}" if label else "")
-
-
-def mean_ci(values) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """values (n_seeds, n_points) → mean, lower, upper of the 95% t-interval of the mean."""
-    v = np.asarray(values, dtype=float)
-    mean = v.mean(axis=0)
-    n = v.shape[0]
-    if n < 2:
-        return mean, mean, mean
-    t = _T975[n - 2] if n - 1 <= len(_T975) else 1.96
-    half = t * v.std(axis=0, ddof=1) / math.sqrt(n)
-    return mean, mean - half, mean + half
-
-
-def curves(rows: list[dict]) -> tuple[np.ndarray, dict[int, np.ndarray]]:
-    """(env_steps per evaluation, {seed: eval returns}) over the epochs every seed has reached."""
-    by_seed: dict[int, dict[int, dict]] = defaultdict(dict)
-    for r in rows:
-        by_seed[r["seed"]][r["epoch"]] = r
-    if not by_seed:
-        return np.zeros(0), {}
-    epochs = sorted(set.intersection(*(set(d) for d in by_seed.values())))
-    first = next(iter(by_seed.values()))
-    steps = np.array([first[e]["env_steps"] for e in epochs])
-    return steps, {s: np.array([d[e]["eval_return"] for e in epochs]) for s, d in sorted(by_seed.items())}
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def plot_learning_curve(rows: list[dict], path, title: str) -> None:
-    steps, per_seed = curves(rows)
-    if not per_seed:
-        return
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(6, 4))
-    for seed, ret in per_seed.items():
-        ax.plot(steps, ret, lw=0.8, alpha=0.4, label=f"seed {seed}")
-    mean, lo, hi = mean_ci(np.stack(list(per_seed.values())))
-    ax.plot(steps, mean, color="k", lw=2, label="mean")
-    if len(per_seed) > 1:
-        ax.fill_between(steps, lo, hi, color="k", alpha=0.15, label=f"95% CI (t, n={len(per_seed)})")
-    _limit_to_lines(ax, list(per_seed.values()))
-    ax.set_xlabel("env steps")
-    ax.set_ylabel("eval return")
-    ax.set_title(title)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    tmp = Path(path).with_name(Path(path).stem + ".tmp.png")
-    fig.savefig(tmp, dpi=100)
-    plt.close(fig)
-    tmp.replace(path)
-
-
-def _limit_to_lines(ax, lines) -> None:
-    """y range of the plotted curves (a CI band of few seeds can be far wider than any curve)."""
-    values = np.concatenate([np.ravel(x) for x in lines]) if lines else np.zeros(1)
-    lo, hi = float(values.min()), float(values.max())
-    pad = 0.08 * max(hi - lo, 1.0)
-    ax.set_ylim(lo - pad, hi + pad)
-
-
-def _load(run_dirs) -> dict[tuple[str, str], list[tuple[np.ndarray, dict]]]:
-    """{(task, method label): [(steps, {seed: returns}), ...]} over run folders."""
-    out = defaultdict(list)
-    for d in run_dirs:
-        run = RunFolder(d)
-        conf = run.read_config()
-        if conf is None:
-            raise FileNotFoundError(f"{d} is not a run folder (no {RunFolder.CONFIG})")
-        c = conf["config"]
-        steps, per_seed = curves(run.read_rows())
-        if per_seed:
-            out[(c["task"], method_label(c["algo"], c["representation"]))].append((steps, per_seed))
-    return out
-
-
-def _pool(entries) -> tuple[np.ndarray, np.ndarray]:
-    """Pool the seeds of several folders of one method on the evaluation points (env steps) they all
-    have. Folders of one method with disjoint evaluation points are a user error (different budgets or
-    num_evals): `ValueError`."""
-    common = sorted(set.intersection(*(set(steps.tolist()) for steps, _ in entries)))
-    ends = sorted({int(steps[-1]) for steps, _ in entries})
-    if not common or common[-1] != ends[0]:
-        raise ValueError(f"run folders of the same method and task do not share their evaluation points "
-                         f"(they end at env steps {ends}); plot together only runs with the same "
-                         f"num_timesteps, num_evals and num_envs")
-    mats = []
-    for steps, per_seed in entries:
-        index = [steps.tolist().index(x) for x in common]
-        mats += [ret[index] for ret in per_seed.values()]
-    return np.asarray(common), np.stack(mats)
-
-
-def plot_runs(run_dirs, path) -> list[dict]:
-    """One panel per task, one mean line and 95% CI band per method. Returns `final_table(run_dirs)`."""
-    data = _load(run_dirs)
-    tasks = sorted({t for t, _ in data})
-    plt = _plt()
-    fig, axes = plt.subplots(1, max(len(tasks), 1), figsize=(5.5 * max(len(tasks), 1), 4), squeeze=False)
-    for ax, task in zip(axes[0], tasks):
-        for (t, method), entries in sorted(data.items()):
-            if t != task:
-                continue
-            steps, mat = _pool(entries)
-            mean, lo, hi = mean_ci(mat)
-            line, = ax.plot(steps, mean, lw=2, label=f"{method} (n={mat.shape[0]})")
-            if mat.shape[0] > 1:
-                ax.fill_between(steps, lo, hi, color=line.get_color(), alpha=0.2)
-        _limit_to_lines(ax, [_pool(e)[1].mean(axis=0) for (t, _), e in data.items() if t == task]
-                        + [row for (t, _), e in data.items() if t == task for row in _pool(e)[1]])
-        ax.set_title(task)
-        ax.set_xlabel("env steps")
-        ax.set_ylabel("eval return")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return final_table(run_dirs)
-
-
-def final_table(run_dirs) -> list[dict]:
-    """Per (task, method): seeds, final eval return mean and 95% CI half-width, env steps."""
-    table = []
-    for (task, method), entries in sorted(_load(run_dirs).items()):
-        steps, mat = _pool(entries)
-        mean, lo, _ = mean_ci(mat[:, -1:])
-        table.append({"task": task, "method": method, "seeds": mat.shape[0], "env_steps": int(steps[-1]),
-                      "final_return": float(mean[0]), "ci95": float(mean[0] - lo[0]),
-                      "per_seed": [float(x) for x in mat[:, -1]]})
-    return table
+    return _plotting.method_label(algo, representation, representations.REGISTRY)

@@ -27,12 +27,13 @@ from typing import Any, ClassVar
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+from sf2_common.agents.registry import Registry
 
 from sf2_jax import losses, networks
 from sf2_jax.config import SF2Config
 
 __all__ = ["Representation", "NoRepresentation", "SF2Representation", "VanillaQ", "register", "get",
-           "names"]
+           "names", "REGISTRY"]
 
 Params = dict[str, Any]
 
@@ -68,23 +69,26 @@ class Representation:
         return {}
 
 
-_REGISTRY: dict[str, type[Representation]] = {}
+# The representations of the jax agents: registered here (`none`, `sf2`, tests' and the bench's variants)
+# or declared by an installed package as entry points of the group "sf2.representations.jax"
+# (sf2-baselines: sim, simlap, simlap_authors, spr), imported on first use (sf2_common.agents.registry).
+REGISTRY = Registry("jax")
 
 
 def register(cls: type[Representation]) -> type[Representation]:
     """Make `cls` selectable by `cls.name` (`--repr NAME`). Usable as a class decorator."""
-    if not cls.name:
-        raise ValueError(f"{cls.__name__}.name is empty")
-    _REGISTRY[cls.name] = cls
-    return cls
+    return REGISTRY.register(cls)
 
 
 def names() -> tuple[str, ...]:
-    return tuple(_REGISTRY)
+    """Every selectable name: the registered ones, then the installed entry points (not imported)."""
+    return REGISTRY.names()
 
 
 def get(name: str) -> type[Representation]:
-    return _REGISTRY[name]
+    """The class of `name` (importing its entry point if needed); `ConfigError` listing the valid names
+    (and how to install the baselines) if there is none."""
+    return REGISTRY.get(name)
 
 
 # ------------------------------------------------------------------------------------------- none

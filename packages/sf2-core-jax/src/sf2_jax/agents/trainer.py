@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import sys
 import time
 import warnings
 from collections.abc import Callable
@@ -39,6 +38,8 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from sf2_common.agents import hostloop
+from sf2_common.agents.hostloop import WALL_FIELDS, TrainingDiverged
 
 from sf2_jax import networks
 from sf2_jax.losses import Batch
@@ -51,10 +52,11 @@ from .replay import ReplayBuffer
 from .runfolder import RunFolder
 
 __all__ = ["TrainState", "Program", "get_program", "TrainingDiverged", "TrainResult", "train",
-           "seed_keys", "eval_keys", "flatten_params"]
+           "seed_keys", "eval_keys", "flatten_params", "WALL_FIELDS"]
 
 EVAL_STREAM = 0x5EED  # eval keys: fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), epoch)
-WALL_FIELDS = ("sps", "epoch_seconds", "eval_seconds", "walltime")  # differ between identical runs
+# WALL_FIELDS, TrainingDiverged and the host loop's framework-free helpers (rows, the NaN guard's
+# message, progress bar, curve) are sf2_common.agents.hostloop, shared with sf2_torch's trainer.
 
 
 class TrainState(NamedTuple):
@@ -66,10 +68,6 @@ class TrainState(NamedTuple):
     env_steps: jax.Array
     grad_steps: jax.Array
     eval_start: Any
-
-
-class TrainingDiverged(RuntimeError):
-    """A loss became NaN or inf; the run stopped before writing anything for that epoch."""
 
 
 def seed_keys(seeds) -> jax.Array:
@@ -261,40 +259,6 @@ def flatten_params(params: dict, seed_index: int | None = None) -> dict[str, np.
     return out
 
 
-def _diverged_message(first_bad: dict, sched, epoch: int, seeds, cfg, last_ckpt,
-                      order=()) -> str | None:
-    """The message naming the first non-finite loss of the epoch: lowest SGD step, then the order the
-    SGD step computes them in (`order`), or None if every metric is finite."""
-    G = cfg.grad_updates_per_step
-    rank = {name: i for i, name in enumerate(order)}
-    problems = []
-    for name, idx in first_bad.items():
-        for s_i, i in enumerate(np.asarray(idx)):
-            if i >= 0:
-                local, update = divmod(int(i), G)
-                actor_step = (epoch - 1) * sched.actor_steps_per_epoch + local
-                grad_step = sched.grad_steps_before(actor_step) * G + update
-                env_step = (actor_step + 1) * sched.env_steps_per_actor_step
-                problems.append((grad_step, rank.get(name, len(rank)), name, seeds[s_i], env_step))
-    if not problems:
-        return None
-    problems.sort()
-    g, _, name, seed, env_step = problems[0]
-    others = sorted({f"{n} (seed {s})" for _, _, n, s, _ in problems[1:]})
-    also = f"; also non-finite in the same epoch: {', '.join(others)}" if others else ""
-    keep = (f"the last good checkpoint (epoch {last_ckpt}) is kept" if last_ckpt is not None
-            else "no checkpoint was written yet")
-    return (f"training diverged: loss '{name}' became NaN/inf at gradient step {g} (env step {env_step}, "
-            f"epoch {epoch}, seed {seed}){also}. Nothing of epoch {epoch} was written; {keep}.")
-
-
-def _row_metrics(means: dict, s_i: int) -> dict:
-    """Epoch means of the training metrics of seed `s_i` (none for an epoch that was all prefill)."""
-    row = {name: float(np.asarray(v)[s_i]) for name, v in sorted(means.items())}
-    row["sgd_steps"] = int(row["sgd_steps"])
-    return row if row["sgd_steps"] else {"sgd_steps": 0}
-
-
 def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = False,
           progress: bool = True, hook: Callable[[str, int], None] | None = None,
           stop_after_epoch: int | None = None, plot: bool = True) -> TrainResult:
@@ -311,11 +275,8 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
     seeds = configs.parse_seeds(seeds)
     configs.validate(cfg, seeds)
     run = RunFolder(out)
-    if fresh and run.path.exists():
-        for name in (RunFolder.CONFIG, RunFolder.METRICS, RunFolder.CURVE):
-            (run.path / name).unlink(missing_ok=True)
-        shutil.rmtree(run.checkpoint_dir, ignore_errors=True)
-        shutil.rmtree(run.final_dir, ignore_errors=True)
+    if fresh:
+        run.clear()
     existing = run.check_compatible(cfg.to_dict(), seeds)
     sched = configs.schedule(cfg)
     if not existing:
@@ -333,7 +294,7 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
         from .runfolder import RunFolderMismatch
 
         raise RunFolderMismatch(f"{run.path} already holds checkpoints; pass --fresh to start over")
-    title = f"{_label(cfg)} on {cfg.task} ({len(seeds)} seed{'s' if len(seeds) > 1 else ''})"
+    title = hostloop.run_title(_label(cfg), cfg.task, seeds)
 
     if last is not None:
         state, meta = ckpt.restore(last, program.abstract_state(seeds))
@@ -345,21 +306,22 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
         run.truncate_rows(-1)
         rows, walltime, start = [], 0.0, 0
 
-    bar = _progress_bar(progress, sched.total_env_steps, sched.env_steps_after(max(start - 1, 0)), title)
+    bar = hostloop.progress_bar(progress, sched.total_env_steps, sched.env_steps_after(max(start - 1, 0)),
+                                title)
     t_start = time.time() - walltime
     try:
         if start == 0:  # evaluate the initial policy, checkpoint 0
             state = program.init(seeds)
             t = time.time()
             returns = np.asarray(program.evaluate(state.params, state.eval_start, seeds, 0))
-            new = [_row(0, s, 0, returns[i], {}, None, time.time() - t, time.time() - t_start)
+            new = [hostloop.make_row(0, s, 0, returns[i], {}, None, time.time() - t, time.time() - t_start)
                    for i, s in enumerate(seeds)]
             run.append_rows(new)
             rows += new
-            _call(hook, "rows", 0)
+            hostloop.call_hook(hook, "rows", 0)
             ckpt.save(0, state, {"env_steps": 0, "seeds": list(seeds)})
             last = 0
-            _call(hook, "checkpoint", 0)
+            hostloop.call_hook(hook, "checkpoint", 0)
             bar.set_postfix_str(f"eval {returns.mean():.1f}")
             start = 1
         for epoch in range(start, sched.num_epochs + 1):
@@ -367,7 +329,7 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
             state, means, first_bad = program.epoch(state, epoch)
             means = jax.device_get(means)
             epoch_seconds = time.time() - t0
-            message = _diverged_message(first_bad, sched, epoch, seeds, cfg, last, program.loss_order)
+            message = hostloop.diverged_message(first_bad, sched, epoch, seeds, cfg, last, program.loss_order)
             if message:
                 raise TrainingDiverged(message)
             t1 = time.time()
@@ -375,17 +337,18 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
             eval_seconds = time.time() - t1
             sps = sched.env_steps_per_epoch / epoch_seconds
             env_steps = sched.env_steps_after(epoch)
-            new = [_row(epoch, s, env_steps, returns[i], _row_metrics(means, i), sps, eval_seconds,
-                        time.time() - t_start, epoch_seconds) for i, s in enumerate(seeds)]
+            new = [hostloop.make_row(epoch, s, env_steps, returns[i], hostloop.row_metrics(means, i), sps,
+                                     eval_seconds, time.time() - t_start, epoch_seconds)
+                   for i, s in enumerate(seeds)]
             run.append_rows(new)
             rows += new
-            _call(hook, "rows", epoch)
+            hostloop.call_hook(hook, "rows", epoch)
             if epoch % cfg.checkpoint_every == 0 or epoch == sched.num_epochs or epoch == stop_after_epoch:
                 ckpt.save(epoch, state, {"env_steps": env_steps, "seeds": list(seeds)})
                 last = epoch
-                _call(hook, "checkpoint", epoch)
+                hostloop.call_hook(hook, "checkpoint", epoch)
             if plot:
-                _plot(rows, run, title)
+                hostloop.write_curve(rows, run, title)
             bar.update(sched.env_steps_per_epoch)
             bar.set_postfix_str(f"{sps:,.0f} steps/s, eval {returns.mean():.1f}")
             if stop_after_epoch is not None and epoch >= stop_after_epoch:
@@ -393,36 +356,17 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
         else:
             _write_final(run, state, seeds)
             if plot:
-                _plot(rows, run, title)
+                hostloop.write_curve(rows, run, title)
     finally:
         bar.close()
         ckpt.close()
     return TrainResult(run=run, rows=rows, state=state, seeds=seeds, resumed_from=resumed_from)
 
 
-def _row(epoch, seed, env_steps, returns, metrics, sps, eval_seconds, walltime, epoch_seconds=None):
-    row = {"epoch": epoch, "seed": int(seed), "env_steps": int(env_steps),
-           "eval_return": float(np.mean(returns)), "eval_return_std": float(np.std(returns)),
-           "eval_seconds": round(eval_seconds, 3), "walltime": round(walltime, 3), **metrics}
-    if sps is not None:
-        row["sps"] = round(sps, 1)
-        row["epoch_seconds"] = round(epoch_seconds, 3)
-    return row
-
-
 def _label(cfg: TrainConfig) -> str:
     from .plotting import method_label
 
     return method_label(cfg.algo, cfg.representation)
-
-
-def _plot(rows, run, title):
-    try:
-        from .plotting import plot_learning_curve
-
-        plot_learning_curve(rows, run.curve_path, title)
-    except Exception as err:  # a plot must never stop training
-        print(f"warning: could not write {run.curve_path}: {err}", file=sys.stderr)
 
 
 def _write_final(run: RunFolder, state: TrainState, seeds) -> None:
@@ -432,42 +376,9 @@ def _write_final(run: RunFolder, state: TrainState, seeds) -> None:
         np.savez(run.final_dir / f"params_seed{s}.npz", **flatten_params(params, i))
 
 
-def _call(hook, event, epoch):
-    if hook is not None:
-        hook(event, epoch)
-
-
 def _versions() -> dict:
-    from importlib import metadata
-
-    out = {}
-    for dist in ("jax", "jaxlib", "flax", "optax", "orbax-checkpoint", "brax", "playground", "mujoco",
-                 "mujoco-mjx", "sf2-core-jax"):
-        try:
-            out[dist] = metadata.version(dist)
-        except metadata.PackageNotFoundError:
-            pass
-    return out
-
-
-class _NoBar:
-    def update(self, n):
-        pass
-
-    def set_postfix_str(self, s):
-        pass
-
-    def close(self):
-        pass
-
-
-def _progress_bar(enabled: bool, total: int, initial: int, title: str):
-    if not enabled:
-        return _NoBar()
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, initial=initial, desc=title, unit="step", unit_scale=True, dynamic_ncols=True,
-                file=sys.stderr, smoothing=0.3)
+    return hostloop.versions(("jax", "jaxlib", "flax", "optax", "orbax-checkpoint", "brax", "playground",
+                              "mujoco", "mujoco-mjx", "sf2-core-jax", "sf2-common"))
 
 
 def evaluate_checkpoint(out, epoch: int | None = None, num_eval_envs: int | None = None,

@@ -31,6 +31,7 @@ from typing import ClassVar
 
 import numpy as np
 import torch
+from sf2_common.agents.registry import Registry
 from tensordict.nn import TensorDictModule
 from torch import nn
 
@@ -40,7 +41,7 @@ from sf2_torch.networks import SF2Networks
 
 from . import objectives
 
-__all__ = ["Representation", "NoRepresentation", "SF2Representation", "register", "get", "names"]
+__all__ = ["Representation", "NoRepresentation", "SF2Representation", "register", "get", "names", "REGISTRY"]
 
 
 class Representation:
@@ -74,23 +75,26 @@ class Representation:
         raise NotImplementedError
 
 
-_REGISTRY: dict[str, type[Representation]] = {}
+# The representations of the torch agents: registered here (`none`, `sf2`, tests' and the bench's variants)
+# or declared by an installed package as entry points of the group "sf2.representations.torch"
+# (sf2-baselines: sim, simlap, simlap_authors, spr), imported on first use (sf2_common.agents.registry).
+REGISTRY = Registry("torch")
 
 
 def register(cls: type[Representation]) -> type[Representation]:
     """Make `cls` selectable by `cls.name` (`--repr NAME`). Usable as a class decorator."""
-    if not cls.name:
-        raise ValueError(f"{cls.__name__}.name is empty")
-    _REGISTRY[cls.name] = cls
-    return cls
+    return REGISTRY.register(cls)
 
 
 def names() -> tuple[str, ...]:
-    return tuple(_REGISTRY)
+    """Every selectable name: the registered ones, then the installed entry points (not imported)."""
+    return REGISTRY.names()
 
 
 def get(name: str) -> type[Representation]:
-    return _REGISTRY[name]
+    """The class of `name` (importing its entry point if needed); `ConfigError` listing the valid names
+    (and how to install the baselines) if there is none."""
+    return REGISTRY.get(name)
 
 
 # ------------------------------------------------------------------------------------------- none

@@ -32,13 +32,14 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import shutil
-import sys
 import time
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 import torch
+from sf2_common.agents import hostloop
+from sf2_common.agents.hostloop import WALL_FIELDS, TrainingDiverged
 from tensordict import TensorDict
 
 from sf2_torch.errors import ConfigError
@@ -51,15 +52,12 @@ from .replay import ReplayBuffer
 from .runfolder import RunFolder, RunFolderMismatch
 
 __all__ = ["Program", "SeedState", "TrainState", "get_program", "TrainingDiverged", "TrainResult", "train",
-           "evaluate_checkpoint", "env_reset_keys", "eval_key", "fresh_eval_start_keys", "EVAL_STREAM"]
+           "evaluate_checkpoint", "env_reset_keys", "eval_key", "fresh_eval_start_keys", "EVAL_STREAM",
+           "WALL_FIELDS"]
 
 EVAL_STREAM = 0x5EED  # eval keys: fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), epoch), as in sf2_jax
-WALL_FIELDS = ("sps", "epoch_seconds", "eval_seconds", "walltime")  # differ between identical runs
-
-
-class TrainingDiverged(RuntimeError):
-    """A loss became NaN or inf; the run stopped before writing anything for that epoch."""
-
+# WALL_FIELDS, TrainingDiverged and the host loop's framework-free helpers (rows, the NaN guard's
+# message, progress bar, curve) are sf2_common.agents.hostloop, shared with sf2_jax's trainer.
 
 def env_reset_keys(seed: int, num_envs: int, num_eval_envs: int):
     """The JAX trainer's reset keys of `seed`: split(split(PRNGKey(seed), 3)[1], n + m); the first n reset
@@ -290,40 +288,6 @@ class TrainResult:
     resumed_from: int | None    # checkpoint epoch resumed from, if any
 
 
-def _diverged_message(first_bad: dict, sched, epoch: int, seeds, cfg, last_ckpt,
-                      order=()) -> str | None:
-    """The message naming the first non-finite loss of the epoch: lowest SGD step, then the order the
-    SGD step computes them in (`order`), or None if every metric is finite."""
-    G = cfg.grad_updates_per_step
-    rank = {name: i for i, name in enumerate(order)}
-    problems = []
-    for name, idx in first_bad.items():
-        for s_i, i in enumerate(np.asarray(idx)):
-            if i >= 0:
-                local, update = divmod(int(i), G)
-                actor_step = (epoch - 1) * sched.actor_steps_per_epoch + local
-                grad_step = sched.grad_steps_before(actor_step) * G + update
-                env_step = (actor_step + 1) * sched.env_steps_per_actor_step
-                problems.append((grad_step, rank.get(name, len(rank)), name, seeds[s_i], env_step))
-    if not problems:
-        return None
-    problems.sort()
-    g, _, name, seed, env_step = problems[0]
-    others = sorted({f"{n} (seed {s})" for _, _, n, s, _ in problems[1:]})
-    also = f"; also non-finite in the same epoch: {', '.join(others)}" if others else ""
-    keep = (f"the last good checkpoint (epoch {last_ckpt}) is kept" if last_ckpt is not None
-            else "no checkpoint was written yet")
-    return (f"training diverged: loss '{name}' became NaN/inf at gradient step {g} (env step {env_step}, "
-            f"epoch {epoch}, seed {seed}){also}. Nothing of epoch {epoch} was written; {keep}.")
-
-
-def _row_metrics(means: dict, s_i: int) -> dict:
-    """Epoch means of the training metrics of seed `s_i` (none for an epoch that was all prefill)."""
-    row = {name: float(np.asarray(v)[s_i]) for name, v in sorted(means.items())}
-    row["sgd_steps"] = int(row["sgd_steps"])
-    return row if row["sgd_steps"] else {"sgd_steps": 0}
-
-
 def _save(ckpt: Checkpointer, program: Program, state: TrainState, epoch: int, env_steps: int, seeds) -> None:
     ckpt.save(epoch, program.state_dict(state), state.env.get_state_leaves(),
               {"env_steps": env_steps, "seeds": list(seeds), "framework": "torch"})
@@ -344,11 +308,8 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
     if stop_after_epoch is not None and (not isinstance(stop_after_epoch, int) or stop_after_epoch < 0):
         raise ConfigError(f"stop_after_epoch = {stop_after_epoch!r} is invalid: must be an int >= 0")
     run = RunFolder(out)
-    if fresh and run.path.exists():
-        for name in (RunFolder.CONFIG, RunFolder.METRICS, RunFolder.CURVE):
-            (run.path / name).unlink(missing_ok=True)
-        shutil.rmtree(run.checkpoint_dir, ignore_errors=True)
-        shutil.rmtree(run.final_dir, ignore_errors=True)
+    if fresh:
+        run.clear()
     conf = run.read_config()
     if conf is not None and _framework(conf) != "torch":
         raise RunFolderMismatch(f"run folder {run.path} holds a run of sf2-{_framework(conf)}; use another "
@@ -369,7 +330,7 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
     resumed_from = last
     if existing and not resume and ckpt.latest() is not None:
         raise RunFolderMismatch(f"{run.path} already holds checkpoints; pass --fresh to start over")
-    title = f"{_label(cfg)} on {cfg.task} ({len(seeds)} seed{'s' if len(seeds) > 1 else ''})"
+    title = hostloop.run_title(_label(cfg), cfg.task, seeds)
 
     state = program.init(seeds)
     if last is not None:
@@ -382,7 +343,8 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
         run.truncate_rows(-1)
         rows, walltime, start = [], 0.0, 0
 
-    bar = _progress_bar(progress, sched.total_env_steps, sched.env_steps_after(max(start - 1, 0)), title)
+    bar = hostloop.progress_bar(progress, sched.total_env_steps, sched.env_steps_after(max(start - 1, 0)),
+                                title)
     t_start = time.time() - walltime
     try:
         eval_env = None
@@ -390,21 +352,22 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
             t = time.time()
             eval_env = _eval_env(program, seeds)
             returns = program.evaluate(state.agents, state.eval_keys, seeds, 0, eval_env)
-            new = [_row(0, s, 0, returns[i], {}, None, time.time() - t, time.time() - t_start)
+            new = [hostloop.make_row(0, s, 0, returns[i], {}, None, time.time() - t, time.time() - t_start)
                    for i, s in enumerate(seeds)]
             run.append_rows(new)
             rows += new
-            _call(hook, "rows", 0)
+            hostloop.call_hook(hook, "rows", 0)
             _save(ckpt, program, state, 0, 0, seeds)
             last = 0
-            _call(hook, "checkpoint", 0)
+            hostloop.call_hook(hook, "checkpoint", 0)
             bar.set_postfix_str(f"eval {returns.mean():.1f}")
             start = 1
         for epoch in range(start, sched.num_epochs + 1):
             t0 = time.time()
             state, means, first_bad = program.epoch(state, epoch)
             epoch_seconds = time.time() - t0
-            message = _diverged_message(first_bad, sched, epoch, seeds, cfg, last, program.loss_order(state))
+            message = hostloop.diverged_message(first_bad, sched, epoch, seeds, cfg, last,
+                                                program.loss_order(state))
             if message:
                 raise TrainingDiverged(message)
             t1 = time.time()
@@ -413,17 +376,18 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
             eval_seconds = time.time() - t1
             sps = sched.env_steps_per_epoch / epoch_seconds
             env_steps = sched.env_steps_after(epoch)
-            new = [_row(epoch, s, env_steps, returns[i], _row_metrics(means, i), sps, eval_seconds,
-                        time.time() - t_start, epoch_seconds) for i, s in enumerate(seeds)]
+            new = [hostloop.make_row(epoch, s, env_steps, returns[i], hostloop.row_metrics(means, i), sps,
+                                     eval_seconds, time.time() - t_start, epoch_seconds)
+                   for i, s in enumerate(seeds)]
             run.append_rows(new)
             rows += new
-            _call(hook, "rows", epoch)
+            hostloop.call_hook(hook, "rows", epoch)
             if epoch % cfg.checkpoint_every == 0 or epoch == sched.num_epochs or epoch == stop_after_epoch:
                 _save(ckpt, program, state, epoch, env_steps, seeds)
                 last = epoch
-                _call(hook, "checkpoint", epoch)
+                hostloop.call_hook(hook, "checkpoint", epoch)
             if plot:
-                _plot(rows, run, title)
+                hostloop.write_curve(rows, run, title)
             bar.update(sched.env_steps_per_epoch)
             bar.set_postfix_str(f"{sps:,.0f} steps/s, eval {returns.mean():.1f}")
             if stop_after_epoch is not None and epoch >= stop_after_epoch:
@@ -431,7 +395,7 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
         else:
             _write_final(run, state)
             if plot:
-                _plot(rows, run, title)
+                hostloop.write_curve(rows, run, title)
     finally:
         bar.close()
         ckpt.close()
@@ -451,29 +415,10 @@ def _eval_env(program: Program, seeds):
                          program.device)
 
 
-def _row(epoch, seed, env_steps, returns, metrics, sps, eval_seconds, walltime, epoch_seconds=None):
-    row = {"epoch": epoch, "seed": int(seed), "env_steps": int(env_steps),
-           "eval_return": float(np.mean(returns)), "eval_return_std": float(np.std(returns)),
-           "eval_seconds": round(eval_seconds, 3), "walltime": round(walltime, 3), **metrics}
-    if sps is not None:
-        row["sps"] = round(sps, 1)
-        row["epoch_seconds"] = round(epoch_seconds, 3)
-    return row
-
-
 def _label(cfg: TrainConfig) -> str:
     from .plotting import method_label
 
     return method_label(cfg.algo, cfg.representation)
-
-
-def _plot(rows, run, title):
-    try:
-        from .plotting import plot_learning_curve
-
-        plot_learning_curve(rows, run.curve_path, title)
-    except Exception as err:  # a plot must never stop training
-        print(f"warning: could not write {run.curve_path}: {err}", file=sys.stderr)
 
 
 def _write_final(run: RunFolder, state: TrainState) -> None:
@@ -482,42 +427,9 @@ def _write_final(run: RunFolder, state: TrainState) -> None:
         np.savez(run.final_dir / f"params_seed{ag.seed}.npz", **ag.algo.canonical())
 
 
-def _call(hook, event, epoch):
-    if hook is not None:
-        hook(event, epoch)
-
-
 def _versions() -> dict:
-    from importlib import metadata
-
-    out = {}
-    for dist in ("torch", "torchrl", "tensordict", "jax", "jaxlib", "playground", "mujoco", "mujoco-mjx",
-                 "sf2-core-torch"):
-        try:
-            out[dist] = metadata.version(dist)
-        except metadata.PackageNotFoundError:
-            pass
-    return out
-
-
-class _NoBar:
-    def update(self, n):
-        pass
-
-    def set_postfix_str(self, s):
-        pass
-
-    def close(self):
-        pass
-
-
-def _progress_bar(enabled: bool, total: int, initial: int, title: str):
-    if not enabled:
-        return _NoBar()
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, initial=initial, desc=title, unit="step", unit_scale=True, dynamic_ncols=True,
-                file=sys.stderr, smoothing=0.3)
+    return hostloop.versions(("torch", "torchrl", "tensordict", "jax", "jaxlib", "playground", "mujoco",
+                              "mujoco-mjx", "sf2-core-torch", "sf2-common"))
 
 
 def evaluate_checkpoint(out, epoch: int | None = None, num_eval_envs: int | None = None,
