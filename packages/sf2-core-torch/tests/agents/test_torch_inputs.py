@@ -7,6 +7,7 @@ import dataclasses
 import importlib.util
 
 import pytest
+from sf2_common import cli as _cli
 from sf2_torch import cli
 from sf2_torch.agents import configs, envs, representations, trainer
 from sf2_torch.errors import ConfigError
@@ -37,7 +38,8 @@ def _cli_error(capsys, *args):
     (["--task", "CartpoleBalanse"], ["unknown task 'CartpoleBalanse'", "Did you mean CartpoleBalance",
                                      "AcrobotSwingup", "WalkerWalk"]),
     (["--task", "CartpoleBalance", "--algo", "ddpg"], ["algo = 'ddpg'", "td3, sac"]),
-    (["--task", "CartpoleBalance", "--repr", "spr"], ["representation = 'spr'", "none", "sf2"]),
+    (["--task", "CartpoleBalance", "--repr", "bogus"],
+     ["representation = 'bogus'", "must be one of none, sf2", "sim", "simlap", "spr"]),
     (["--task", "CartpoleBalance", "--repr", "test_sac_only"],
      ["algo 'td3' with representation 'test_sac_only' does not exist", "sac+test_sac_only"]),
     (["--task", "CartpoleBalance", "--num-timesteps", "1000"],
@@ -84,6 +86,23 @@ def test_bad_preset(capsys):
 def test_several_methods_all_checked_before_any_training(capsys):
     err = _cli_error(capsys, "--task", "CartpoleBalance", "--repr", "sf2,test_sac_only")
     assert "test_sac_only" in err
+
+
+@pytest.mark.parametrize("reprs", ["sim", "simlap", "spr", "sf2,none,sim,simlap,spr"])
+def test_baseline_representations_resolve(reprs):
+    """`--repr sim|simlap|spr` select sf2-baselines' classes (entry points of "sf2.representations.torch",
+    imported on first use) and validate like sf2, for both algorithms."""
+    pytest.importorskip("sf2_baselines", reason="sf2-baselines is not installed")
+    for algo in ("td3", "sac"):
+        args = cli.build_parser().parse_args(["train", "--task", "CartpoleBalance", "--algo", algo, "--repr",
+                                              reprs, "--seeds", "0-1", "--out", "/nonexistent"])
+        cfgs, seeds = _cli.resolve_configs(cli.FRAMEWORK, args)
+        assert [c.representation for c in cfgs] == reprs.split(",") and seeds == (0, 1)
+        for cfg in cfgs:
+            cls = representations.get(cfg.representation)
+            assert cls.name == cfg.representation and algo in cls.supported_algos
+            if cfg.representation not in ("none", "sf2"):
+                assert cls.__module__ == "sf2_baselines.torch.representations"
 
 
 def test_eval_of_missing_folder(capsys, tmp_path):
