@@ -117,16 +117,26 @@ def test_sgd_steps_train_the_right_groups(algo, name):
 
 
 @pytest.mark.parametrize("algo,every", [("td3", 10), ("sac", 16)])
-def test_task_vector_schedule(algo, every):
-    """w is updated on gradient steps that are multiples of `aux_every['task']` only (authors' code)."""
-    _, agent, params, opt = _setup(algo, "sim")
+@pytest.mark.parametrize("name", ["sim", "simlap"])
+def test_task_vector_schedule(algo, every, name):
+    """w and its Adam state (moments and count) change only on gradient steps that are multiples of
+    `aux_every['task']` (the authors' cond and separate w optimizer); every other trained group steps
+    every time. Steps 0 .. every + 1 (jitted, the step a traced int32 as in the trainer's scan)."""
+    _, agent, params, opt = _setup(algo, name)
     assert agent.rep.aux_every == {"task": every}
-    b = _batch()
-    p1, _, _ = agent.sgd_step(params, opt, b, jax.random.PRNGKey(1), jnp.asarray(1))
-    p0, _, _ = agent.sgd_step(params, opt, b, jax.random.PRNGKey(1), jnp.asarray(every))
-    assert not np.array_equal(np.asarray(p0["task"]["w"]), np.asarray(params["task"]["w"]))
-    if not np.array_equal(np.asarray(p1["task"]["w"]), np.asarray(params["task"]["w"])):
-        pytest.xfail(
-            "sf2_jax's base algorithm does not honour Representation.aux_every yet: w is updated "
-            "every step (see the baselines' README, 'Integration')"
-        )
+    step = jax.jit(agent.sgd_step)
+    p, o = params, opt
+    due_so_far = 0
+    for i in range(every + 2):
+        new_p, new_o, _ = step(p, o, _batch(i), jax.random.PRNGKey(10 + i), jnp.asarray(i, jnp.int32))
+        due = i % every == 0
+        due_so_far += due
+        w_moved = not np.array_equal(np.asarray(new_p["task"]["w"]), np.asarray(p["task"]["w"]))
+        assert w_moved == due, f"step {i}: w moved={w_moved}, due={due}"
+        for old, new in zip(jax.tree_util.tree_leaves(o["task"]), jax.tree_util.tree_leaves(new_o["task"])):
+            assert np.array_equal(np.asarray(old), np.asarray(new)) == (not due), f"step {i}: Adam state"
+        assert int(new_o["task"][0].count) == due_so_far
+        assert int(new_o["q"][0].count) == i + 1
+        for g in {*agent.rep.aux_groups, *agent.rep.critic_groups} - {"task"}:
+            assert int(new_o[g][0].count) > int(o[g][0].count), f"step {i}: {g} did not step"
+        p, o = new_p, new_o

@@ -130,3 +130,69 @@ def test_every_combination_steps(algo_name, rep):
         assert "psi" not in params
     act = algo.explore(params, batch.obs, jax.random.PRNGKey(7))
     assert act.shape == (B, A) and bool(jnp.all(jnp.abs(act) <= 1))
+
+
+@pytest.mark.parametrize("algo_name", ["td3", "sac"])
+@pytest.mark.parametrize("rep", ["none", "sf2"])
+def test_step_noise_is_every_random_input(algo_name, rep):
+    """`step_noise` draws exactly `noise_keys()`, and `sgd_step` consumes nothing else: its result is
+    the same for any key that gives the same noise (here: the step under a patched `step_noise`). float64,
+    since XLA fuses a step whose noise is an input differently (float32 rounding, amplified by Adam)."""
+    with jax.enable_x64(True):
+        _check_step_noise(algo_name, rep)
+
+
+def _check_step_noise(algo_name, rep):
+    algo = make_algorithm(algo_name, SF2Config.small(D, A, gamma_su=0.9), representations.get(rep),
+                          dtype=jnp.float64)
+    params, opt = algo.init(jax.random.PRNGKey(0))
+    batch = jax.tree_util.tree_map(lambda x: x.astype(jnp.float64), _batch(jax.random.PRNGKey(5)))
+    noise = algo.step_noise(jax.random.PRNGKey(6), batch)
+    assert list(noise) == list(algo.noise_keys())
+    assert all(v.shape[0] == B and v.dtype == jnp.float64 for v in noise.values())
+    ref = jax.jit(algo.sgd_step)(params, opt, batch, jax.random.PRNGKey(6), 0)
+
+    def with_noise(params, opt, batch, noise):
+        algo.step_noise = lambda key, b: noise  # the given noise, whatever the key
+        return algo.sgd_step(params, opt, batch, jax.random.PRNGKey(123), 0)
+
+    out = jax.jit(with_noise)(params, opt, batch, noise)
+    for x, y in zip(jax.tree_util.tree_leaves(ref), jax.tree_util.tree_leaves(out)):
+        np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-10, atol=1e-14)
+
+
+class _ZetaEvery3(representations.SF2Representation):
+    """SF² whose ζ takes its flow-step Adam update every 3rd gradient step only (a test schedule)."""
+
+    aux_every = {"zeta": 3}
+
+
+def test_aux_every_keeps_group_and_adam_state_off_period():
+    cfg = SF2Config.small(D, A, gamma_su=0.9)
+    algo = make_algorithm("td3", cfg, _ZetaEvery3)
+    params, opt = algo.init(jax.random.PRNGKey(0))
+    step = jax.jit(algo.sgd_step)
+    for i in range(5):
+        new_p, new_o, _ = step(params, opt, _batch(jax.random.PRNGKey(i)), jax.random.PRNGKey(10 + i),
+                               jnp.asarray(i, jnp.int32))
+        due = i % 3 == 0
+        for g in ("zeta",):
+            same_p = all(np.array_equal(a, b) for a, b in zip(jax.tree_util.tree_leaves(params[g]),
+                                                              jax.tree_util.tree_leaves(new_p[g])))
+            same_o = all(np.array_equal(a, b) for a, b in zip(jax.tree_util.tree_leaves(opt[g]),
+                                                              jax.tree_util.tree_leaves(new_o[g])))
+            assert same_p == same_o == (not due), (i, same_p, same_o)
+        assert int(new_o["zeta"][0].count) == (i // 3) + 1
+        assert int(new_o["psi"][0].count) == 2 * (i + 1)  # critic and flow steps, every time
+        # ζ̄ is averaged every step (towards the current ζ)
+        assert not np.array_equal(np.asarray(jax.tree_util.tree_leaves(new_p["target_zeta"])[0]),
+                                  np.asarray(jax.tree_util.tree_leaves(params["target_zeta"])[0]))
+        params, opt = new_p, new_o
+
+
+@pytest.mark.parametrize("every,message", [({"q": 2}, "not one of its aux_groups"),
+                                           ({"zeta": 0}, "must be an int >= 1")])
+def test_aux_every_is_validated(every, message):
+    bad = type("Bad", (representations.SF2Representation,), {"aux_every": every})
+    with pytest.raises(ValueError, match=message):
+        make_algorithm("td3", SF2Config.small(D, A), bad)

@@ -14,8 +14,9 @@ name                critic trains   aux step trains     aux loss                
 ==================  ==============  ==================  =====================================  ============
 
 Schedules: `aux_every` maps a group to the period (in gradient steps) of its updates inside the aux
-step. A base algorithm that honours it keeps that group's parameters and Adam state unchanged on the
-other steps (the authors' `gradient_steps % 10 == 0` cond); one that does not updates it every step.
+step (`Representation.aux_every`). The base algorithm keeps that group's parameters and whole Adam state
+(moments and count) unchanged on the other steps, as the authors' `gradient_steps % 10 == 0` cond does
+with their separate w optimizer.
 """
 
 from __future__ import annotations
@@ -106,6 +107,7 @@ class SPRRepresentation(reps.Representation):
     critic_groups = ("encoder",)
     aux_groups = ("encoder", "projection", "prediction")
     aux_loss_name = "spr_loss"
+    noise_keys = ("spr_obs_noise", "spr_next_obs_noise")
 
     def __init__(self, cfg, nets):
         super().__init__(cfg, nets)
@@ -120,13 +122,13 @@ class SPRRepresentation(reps.Representation):
 
     def aux_noise(self, key, batch):
         k_obs, k_next = jax.random.split(key)
-        return (
-            jax.random.normal(k_obs, batch.obs.shape, batch.obs.dtype),
-            jax.random.normal(k_next, batch.next_obs.shape, batch.next_obs.dtype),
-        )
+        return {
+            "spr_obs_noise": jax.random.normal(k_obs, batch.obs.shape, batch.obs.dtype),
+            "spr_next_obs_noise": jax.random.normal(k_next, batch.next_obs.shape, batch.next_obs.dtype),
+        }
 
     def aux_loss(self, params, batch, next_action, noise):
-        obs_noise, next_obs_noise = noise
+        obs_noise, next_obs_noise = noise["spr_obs_noise"], noise["spr_next_obs_noise"]
         return spr.spr_loss(self.baseline_nets, params, batch, next_action, obs_noise, next_obs_noise)
 
     def update_targets(self, params):

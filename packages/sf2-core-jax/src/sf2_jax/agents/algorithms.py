@@ -12,8 +12,21 @@ One SGD step follows docs/core-contract.md "One SGD step" (the authors' order):
 Each group has its own Adam state, so ψ, trained in steps 1 and 2, keeps one state across both (as in
 the authors' code). The TD and actor losses here equal `sf2_jax.losses.td3_critic_loss`, ... when the
 representation is SF² (tests/agents/test_algorithms.py proves it); they are written against
-`representation.critic` so that every representation shares them. Random draws are made here and
-passed to the losses as explicit noise.
+`representation.critic` so that every representation shares them.
+
+Noise: `step_noise(key, batch)` is the thin wrapper that draws every random input of one SGD step, a
+dict keyed by `noise_keys()`: TD3 `smoothing_noise` ξ (target-policy smoothing); SAC
+`next_action_noise` ξ′ (a′ ~ π(s′) in the TD target), `actor_noise`, `alpha_noise` (a ~ π(s) in the
+actor and temperature losses) and, with a representation loss, `flow_action_noise` (ā′ ~ π(s′));
+then the representation's `noise_keys` (SF²: `flow_noise` ε, `flow_time` t). The names are the torch
+agents' tensordict keys, so tests hand one draw to both frameworks. `sgd_step` is pure given it.
+
+Schedules (`step`, the run's gradient-step index): the actor step is taken when
+`step % policy_delay == 0`; a group of `representation.aux_every` ({group: period}) takes its aux Adam
+step only when `step % period == 0`. On the other steps that group's parameters and whole Adam state
+(moments and step count) are kept by `jnp.where` on the step (no Python branch on a traced value, so
+the step stays one program under `jit`, `scan` and the trainer's seed `vmap`): the authors' separate
+task-vector optimizer only steps when it is used, so its bias correction counts its own updates.
 """
 
 from __future__ import annotations
@@ -29,7 +42,7 @@ from sf2_jax.config import SF2Config
 
 from .representations import Representation
 
-__all__ = ["Algorithm", "TD3", "SAC", "make_algorithm"]
+__all__ = ["Algorithm", "TD3", "SAC", "make_algorithm", "check_aux_every"]
 
 sg = jax.lax.stop_gradient
 Params = dict[str, Any]
@@ -41,16 +54,29 @@ def _td_loss(q, y, truncation):
     return 0.5 * jnp.mean(err**2)
 
 
+def check_aux_every(rep: Representation) -> None:
+    """Raise ValueError unless `rep.aux_every` maps groups of `rep.aux_groups` to periods >= 1."""
+    for group, every in rep.aux_every.items():
+        if group not in rep.aux_groups:
+            raise ValueError(f"{type(rep).__name__}.aux_every names {group!r}, which is not one of its "
+                             f"aux_groups {rep.aux_groups}")
+        if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+            raise ValueError(f"{type(rep).__name__}.aux_every[{group!r}] = {every!r} is invalid: must be "
+                             f"an int >= 1 (a period in gradient steps)")
+
+
 class Algorithm:
     """Shared machinery: parameter/optimizer init, per-group Adam steps, the SGD step skeleton."""
 
     name = ""
     policy_groups: tuple[str, ...] = ()
+    critic_noise_key = ""   # the `step_noise` entry of the TD loss
 
     def __init__(self, cfg: SF2Config, representation_cls: type[Representation], dtype=jnp.float32):
         self.cfg = cfg
         self.nets = networks.make_networks(cfg, self.name)
         self.rep = representation_cls(cfg, self.nets)
+        check_aux_every(self.rep)
         self.dtype = dtype
         self._adam = optax.adam(cfg.learning_rate, eps=cfg.adam_eps)
         self._alpha_adam = optax.adam(cfg.alpha_learning_rate)  # Brax SAC's temperature optimizer
@@ -73,20 +99,30 @@ class Algorithm:
         opt_state = {g: self._tx(g).init(params[g]) for g in self.trained_groups()}
         return params, opt_state
 
-    def _adam_step(self, params, opt_state, grads):
+    def _adam_step(self, params, opt_state, grads, due=None):
+        """Adam on every group of `grads`; a group of `due` ({group: bool scalar}) keeps its parameters
+        and Adam state (moments and count) where its flag is False."""
         params, opt_state = dict(params), dict(opt_state)
         for group, grad in grads.items():
-            updates, opt_state[group] = self._tx(group).update(grad, opt_state[group], params[group])
-            params[group] = optax.apply_updates(params[group], updates)
+            updates, state = self._tx(group).update(grad, opt_state[group], params[group])
+            new = optax.apply_updates(params[group], updates)
+            if due is not None and group in due:
+                def keep(n, o, flag=due[group]):
+                    return jnp.where(flag, n, o)
+
+                new = jax.tree_util.tree_map(keep, new, params[group])
+                state = jax.tree_util.tree_map(keep, state, opt_state[group])
+            params[group], opt_state[group] = new, state
         return params, opt_state
 
-    def _loss_step(self, loss_fn, groups, params, opt_state):
-        """One Adam step on `groups` of `loss_fn(params) → (loss, aux)`; other groups are constants."""
+    def _loss_step(self, loss_fn, groups, params, opt_state, due=None):
+        """One Adam step on `groups` of `loss_fn(params) → (loss, aux)`; other groups are constants.
+        `due`: see `_adam_step`."""
         def f(trained):
             return loss_fn({**params, **trained})
 
         (loss, aux), grads = jax.value_and_grad(f, has_aux=True)({g: params[g] for g in groups})
-        params, opt_state = self._adam_step(params, opt_state, grads)
+        params, opt_state = self._adam_step(params, opt_state, grads, due)
         return params, opt_state, loss, aux
 
     # ------------------------------------------------------------------ acting (overridden)
@@ -96,44 +132,73 @@ class Algorithm:
     def act(self, params, obs, key, deterministic: bool):
         raise NotImplementedError
 
-    # ------------------------------------------------------------------ the SGD step
-    def critic_noise(self, key, batch):
+    # ------------------------------------------------------------------ noise (the thin wrapper)
+    def _algo_noise(self, k_critic, k_next, k_actor, batch) -> dict[str, jax.Array]:
+        raise NotImplementedError
+
+    def _randn(self, key, batch):
         return jax.random.normal(key, batch.action.shape, batch.action.dtype)
 
+    def noise_keys(self) -> tuple[str, ...]:
+        raise NotImplementedError
+
+    def step_noise(self, key: jax.Array, batch: losses.Batch) -> dict[str, jax.Array]:
+        """Every random input of one SGD step on `batch`, drawn from `key` (module docstring): the keys
+        are `noise_keys()`. Split: k_critic, k_aux, k_next, k_actor = split(key, 4); the critic noise
+        from k_critic, the representation's `aux_noise(k_aux)`, SAC's ā′ noise from k_next and its
+        temperature and actor noise from split(k_actor) = (k_alpha, k_pi)."""
+        k_critic, k_aux, k_next, k_actor = jax.random.split(key, 4)
+        noise = self._algo_noise(k_critic, k_next, k_actor, batch)
+        if self.rep.aux_groups:
+            aux = self.rep.aux_noise(k_aux, batch)
+            if set(aux) != set(self.rep.noise_keys):
+                raise ValueError(f"{type(self.rep).__name__}.aux_noise returned {sorted(aux)}, but its "
+                                 f"noise_keys are {self.rep.noise_keys}")
+            noise.update(aux)
+        return noise
+
+    # ------------------------------------------------------------------ the SGD step
     def critic_loss(self, params, batch, noise):
         raise NotImplementedError
 
-    def aux_next_action(self, params, batch, key):
+    def aux_next_action(self, params, batch, noise):
         raise NotImplementedError
 
-    def actor_update(self, pre, params, opt_state, batch, key, step):
+    def actor_update(self, pre, params, opt_state, batch, noise, step):
         raise NotImplementedError
 
     def update_q_target(self, params, step) -> Params:
         raise NotImplementedError
 
+    def aux_due(self, step) -> dict[str, Any]:
+        """{group: step % period == 0} for the groups of `representation.aux_every`."""
+        return {g: step % every == 0 for g, every in self.rep.aux_every.items()}
+
     def sgd_step(self, params: Params, opt_state: Params, batch: losses.Batch, key: jax.Array, step):
-        """One SGD step (module docstring). Returns (params, opt_state, metrics dict of scalars)."""
-        k_critic, k_aux, k_next, k_actor = jax.random.split(key, 4)
+        """One SGD step (module docstring) with the noise `step_noise(key, batch)`; `step` is the
+        gradient-step index (policy delay, `aux_every`). Returns (params, opt_state, metrics dict of
+        scalars)."""
+        noise = self.step_noise(key, batch)
         pre = params
         metrics = {}
         # 1. critic
-        noise = self.critic_noise(k_critic, batch)
+        critic_noise = noise[self.critic_noise_key]
         params, opt_state, loss, aux = self._loss_step(
-            lambda p: self.critic_loss(p, batch, noise), ("q", *self.rep.critic_groups), params, opt_state)
+            lambda p: self.critic_loss(p, batch, critic_noise), ("q", *self.rep.critic_groups), params,
+            opt_state)
         metrics["critic_loss"] = loss
         metrics["q"] = aux["q"]
         # 2. the representation's own loss, on the parameters after step 1
         if self.rep.aux_groups:
-            next_action = sg(self.aux_next_action(pre, batch, k_next))
-            aux_noise = self.rep.aux_noise(k_aux, batch)
+            next_action = sg(self.aux_next_action(pre, batch, noise))
+            aux_noise = {k: noise[k] for k in self.rep.noise_keys}
             params, opt_state, loss, aux = self._loss_step(
                 lambda p: self.rep.aux_loss(p, batch, next_action, aux_noise), self.rep.aux_groups,
-                params, opt_state)
+                params, opt_state, due=self.aux_due(step))
             metrics[self.rep.aux_loss_name] = loss
             metrics.update(aux)
         # 3. actor (and temperature) from the pre-step critic
-        params, opt_state, actor_metrics = self.actor_update(pre, params, opt_state, batch, k_actor, step)
+        params, opt_state, actor_metrics = self.actor_update(pre, params, opt_state, batch, noise, step)
         metrics.update(actor_metrics)
         # 4. targets
         params = {**params, **self.update_q_target(params, step), **self.rep.update_targets(params)}
@@ -148,6 +213,7 @@ class TD3(Algorithm):
 
     name = "td3"
     policy_groups = ("policy",)
+    critic_noise_key = "smoothing_noise"
 
     def explore(self, params, obs, key):
         """Authors' acting: π(s) + clip(σ_e ξ, −c, c), clipped to [−1, 1]."""
@@ -177,10 +243,17 @@ class TD3(Algorithm):
         action = networks.td3_action(self.nets, params, batch.obs)
         return -jnp.mean(self.rep.critic(params, batch.obs, action)[..., 0]), {}
 
-    def aux_next_action(self, params, batch, key):
+    def noise_keys(self):
+        return ("smoothing_noise", *(self.rep.noise_keys if self.rep.aux_groups else ()))
+
+    def _algo_noise(self, k_critic, k_next, k_actor, batch):
+        return {"smoothing_noise": self._randn(k_critic, batch)}
+
+    def aux_next_action(self, params, batch, noise):
+        """ā′ = π̄(s′) (no smoothing)."""
         return networks.td3_action(self.nets, params, batch.next_obs, target=True)
 
-    def actor_update(self, pre, params, opt_state, batch, key, step):
+    def actor_update(self, pre, params, opt_state, batch, noise, step):
         def update(args):
             params, opt_state = args
             # differentiate the policy only; Q and features stay at their pre-step values
@@ -215,6 +288,7 @@ class SAC(Algorithm):
 
     name = "sac"
     policy_groups = ("policy", "log_alpha")
+    critic_noise_key = "next_action_noise"
 
     def explore(self, params, obs, key):
         noise = jax.random.normal(key, obs.shape[:-1] + (self.cfg.action_size,), obs.dtype)
@@ -248,17 +322,27 @@ class SAC(Algorithm):
         alpha = jnp.exp(params["log_alpha"])
         return jnp.mean(alpha * sg(-log_prob - target_entropy)), {}
 
-    def aux_next_action(self, params, batch, key):
-        noise = jax.random.normal(key, batch.action.shape, batch.action.dtype)
-        return networks.sac_sample(self.nets, params, batch.next_obs, noise)[0]
+    def noise_keys(self):
+        keys = ("next_action_noise", "actor_noise", "alpha_noise")
+        return keys + (("flow_action_noise", *self.rep.noise_keys) if self.rep.aux_groups else ())
 
-    def actor_update(self, pre, params, opt_state, batch, key, step):
-        k_alpha, k_actor = jax.random.split(key)
+    def _algo_noise(self, k_critic, k_next, k_actor, batch):
+        k_alpha, k_pi = jax.random.split(k_actor)
+        out = {"next_action_noise": self._randn(k_critic, batch), "actor_noise": self._randn(k_pi, batch),
+               "alpha_noise": self._randn(k_alpha, batch)}
+        if self.rep.aux_groups:
+            out["flow_action_noise"] = self._randn(k_next, batch)
+        return out
+
+    def aux_next_action(self, params, batch, noise):
+        """ā′ ~ π(s′) with the explicit noise `flow_action_noise`."""
+        return networks.sac_sample(self.nets, params, batch.next_obs, noise["flow_action_noise"])[0]
+
+    def actor_update(self, pre, params, opt_state, batch, noise, step):
+        a_noise, p_noise = noise["alpha_noise"], noise["actor_noise"]
 
         def update(args):
             params, opt_state = args
-            a_noise = jax.random.normal(k_alpha, batch.action.shape, batch.action.dtype)
-            p_noise = jax.random.normal(k_actor, batch.action.shape, batch.action.dtype)
             new, opt_state, alpha_loss, _ = self._loss_step(
                 lambda p: self.alpha_loss(p, batch, a_noise), ("log_alpha",), pre, opt_state)
             new2, opt_state, actor_loss, aux = self._loss_step(

@@ -10,8 +10,15 @@ A representation is the part of an agent between the raw (s, a) and the twin Q v
   `back_critic_grad=True`).
 - `aux_groups`, `aux_noise(key, batch)`, `aux_loss(params, batch, next_action, noise)`: its own loss,
   one Adam step on `aux_groups` right after the critic step of every SGD step (SF²: the flow loss on
-  ψ and ζ). `aux_noise` is the thin wrapper that draws the loss's random inputs; the loss is pure.
+  ψ and ζ). `aux_noise` is the thin wrapper that draws the loss's random inputs, a dict keyed by
+  `noise_keys` (SF²: `flow_noise` ε and `flow_time` t, eq. 3); the loss is pure. The names are those
+  of the torch agents' tensordict keys, so one draw feeds both frameworks (`Algorithm.step_noise`).
   `next_action` is ā′, given by the base algorithm (TD3: target policy at s′; SAC: a policy sample).
+- `aux_every` ({group: period}, default {}): groups of `aux_groups` that the aux step updates only on
+  gradient steps `step % period == 0` (Sim/SimLap's task vector w: every 10 TD3 / 16 SAC steps, the
+  authors' `gradient_steps % 10 == 0` cond). On the other steps the base algorithm leaves that group's
+  parameters *and* its whole Adam state (moments and step count) unchanged, as the authors' separate w
+  optimizer, which only steps when it is used: Adam's bias correction counts w's own updates.
 - `update_targets(params)` → the EMA-updated target groups it owns other than `target_q` (the base
   algorithm updates `target_q` on its own schedule).
 
@@ -48,6 +55,8 @@ class Representation:
     critic_groups: ClassVar[tuple[str, ...]] = ()
     aux_groups: ClassVar[tuple[str, ...]] = ()
     aux_loss_name: ClassVar[str] = "aux_loss"
+    noise_keys: ClassVar[tuple[str, ...]] = ()     # the entries of `aux_noise`
+    aux_every: ClassVar[dict[str, int]] = {}       # {aux group: period in gradient steps}
 
     def __init__(self, cfg: SF2Config, nets: networks.Networks):
         self.cfg = cfg
@@ -59,8 +68,8 @@ class Representation:
     def critic(self, params: Params, obs, action, target: bool = False):
         raise NotImplementedError
 
-    def aux_noise(self, key: jax.Array, batch: losses.Batch):
-        return None
+    def aux_noise(self, key: jax.Array, batch: losses.Batch) -> dict[str, jax.Array]:
+        return {}
 
     def aux_loss(self, params: Params, batch: losses.Batch, next_action, noise):
         raise NotImplementedError(f"representation {self.name!r} has no loss of its own")
@@ -141,6 +150,7 @@ class SF2Representation(Representation):
     critic_groups = ("psi",)
     aux_groups = ("psi", "zeta")
     aux_loss_name = "flow_loss"
+    noise_keys = ("flow_noise", "flow_time")
 
     def init(self, key, core_params):
         del key  # the core already initialised ψ, ζ and the Q heads
@@ -156,11 +166,11 @@ class SF2Representation(Representation):
         obs = batch.obs
         eps = jax.random.normal(k_eps, obs.shape, obs.dtype)
         flow_time = jax.random.uniform(k_time, obs.shape[:-1], obs.dtype)
-        return eps, flow_time
+        return {"flow_noise": eps, "flow_time": flow_time}
 
     def aux_loss(self, params, batch, next_action, noise):
-        eps, flow_time = noise
-        return losses.flow_loss(self.nets, params, batch, next_action, eps, flow_time)
+        return losses.flow_loss(self.nets, params, batch, next_action, noise["flow_noise"],
+                                noise["flow_time"])
 
     def update_targets(self, params):
         return {
