@@ -85,3 +85,33 @@ def test_simlap_critic_does_not_train_features():
     agent.loss(_td(agent)).get("loss_qvalue").backward()
     assert all(p.grad is None or not torch.any(p.grad) for p in agent.rep.baseline_nets.phi.parameters())
     assert any(p.grad is not None and torch.any(p.grad) for p in agent.rep.baseline_nets.q.parameters())
+
+
+@pytest.mark.parametrize("algo,every", [("td3", 10), ("sac", 16)])
+@pytest.mark.parametrize("name", ["sim", "simlap"])
+def test_task_vector_schedule(algo, every, name):
+    """w and its Adam state (moments and step count) change only on gradient steps that are multiples of
+    `aux_every['task']` (the authors' cond and separate w optimizer); the other trained groups step every
+    time. Steps 0 .. every + 1, as the trainer numbers them."""
+    torch.manual_seed(0)
+    agent = make_algorithm(algo, SF2Config(**small_kwargs()), reps.get(name), dtype=torch.float64)
+    assert agent.rep.aux_every == {"task": every}
+    w = agent.rep.baseline_nets.task.w
+    others = [g for g in agent.groups if g not in ("task", "log_alpha", "policy")]
+
+    def count(g):
+        return int(agent.optimizers[g].state.get(agent.groups[g][0], {}).get("step", 0))
+
+    for i in range(every + 2):
+        w_before = w.detach().clone()
+        state = {k: v.clone() for k, v in agent.optimizers["task"].state.get(w, {}).items()}
+        counts = {g: count(g) for g in others}
+        agent.sgd_step(_td(agent, i), step=i)
+        due = i % every == 0
+        assert (not torch.equal(w_before, w)) == due, i
+        new_state = agent.optimizers["task"].state[w]
+        assert int(new_state["step"]) == i // every + 1
+        if not due:
+            assert all(torch.equal(state[k], new_state[k]) for k in state), i
+        for g in others:
+            assert count(g) > counts[g], (i, g)

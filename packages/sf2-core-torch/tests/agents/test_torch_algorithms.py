@@ -218,6 +218,56 @@ def test_actor_step_uses_the_pre_step_critic():
             assert moved, name
 
 
+@pytest.mark.parametrize("rep", ["sf2", "none"])
+@pytest.mark.parametrize("name", ["td3", "sac"])
+def test_noise_keys_are_what_draw_noise_draws(name, rep):
+    algo = _algo(name, rep)
+    noise = algo.draw_noise((3, B), torch.Generator().manual_seed(0))
+    assert list(noise) == list(algo.noise_keys())
+    assert all(v.shape[:2] == (3, B) for v in noise.values())
+    assert set(algo.rep.noise_keys) <= set(noise)
+
+
+class _ZetaEvery3(representations.SF2Representation):
+    """SF² whose ζ takes its flow-step Adam step every 3rd gradient step only (a test schedule)."""
+
+    aux_every = {"zeta": 3}
+
+
+def test_aux_every_keeps_group_and_adam_state_off_period(monkeypatch):
+    torch.manual_seed(0)
+    algo = algorithms.make_algorithm("td3", SF2Config.small(D, A, gamma_su=0.9), _ZetaEvery3)
+    zeta, psi = algo.groups["zeta"], algo.groups["psi"]
+    for i in range(5):
+        td = _noisy_td(algo, i)
+        before = [p.detach().clone() for p in zeta]
+        state = {k: v.clone() for k, v in algo.optimizers["zeta"].state.get(zeta[0], {}).items()}
+        target = algo.nets.target_zeta.dense_0.weight.detach().clone()
+        if i == 4:  # the skip is decided on the host: no synchronization either way
+            with monkeypatch.context() as m:
+                _forbid_host_sync(m)
+                algo.sgd_step(td, step=i)
+        else:
+            algo.sgd_step(td, step=i)
+        due = i % 3 == 0
+        moved = any(not torch.equal(b, p) for b, p in zip(before, zeta))
+        assert moved == due, (i, moved)
+        new_state = algo.optimizers["zeta"].state[zeta[0]]
+        assert int(new_state["step"]) == i // 3 + 1
+        if not due:
+            assert all(torch.equal(state[k], new_state[k]) for k in state)
+        assert int(algo.optimizers["psi"].state[psi[0]]["step"]) == 2 * (i + 1)  # critic and flow steps
+        assert not torch.equal(target, algo.nets.target_zeta.dense_0.weight)  # ζ̄ averaged every step
+
+
+@pytest.mark.parametrize("every,message", [({"q": 2}, "not one of its aux_groups"),
+                                           ({"zeta": 0}, "must be an int >= 1")])
+def test_aux_every_is_validated(every, message):
+    bad = type("Bad", (representations.SF2Representation,), {"aux_every": every})
+    with pytest.raises(ValueError, match=message):
+        algorithms.make_algorithm("td3", SF2Config.small(D, A), bad)
+
+
 @pytest.mark.skipif(not os.environ.get("SF2_TORCH_SLOW"), reason="torch.compile takes minutes on a small "
                     "CPU; set SF2_TORCH_SLOW=1")
 @pytest.mark.parametrize("name", ["td3", "sac"])

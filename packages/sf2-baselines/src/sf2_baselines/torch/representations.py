@@ -18,8 +18,8 @@ name                critic trains   aux step trains     aux loss (output key)   
 
 The critic loss modules own Q̄ (and π̄ for TD3), which the base algorithm averages on its schedule; the
 aux loss modules own the representation's targets, averaged every SGD step by `target_updater`.
-`aux_every` (w every 10 TD3 / 16 SAC gradient steps) is honoured only by a base algorithm that supports
-it (README.md, "Integration").
+`aux_every` (w every 10 TD3 / 16 SAC gradient steps): the base algorithm steps w's Adam only on gradient
+steps that are multiples of the period (`Representation.aux_every`), as the authors' code.
 """
 
 from __future__ import annotations
@@ -277,6 +277,7 @@ class SPRRepresentation(reps.Representation):
     aux_groups = ("encoder", "projection", "prediction")
     aux_loss_name = "spr_loss"
     aux_loss_key = "loss_spr"
+    noise_keys = ("spr_obs_noise", "spr_next_obs_noise")
 
     def __init__(self, cfg, nets):
         super().__init__(cfg, nets)

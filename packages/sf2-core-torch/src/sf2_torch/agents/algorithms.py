@@ -21,10 +21,25 @@ Each group has its own `torch.optim.Adam` (lr `learning_rate`, ε `adam_eps`; lo
 both, as in the authors' code and the JAX agents. Targets move with TorchRL `SoftUpdate`s (one per loss
 module), run inside the step as one `torch._foreach_lerp_` per rate.
 
-All randomness is explicit: `sgd_step(td, actor_step)` reads every noise tensor from `td` (keys listed
-by `noise_keys()`); `draw_noise(shape, generator)` is the thin wrapper that draws them. The step does no
-`.item()` and no host synchronization; it can be `torch.compile`d (`compile_mode`) and, on CUDA, captured
-as CUDA graphs (tensordict's `CudaGraphModule`).
+All randomness is explicit: `sgd_step(td, step)` reads every noise tensor from `td` (keys listed by
+`noise_keys()`: the algorithm's, then the representation's `noise_keys`, the same names as sf2_jax's
+`Algorithm.step_noise`); `draw_noise(shape, generator)` is the thin wrapper that draws them.
+
+Schedules (`step`, the run's gradient-step index, a host int as the trainer counts it): the actor step
+is taken when `step % policy_delay == 0`; a group of `representation.aux_every` ({group: period})
+takes its aux Adam step only when `step % period == 0`. Off its period that group's Adam does not step,
+so its parameters and whole Adam state (moments and step count) stay as they were: the authors' separate
+task-vector optimizer only steps when it is used, and sf2_jax keeps the same by `jnp.where`. The
+schedule is decided on the host: each combination (actor step or not, the groups skipped) is its own
+step function, so nothing in a step branches on a device value.
+
+Compilation: `torch.compile` (`compile_mode`) compiles the two loss forwards, `_critic_losses` and
+`_aux_losses`, each once; AOTAutograd compiles their backward with them, so the compiled code is the
+loss + gradient computation. The Adam steps and the target lerps run outside it: dynamo guards on the
+optimizer object, so a compiled `Optimizer.step` recompiles once per parameter group (4 to 5 groups,
+each a full compilation), which buys nothing at these sizes. On CUDA (`cudagraphs`) the whole step of
+each schedule combination (compiled forwards, backward, capturable Adam, lerps) is captured as one CUDA
+graph by tensordict's `CudaGraphModule`. The step does no `.item()` and no host synchronization.
 """
 
 from __future__ import annotations
@@ -43,12 +58,23 @@ from sf2_torch.config import SF2Config
 from .objectives import target_pairs
 from .representations import Representation
 
-__all__ = ["Algorithm", "TD3", "SAC", "make_algorithm", "METRICS"]
+__all__ = ["Algorithm", "TD3", "SAC", "make_algorithm", "METRICS", "check_aux_every"]
 
 METRICS = {
     "td3": ("critic_loss", "q", "actor_loss"),
     "sac": ("critic_loss", "q", "actor_loss", "alpha_loss", "alpha", "entropy"),
 }
+
+
+def check_aux_every(rep: Representation) -> None:
+    """Raise ValueError unless `rep.aux_every` maps groups of `rep.aux_groups` to periods >= 1."""
+    for group, every in rep.aux_every.items():
+        if group not in rep.aux_groups:
+            raise ValueError(f"{type(rep).__name__}.aux_every names {group!r}, which is not one of its "
+                             f"aux_groups {rep.aux_groups}")
+        if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+            raise ValueError(f"{type(rep).__name__}.aux_every[{group!r}] = {every!r} is invalid: must be "
+                             f"an int >= 1 (a period in gradient steps)")
 
 
 class Algorithm:
@@ -64,6 +90,7 @@ class Algorithm:
         self.device = torch.device(device)
         self.nets = networks.make_networks(cfg, self.name, dtype=dtype, device=self.device)
         self.rep = representation_cls(cfg, self.nets)
+        check_aux_every(self.rep)
         self.loss = self.rep.critic_loss(self.name)
         self.q_updater = SoftUpdate(self.loss, tau=cfg.tau)
         groups = dict(self.rep.groups(self.loss))
@@ -77,7 +104,8 @@ class Algorithm:
         self._rep_targets = target_pairs(self.rep.target_updater) if self.rep.target_updater else []
         self.compile_mode = compile_mode
         self.cudagraphs = bool(cudagraphs)
-        self._steps: dict[bool, Any] = {}
+        self._steps: dict[tuple[bool, frozenset[str]], Any] = {}
+        self._forwards: dict[str, Any] = {}
 
     # ------------------------------------------------------------------ parameters and optimizers
     def _make_adam(self, group, params, capturable):
@@ -151,10 +179,10 @@ class Algorithm:
     def aux_next_action(self, td: TensorDictBase) -> torch.Tensor:
         raise NotImplementedError
 
-    def _critic_total(self, out: TensorDictBase, actor_step: bool) -> torch.Tensor:
+    def _critic_total(self, out: dict[str, torch.Tensor], actor_step: bool) -> torch.Tensor:
         raise NotImplementedError
 
-    def _actor_metrics(self, out: TensorDictBase, actor_step: bool) -> dict[str, torch.Tensor]:
+    def _actor_metrics(self, out: dict[str, torch.Tensor], actor_step: bool) -> dict[str, torch.Tensor]:
         raise NotImplementedError
 
     def _updates_q_target(self, actor_step: bool) -> bool:
@@ -168,30 +196,54 @@ class Algorithm:
             for p in self.groups[g]:
                 p.grad = None
 
-    def _step(self, td: TensorDictBase, actor_step: bool) -> TensorDictBase:
-        """One SGD step (module docstring) on the transition batch + noise `td`; returns metrics."""
+    def _critic_losses(self, td: TensorDictBase) -> dict[str, torch.Tensor]:
+        """The critic loss module's forward (TD, actor and temperature losses from the parameters as they
+        are): {entry: tensor}. Compiled by `_forward`."""
+        out = self.loss(td)
+        return {k: out.get(k) for k in out.keys()}
+
+    def _aux_losses(self, td: TensorDictBase) -> dict[str, torch.Tensor]:
+        """ā′ (no gradient) and the representation loss module's forward: {entry: tensor}. Compiled by
+        `_forward`."""
+        with torch.no_grad():
+            next_action = self.aux_next_action(td)
+        aux_td = td.clone(False)
+        aux_td.set(self.rep.aux_loss.tensor_keys.next_action, next_action)
+        out = self.rep.aux_loss(aux_td)
+        return {k: out.get(k) for k in out.keys()}
+
+    def _forward(self, name: str):
+        """`_critic_losses` or `_aux_losses`, `torch.compile`d once when `compile_mode` is set."""
+        fn = self._forwards.get(name)
+        if fn is None:
+            fn = getattr(self, name)
+            if self.compile_mode is not None:
+                fn = torch.compile(fn, mode=self.compile_mode)
+            self._forwards[name] = fn
+        return fn
+
+    def _step(self, td: TensorDictBase, actor_step: bool, skip: frozenset[str] = frozenset()
+              ) -> TensorDictBase:
+        """One SGD step (module docstring) on the transition batch + noise `td`; returns metrics. The aux
+        groups in `skip` (off their `aux_every` period) take no Adam step."""
         critic_groups = ("q", *self.rep.critic_groups)
         self._zero(self.groups)
         # 1. critic (the actor and temperature losses are evaluated here too, from pre-step parameters)
-        out = self.loss(td)
+        out = self._forward("_critic_losses")(td)
         self._critic_total(out, actor_step).backward()
         for g in critic_groups:
             self._adam(g)
-        metrics = {"critic_loss": out.get("loss_qvalue").detach(), "q": out.get("pred_value").detach()}
+        metrics = {"critic_loss": out["loss_qvalue"].detach(), "q": out["pred_value"].detach()}
         # 2. the representation's own loss, on the parameters after step 1
         if self.rep.aux_loss is not None:
-            with torch.no_grad():
-                next_action = self.aux_next_action(td)
-            aux_td = td.clone(False)
-            aux_td.set(self.rep.aux_loss.tensor_keys.next_action, next_action)
             self._zero(self.rep.aux_groups)
-            aux = self.rep.aux_loss(aux_td)
-            aux.get(self.rep.aux_loss_key).backward()
+            aux = self._forward("_aux_losses")(td)
+            aux[self.rep.aux_loss_key].backward()
             for g in self.rep.aux_groups:
-                self._adam(g)
-            for k in aux.keys():
-                name = self.rep.aux_loss_name if k == self.rep.aux_loss_key else k
-                metrics[name] = aux.get(k).detach()
+                if g not in skip:
+                    self._adam(g)
+            for k, v in aux.items():
+                metrics[self.rep.aux_loss_name if k == self.rep.aux_loss_key else k] = v.detach()
         # 3. actor (and temperature), with the gradients of the pre-step parameters
         if actor_step:
             for g in self.policy_groups:
@@ -206,24 +258,29 @@ class Algorithm:
                 torch._foreach_lerp_(targets, sources, w)
         return TensorDict(metrics, [])
 
-    def _step_fn(self, actor_step: bool):
-        fn = self._steps.get(actor_step)
+    def _step_fn(self, actor_step: bool, skip: frozenset[str]):
+        """The step of one schedule combination (a CUDA graph of its own with `cudagraphs`)."""
+        fn = self._steps.get((actor_step, skip))
         if fn is None:
-            fn = functools.partial(self._step, actor_step=actor_step)
-            if self.compile_mode is not None:
-                fn = torch.compile(fn, mode=self.compile_mode)
+            fn = functools.partial(self._step, actor_step=actor_step, skip=skip)
             if self.cudagraphs:
                 from tensordict.nn import CudaGraphModule
 
                 fn = CudaGraphModule(fn, warmup=3)
-            self._steps[actor_step] = fn
+            self._steps[(actor_step, skip)] = fn
         return fn
 
-    def sgd_step(self, td: TensorDictBase, actor_step: bool = True) -> TensorDictBase:
-        """One SGD step on `td` (a transition batch with every noise key). `actor_step`: whether the
-        policy (and SAC's temperature) steps this time (the trainer passes `step % policy_delay == 0`).
-        Returns a TensorDict of 0-d metric tensors (no host synchronization)."""
-        return self._step_fn(bool(actor_step))(td)
+    def sgd_step(self, td: TensorDictBase, step: int = 0, *,
+                 actor_step: bool | None = None) -> TensorDictBase:
+        """One SGD step on `td` (a transition batch with every noise key). `step`: the gradient-step index
+        (a host int; the trainer's counter, sf2_jax's `step`): the policy (and SAC's temperature) steps
+        when `step % policy_delay == 0`, unless `actor_step` says otherwise, and each group of
+        `representation.aux_every` when `step % period == 0` (module docstring). Returns a TensorDict of
+        0-d metric tensors (no host synchronization)."""
+        if actor_step is None:
+            actor_step = step % self.cfg.policy_delay == 0
+        skip = frozenset(g for g, every in self.rep.aux_every.items() if step % every)
+        return self._step_fn(bool(actor_step), skip)(td)
 
 
 class TD3(Algorithm):
@@ -246,7 +303,7 @@ class TD3(Algorithm):
         return networks.td3_action(self.nets, obs) if deterministic else self.explore(obs, generator)
 
     def noise_keys(self):
-        return ("smoothing_noise", *(("flow_noise", "flow_time") if self.rep.aux_loss is not None else ()))
+        return ("smoothing_noise", *(self.rep.noise_keys if self.rep.aux_loss is not None else ()))
 
     def draw_noise(self, shape, generator):
         out = {"smoothing_noise": self._randn(shape, generator)}
@@ -289,7 +346,7 @@ class SAC(Algorithm):
     def noise_keys(self):
         keys = ("next_action_noise", "actor_noise", "alpha_noise")
         if self.rep.aux_loss is not None:
-            keys += ("flow_action_noise", "flow_noise", "flow_time")
+            keys += ("flow_action_noise", *self.rep.noise_keys)
         return keys
 
     def draw_noise(self, shape, generator):

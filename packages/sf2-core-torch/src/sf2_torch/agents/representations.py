@@ -15,8 +15,14 @@ an agent between the raw (s, a) and the twin Q values:
 - `aux_groups`, `aux_loss` (a `LossModule` whose `forward` returns `loss_<aux_loss_name>`), `aux_noise`:
   its own loss, one Adam step on `aux_groups` right after the critic step of every SGD step (SF²: the
   flow loss on ψ and ζ, `objectives.SF2FlowLoss`). `aux_noise(n, generator)` is the thin wrapper that
-  draws the loss's random inputs; the loss is pure. The next action ā′ is given by the base algorithm
-  (TD3: target policy at s′; SAC: a policy sample) under the loss's `next_action` key.
+  draws the loss's random inputs, a dict keyed by `noise_keys` (SF²: `flow_noise` ε, `flow_time` t;
+  the names sf2_jax's `aux_noise` uses too); the loss is pure. The next action ā′ is given by the base
+  algorithm (TD3: target policy at s′; SAC: a policy sample) under the loss's `next_action` key.
+- `aux_every` ({group: period}, default {}): groups of `aux_groups` that the aux step updates only on
+  gradient steps `step % period == 0` (Sim/SimLap's task vector w: every 10 TD3 / 16 SAC steps, the
+  authors' `gradient_steps % 10 == 0` cond). On the other steps the base algorithm does not step that
+  group's Adam, so its parameters and whole Adam state (moments and step count) stay unchanged, as the
+  authors' separate w optimizer, which only steps when it is used (as in sf2_jax).
 - `target_updater` → a TorchRL `SoftUpdate` of the targets it owns other than Q̄, applied every SGD step
   (SF²: ψ̄ at τ and ζ̄ at τ_ζ), or None.
 - `canonical(critic_loss)` → its groups in the canonical naming of `sf2_torch.params` (for `final/`).
@@ -55,6 +61,8 @@ class Representation:
     aux_groups: ClassVar[tuple[str, ...]] = ()
     aux_loss_name: ClassVar[str] = "aux_loss"   # the metric's name (as in sf2_jax)
     aux_loss_key: ClassVar[str] = "loss_aux"    # the aux loss module's output entry
+    noise_keys: ClassVar[tuple[str, ...]] = ()     # the entries of `aux_noise`
+    aux_every: ClassVar[dict[str, int]] = {}       # {aux group: period in gradient steps}
 
     def __init__(self, cfg: SF2Config, nets: SF2Networks):
         self.cfg = cfg
@@ -185,6 +193,7 @@ class SF2Representation(Representation):
     aux_groups = ("psi", "zeta")
     aux_loss_name = "flow_loss"
     aux_loss_key = "loss_flow"
+    noise_keys = ("flow_noise", "flow_time")
 
     def __init__(self, cfg: SF2Config, nets: SF2Networks):
         super().__init__(cfg, nets)

@@ -181,9 +181,8 @@ class Program:
         for i, ag in enumerate(state.agents):
             batches = ag.replay.sample(G * B).reshape(G, B)
             batches.update(ag.algo.draw_noise((G, B), ag.generator))
-            for g in range(G):
-                step = state.grad_steps + g
-                metrics[i].append(ag.algo.sgd_step(batches[g], actor_step=step % cfg.policy_delay == 0))
+            for g in range(G):  # the step index drives the policy delay and `aux_every` schedules
+                metrics[i].append(ag.algo.sgd_step(batches[g], step=state.grad_steps + g))
         sgd_index.extend(local * G + g for g in range(G))
         state.grad_steps += G
 
