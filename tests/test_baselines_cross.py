@@ -424,35 +424,28 @@ def _torch_td(batch: dict, noise: dict, dtype):
     return td
 
 
-def _jax_step_noise(algo, jalg, key, batch) -> dict:
-    """The noise sf2_jax's `sgd_step` draws from `key`, under the torch agents' names (the split of
-    `sf2_jax.agents.algorithms.Algorithm.sgd_step`, as tests/test_step_agents_cross.py repeats it)."""
-    k_critic, k_aux, k_next, k_actor = jax.random.split(key, 4)
-    out = {}
-    aux = jalg.rep.aux_noise(k_aux, batch)
-    if aux is not None:  # SPR: (ξ, ξ′)
-        out["spr_obs_noise"], out["spr_next_obs_noise"] = aux
-    shape, dtype = batch.action.shape, batch.action.dtype
-    if algo == "td3":
-        out["smoothing_noise"] = jalg.critic_noise(k_critic, batch)
-    else:
-        k_alpha, k_pi = jax.random.split(k_actor)
-        out.update(
-            next_action_noise=jalg.critic_noise(k_critic, batch),
-            flow_action_noise=jax.random.normal(k_next, shape, dtype),
-            alpha_noise=jax.random.normal(k_alpha, shape, dtype),
-            actor_noise=jax.random.normal(k_pi, shape, dtype),
-        )
-    return {k: np.asarray(v) for k, v in out.items()}
+def _check_task_adam(name, jopt, talg, dtype, updates: int) -> None:
+    """w's Adam state has taken `updates` steps in both frameworks, with equal moments."""
+    adam = jopt["task"][0]
+    st = talg.optimizers["task"].state.get(talg.groups["task"][0], {})
+    assert int(adam.count) == updates
+    if updates == 0:  # torch creates the state on the first step
+        assert not st and not np.any(np.asarray(adam.mu["w"])) and not np.any(np.asarray(adam.nu["w"]))
+        return
+    assert int(st["step"]) == updates
+    for k, tk in (("mu", "exp_avg"), ("nu", "exp_avg_sq")):
+        jv = np.asarray(getattr(adam, k)["w"])
+        check(f"agent step {name}: w adam {k}", jv, st[tk].numpy(), dtype, kind="grad")
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("name,algo", AGENT_CASES)
 def test_agent_sgd_steps(tmp_path, dtype, name, algo):
-    """Two SGD steps of the agents (sf2_jax's jitted `sgd_step`, sf2_torch's TorchRL step) with each
-    baseline, from one canonical file, fresh Adam states and the same batches and noise, leave every
-    parameter and target identical. Step indices are multiples of 80, where the task-vector schedule
-    (every 10 TD3 / 16 SAC steps) is due in either case."""
+    """Three SGD steps of the agents (sf2_jax's jitted `sgd_step`, sf2_torch's TorchRL step) with each
+    baseline, from one canonical file, fresh Adam states, the same batches and the noise of sf2_jax's
+    `step_noise`, leave every parameter and target identical. The step indices P − 1, P, P + 1 (P = 10
+    TD3, 16 SAC) span a period of the task-vector schedule (`aux_every`): w and its Adam state (moments,
+    step count) move at P only, in both frameworks."""
     jalgs = pytest.importorskip("sf2_jax.agents.algorithms")
     pytest.importorskip("torchrl")
     talgs = pytest.importorskip("sf2_torch.agents.algorithms")
@@ -475,15 +468,20 @@ def test_agent_sgd_steps(tmp_path, dtype, name, algo):
     talg = talgs.make_algorithm(algo, sf2_torch.SF2Config(**kw), treps.get(name), dtype=tdt)
     bt.params.from_canonical(bt.params.load(path), talg.rep.baseline_nets)  # shares obs_norm, policy, ...
     assert set(talg.groups) == set(jalg.trained_groups())
+    assert jalg.rep.aux_every == talg.rep.aux_every
+    assert jalg.noise_keys() == talg.noise_keys()
 
+    period = {"td3": 10, "sac": 16}[algo]
     first = talg.canonical()
-    for i in range(2):
+    for i, step in enumerate((period - 1, period, period + 1)):
         raw, _ = make_batch(kw, BATCH, seed=400 + i, truncation=i == 1)
         jb = sf2_jax.losses.Batch(**{k: jax.numpy.asarray(v, dtype=jdt) for k, v in raw.items()})
         key = jax.random.PRNGKey(50 + i)
-        noise = _jax_step_noise(algo, jalg, key, jb)
-        jp, jopt, jm = jstep(jp, jopt, jb, key, 80 * i)
-        tm = talg.sgd_step(_torch_td(raw, noise, tdt), actor_step=True)
+        noise = {k: np.asarray(v) for k, v in jalg.step_noise(key, jb).items()}
+        assert list(noise) == list(talg.noise_keys())
+        w_before = talg.canonical().get("task.w")
+        jp, jopt, jm = jstep(jp, jopt, jb, key, step)
+        tm = talg.sgd_step(_torch_td(raw, noise, tdt), step=step)
         jflat, tflat = bj.params.to_canonical(jp), talg.canonical()
         assert set(jflat) == set(tflat)
         for pname in sorted(jflat):
@@ -491,6 +489,9 @@ def test_agent_sgd_steps(tmp_path, dtype, name, algo):
         assert set(jm) == set(tm.keys()), (sorted(jm), sorted(tm.keys()))
         for m in jm:
             check(f"agent step {name}: metric", np.asarray(jm[m]), tm[m].numpy(), dtype, kind="grad")
+        if "task" in talg.rep.aux_every:
+            assert (not np.array_equal(w_before, tflat["task.w"])) == (step == period), step
+            _check_task_adam(name, jopt, talg, dtype, updates=int(step >= period))
     last = talg.canonical()
     for group in set(jalg.trained_groups()) | {g for g in jp if g.startswith("target_")}:
         assert any(not np.array_equal(first[n], last[n]) for n in first if n.split(".")[0] == group), group

@@ -6,11 +6,9 @@ TD3+SF² and SAC+SF² take consecutive SGD steps in both frameworks (the JAX age
 the torch agents' eager `sgd_step`); after every step the test compares every parameter and target
 (canonical names), every Adam first and second moment, and the step's metrics.
 
-Noise: `sf2_jax.agents.algorithms.Algorithm.sgd_step` draws its noise from its key with this split
-(`jax_step_noise` below repeats it and hands the same arrays to torch, whose step takes noise as input):
-k_critic, k_aux, k_next, k_actor = split(key, 4); critic noise N(k_critic) (TD3 smoothing ξ, SAC ξ′);
-(ε, k) = representation.aux_noise(k_aux); SAC ā′ noise N(k_next); SAC k_alpha, k_pi = split(k_actor).
-If the JAX agents change that split, this test fails on the very first comparison (not silently).
+Noise: `sf2_jax.agents.algorithms.Algorithm.step_noise(key, batch)` draws every random input of the JAX
+step (the step uses exactly that draw); the test hands the same arrays, under the same names (the torch
+agents' `noise_keys()`), to torch, whose step takes its noise as input.
 
 Tolerances: the `_bridge` ones (float64 1e-10 relative; float32 the "grad" bound 2e-4, since Adam divides
 by √v̂ + ε and amplifies the rounding differences of the gradients). The largest differences per term are
@@ -40,23 +38,6 @@ from tensordict import TensorDict  # noqa: E402
 KW = dict(obs_size=5, action_size=2, feature_size=16, hidden_sizes=(32, 32), q_hidden_size=32,
           zeta_hidden_sizes=(32, 32), embedding_size=8, denoising_steps=2)
 BATCH = 16
-
-
-def jax_step_noise(algo: str, jalg, key, batch) -> dict[str, np.ndarray]:
-    """The noise `sf2_jax`'s `sgd_step(params, opt_state, batch, key, step)` draws, under torch's names."""
-    k_critic, k_aux, k_next, k_actor = jax.random.split(key, 4)
-    eps, flow_time = jalg.rep.aux_noise(k_aux, batch)
-    shape, dtype = batch.action.shape, batch.action.dtype
-    out = {"flow_noise": eps, "flow_time": flow_time}
-    if algo == "td3":
-        out["smoothing_noise"] = jalg.critic_noise(k_critic, batch)
-    else:
-        k_alpha, k_pi = jax.random.split(k_actor)
-        out.update(next_action_noise=jalg.critic_noise(k_critic, batch),
-                   flow_action_noise=jax.random.normal(k_next, shape, dtype),
-                   alpha_noise=jax.random.normal(k_alpha, shape, dtype),
-                   actor_noise=jax.random.normal(k_pi, shape, dtype))
-    return {k: np.asarray(v) for k, v in out.items()}
 
 
 def torch_td(batch: dict, noise: dict, dtype) -> TensorDict:
@@ -138,9 +119,10 @@ def test_full_sgd_step(tmp_path, dtype, algo, policy_delay):
         raw, _ = make_batch(kw, BATCH, seed=300 + step, truncation=step != 0)
         jb = sf2_jax.losses.Batch(**{k: jnp.asarray(v, dtype=jdt) for k, v in raw.items()})
         key = jax.random.PRNGKey(step)
-        noise = jax_step_noise(algo, jalg, key, jb)
+        noise = {k: np.asarray(v) for k, v in jalg.step_noise(key, jb).items()}
+        assert list(noise) == list(talg.noise_keys())
         jp, jopt, jm = jstep(jp, jopt, jb, key, step)
-        tm = talg.sgd_step(torch_td(raw, noise, tdt), actor_step=step % policy_delay == 0)
+        tm = talg.sgd_step(torch_td(raw, noise, tdt), step=step)
 
         jflat, tflat = jparams.to_canonical(jp), tparams.to_canonical(talg.nets)
         assert set(jflat) == set(tflat)
