@@ -73,16 +73,16 @@ def time_torch(args, compile_mode: str | None, cudagraphs: bool) -> dict:
             torch.cuda.synchronize(device)
 
     t0 = time.perf_counter()
-    algo.sgd_step(tds[0])
+    algo.sgd_step(tds[0], step=0)
     sync()
     first = time.perf_counter() - t0
     for i in range(1, args.warmup):
-        algo.sgd_step(tds[i % 4])
+        algo.sgd_step(tds[i % 4], step=i)
     sync()
     times = []
-    for i in range(args.steps):
+    for i in range(args.steps):  # step indices as the trainer's (policy delay, `aux_every` schedules)
         t = time.perf_counter()
-        algo.sgd_step(tds[i % 4])
+        algo.sgd_step(tds[i % 4], step=args.warmup + i)
         sync()
         times.append(time.perf_counter() - t)
     return {"first_step_s": first, **_stats(times)}
