@@ -176,3 +176,72 @@ def test_final_table_pools_folders_of_one_method_and_refuses_disjoint_points(tmp
         plotting.final_table([a, c])
     assert plotting.method_label("sac", "none") == "SAC" and plotting.method_label("td3", "sim") == "TD3+sim"
     assert cli.expand_runs([tmp_path]) == [a, b, c]
+
+
+# ------------------------------------------------------------------------------------------- the loop
+class _FakeSession:
+    """Two seeds; epoch e's evaluation returns 10·e; `bad_epoch` makes seed 1's loss non-finite."""
+
+    def __init__(self, bad_epoch=None):
+        self.bad_epoch, self.log = bad_epoch, []
+
+    def start(self):
+        self.log.append("start")
+
+    def train_epoch(self, epoch):
+        self.log.append(f"train {epoch}")
+        first_bad = {"loss": np.array([-1, 0 if epoch == self.bad_epoch else -1])}
+        return {"sgd_steps": np.full(2, 4), "loss": np.full(2, float(epoch))}, first_bad
+
+    def evaluate(self, epoch):
+        return np.full((2, 3), 10.0 * epoch)
+
+    def save(self, epoch, env_steps):
+        self.log.append(f"save {epoch}")
+
+    def loss_order(self):
+        return ("loss",)
+
+    def finish(self):
+        self.log.append("finish")
+
+
+def _loop(session, run, last, **kw):
+    cfg = configs.TrainConfig(num_timesteps=96, num_envs=4, num_evals=4, min_replay_size=4,
+                              checkpoint_every=2)
+    rows, walltime, start = hostloop.resume_point(run, last)
+    return hostloop.run_epochs(session, cfg=cfg, sched=configs.schedule(cfg), seeds=(3, 4), run=run,
+                               title="t", rows=rows, start=start, last=last, walltime=walltime,
+                               progress=False, plot=False, **kw)
+
+
+def _strip(rows):
+    return [{k: v for k, v in r.items() if k not in hostloop.WALL_FIELDS} for r in rows]
+
+
+def test_run_epochs_order_resume_and_nan_guard(tmp_path):
+    events = []
+    full = _FakeSession()
+    rows = _loop(full, RunFolder(tmp_path / "full"), None, hook=lambda e, n: events.append(f"{e} {n}"))
+    # 3 epochs of 8 actor steps (96 env steps / 4 envs over num_evals − 1 = 3 epochs); checkpoints at
+    # 0, every 2nd epoch and the last
+    assert full.log == ["start", "save 0", "train 1", "train 2", "save 2", "train 3", "save 3", "finish"]
+    assert events == ["rows 0", "checkpoint 0", "rows 1", "rows 2", "checkpoint 2", "rows 3", "checkpoint 3"]
+    assert [(r["epoch"], r["seed"], r["env_steps"], r["eval_return"]) for r in rows] == [
+        (e, s, 32 * e, 10.0 * e) for e in range(4) for s in (3, 4)]
+    assert rows[2]["loss"] == 1.0 and rows[2]["sgd_steps"] == 4 and "loss" not in rows[0]
+
+    killed = RunFolder(tmp_path / "killed")                   # killed after epoch 3's rows, before its save
+    _loop(_FakeSession(), killed, None, stop_after_epoch=2)
+    killed.append_rows([{"epoch": 3, "seed": 3}])
+    again = _FakeSession()
+    assert _strip(_loop(again, killed, 2)) == _strip(rows) and again.log == ["train 3", "save 3", "finish"]
+    assert _strip(killed.read_rows()) == _strip(rows)
+
+    # epoch 2's first SGD step: actor step 8, one prefill actor step before it, 8 updates per actor
+    # step: gradient step (8 − 1) · 8 = 56, env step 9 · 4 = 36
+    nan = RunFolder(tmp_path / "nan")
+    with pytest.raises(hostloop.TrainingDiverged, match="loss 'loss' became NaN/inf at gradient step 56 "
+                       "\\(env step 36, epoch 2, seed 4\\).*the last good checkpoint \\(epoch 0\\) is kept"):
+        _loop(_FakeSession(bad_epoch=2), nan, None)
+    assert [r["epoch"] for r in nan.read_rows()] == [0, 0, 1, 1]

@@ -1,22 +1,25 @@
-"""The framework-free pieces of the training host loop that `sf2_jax.agents.trainer` and
-`sf2_torch.agents.trainer` share: metric rows, the NaN guard's message, the learning-curve PNG, the
-progress bar, the run title and the package versions written into config.json.
+"""The training host loop of `sf2_jax.agents.trainer` and `sf2_torch.agents.trainer`, framework-free:
+`run_epochs` drives a framework's `Session` (train an epoch, evaluate, save a checkpoint) through the
+schedule, and writes metric rows, the NaN guard's message, the learning-curve PNG and the progress bar;
+`resume_point`, `run_title` and `versions` help the trainers set a run up.
 
-Both trainers run the same order per epoch (train → NaN guard → evaluate → append rows → checkpoint), so
-a run folder written by either has the same rows; only the programs that train and evaluate differ.
-tqdm is imported only when a progress bar is shown.
+Both trainers thus run the same order per epoch (train → NaN guard → evaluate → append rows →
+checkpoint), so a run folder written by either has the same rows; only the programs that train and
+evaluate differ. tqdm is imported only when a progress bar is shown.
 """
 
 from __future__ import annotations
 
 import sys
+import time
 from collections.abc import Callable, Iterable
+from typing import Protocol
 
 import numpy as np
 
 __all__ = [
-    "WALL_FIELDS", "TrainingDiverged", "diverged_message", "row_metrics", "make_row", "write_curve",
-    "call_hook", "versions", "progress_bar", "NoBar", "run_title",
+    "WALL_FIELDS", "TrainingDiverged", "Session", "run_epochs", "resume_point", "diverged_message",
+    "row_metrics", "make_row", "write_curve", "call_hook", "versions", "progress_bar", "NoBar", "run_title",
 ]
 
 WALL_FIELDS = ("sps", "epoch_seconds", "eval_seconds", "walltime")  # differ between identical runs
@@ -104,6 +107,102 @@ def versions(dists: Iterable[str]) -> dict:
         except metadata.PackageNotFoundError:
             pass
     return out
+
+
+class Session(Protocol):
+    """What `run_epochs` needs of a framework: one run's programs and state, seeds and checkpointer."""
+
+    def start(self) -> None:
+        """Build the initial state (called once, only when the run does not resume)."""
+
+    def train_epoch(self, epoch: int) -> tuple[dict, dict]:
+        """Train epoch `epoch` (1-based): ({metric: (seeds,) host means, "sgd_steps": (seeds,)},
+        {metric: (seeds,) index of the first non-finite value or −1}), as `diverged_message` reads them."""
+
+    def evaluate(self, epoch: int) -> np.ndarray:
+        """Episode returns (seeds, episodes) of the evaluation after epoch `epoch` (0: initial policy)."""
+
+    def save(self, epoch: int, env_steps: int) -> None:
+        """Write checkpoint `epoch`."""
+
+    def loss_order(self) -> tuple[str, ...]:
+        """The order the SGD step computes its losses in (ties of the NaN guard's report)."""
+
+    def finish(self) -> None:
+        """The run is complete: write the final parameters."""
+
+
+def run_epochs(session: Session, *, cfg, sched, seeds, run, title: str, rows: list[dict], start: int,
+               last: int | None, walltime: float = 0.0, progress: bool = True,
+               hook: Callable[[str, int], None] | None = None, stop_after_epoch: int | None = None,
+               plot: bool = True) -> list[dict]:
+    """The host loop of both trainers, from epoch `start` (0: evaluate the initial policy and write
+    checkpoint 0 first) to the end of the schedule or `stop_after_epoch`. Per epoch: train → NaN guard
+    (`TrainingDiverged` before anything of the epoch is written) → evaluate → append rows → `hook("rows")`
+    → checkpoint (every `checkpoint_every` epochs, the last and `stop_after_epoch`) → `hook("checkpoint")`
+    → learning curve. `rows` (the folder's rows so far) and `last` (the latest checkpoint) come from a
+    resume; `walltime` is the wall time the run had already spent. Returns all rows."""
+    bar = progress_bar(progress, sched.total_env_steps, sched.env_steps_after(max(start - 1, 0)), title)
+    t_start = time.time() - walltime
+    try:
+        if start == 0:  # evaluate the initial policy, checkpoint 0
+            session.start()
+            t = time.time()
+            returns = session.evaluate(0)
+            new = [make_row(0, s, 0, returns[i], {}, None, time.time() - t, time.time() - t_start)
+                   for i, s in enumerate(seeds)]
+            run.append_rows(new)
+            rows += new
+            call_hook(hook, "rows", 0)
+            session.save(0, 0)
+            last = 0
+            call_hook(hook, "checkpoint", 0)
+            bar.set_postfix_str(f"eval {returns.mean():.1f}")
+            start = 1
+        for epoch in range(start, sched.num_epochs + 1):
+            t0 = time.time()
+            means, first_bad = session.train_epoch(epoch)
+            epoch_seconds = time.time() - t0
+            message = diverged_message(first_bad, sched, epoch, seeds, cfg, last, session.loss_order())
+            if message:
+                raise TrainingDiverged(message)
+            t1 = time.time()
+            returns = session.evaluate(epoch)
+            eval_seconds = time.time() - t1
+            sps = sched.env_steps_per_epoch / epoch_seconds
+            env_steps = sched.env_steps_after(epoch)
+            new = [make_row(epoch, s, env_steps, returns[i], row_metrics(means, i), sps, eval_seconds,
+                            time.time() - t_start, epoch_seconds) for i, s in enumerate(seeds)]
+            run.append_rows(new)
+            rows += new
+            call_hook(hook, "rows", epoch)
+            if epoch % cfg.checkpoint_every == 0 or epoch == sched.num_epochs or epoch == stop_after_epoch:
+                session.save(epoch, env_steps)
+                last = epoch
+                call_hook(hook, "checkpoint", epoch)
+            if plot:
+                write_curve(rows, run, title)
+            bar.update(sched.env_steps_per_epoch)
+            bar.set_postfix_str(f"{sps:,.0f} steps/s, eval {returns.mean():.1f}")
+            if stop_after_epoch is not None and epoch >= stop_after_epoch:
+                break
+        else:
+            session.finish()
+            if plot:
+                write_curve(rows, run, title)
+    finally:
+        bar.close()
+    return rows
+
+
+def resume_point(run, last: int | None) -> tuple[list[dict], float, int]:
+    """(rows, wall time spent, first epoch to run) of a run resuming from checkpoint `last` (None: from
+    scratch). Rows of epochs after `last` are dropped from metrics.jsonl: the run produces them again."""
+    if last is None:
+        run.truncate_rows(-1)
+        return [], 0.0, 0
+    rows = run.truncate_rows(last)
+    return rows, max((r.get("walltime", 0.0) for r in rows), default=0.0), last + 1
 
 
 class NoBar:

@@ -20,7 +20,8 @@ the same code path). Per seed:
 - `evaluate`: one episode from each evaluation start state (deterministic or acting policy; the
   policy's noise key changes with every evaluation, the start states do not).
 
-The host loop between epochs does everything that needs the host: the NaN guard (before anything is
+The host loop between epochs (`sf2_common.agents.hostloop.run_epochs`, shared with sf2_torch) does
+everything that needs the host: the NaN guard (before anything is
 written), evaluation rows, checkpoints, the progress bar and the learning-curve PNG. Order per epoch:
 train → NaN guard → evaluate → append rows → checkpoint. A run killed at any moment resumes from its
 last checkpoint; rows of later epochs are dropped and produced again identically (runfolder.py).
@@ -30,7 +31,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import time
 import warnings
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -296,71 +296,45 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
         raise RunFolderMismatch(f"{run.path} already holds checkpoints; pass --fresh to start over")
     title = hostloop.run_title(_label(cfg), cfg.task, seeds)
 
+    state = None
     if last is not None:
         state, meta = ckpt.restore(last, program.abstract_state(seeds))
         state = program.place(state)
-        rows = run.truncate_rows(last)
-        walltime = max((r.get("walltime", 0.0) for r in rows), default=0.0)
-        start = last + 1
-    else:
-        run.truncate_rows(-1)
-        rows, walltime, start = [], 0.0, 0
-
-    bar = hostloop.progress_bar(progress, sched.total_env_steps, sched.env_steps_after(max(start - 1, 0)),
-                                title)
-    t_start = time.time() - walltime
+    rows, walltime, start = hostloop.resume_point(run, last)
+    session = _Session(program, ckpt, run, seeds, state)
     try:
-        if start == 0:  # evaluate the initial policy, checkpoint 0
-            state = program.init(seeds)
-            t = time.time()
-            returns = np.asarray(program.evaluate(state.params, state.eval_start, seeds, 0))
-            new = [hostloop.make_row(0, s, 0, returns[i], {}, None, time.time() - t, time.time() - t_start)
-                   for i, s in enumerate(seeds)]
-            run.append_rows(new)
-            rows += new
-            hostloop.call_hook(hook, "rows", 0)
-            ckpt.save(0, state, {"env_steps": 0, "seeds": list(seeds)})
-            last = 0
-            hostloop.call_hook(hook, "checkpoint", 0)
-            bar.set_postfix_str(f"eval {returns.mean():.1f}")
-            start = 1
-        for epoch in range(start, sched.num_epochs + 1):
-            t0 = time.time()
-            state, means, first_bad = program.epoch(state, epoch)
-            means = jax.device_get(means)
-            epoch_seconds = time.time() - t0
-            message = hostloop.diverged_message(first_bad, sched, epoch, seeds, cfg, last, program.loss_order)
-            if message:
-                raise TrainingDiverged(message)
-            t1 = time.time()
-            returns = np.asarray(program.evaluate(state.params, state.eval_start, seeds, epoch))
-            eval_seconds = time.time() - t1
-            sps = sched.env_steps_per_epoch / epoch_seconds
-            env_steps = sched.env_steps_after(epoch)
-            new = [hostloop.make_row(epoch, s, env_steps, returns[i], hostloop.row_metrics(means, i), sps,
-                                     eval_seconds, time.time() - t_start, epoch_seconds)
-                   for i, s in enumerate(seeds)]
-            run.append_rows(new)
-            rows += new
-            hostloop.call_hook(hook, "rows", epoch)
-            if epoch % cfg.checkpoint_every == 0 or epoch == sched.num_epochs or epoch == stop_after_epoch:
-                ckpt.save(epoch, state, {"env_steps": env_steps, "seeds": list(seeds)})
-                last = epoch
-                hostloop.call_hook(hook, "checkpoint", epoch)
-            if plot:
-                hostloop.write_curve(rows, run, title)
-            bar.update(sched.env_steps_per_epoch)
-            bar.set_postfix_str(f"{sps:,.0f} steps/s, eval {returns.mean():.1f}")
-            if stop_after_epoch is not None and epoch >= stop_after_epoch:
-                break
-        else:
-            _write_final(run, state, seeds)
-            if plot:
-                hostloop.write_curve(rows, run, title)
+        rows = hostloop.run_epochs(session, cfg=cfg, sched=sched, seeds=seeds, run=run, title=title,
+                                   rows=rows, start=start, last=last, walltime=walltime, progress=progress,
+                                   hook=hook, stop_after_epoch=stop_after_epoch, plot=plot)
     finally:
-        bar.close()
         ckpt.close()
-    return TrainResult(run=run, rows=rows, state=state, seeds=seeds, resumed_from=resumed_from)
+    return TrainResult(run=run, rows=rows, state=session.state, seeds=seeds, resumed_from=resumed_from)
+
+
+class _Session:
+    """The `sf2_common.agents.hostloop.Session` of one run: the vmapped state of all seeds."""
+
+    def __init__(self, program: Program, ckpt: Checkpointer, run: RunFolder, seeds, state):
+        self.program, self.ckpt, self.run, self.seeds, self.state = program, ckpt, run, seeds, state
+
+    def start(self) -> None:
+        self.state = self.program.init(self.seeds)
+
+    def train_epoch(self, epoch: int):
+        self.state, means, first_bad = self.program.epoch(self.state, epoch)
+        return jax.device_get(means), first_bad
+
+    def evaluate(self, epoch: int) -> np.ndarray:
+        return np.asarray(self.program.evaluate(self.state.params, self.state.eval_start, self.seeds, epoch))
+
+    def save(self, epoch: int, env_steps: int) -> None:
+        self.ckpt.save(epoch, self.state, {"env_steps": env_steps, "seeds": list(self.seeds)})
+
+    def loss_order(self) -> tuple[str, ...]:
+        return self.program.loss_order
+
+    def finish(self) -> None:
+        _write_final(self.run, self.state, self.seeds)
 
 
 def _label(cfg: TrainConfig) -> str:

@@ -21,10 +21,11 @@ the other; all seeds' envs step together in one Playground batch. Per seed s:
 - `evaluate`: one episode from each evaluation start state (deterministic or acting policy; the acting
   noise changes with every evaluation, the start states do not).
 
-The host loop between epochs: train → NaN guard → evaluate → append rows → checkpoint, as in JAX. A run
-killed at any moment resumes from its last checkpoint; rows of later epochs are dropped and produced
-again identically (runfolder.py). Vanilla (`none`) runs use TorchRL's TD3Loss/SACLoss, which draw their
-noise from torch's global generator: it is seeded with the first seed and checkpointed too.
+The host loop between epochs (`sf2_common.agents.hostloop.run_epochs`, shared with sf2_jax): train →
+NaN guard → evaluate → append rows → checkpoint. A run killed at any moment resumes from its last
+checkpoint; rows of later epochs are dropped and produced again identically (runfolder.py). Vanilla
+(`none`) runs use TorchRL's TD3Loss/SACLoss, which draw their noise from torch's global generator: it is
+seeded with the first seed and checkpointed too.
 """
 
 from __future__ import annotations
@@ -32,7 +33,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import shutil
-import time
 from collections.abc import Callable
 from typing import Any
 
@@ -335,70 +335,44 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
     if last is not None:
         saved, leaves, meta = ckpt.restore(last, map_location=program.device)
         program.load_state_dict(state, saved, leaves)
-        rows = run.truncate_rows(last)
-        walltime = max((r.get("walltime", 0.0) for r in rows), default=0.0)
-        start = last + 1
-    else:
-        run.truncate_rows(-1)
-        rows, walltime, start = [], 0.0, 0
-
-    bar = hostloop.progress_bar(progress, sched.total_env_steps, sched.env_steps_after(max(start - 1, 0)),
-                                title)
-    t_start = time.time() - walltime
+    rows, walltime, start = hostloop.resume_point(run, last)
     try:
-        eval_env = None
-        if start == 0:  # evaluate the initial policy, checkpoint 0
-            t = time.time()
-            eval_env = _eval_env(program, seeds)
-            returns = program.evaluate(state.agents, state.eval_keys, seeds, 0, eval_env)
-            new = [hostloop.make_row(0, s, 0, returns[i], {}, None, time.time() - t, time.time() - t_start)
-                   for i, s in enumerate(seeds)]
-            run.append_rows(new)
-            rows += new
-            hostloop.call_hook(hook, "rows", 0)
-            _save(ckpt, program, state, 0, 0, seeds)
-            last = 0
-            hostloop.call_hook(hook, "checkpoint", 0)
-            bar.set_postfix_str(f"eval {returns.mean():.1f}")
-            start = 1
-        for epoch in range(start, sched.num_epochs + 1):
-            t0 = time.time()
-            state, means, first_bad = program.epoch(state, epoch)
-            epoch_seconds = time.time() - t0
-            message = hostloop.diverged_message(first_bad, sched, epoch, seeds, cfg, last,
-                                                program.loss_order(state))
-            if message:
-                raise TrainingDiverged(message)
-            t1 = time.time()
-            eval_env = eval_env or _eval_env(program, seeds)
-            returns = program.evaluate(state.agents, state.eval_keys, seeds, epoch, eval_env)
-            eval_seconds = time.time() - t1
-            sps = sched.env_steps_per_epoch / epoch_seconds
-            env_steps = sched.env_steps_after(epoch)
-            new = [hostloop.make_row(epoch, s, env_steps, returns[i], hostloop.row_metrics(means, i), sps,
-                                     eval_seconds, time.time() - t_start, epoch_seconds)
-                   for i, s in enumerate(seeds)]
-            run.append_rows(new)
-            rows += new
-            hostloop.call_hook(hook, "rows", epoch)
-            if epoch % cfg.checkpoint_every == 0 or epoch == sched.num_epochs or epoch == stop_after_epoch:
-                _save(ckpt, program, state, epoch, env_steps, seeds)
-                last = epoch
-                hostloop.call_hook(hook, "checkpoint", epoch)
-            if plot:
-                hostloop.write_curve(rows, run, title)
-            bar.update(sched.env_steps_per_epoch)
-            bar.set_postfix_str(f"{sps:,.0f} steps/s, eval {returns.mean():.1f}")
-            if stop_after_epoch is not None and epoch >= stop_after_epoch:
-                break
-        else:
-            _write_final(run, state)
-            if plot:
-                hostloop.write_curve(rows, run, title)
+        rows = hostloop.run_epochs(_Session(program, ckpt, run, state), cfg=cfg, sched=sched, seeds=seeds,
+                                   run=run, title=title, rows=rows, start=start, last=last, walltime=walltime,
+                                   progress=progress, hook=hook, stop_after_epoch=stop_after_epoch, plot=plot)
     finally:
-        bar.close()
         ckpt.close()
     return TrainResult(run=run, rows=rows, state=state, seeds=seeds, resumed_from=resumed_from)
+
+
+class _Session:
+    """The `sf2_common.agents.hostloop.Session` of one run: every seed's agent, the envs, the evaluation
+    envs (built at the first evaluation, then reused)."""
+
+    def __init__(self, program: Program, ckpt: Checkpointer, run: RunFolder, state: TrainState):
+        self.program, self.ckpt, self.run, self.state = program, ckpt, run, state
+        self.eval_env = None
+
+    def start(self) -> None:
+        pass  # `Program.init` built the state before the checkpoint (if any) was restored into it
+
+    def train_epoch(self, epoch: int):
+        self.state, means, first_bad = self.program.epoch(self.state, epoch)
+        return means, first_bad
+
+    def evaluate(self, epoch: int) -> np.ndarray:
+        seeds = self.state.seeds
+        self.eval_env = self.eval_env or _eval_env(self.program, seeds)
+        return self.program.evaluate(self.state.agents, self.state.eval_keys, seeds, epoch, self.eval_env)
+
+    def save(self, epoch: int, env_steps: int) -> None:
+        _save(self.ckpt, self.program, self.state, epoch, env_steps, self.state.seeds)
+
+    def loss_order(self) -> tuple[str, ...]:
+        return self.program.loss_order(self.state)
+
+    def finish(self) -> None:
+        _write_final(self.run, self.state)
 
 
 def _framework(conf: dict) -> str:
