@@ -78,26 +78,11 @@ class Representation:
         return {}
 
 
-# The representations of the jax agents: registered here (`none`, `sf2`, tests' and the bench's variants)
-# or declared by an installed package as entry points of the group "sf2.representations.jax"
-# (sf2-baselines: sim, simlap, simlap_authors, spr), imported on first use (sf2_common.agents.registry).
+# Selectable by `--repr NAME`: the classes `register`ed in this process (`none`, `sf2`, tests' and the
+# bench's variants) and the entry points of "sf2.representations.jax" (sf2-baselines: sim, simlap,
+# simlap_authors, spr), imported on first use. `get` of an unknown name: a ConfigError listing the names.
 REGISTRY = Registry("jax")
-
-
-def register(cls: type[Representation]) -> type[Representation]:
-    """Make `cls` selectable by `cls.name` (`--repr NAME`). Usable as a class decorator."""
-    return REGISTRY.register(cls)
-
-
-def names() -> tuple[str, ...]:
-    """Every selectable name: the registered ones, then the installed entry points (not imported)."""
-    return REGISTRY.names()
-
-
-def get(name: str) -> type[Representation]:
-    """The class of `name` (importing its entry point if needed); `ConfigError` listing the valid names
-    (and how to install the baselines) if there is none."""
-    return REGISTRY.get(name)
+register, names, get = REGISTRY.register, REGISTRY.names, REGISTRY.get
 
 
 # ------------------------------------------------------------------------------------------- none
