@@ -71,7 +71,9 @@ def test_numpy_reference_forward(td3_nets):
     f = networks.psi(td3_nets, batch.obs, batch.action)
     np.testing.assert_allclose(f.detach().numpy(), np_psi(flat, cfg, obs, act), rtol=1e-12, atol=1e-12)
     z = networks.zeta(td3_nets, noise["eps"], noise["flow_time"]).detach().numpy()
-    np.testing.assert_allclose(z, np_zeta(flat, cfg, eps, k), rtol=1e-12, atol=1e-12)
+    # The reference forms the phase 10⁴·k·ω_i directly, rounded to ~1e4·2⁻⁵³ ≈ 1e-12 rad; the core reduces
+    # it exactly (flow_time_embedding), so ζ agrees to a few 1e-12, not to the last bits.
+    np.testing.assert_allclose(z, np_zeta(flat, cfg, eps, k), rtol=1e-12, atol=1e-11)
     np.testing.assert_allclose(
         networks.q_values(td3_nets, f).detach().numpy(),
         np_q(flat, f.detach().numpy()),
@@ -85,10 +87,22 @@ def test_numpy_reference_forward(td3_nets):
 def test_flow_time_embedding_formula():
     k = torch.tensor([0.0, 0.25, 0.7, 1.0], dtype=torch.float64)
     out = networks.flow_time_embedding(k, 6).numpy()
-    np.testing.assert_allclose(out, np_embedding(k.numpy(), 6), rtol=1e-13, atol=1e-13)
+    # np_embedding forms the float64 phase 10⁴·k·ω_i directly (rounding up to ~1e4·2⁻⁵³ ≈ 1e-12 rad).
+    np.testing.assert_allclose(out, np_embedding(k.numpy(), 6), rtol=0, atol=5e-12)
     assert out[0].tolist() == [0.0, 1.0] * 3
     with pytest.raises(ConfigError):
         networks.flow_time_embedding(k, 5)
+
+
+def test_flow_time_embedding_float32_phase_is_reduced_exactly():
+    """float32 embedding vs the float64 formula at float32 flow times in [0, 1]: the exact phase reduction
+    leaves ~1e-7 turn of phase error (2π·1e-7 ≈ 6e-7 rad) plus sin/cos rounding; forming 10⁴·k·ω_i
+    directly in float32 would be off by up to half an ulp of 10⁴ (4.9e-4 rad)."""
+    k = torch.from_numpy(np.random.default_rng(0).uniform(size=4096).astype(np.float32))
+    out = networks.flow_time_embedding(k, 64)
+    assert out.dtype == torch.float32
+    ref = np_embedding(k.double().numpy(), 64)
+    assert np.max(np.abs(out.double().numpy() - ref)) < 2e-6
 
 
 def test_contracted_velocity_equals_plain(td3_nets):

@@ -219,19 +219,47 @@ def update_normalizer(stats: Params, obs_batch, cfg: SF2Config) -> Params:
 
 
 # ------------------------------------------------------------------------------------------ ψ and ζ
+# Exact phase reduction of the flow-time embedding: k = k_hi + k_lo with k_hi on a 2^-12 grid, G_hi on 11
+# significant bits, so k_hi·G_hi is exact in float32 for |k| <= 2 (<= 24 significant bits).
+EMBEDDING_K_GRID = 4096.0
+EMBEDDING_FREQ_BITS = 11
+
+
+def _round_to_bits(x: np.ndarray, bits: int) -> np.ndarray:
+    """x rounded to `bits` significant bits (float64; x > 0)."""
+    quantum = 2.0 ** (np.floor(np.log2(x)) - (bits - 1))
+    return np.round(x / quantum) * quantum
+
+
+def _embedding_turns(size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frequencies in turns per unit flow time, G_i = 10⁴·ω_i / 2π (float64), split G = G_hi + G_lo with
+    G_hi on EMBEDDING_FREQ_BITS significant bits."""
+    turns = 1e4 * np.exp(-2.0 * np.arange(size // 2) * math.log(1e4) / size) / (2.0 * math.pi)
+    hi = _round_to_bits(turns, EMBEDDING_FREQ_BITS)
+    return turns, hi, turns - hi
+
+
 def flow_time_embedding(k, size: int):
     """Sinusoidal embedding of the flow time k (authors' `scalar_positional_embedding`), shape (..., size):
-    out[2i] = sin(10⁴·k·ω_i), out[2i+1] = cos(10⁴·k·ω_i), ω_i = exp(−2i·ln(10⁴)/size)."""
+    out[2i] = sin(10⁴·k·ω_i), out[2i+1] = cos(10⁴·k·ω_i), ω_i = exp(−2i·ln(10⁴)/size).
+
+    The phase is reduced exactly before sin/cos (docs/parity.md, "flow-time embedding"): with
+    G_i = 10⁴·ω_i / 2π turns (up to 1592), k = k_hi + k_lo (k_hi = round(4096·k)/4096, k_lo exact) and
+    G = G_hi + G_lo (G_hi on 11 bits), t = (k_hi·G_hi − round(k_hi·G_hi)) + (k_hi·G_lo + k_lo·G) and the
+    phase is 2π·t, |t| <= ~1. k_hi·G_hi and its fractional part are exact in float32, so the float32 phase
+    is accurate to ~1e-6 rad (5e-4 rad when 10⁴·k·ω_i was formed directly: one ulp of a float32 phase
+    near 10⁴), and no reassociation or fused multiply-add changes that."""
     if size % 2:
         raise ConfigError(f"embedding size = {size} is invalid: must be even")
     k = jnp.asarray(k)
     if not jnp.issubdtype(k.dtype, jnp.floating):
         k = k.astype(jnp.result_type(float))
-    # Frequencies 10⁴·ω_i in float64 numpy, then one multiply in k's dtype: that product is correctly
-    # rounded in every framework, so float32 phases agree bit for bit with sf2_torch (the 10⁴ factor turns
-    # any reassociation of k·10⁴·ω_i into ~1e-4 relative output differences).
-    freq = 1e4 * np.exp(-2.0 * np.arange(size // 2) * math.log(1e4) / size)
-    arg = k[..., None] * jnp.asarray(freq, dtype=k.dtype)
+    turns, hi, lo = (jnp.asarray(v, dtype=k.dtype) for v in _embedding_turns(size))
+    k_hi = jnp.round(k * EMBEDDING_K_GRID) / EMBEDDING_K_GRID
+    k_lo, k_hi = (k - k_hi)[..., None], k_hi[..., None]
+    t_hi = k_hi * hi
+    t = (t_hi - jnp.round(t_hi)) + (k_hi * lo + k_lo * turns)
+    arg = t * jnp.asarray(2.0 * math.pi, dtype=k.dtype)
     return jnp.stack([jnp.sin(arg), jnp.cos(arg)], axis=-1).reshape(*k.shape, size)
 
 

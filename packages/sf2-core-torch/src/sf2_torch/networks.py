@@ -403,20 +403,46 @@ def make_networks(
 
 
 # ------------------------------------------------------------------------------------ functional helpers
+# Exact phase reduction of the flow-time embedding (as sf2_jax.networks): k = k_hi + k_lo with k_hi on a
+# 2^-12 grid, G_hi on 11 significant bits, so k_hi·G_hi is exact in float32 for |k| <= 2.
+EMBEDDING_K_GRID = 4096.0
+EMBEDDING_FREQ_BITS = 11
+
+
+def _round_to_bits(x: np.ndarray, bits: int) -> np.ndarray:
+    """x rounded to `bits` significant bits (float64; x > 0)."""
+    quantum = 2.0 ** (np.floor(np.log2(x)) - (bits - 1))
+    return np.round(x / quantum) * quantum
+
+
+def _embedding_turns(size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frequencies in turns per unit flow time, G_i = 10⁴·ω_i / 2π (float64), split G = G_hi + G_lo with
+    G_hi on EMBEDDING_FREQ_BITS significant bits."""
+    turns = 1e4 * np.exp(-2.0 * np.arange(size // 2) * math.log(1e4) / size) / (2.0 * math.pi)
+    hi = _round_to_bits(turns, EMBEDDING_FREQ_BITS)
+    return turns, hi, turns - hi
+
+
 def flow_time_embedding(k: torch.Tensor, size: int) -> torch.Tensor:
     """Sinusoidal embedding of flow time k (B,) → (B, size), interleaved sin/cos.
 
     For i = 0..size/2−1, ω_i = exp(−2i·ln(10⁴)/size): out[2i] = sin(10⁴·k·ω_i), out[2i+1] = cos(10⁴·k·ω_i).
+    The phase is reduced exactly before sin/cos, as in `sf2_jax` (docs/parity.md, "flow-time embedding"):
+    with G_i = 10⁴·ω_i / 2π turns, k = k_hi + k_lo (k_hi = round(4096·k)/4096) and G = G_hi + G_lo (G_hi
+    on 11 bits), t = (k_hi·G_hi − round(k_hi·G_hi)) + (k_hi·G_lo + k_lo·G), phase 2π·t; the float32
+    phase is accurate to ~1e-6 rad instead of one ulp of a phase near 10⁴ (5e-4 rad).
     """
     if size < 2 or size % 2:
         raise ConfigError(f"embedding size={size!r} is invalid: must be an even integer >= 2")
     k = torch.as_tensor(k)
     if not k.is_floating_point():
         k = k.to(torch.get_default_dtype())
-    # Frequencies 10⁴·ω_i in float64 numpy, then one multiply in k's dtype: correctly rounded in both
-    # frameworks, so float32 phases agree bit for bit with sf2_jax.
-    freq = 1e4 * np.exp(-2.0 * np.arange(size // 2) * math.log(1e4) / size)
-    arg = k[..., None] * torch.as_tensor(freq, dtype=k.dtype, device=k.device)
+    turns, hi, lo = (torch.as_tensor(v, dtype=k.dtype, device=k.device) for v in _embedding_turns(size))
+    k_hi = torch.round(k * EMBEDDING_K_GRID) / EMBEDDING_K_GRID
+    k_lo, k_hi = (k - k_hi)[..., None], k_hi[..., None]
+    t_hi = k_hi * hi
+    t = (t_hi - torch.round(t_hi)) + (k_hi * lo + k_lo * turns)
+    arg = t * (2.0 * math.pi)
     return torch.stack([torch.sin(arg), torch.cos(arg)], dim=-1).reshape(*k.shape, size)
 
 
