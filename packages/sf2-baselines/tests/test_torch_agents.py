@@ -3,6 +3,8 @@ and SGD steps that train exactly the right groups."""
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -115,3 +117,38 @@ def test_task_vector_schedule(algo, every, name):
             assert all(torch.equal(state[k], new_state[k]) for k in state), i
         for g in others:
             assert count(g) > counts[g], (i, g)
+
+
+@pytest.mark.parametrize(
+    "device",
+    [
+        pytest.param("cpu", marks=pytest.mark.skipif(
+            not os.environ.get("SF2_TORCH_SLOW"), reason="torch.compile takes minutes on a small CPU; set "
+            "SF2_TORCH_SLOW=1")),
+        pytest.param("cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")),
+    ],
+)  # fmt: skip
+def test_compiled_schedule_equals_eager(device):
+    """TD3Sim with `policy_delay` 2 over steps 0..21 (w due at 0, 10, 20): the compiled step (on CUDA
+    also captured as CUDA graphs, one per schedule combination) follows the eager one, and w's Adam
+    steps exactly 3 times in both."""
+    cfg = SF2Config(**small_kwargs(policy_delay=2))
+    agents = []
+    for compiled in (False, True):
+        torch.manual_seed(0)
+        agents.append(make_algorithm("td3", cfg, reps.get("sim"), device=device,
+                                     compile_mode="default" if compiled else None,
+                                     cudagraphs=compiled and device == "cuda"))  # fmt: skip
+    noise_source = make_algorithm("td3", cfg, reps.get("sim"))  # draws the noise on the CPU
+    for i in range(22):
+        td = _td(noise_source, i).apply(lambda x: x.float() if x.is_floating_point() else x).to(device)
+        w_before = [a.rep.baseline_nets.task.w.detach().clone() for a in agents]
+        for a in agents:
+            a.sgd_step(td.clone(), step=i)
+        for a, w in zip(agents, w_before):
+            assert (not torch.equal(w, a.rep.baseline_nets.task.w)) == (i % 10 == 0), i
+    eager, compiled = (a.canonical() for a in agents)
+    for k in eager:
+        np.testing.assert_allclose(compiled[k], eager[k], rtol=1e-3, atol=1e-5, err_msg=k)
+    for a in agents:
+        assert int(a.optimizers["task"].state[a.rep.baseline_nets.task.w]["step"]) == 3
