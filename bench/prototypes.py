@@ -226,9 +226,10 @@ REPRESENTATIONS = ("psi-only", *(f"sf2-{n}" for n in VARIANTS))
 # ------------------------------------------------------------------------------------------ accuracy
 def grad_errors(obs_size: int, action_size: int, size: str, steps: int, variants,
                 seed: int = 0) -> list[dict]:
-    """Relative error (‖g − g64‖∞ / ‖g64‖∞ per parameter group, worst leaf) of the flow-loss gradient
-    of the fast path and of each variant in float32, against the fast path in float64, at one batch.
-    Shows whether a variant is as accurate as the fp32 'highest' fast path."""
+    """Relative error of the flow-loss gradient of the fast path and of each variant in float32, against
+    the fast path in float64, at one batch, per parameter group: worst leaf of ‖g − g64‖∞ / ‖g64‖∞
+    (`{group}_rel_err`, the leaf's name in `{group}_worst_leaf`) and the whole group's 2-norm ratio
+    (`{group}_rel_err_2`). Shows whether a variant is as accurate as the fp32 'highest' fast path."""
     import numpy as np
     from sf2_jax import losses, networks
     from sf2_jax.config import SF2Config
@@ -271,9 +272,15 @@ def grad_errors(obs_size: int, action_size: int, size: str, steps: int, variants
             continue
         row = dict(variant=name, steps=steps)
         for group in ("psi", "zeta"):
-            worst = 0.0
-            for a, b in zip(jax.tree_util.tree_leaves(g[group]), jax.tree_util.tree_leaves(ref[group])):
-                worst = max(worst, float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-30)))
+            worst, leaf, sq_err, sq_ref = 0.0, "", 0.0, 0.0
+            flat = jax.tree_util.tree_flatten_with_path(ref[group])[0]
+            for (path, b), a in zip(flat, jax.tree_util.tree_leaves(g[group])):
+                r = float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-30))
+                if r >= worst:
+                    worst, leaf = r, ".".join(str(getattr(q, "key", q)) for q in path)
+                sq_err, sq_ref = sq_err + float(np.sum((a - b) ** 2)), sq_ref + float(np.sum(b**2))
             row[f"{group}_rel_err"] = worst
+            row[f"{group}_worst_leaf"] = leaf
+            row[f"{group}_rel_err_2"] = (sq_err / max(sq_ref, 1e-300)) ** 0.5
         out.append(row)
     return out
