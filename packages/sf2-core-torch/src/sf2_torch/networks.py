@@ -423,6 +423,19 @@ def _embedding_turns(size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return turns, hi, turns - hi
 
 
+_TABLES: dict[tuple, tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = {}
+
+
+def _embedding_tables(size: int, dtype: torch.dtype, device: torch.device):
+    """`_embedding_turns(size)` as tensors of `dtype` on `device`, made once per (size, dtype, device):
+    a host-to-device copy on every call would be illegal inside a CUDA graph capture (the capture's
+    warm-up calls fill the cache first)."""
+    key = (size, dtype, device)
+    if key not in _TABLES:
+        _TABLES[key] = tuple(torch.as_tensor(v, dtype=dtype, device=device) for v in _embedding_turns(size))
+    return _TABLES[key]
+
+
 def flow_time_embedding(k: torch.Tensor, size: int) -> torch.Tensor:
     """Sinusoidal embedding of flow time k (B,) → (B, size), interleaved sin/cos.
 
@@ -437,7 +450,7 @@ def flow_time_embedding(k: torch.Tensor, size: int) -> torch.Tensor:
     k = torch.as_tensor(k)
     if not k.is_floating_point():
         k = k.to(torch.get_default_dtype())
-    turns, hi, lo = (torch.as_tensor(v, dtype=k.dtype, device=k.device) for v in _embedding_turns(size))
+    turns, hi, lo = _embedding_tables(size, k.dtype, k.device)
     k_hi = torch.round(k * EMBEDDING_K_GRID) / EMBEDDING_K_GRID
     k_lo, k_hi = (k - k_hi)[..., None], k_hi[..., None]
     t_hi = k_hi * hi
