@@ -218,6 +218,10 @@ class Algorithm:
         if fn is None:
             fn = getattr(self, name)
             if self.compile_mode is not None:
+                # fill the flow-time embedding's table cache first: a miss inside the traced region
+                # would make dynamo recompile once on the next call (its guard on the cache)
+                p = next(self.nets.parameters())  # its device carries the index ("cuda:0"), as k's will
+                networks._embedding_tables(self.cfg.embedding_size, p.dtype, p.device)
                 fn = torch.compile(fn, mode=self.compile_mode)
             self._forwards[name] = fn
         return fn
