@@ -169,8 +169,10 @@ def test_final_table_pools_folders_of_one_method_and_refuses_disjoint_points(tmp
     b = _write_run(tmp_path / "b", "TD3+X", [0, 10, 20], [[0.0, 1.0, 6.0]])
     (row,) = plotting.final_table([a, b])
     assert (row["method"], row["seeds"], row["env_steps"], row["final_return"]) == ("TD3+X", 3, 20, 4.0)
-    # 95% t-interval of (2, 4, 6): t(0.975, 2) · s / √3 with s = 2
-    assert row["ci95"] == pytest.approx(4.303 * 2.0 / np.sqrt(3.0))
+    assert row["per_seed"] == [2.0, 4.0, 6.0]
+    # bootstrap means of (2, 4, 6) are 2 and 6 each with probability 1/27 = 3.7% > 2.5%: the 95%
+    # percentile interval is exactly the seeds' range
+    assert (row["ci_low"], row["ci_high"]) == (2.0, 6.0)
     c = _write_run(tmp_path / "c", "TD3+X", [0, 15, 30], [[0.0, 1.0, 2.0]])
     with pytest.raises(ValueError, match="do not share their evaluation points"):
         plotting.final_table([a, c])
@@ -245,3 +247,20 @@ def test_run_epochs_order_resume_and_nan_guard(tmp_path):
                        "\\(env step 36, epoch 2, seed 4\\).*the last good checkpoint \\(epoch 0\\) is kept"):
         _loop(_FakeSession(bad_epoch=2), nan, None)
     assert [r["epoch"] for r in nan.read_rows()] == [0, 0, 1, 1]
+
+
+def test_bootstrap_interval_of_the_mean():
+    """The band: inside the seeds' range, zero width for equal seeds, the range itself for two seeds, and
+    for many seeds close to the normal-theory interval mean ± 1.96·s/√n (within 10% of its width)."""
+    mean, lo, hi = plotting.mean_ci([[1.0, 5.0], [3.0, 5.0]])
+    np.testing.assert_array_equal(mean, [2.0, 5.0])
+    np.testing.assert_array_equal(lo, [1.0, 5.0])
+    np.testing.assert_array_equal(hi, [3.0, 5.0])
+    v = np.random.default_rng(1).normal(size=(200, 1))
+    mean, lo, hi = plotting.mean_ci(v)
+    half = 1.96 * v.std(ddof=1) / np.sqrt(len(v))
+    assert lo[0] >= v.min() and hi[0] <= v.max()
+    assert (hi[0] - lo[0]) / (2 * half) == pytest.approx(1.0, abs=0.1)
+    assert (lo[0] + hi[0]) / 2 == pytest.approx(mean[0], abs=0.1 * half)
+    one = plotting.mean_ci([[7.0, 8.0]])
+    assert all(np.array_equal(x, [7.0, 8.0]) for x in one)

@@ -169,23 +169,26 @@ def _train(fw: Framework, args) -> int:
 
 
 def print_table(table, seconds=None) -> None:
-    """The final-return table of `plotting.final_table` (and the wall time per method, if given)."""
-    head = f"{'task':22} {'method':10} {'seeds':>5} {'env steps':>10} {'final eval return':>22}"
+    """The final-return table of `plotting.final_table` (and the wall time per method, if given): mean
+    over seeds, its 95% bootstrap interval, and each seed's return."""
+    head = (f"{'task':22} {'method':12} {'seeds':>5} {'env steps':>10} {'final eval return':>18} "
+            f"{'95% CI':>17}  per seed")
     if seconds:
-        head += f" {'wall time':>10}"
+        head += f" {'| wall time':>12}"
     print(head)
     print("-" * len(head))
     for row in table:
-        ret = f"{row['final_return']:.1f}"
-        if row["seeds"] > 1:
-            ret += f" ± {row['ci95']:.1f}"
-        line = f"{row['task']:22} {row['method']:10} {row['seeds']:>5} {row['env_steps']:>10} {ret:>22}"
+        ci = f"[{row['ci_low']:.1f}, {row['ci_high']:.1f}]" if row["seeds"] > 1 else ""
+        per_seed = ", ".join(f"{x:.1f}" for x in row["per_seed"])
+        line = (f"{row['task']:22} {row['method']:12} {row['seeds']:>5} {row['env_steps']:>10} "
+                f"{row['final_return']:>18.1f} {ci:>17}  {per_seed}")
         if seconds:
             s = seconds.get(row["method"])
-            line += f" {(f'{s:.0f} s' if s is not None else ''):>10}"
+            line += f" | {(f'{s:.0f} s' if s is not None else '')}"
         print(line)
     if any(r["seeds"] > 1 for r in table):
-        print("(± is the 95% t-interval of the mean over seeds; per-seed returns are in metrics.jsonl)")
+        print("(final eval return: mean over seeds of each seed's mean over its evaluation episodes; 95% CI: "
+              "percentile bootstrap over seeds)")
 
 
 # ------------------------------------------------------------------------------------------- eval, plot

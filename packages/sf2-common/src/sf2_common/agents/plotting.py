@@ -1,6 +1,10 @@
 """Learning curves: one run folder (per-seed lines, mean and 95% CI band) and several run folders
-(one line and band per method and task). The band is the Student-t 95% confidence interval of the mean
-over seeds, mean ± t(0.975, n−1)·s/√n (no band with one seed). matplotlib is imported lazily (Agg).
+(one line and band per method and task). The band is the 95% percentile-bootstrap confidence interval of
+the mean over seeds (the interval rliable reports, Agarwal et al. 2021, for one task: resample the seeds
+with replacement, take the 2.5th and 97.5th percentiles of the resampled means; 5000 resamples from a
+fixed generator, so plots are reproducible). Unlike a Student-t interval it stays inside the range of
+the seeds' returns (with two seeds it is their range). No band with one seed. matplotlib is imported
+lazily (Agg).
 
 The same for both cores (`sf2_jax.agents.plotting` and `sf2_torch.agents.plotting` re-export it and bind
 `method_label` to their representation registry). A run folder's method is the `label` its trainer wrote
@@ -8,7 +12,6 @@ into config.json, so plotting needs no framework."""
 
 from __future__ import annotations
 
-import math
 from collections import defaultdict
 from pathlib import Path
 
@@ -18,10 +21,7 @@ from .runfolder import RunFolder
 
 __all__ = ["method_label", "mean_ci", "curves", "plot_learning_curve", "plot_runs", "final_table"]
 
-# t(0.975, df) for df = 1..30; larger df use 1.96.
-_T975 = [12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160,
-         2.145, 2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052,
-         2.048, 2.045, 2.042]
+BOOTSTRAP_RESAMPLES = 5000
 
 
 def method_label(algo: str, representation: str, registry=None) -> str:
@@ -34,16 +34,18 @@ def method_label(algo: str, representation: str, registry=None) -> str:
     return algo.upper() + (f"+{label}" if label else "")
 
 
-def mean_ci(values) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """values (n_seeds, n_points) → mean, lower, upper of the 95% t-interval of the mean."""
+def mean_ci(values, resamples: int = BOOTSTRAP_RESAMPLES) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """values (n_seeds, n_points) → mean, lower, upper of the 95% percentile-bootstrap interval of the
+    mean over seeds (module docstring); lower = upper = mean with one seed."""
     v = np.asarray(values, dtype=float)
     mean = v.mean(axis=0)
     n = v.shape[0]
     if n < 2:
         return mean, mean, mean
-    t = _T975[n - 2] if n - 1 <= len(_T975) else 1.96
-    half = t * v.std(axis=0, ddof=1) / math.sqrt(n)
-    return mean, mean - half, mean + half
+    idx = np.random.default_rng(0).integers(0, n, size=(resamples, n))
+    means = v[idx].mean(axis=1)                                   # (resamples, n_points)
+    lo, hi = np.percentile(means, [2.5, 97.5], axis=0)
+    return mean, lo, hi
 
 
 def curves(rows: list[dict]) -> tuple[np.ndarray, dict[int, np.ndarray]]:
@@ -163,12 +165,13 @@ def plot_runs(run_dirs, path) -> list[dict]:
 
 
 def final_table(run_dirs) -> list[dict]:
-    """Per (task, method): seeds, final eval return mean and 95% CI half-width, env steps."""
+    """Per (task, method): seeds, final eval return (mean over seeds, its 95% bootstrap interval
+    `ci_low`/`ci_high`, and each seed's), env steps."""
     table = []
     for (task, method), entries in sorted(_load(run_dirs).items()):
         steps, mat = _pool(entries)
-        mean, lo, _ = mean_ci(mat[:, -1:])
+        mean, lo, hi = mean_ci(mat[:, -1:])
         table.append({"task": task, "method": method, "seeds": mat.shape[0], "env_steps": int(steps[-1]),
-                      "final_return": float(mean[0]), "ci95": float(mean[0] - lo[0]),
+                      "final_return": float(mean[0]), "ci_low": float(lo[0]), "ci_high": float(hi[0]),
                       "per_seed": [float(x) for x in mat[:, -1]]})
     return table
