@@ -114,7 +114,10 @@ class Algorithm:
         eps = 1e-8 if group == "log_alpha" else cfg.adam_eps
         if capturable:
             lr = torch.tensor(lr, device=self.device)
-        return torch.optim.Adam(params, lr=lr, eps=eps, capturable=capturable, foreach=True)
+        # CUDA: the fused kernel (one launch per group, also under CUDA-graph capture); elsewhere foreach
+        fused = self.device.type == "cuda"
+        return torch.optim.Adam(params, lr=lr, eps=eps, capturable=capturable,
+                                fused=True if fused else None, foreach=None if fused else True)
 
     def trained_groups(self) -> tuple[str, ...]:
         groups = ["q", *self.rep.critic_groups, *self.rep.aux_groups, *self.policy_groups]
