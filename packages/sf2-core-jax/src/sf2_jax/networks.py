@@ -19,8 +19,8 @@ from typing import Any
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
-import numpy as np
 from flax import struct
+from sf2_common.embedding import EMBEDDING_K_GRID, embedding_turns
 
 from sf2_jax.config import SF2Config
 from sf2_jax.errors import ConfigError, ShapeError
@@ -219,24 +219,7 @@ def update_normalizer(stats: Params, obs_batch, cfg: SF2Config) -> Params:
 
 
 # ------------------------------------------------------------------------------------------ ψ and ζ
-# Exact phase reduction of the flow-time embedding: k = k_hi + k_lo with k_hi on a 2^-12 grid, G_hi on 11
-# significant bits, so k_hi·G_hi is exact in float32 for |k| <= 2 (<= 24 significant bits).
-EMBEDDING_K_GRID = 4096.0
-EMBEDDING_FREQ_BITS = 11
-
-
-def _round_to_bits(x: np.ndarray, bits: int) -> np.ndarray:
-    """x rounded to `bits` significant bits (float64; x > 0)."""
-    quantum = 2.0 ** (np.floor(np.log2(x)) - (bits - 1))
-    return np.round(x / quantum) * quantum
-
-
-def _embedding_turns(size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Frequencies in turns per unit flow time, G_i = 10⁴·ω_i / 2π (float64), split G = G_hi + G_lo with
-    G_hi on EMBEDDING_FREQ_BITS significant bits."""
-    turns = 1e4 * np.exp(-2.0 * np.arange(size // 2) * math.log(1e4) / size) / (2.0 * math.pi)
-    hi = _round_to_bits(turns, EMBEDDING_FREQ_BITS)
-    return turns, hi, turns - hi
+# Exact phase reduction of the flow-time embedding: the tables come from sf2_common.embedding.
 
 
 def flow_time_embedding(k, size: int):
@@ -254,7 +237,7 @@ def flow_time_embedding(k, size: int):
     k = jnp.asarray(k)
     if not jnp.issubdtype(k.dtype, jnp.floating):
         k = k.astype(jnp.result_type(float))
-    turns, hi, lo = (jnp.asarray(v, dtype=k.dtype) for v in _embedding_turns(size))
+    turns, hi, lo = (jnp.asarray(v, dtype=k.dtype) for v in embedding_turns(size))
     k_hi = jnp.round(k * EMBEDDING_K_GRID) / EMBEDDING_K_GRID
     k_lo, k_hi = (k - k_hi)[..., None], k_hi[..., None]
     t_hi = k_hi * hi

@@ -48,15 +48,13 @@ missing, unexpected and misshaped entry (expected and found shapes). ``from_cano
 from __future__ import annotations
 
 import functools
-import os
-import tempfile
-import zipfile
 from collections.abc import Mapping
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from sf2_common import paramfile
 
 from sf2_jax import networks as nw
 from sf2_jax.config import SF2Config
@@ -64,7 +62,7 @@ from sf2_jax.errors import ParamsError
 
 __all__ = ["to_canonical", "from_canonical", "validate", "expected_shapes", "save", "load", "FORMATS"]
 
-FORMATS = (".npz", ".safetensors")
+FORMATS = paramfile.FORMATS
 
 
 def _flatten(tree) -> dict:
@@ -162,58 +160,12 @@ def from_canonical(flat: Mapping, nets: nw.Networks, dtype=None) -> dict:
 
 
 # ------------------------------------------------------------------------------------------------ files
-def _format(path: Path) -> str:
-    suffix = path.suffix.lower()
-    if suffix not in FORMATS:
-        raise ParamsError(f"parameter file {str(path)!r} has suffix {suffix!r}: must be one of {FORMATS}")
-    return suffix
-
-
-def _safetensors_numpy():
-    try:
-        import safetensors.numpy as st
-    except ImportError as err:
-        raise ParamsError("reading or writing .safetensors needs the `safetensors` package "
-                          "(pip install 'sf2-core-jax[safetensors]'); or use .npz") from err
-    return st
-
-
 def save(path, flat: Mapping) -> Path:
-    """Write a canonical mapping to `path` (.npz or .safetensors by suffix), atomically. Returns the path."""
-    path = Path(path)
-    fmt = _format(path)
-    arrays = {str(name): np.asarray(value, order="C") for name, value in flat.items()}  # keeps 0-d
-    st = _safetensors_numpy() if fmt == ".safetensors" else None
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            if st is None:
-                np.savez(f, **arrays)
-            else:
-                f.write(st.save(arrays))
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    """Write a canonical mapping to `path` (.npz or .safetensors by suffix), atomically. Returns the path
+    (`sf2_common.paramfile`: the same files for both cores)."""
+    return paramfile.save_arrays(path, {str(name): np.asarray(value) for name, value in flat.items()})
 
 
 def load(path) -> dict[str, np.ndarray]:
     """Read a canonical mapping written by `save` (either core). `ParamsError` if missing or corrupt."""
-    path = Path(path)
-    fmt = _format(path)
-    if not path.is_file():
-        raise ParamsError(f"no parameter file at {str(path)!r}")
-    if fmt == ".safetensors":
-        st = _safetensors_numpy()
-        try:
-            return dict(st.load_file(str(path)))
-        except Exception as err:
-            raise ParamsError(f"could not read {str(path)!r} as .safetensors (corrupt?): {err}") from err
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            return {name: np.array(data[name]) for name in data.files}
-    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as err:
-        raise ParamsError(f"could not read {str(path)!r} as .npz (corrupt?): {err}") from err
+    return paramfile.load_arrays(path)

@@ -21,9 +21,9 @@ import copy
 import math
 from collections.abc import Mapping, Sequence
 
-import numpy as np
 import torch
 import torch.nn.functional as F
+from sf2_common.embedding import EMBEDDING_K_GRID, embedding_turns
 from torch import nn
 
 from .config import SF2Config
@@ -403,36 +403,19 @@ def make_networks(
 
 
 # ------------------------------------------------------------------------------------ functional helpers
-# Exact phase reduction of the flow-time embedding (as sf2_jax.networks): k = k_hi + k_lo with k_hi on a
-# 2^-12 grid, G_hi on 11 significant bits, so k_hi·G_hi is exact in float32 for |k| <= 2.
-EMBEDDING_K_GRID = 4096.0
-EMBEDDING_FREQ_BITS = 11
-
-
-def _round_to_bits(x: np.ndarray, bits: int) -> np.ndarray:
-    """x rounded to `bits` significant bits (float64; x > 0)."""
-    quantum = 2.0 ** (np.floor(np.log2(x)) - (bits - 1))
-    return np.round(x / quantum) * quantum
-
-
-def _embedding_turns(size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Frequencies in turns per unit flow time, G_i = 10⁴·ω_i / 2π (float64), split G = G_hi + G_lo with
-    G_hi on EMBEDDING_FREQ_BITS significant bits."""
-    turns = 1e4 * np.exp(-2.0 * np.arange(size // 2) * math.log(1e4) / size) / (2.0 * math.pi)
-    hi = _round_to_bits(turns, EMBEDDING_FREQ_BITS)
-    return turns, hi, turns - hi
+# Exact phase reduction of the flow-time embedding: the tables come from sf2_common.embedding.
 
 
 _TABLES: dict[tuple, tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = {}
 
 
 def _embedding_tables(size: int, dtype: torch.dtype, device: torch.device):
-    """`_embedding_turns(size)` as tensors of `dtype` on `device`, made once per (size, dtype, device):
+    """`embedding_turns(size)` as tensors of `dtype` on `device`, made once per (size, dtype, device):
     a host-to-device copy on every call would be illegal inside a CUDA graph capture (the capture's
     warm-up calls fill the cache first)."""
     key = (size, dtype, device)
     if key not in _TABLES:
-        _TABLES[key] = tuple(torch.as_tensor(v, dtype=dtype, device=device) for v in _embedding_turns(size))
+        _TABLES[key] = tuple(torch.as_tensor(v, dtype=dtype, device=device) for v in embedding_turns(size))
     return _TABLES[key]
 
 

@@ -40,13 +40,12 @@ Functions
 from __future__ import annotations
 
 import os
-import tempfile
-import zipfile
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 import numpy as np
 import torch
+from sf2_common import paramfile
 from torch import nn
 
 from .config import SF2Config
@@ -54,7 +53,7 @@ from .errors import ParamsError
 
 __all__ = ["to_canonical", "from_canonical", "validate", "expected_shapes", "save", "load"]
 
-FORMATS = (".npz", ".safetensors")
+FORMATS = paramfile.FORMATS
 
 
 def _slots(nets: nn.Module, buffers: bool = True) -> Iterator[tuple[str, torch.Tensor, bool]]:
@@ -175,71 +174,16 @@ def from_canonical(flat: Mapping[str, object], nets: nn.Module) -> nn.Module:
 
 
 def _arrays(flat: Mapping[str, object]) -> dict[str, np.ndarray]:
-    out = {}
-    for name, value in flat.items():
-        if isinstance(value, torch.Tensor):
-            value = value.detach().cpu().numpy()
-        arr = np.array(value, order="C")  # (np.ascontiguousarray would turn a 0-d array into (1,))
-        if arr.dtype.kind not in "fiub":
-            raise ParamsError(f"cannot save {name}: expected a real numeric array, found dtype {arr.dtype}")
-        out[str(name)] = arr
-    return out
-
-
-def _format(path: Path) -> str:
-    suffix = path.suffix.lower()
-    if suffix not in FORMATS:
-        raise ParamsError(f"parameter file {str(path)!r} has suffix {suffix!r}: must be one of {FORMATS}")
-    return suffix
-
-
-def _safetensors_numpy():
-    try:
-        import safetensors.numpy as st
-    except ImportError as exc:
-        raise ParamsError(
-            "reading or writing .safetensors needs the `safetensors` package "
-            "(pip install 'sf2-core-torch[safetensors]'); or use .npz"
-        ) from exc
-    return st
+    return {str(name): (value.detach().cpu().numpy() if isinstance(value, torch.Tensor) else value)
+            for name, value in flat.items()}
 
 
 def save(path: str | os.PathLike, flat: Mapping[str, object]) -> Path:
-    """Write `flat` to `path` (.npz or .safetensors, by suffix) atomically; returns the path."""
-    path = Path(path)
-    fmt = _format(path)
-    arrays = _arrays(flat)
-    st = _safetensors_numpy() if fmt == ".safetensors" else None
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            if st is None:
-                np.savez(f, **arrays)
-            else:
-                f.write(st.save(arrays))
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    """Write `flat` to `path` (.npz or .safetensors, by suffix) atomically; returns the path
+    (`sf2_common.paramfile`: the same files for both cores)."""
+    return paramfile.save_arrays(path, _arrays(flat))
 
 
 def load(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """Read a canonical parameter file written by `save` (either core); `ParamsError` if it cannot."""
-    path = Path(path)
-    fmt = _format(path)
-    if not path.is_file():
-        raise ParamsError(f"parameter file not found: {str(path)!r}")
-    try:
-        if fmt == ".safetensors":
-            return dict(_safetensors_numpy().load_file(str(path)))
-        with np.load(path, allow_pickle=False) as data:
-            return {name: data[name] for name in data.files}
-    except ParamsError:
-        raise
-    except (Exception, zipfile.BadZipFile) as exc:  # noqa: BLE001 - every reader failure becomes ParamsError
-        raise ParamsError(
-            f"cannot read parameter file {str(path)!r} (corrupt or not a {fmt} parameter file): {exc}"
-        ) from exc
+    return paramfile.load_arrays(path)

@@ -1,0 +1,84 @@
+"""Canonical parameter files (docs/params.md): a flat {dot-name: array} mapping stored as .npz or
+.safetensors, chosen by the file's suffix. Framework-free: each core turns its parameters into numpy
+arrays (`sf2_jax.params.save` / `sf2_torch.params.save`) and back; both read what either wrote.
+
+Writes are atomic (a temporary file in the same folder, then `os.replace`), so a crash never leaves a
+half-written file under the final name; every reader failure is a `ParamsError` naming the file.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import zipfile
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ParamsError
+
+__all__ = ["FORMATS", "save_arrays", "load_arrays"]
+
+FORMATS = (".npz", ".safetensors")
+
+
+def _format(path: Path) -> str:
+    suffix = path.suffix.lower()
+    if suffix not in FORMATS:
+        raise ParamsError(f"parameter file {str(path)!r} has suffix {suffix!r}: must be one of {FORMATS}")
+    return suffix
+
+
+def _safetensors_numpy():
+    try:
+        import safetensors.numpy as st
+    except ImportError as err:
+        raise ParamsError("reading or writing .safetensors needs the `safetensors` package (pip install "
+                          "safetensors, or a core's [safetensors] extra); or use .npz") from err
+    return st
+
+
+def save_arrays(path, arrays: Mapping[str, np.ndarray]) -> Path:
+    """Write `arrays` (name → real numeric numpy array) to `path` atomically; returns the path."""
+    path = Path(path)
+    fmt = _format(path)
+    out = {}
+    for name, value in arrays.items():
+        arr = np.array(value, order="C")  # (np.ascontiguousarray would turn a 0-d array into (1,))
+        if arr.dtype.kind not in "fiub":
+            raise ParamsError(f"cannot save {name}: expected a real numeric array, found dtype {arr.dtype}")
+        out[str(name)] = arr
+    st = _safetensors_numpy() if fmt == ".safetensors" else None
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            if st is None:
+                np.savez(f, **out)
+            else:
+                f.write(st.save(out))
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def load_arrays(path) -> dict[str, np.ndarray]:
+    """Read a parameter file written by `save_arrays`; `ParamsError` if it is missing or unreadable."""
+    path = Path(path)
+    fmt = _format(path)
+    if not path.is_file():
+        raise ParamsError(f"no parameter file at {str(path)!r} (not found)")
+    try:
+        if fmt == ".safetensors":
+            return dict(_safetensors_numpy().load_file(str(path)))
+        with np.load(path, allow_pickle=False) as data:
+            return {name: np.array(data[name]) for name in data.files}
+    except ParamsError:
+        raise
+    except (Exception, zipfile.BadZipFile) as err:  # noqa: BLE001 - every reader failure is a ParamsError
+        raise ParamsError(f"cannot read parameter file {str(path)!r} (corrupt or not a {fmt} parameter "
+                          f"file): {err}") from err
