@@ -8,6 +8,7 @@ import importlib.util
 
 import pytest
 from sf2_common import cli as _cli
+from sf2_common.testing import BAD_TRAIN_INPUTS, cli_error
 from sf2_torch import cli
 from sf2_torch.agents import configs, envs, representations, trainer
 from sf2_torch.errors import ConfigError
@@ -29,39 +30,18 @@ class _SacOnly(representations.NoRepresentation):
 
 
 def _cli_error(capsys, *args):
-    argv = ["train", "--config", "quick", "--out", "/nonexistent/should-not-be-created", *args]
-    assert cli.main(argv) == 2
-    return capsys.readouterr().err
+    return cli_error(cli.main, capsys, *args)
 
 
-@pytest.mark.parametrize("args,expected", [
-    (["--task", "CartpoleBalanse"], ["unknown task 'CartpoleBalanse'", "Did you mean CartpoleBalance",
-                                     "AcrobotSwingup", "WalkerWalk"]),
-    (["--task", "CartpoleBalance", "--algo", "ddpg"], ["algo = 'ddpg'", "td3, sac"]),
-    (["--task", "CartpoleBalance", "--repr", "bogus"],
-     ["representation = 'bogus'", "must be one of none, sf2", "sim", "simlap", "spr"]),
-    (["--task", "CartpoleBalance", "--repr", "test_sac_only"],
-     ["algo 'td3' with representation 'test_sac_only' does not exist", "sac+test_sac_only"]),
-    (["--task", "CartpoleBalance", "--num-timesteps", "1000"],
-     ["num_timesteps = 1000 does not exceed the prefill", "min_replay_size = 4096"]),
-    (["--task", "CartpoleBalance", "--set", "min_replay_size=300000"],
-     ["min_replay_size", "max_replay_size"]),
-    (["--task", "CartpoleBalance", "--set", "batch_size=0"], ["batch_size = 0", ">= 1"]),
-    (["--task", "CartpoleBalance", "--set", "batch_size=1.5"], ["batch_size", "integer"]),
-    (["--task", "CartpoleBalance", "--set", "bogus=1"], ["unknown config field 'bogus'"]),
-    (["--task", "CartpoleBalance", "--set", "gamma_su"], ["expected field=value"]),
-    (["--task", "CartpoleBalance", "--gamma-su", "1.0"], ["gamma_su", "0 <= gamma_su < 1"]),
-    (["--task", "CartpoleBalance", "--embedding-size", "7"], ["embedding_size", "even"]),
-    (["--task", "CartpoleBalance", "--integrator", "rk4"], ["integrator", "midpoint"]),
-    (["--task", "CartpoleBalance", "--seeds", "3-1"], ["seeds '3-1' are invalid"]),
-    (["--task", "CartpoleBalance", "--seeds", "0,0"], ["duplicates"]),
-    (["--task", "CartpoleBalance", "--repr", "sf2,sf2"], ["repeats"]),
-    # torch-only fields
+TORCH_ONLY = [
     (["--task", "CartpoleBalance", "--compile", "fast"], ["compile = 'fast'", "max-autotune-no-cudagraphs"]),
     (["--task", "CartpoleBalance", "--cudagraphs", "maybe"], ["cudagraphs = 'maybe'", "auto, on, off"]),
     (["--task", "CartpoleBalance", "--device", "tpu"], ["device = 'tpu'", "cpu, cuda"]),
     (["--task", "CartpoleBalance", "--device", "cpu", "--cudagraphs", "on"], ["CUDA graphs need a CUDA"]),
-])
+]
+
+
+@pytest.mark.parametrize("args,expected", BAD_TRAIN_INPUTS + TORCH_ONLY)
 def test_bad_train_input(capsys, args, expected):
     err = _cli_error(capsys, *args)
     for text in expected:
