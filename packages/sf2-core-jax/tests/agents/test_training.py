@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from sf2_common.testing import KILL_POINTS, kill_and_resume
 from sf2_jax import cli
 from sf2_jax.agents.trainer import WALL_FIELDS, TrainingDiverged, train
 
@@ -91,29 +92,11 @@ def test_vmapped_seeds_equal_seeds_one_by_one(reference, tiny_cfg, tmp_path):
     _assert_close_params(both.state.params, one.state.params, 1, 0)
 
 
-class _Killed(Exception):
-    pass
-
-
-def _kill_at(event, epoch):
-    def hook(e, n):
-        if (e, n) == (event, epoch):
-            raise _Killed(f"killed at {event} {epoch}")
-    return hook
-
-
-@pytest.mark.parametrize("event,epoch", [("rows", 2), ("checkpoint", 1), ("rows", 0)])
-def test_kill_and_resume_equals_uninterrupted(reference, tiny_cfg, tmp_path, event, epoch):
-    """Killed after an epoch's rows but before its checkpoint (rows must not be duplicated), right after
-    a checkpoint, and before the first checkpoint; a torn last line is tolerated too."""
-    out = tmp_path / "killed"
-    with pytest.raises(_Killed):
-        train(tiny_cfg, (0,), out, progress=False, hook=_kill_at(event, epoch))
-    with open(out / "metrics.jsonl", "a") as f:
-        f.write('{"epoch": 3, "seed": 0, "eval_ret')  # a kill in the middle of a write
-    resumed = train(tiny_cfg, (0,), out, progress=False)
-    expected_resume = {("rows", 2): 1, ("checkpoint", 1): 1, ("rows", 0): None}[(event, epoch)]
-    assert resumed.resumed_from == expected_resume
+@pytest.mark.parametrize("kill,expected_resume", KILL_POINTS)
+def test_kill_and_resume_equals_uninterrupted(reference, tiny_cfg, tmp_path, kill, expected_resume):
+    """Killed at each of `KILL_POINTS` (a torn last metrics line too), the resumed run has exactly the
+    uninterrupted run's rows and final state."""
+    resumed = kill_and_resume(train, tiny_cfg, tmp_path / "killed", *kill, expected_resume)
     assert _strip(resumed.run.read_rows()) == _strip(reference.rows)
     _assert_same_params(resumed.state.params, reference.state.params)
     _assert_same_params(resumed.state.opt_state, reference.state.opt_state)
