@@ -176,11 +176,16 @@ def _build_env_class():
             return self._outputs(state, with_reward=False)
 
         def _to_jax(self, t: torch.Tensor):
+            """`t` as a JAX array of JAX's default float width: MJX builds its state in float64 when
+            `jax_enable_x64` is on (a float32 action would then break its `lax.scan` carry)."""
             import jax
+            import numpy as np
 
             if t.device.type == "cuda":
-                return jax.dlpack.from_dlpack(t.contiguous())
-            return jax.device_put(t.detach().contiguous().numpy(), self._jax_device)
+                x = jax.dlpack.from_dlpack(t.contiguous())
+            else:
+                x = jax.device_put(t.detach().contiguous().numpy(), self._jax_device)
+            return x.astype(jax.dtypes.canonicalize_dtype(np.float64))
 
         def _to_torch(self, x) -> torch.Tensor:
             return torch.from_dlpack(x).to(self.device)
