@@ -18,7 +18,7 @@ from importlib import metadata
 
 from sf2_common.errors import ConfigError
 
-__all__ = ["Registry", "GROUP", "BASELINES", "INSTALL_BASELINES"]
+__all__ = ["Registry", "GROUP", "BASELINES", "INSTALL_BASELINES", "check_aux_every"]
 
 GROUP = "sf2.representations.{framework}"   # the entry-point group of a framework
 BASELINES = ("sim", "simlap", "spr")        # the paper's baselines, provided by sf2-baselines
@@ -85,3 +85,15 @@ class Registry:
             text += (f" (the baselines {', '.join(missing)} come with sf2-baselines: "
                      f"{INSTALL_BASELINES})")
         return text
+
+
+def check_aux_every(rep) -> None:
+    """Raise ValueError unless `rep.aux_every` maps groups of `rep.aux_groups` to periods >= 1 (a
+    representation's update schedule; both cores' base algorithms check it when they are built)."""
+    for group, every in rep.aux_every.items():
+        if group not in rep.aux_groups:
+            raise ValueError(f"{type(rep).__name__}.aux_every names {group!r}, which is not one of its "
+                             f"aux_groups {rep.aux_groups}")
+        if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+            raise ValueError(f"{type(rep).__name__}.aux_every[{group!r}] = {every!r} is invalid: must be "
+                             f"an int >= 1 (a period in gradient steps)")

@@ -36,6 +36,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import optax
+from sf2_common.agents.registry import check_aux_every
 
 from sf2_jax import losses, networks
 from sf2_jax.config import SF2Config
@@ -52,17 +53,6 @@ def _td_loss(q, y, truncation):
     """½ mean_{b,j}(m_b(Q_j − sg(y)))², m_b = 1 − truncation_b."""
     err = (1 - truncation)[..., None] * (q - sg(y)[..., None])
     return 0.5 * jnp.mean(err**2)
-
-
-def check_aux_every(rep: Representation) -> None:
-    """Raise ValueError unless `rep.aux_every` maps groups of `rep.aux_groups` to periods >= 1."""
-    for group, every in rep.aux_every.items():
-        if group not in rep.aux_groups:
-            raise ValueError(f"{type(rep).__name__}.aux_every names {group!r}, which is not one of its "
-                             f"aux_groups {rep.aux_groups}")
-        if isinstance(every, bool) or not isinstance(every, int) or every < 1:
-            raise ValueError(f"{type(rep).__name__}.aux_every[{group!r}] = {every!r} is invalid: must be "
-                             f"an int >= 1 (a period in gradient steps)")
 
 
 class Algorithm:

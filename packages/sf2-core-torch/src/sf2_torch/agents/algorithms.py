@@ -49,6 +49,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from sf2_common.agents.registry import check_aux_every
 from tensordict import TensorDict, TensorDictBase
 from torchrl.objectives import SoftUpdate
 
@@ -64,17 +65,6 @@ METRICS = {
     "td3": ("critic_loss", "q", "actor_loss"),
     "sac": ("critic_loss", "q", "actor_loss", "alpha_loss", "alpha", "entropy"),
 }
-
-
-def check_aux_every(rep: Representation) -> None:
-    """Raise ValueError unless `rep.aux_every` maps groups of `rep.aux_groups` to periods >= 1."""
-    for group, every in rep.aux_every.items():
-        if group not in rep.aux_groups:
-            raise ValueError(f"{type(rep).__name__}.aux_every names {group!r}, which is not one of its "
-                             f"aux_groups {rep.aux_groups}")
-        if isinstance(every, bool) or not isinstance(every, int) or every < 1:
-            raise ValueError(f"{type(rep).__name__}.aux_every[{group!r}] = {every!r} is invalid: must be "
-                             f"an int >= 1 (a period in gradient steps)")
 
 
 class Algorithm:
