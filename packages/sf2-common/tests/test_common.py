@@ -264,3 +264,24 @@ def test_bootstrap_interval_of_the_mean():
     assert (lo[0] + hi[0]) / 2 == pytest.approx(mean[0], abs=0.1 * half)
     one = plotting.mean_ci([[7.0, 8.0]])
     assert all(np.array_equal(x, [7.0, 8.0]) for x in one)
+
+
+def test_checkpoint_to_resume(tmp_path):
+    """Latest checkpoint of the same run when resuming; None for a new run or a folder without
+    checkpoints; a folder with checkpoints and resume off is refused, not overwritten."""
+    from sf2_common.agents.hostloop import checkpoint_to_resume
+    from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch
+
+    class _Ckpt:
+        def __init__(self, latest):
+            self._latest = latest
+
+        def latest(self):
+            return self._latest
+
+    run = RunFolder(tmp_path / "run")
+    assert checkpoint_to_resume(run, _Ckpt(4), existing=True, resume=True) == 4
+    assert checkpoint_to_resume(run, _Ckpt(4), existing=False, resume=True) is None
+    assert checkpoint_to_resume(run, _Ckpt(None), existing=True, resume=False) is None
+    with pytest.raises(RunFolderMismatch, match="already holds checkpoints; pass --fresh"):
+        checkpoint_to_resume(run, _Ckpt(4), existing=True, resume=False)

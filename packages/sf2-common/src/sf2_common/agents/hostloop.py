@@ -195,6 +195,17 @@ def run_epochs(session: Session, *, cfg, sched, seeds, run, title: str, rows: li
     return rows
 
 
+def checkpoint_to_resume(run, ckpt, existing: bool, resume: bool) -> int | None:
+    """The checkpoint epoch a run folder resumes from: its latest when it holds this run (`existing`) and
+    resuming is allowed, else None. A folder holding checkpoints with `resume=False` is refused
+    (`RunFolderMismatch`), never silently overwritten."""
+    from .runfolder import RunFolderMismatch
+
+    if existing and not resume and ckpt.latest() is not None:
+        raise RunFolderMismatch(f"{run.path} already holds checkpoints; pass --fresh to start over")
+    return ckpt.latest() if (existing and resume) else None
+
+
 def resume_point(run, last: int | None) -> tuple[list[dict], float, int]:
     """(rows, wall time spent, first epoch to run) of a run resuming from checkpoint `last` (None: from
     scratch). Rows of epochs after `last` are dropped from metrics.jsonl: the run produces them again."""

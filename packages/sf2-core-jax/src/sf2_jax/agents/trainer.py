@@ -288,12 +288,7 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
         shutil.rmtree(run.checkpoint_dir, ignore_errors=True)
     program = get_program(cfg)
     ckpt = Checkpointer(run.checkpoint_dir, keep=cfg.keep_checkpoints)
-    last = ckpt.latest() if (existing and resume) else None
-    resumed_from = last
-    if existing and not resume and ckpt.latest() is not None:
-        from .runfolder import RunFolderMismatch
-
-        raise RunFolderMismatch(f"{run.path} already holds checkpoints; pass --fresh to start over")
+    last = resumed_from = hostloop.checkpoint_to_resume(run, ckpt, existing, resume)
     title = hostloop.run_title(_label(cfg), cfg.task, seeds)
 
     state = None

@@ -325,10 +325,7 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
                           "device": str(program.device), "compile_mode": program.compile_mode,
                           "cudagraphs": program.cudagraphs})
     ckpt = Checkpointer(run.checkpoint_dir, keep=cfg.keep_checkpoints)
-    last = ckpt.latest() if (existing and resume) else None
-    resumed_from = last
-    if existing and not resume and ckpt.latest() is not None:
-        raise RunFolderMismatch(f"{run.path} already holds checkpoints; pass --fresh to start over")
+    last = resumed_from = hostloop.checkpoint_to_resume(run, ckpt, existing, resume)
     title = hostloop.run_title(_label(cfg), cfg.task, seeds)
 
     state = program.init(seeds)
