@@ -1,17 +1,13 @@
-"""Unit tests of sf2_torch: small sizes, one thread, float64 where numbers are compared."""
+"""Unit tests of sf2_torch: small sizes, one thread, float64 where numbers are compared. The helpers
+(networks, batches, a numpy model of the contract) are the module `torch_reference` beside this file."""
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import pytest
 import torch
+from torch_reference import make_batch, make_nets
 
 torch.set_num_threads(1)
-sys.path.insert(0, str(Path(__file__).parent))
-
-from _torch_reference import make_batch, make_nets  # noqa: E402
 
 
 @pytest.fixture

@@ -4,8 +4,7 @@ import dataclasses
 
 import pytest
 import sf2_torch
-from sf2_torch import ConfigError, SF2Config, ShapeError
-from sf2_torch.errors import ParamsError
+from sf2_torch import ConfigError, ParamsError, SF2Config, ShapeError
 
 TABLE = dict(
     feature_size=512,

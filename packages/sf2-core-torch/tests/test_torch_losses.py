@@ -3,7 +3,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from _torch_reference import (
+from sf2_torch import ShapeError, losses, networks, params
+from torch_reference import (
     A,
     B,
     D,
@@ -15,7 +16,6 @@ from _torch_reference import (
     np_psi,
     np_q,
 )
-from sf2_torch import ShapeError, losses, networks, params
 
 _softplus = lambda x: np.logaddexp(0.0, x)  # noqa: E731
 
@@ -196,22 +196,8 @@ def _groups(names):
     return {n.split(".")[0] for n in names}
 
 
-@pytest.mark.parametrize(
-    "algo, loss_name, trained",
-    [
-        ("td3", "flow", {"psi", "zeta"}),
-        ("td3", "td3_critic", {"psi", "q"}),
-        ("td3", "td3_actor", {"policy"}),
-        ("sac", "flow", {"psi", "zeta"}),
-        ("sac", "sac_critic", {"psi", "q"}),
-        ("sac", "sac_actor", {"policy"}),
-        ("sac", "sac_alpha", {"log_alpha"}),
-    ],
-)
-def test_gradients_reach_only_trained_online_modules(algo, loss_name, trained):
-    nets = make_nets(algo)
-    batch, noise = make_batch()
-    calls = {
+def _loss_calls(nets, batch, noise):
+    return {
         "flow": lambda: losses.flow_loss(nets, batch, noise["next_action"], noise["eps"], noise["flow_time"]),
         "td3_critic": lambda: losses.td3_critic_loss(nets, batch, noise["smoothing"]),
         "td3_actor": lambda: losses.td3_actor_loss(nets, batch),
@@ -219,21 +205,107 @@ def test_gradients_reach_only_trained_online_modules(algo, loss_name, trained):
         "sac_actor": lambda: losses.sac_actor_loss(nets, batch, noise["noise"]),
         "sac_alpha": lambda: losses.sac_alpha_loss(nets, batch, noise["noise"]),
     }
-    loss, aux = calls[loss_name]()
+
+
+@pytest.mark.parametrize(
+    "algo, loss_name, trained, reached",
+    [
+        ("td3", "flow", {"psi", "zeta"}, {"psi", "zeta"}),
+        ("td3", "td3_critic", {"psi", "q"}, {"psi", "q"}),
+        ("td3", "td3_actor", {"policy"}, {"policy", "psi", "q"}),
+        ("sac", "flow", {"psi", "zeta"}, {"psi", "zeta"}),
+        ("sac", "sac_critic", {"psi", "q"}, {"psi", "q"}),
+        ("sac", "sac_actor", {"policy"}, {"policy", "psi", "q"}),
+        ("sac", "sac_alpha", {"log_alpha"}, {"log_alpha"}),
+    ],
+)
+def test_gradient_contract(algo, loss_name, trained, reached):
+    """A loss's graph reaches its trained groups and, for the actor losses, the critic it reads, never a
+    target, the policy through the TD target, nor log α through α; `backward(inputs=trained)` (the
+    module docstring's contract) fills exactly the trained groups."""
+    nets = make_nets(algo)
+    batch, noise = make_batch()
+    call = _loss_calls(nets, batch, noise)[loss_name]
+    loss, aux = call()
     assert loss.ndim == 0 and all(v.ndim == 0 and not v.requires_grad for v in aux.values())
-    loss.backward()
-    assert _groups(_with_grad(nets)) == trained
+    loss.backward(inputs=[p for p in nets.parameters() if p.requires_grad])
+    assert _groups(_with_grad(nets)) == reached
     for target in nets.target_modules().values():
         assert all(p.grad is None and not p.requires_grad for p in target.parameters())
-    # pure: same inputs, same numbers
     _zero_grads(nets)
-    assert calls[loss_name]()[0].item() == loss.item()
+    loss, _ = call()
+    loss.backward(inputs=[p for n, p in nets.named_parameters() if n.split(".")[0] in trained])
+    assert _groups(_with_grad(nets)) == trained
+    assert call()[0].item() == loss.item()  # pure: same inputs, same numbers
+
+
+class _LinearCritic(torch.nn.Module):
+    """Q_j(s, a) = [s, a]·W[:, j] (online) or [s, a]·W̄[:, j] (target): a critic that is not SF²'s."""
+
+    def __init__(self):
+        super().__init__()
+        rng = np.random.default_rng(11)
+        self.w = torch.nn.Parameter(torch.as_tensor(rng.normal(size=(D + A, 2))))
+        self.register_buffer("w_bar", torch.as_tensor(rng.normal(size=(D + A, 2))))
+
+    def forward(self, obs, action, target=False):
+        return torch.cat([obs, action], -1) @ (self.w_bar if target else self.w)
+
+
+def test_critic_keyword_trains_the_given_critic(td3_nets, sac_nets):
+    """The TD3/SAC losses on another critic: the hand-written numpy values, gradients into that critic."""
+    batch, noise = make_batch()
+    b = _np_batch(batch)
+    critic = _LinearCritic()
+    w, w_bar = critic.w.detach().numpy(), critic.w_bar.numpy()
+    flat = params.to_canonical(td3_nets)
+    trunc = (1 - b["truncation"])[:, None]
+
+    loss, aux = losses.td3_critic_loss(td3_nets, batch, noise["smoothing"], critic=critic)
+    pi_bar = np.tanh(np_mlp(flat, "target_policy", np_normalize(flat, b["next_obs"]), 2))
+    a_next = np.clip(pi_bar + np.clip(0.2 * noise["smoothing"].numpy(), -0.3, 0.3), -1, 1)
+    y = b["reward"] + b["discount"] * 0.99 * (np.concatenate([b["next_obs"], a_next], -1) @ w_bar).min(-1)
+    q = np.concatenate([b["obs"], b["action"]], -1) @ w
+    np.testing.assert_allclose(loss.item(), 0.5 * ((trunc * (q - y[:, None])) ** 2).mean(), rtol=1e-12)
+    loss.backward()
+    # d/dW of ½ mean_{b,j}(m_b(x_b·W_j − y_b))² = x_bᵀ m_b²(Q − y) / (2B)
+    x = np.concatenate([b["obs"], b["action"]], -1)
+    np.testing.assert_allclose(critic.w.grad.numpy(), x.T @ (trunc**2 * (q - y[:, None])) / (2 * B),
+                               rtol=1e-11)
+    assert _with_grad(td3_nets) == set()
+
+    loss, _ = losses.td3_actor_loss(td3_nets, batch, critic=critic)
+    pi = np.tanh(np_mlp(flat, "policy", np_normalize(flat, b["obs"]), 2))
+    ref = -(np.concatenate([b["obs"], pi], -1) @ w)[:, 0].mean()
+    np.testing.assert_allclose(loss.item(), ref, rtol=1e-12)
+
+    flat = params.to_canonical(sac_nets)
+    xi = noise["noise"].numpy()
+    loss, _ = losses.sac_actor_loss(sac_nets, batch, noise["noise"], critic=critic)
+    a, logp = _np_sac(flat, sac_nets.cfg, b["obs"], xi)
+    ref = (np.exp(flat["log_alpha"]) * logp - (np.concatenate([b["obs"], a], -1) @ w).min(-1)).mean()
+    np.testing.assert_allclose(loss.item(), ref, rtol=1e-12)
+    loss, _ = losses.sac_critic_loss(sac_nets, batch, noise["noise"], critic=critic)
+    a2, logp2 = _np_sac(flat, sac_nets.cfg, b["next_obs"], xi)
+    soft = (np.concatenate([b["next_obs"], a2], -1) @ w_bar).min(-1) - np.exp(flat["log_alpha"]) * logp2
+    y = b["reward"] + b["discount"] * 0.99 * soft
+    np.testing.assert_allclose(loss.item(), 0.5 * ((trunc * (q - y[:, None])) ** 2).mean(), rtol=1e-12)
+
+
+def test_default_critic_is_sf2_critic(td3_nets):
+    batch, noise = make_batch()
+    critic = losses.sf2_critic(td3_nets)
+    for fn, args in ((losses.td3_critic_loss, (noise["smoothing"],)), (losses.td3_actor_loss, ())):
+        assert fn(td3_nets, batch, *args)[0].item() == fn(td3_nets, batch, *args, critic=critic)[0].item()
+    feats = networks.psi(td3_nets, batch.obs, batch.action, target=True)
+    torch.testing.assert_close(critic(batch.obs, batch.action, target=True),
+                               networks.q_values(td3_nets, feats, target=True), rtol=0, atol=0)
 
 
 def test_td3_actor_gradient_is_the_dpg_gradient(td3_nets):
     """∇_θ of −mean Q_0(ψ(s, π_θ(s))) equals the chain rule through a detached ∇_a Q_0."""
     batch, _ = make_batch()
-    losses.td3_actor_loss(td3_nets, batch)[0].backward()
+    losses.td3_actor_loss(td3_nets, batch)[0].backward(inputs=list(td3_nets.policy.parameters()))
     got = [p.grad.clone() for p in td3_nets.policy.parameters()]
     _zero_grads(td3_nets)
     a = networks.td3_action(td3_nets, batch.obs)

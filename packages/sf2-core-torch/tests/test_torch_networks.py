@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 import torch
-from _torch_reference import A, B, D, make_batch, make_cfg, np_embedding, np_mlp, np_psi, np_q, np_zeta
 from sf2_torch import ConfigError, ShapeError, networks, params
 from torch import nn
+from torch_reference import A, B, D, make_batch, make_cfg, np_embedding, np_mlp, np_psi, np_q, np_zeta
 
 
 def test_shapes_td3(td3_nets):

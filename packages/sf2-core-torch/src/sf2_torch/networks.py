@@ -1,14 +1,16 @@
-"""Networks of SF²: ψ, ζ, twin Q heads, TD3 and SAC policies, observation normalizer (DESIGN.md §5).
+"""Networks of SF²: ψ, ζ, twin Q heads, TD3 and SAC policies, observation normalizer (docs/core-contract.md
+"Networks").
 
-Notation (DESIGN.md §3): B batch, D = obs_size, A = action_size, F = feature_size, H = width of ζ's last
-hidden layer, E = embedding_size; `flow_time` k ∈ [0, 1] is the flow time, never the MDP step.
+Notation (docs/core-contract.md "Notation"): B batch, D = obs_size, A = action_size, F = feature_size,
+H = width of ζ's last hidden layer, E = embedding_size; `flow_time` k ∈ [0, 1] is the flow time, never the
+MDP step.
 
 Every network is an `MLP` whose children are named `dense_{i}` (`nn.Linear`) and `layer_norm_{i}`
 (`nn.LayerNorm`, ε = 1e-6), so that `params.to_canonical` maps module paths to the canonical names
 (`psi.dense_0.kernel`, ...). A hidden layer is Dense → ReLU → LayerNorm; the last layer is Dense only.
 Initialization: LeCun-uniform kernels U(±√(3/fan_in)), zero biases, LayerNorm scale 1 and bias 0.
 
-`make_networks(cfg, algo)` builds an `SF2Networks` module holding the online networks, their target
+`make_networks(cfg, algo)` builds a `Networks` module holding the online networks, their target
 copies (`requires_grad=False`) and, for SAC, the `log_alpha` parameter. The functional helpers at the
 bottom (`psi`, `zeta`, `velocity`, `contract`, `velocity_contracted`, `q_values`, `td3_action`,
 `sac_sample`, `normalize`, `update_normalizer`, `flow_time_embedding`) have `sf2_jax`'s signatures
@@ -23,11 +25,10 @@ from collections.abc import Mapping, Sequence
 
 import torch
 import torch.nn.functional as F
+from sf2_common.config import SF2Config
 from sf2_common.embedding import EMBEDDING_K_GRID, embedding_turns
+from sf2_common.errors import ConfigError, ShapeError
 from torch import nn
-
-from .config import SF2Config
-from .errors import ConfigError, ShapeError
 
 __all__ = [
     "ALGOS",
@@ -40,7 +41,7 @@ __all__ = [
     "TD3Policy",
     "SACPolicy",
     "ObsNormalizer",
-    "SF2Networks",
+    "Networks",
     "make_networks",
     "lecun_uniform_",
     "flow_time_embedding",
@@ -57,7 +58,6 @@ __all__ = [
     "sac_sample",
     "sac_distribution",
     "sac_mode",
-    "sac_deterministic",
     "zeta_last_layer",
     "init_normalizer",
 ]
@@ -331,7 +331,7 @@ class ObsNormalizer(nn.Module):
         return {"count": self.count, "mean": self.mean, "summed_var": self.summed_var, "std": self.std}
 
 
-class SF2Networks(nn.Module):
+class Networks(nn.Module):
     """All networks of one SF² agent (canonical groups of docs/core-contract.md as attributes).
 
     `obs_norm`, `psi`, `zeta`, `q`, `policy`, `target_psi`, `target_zeta`, `target_q`, and
@@ -394,12 +394,12 @@ def make_networks(
     *,
     dtype: torch.dtype | None = None,
     device: torch.device | str | None = None,
-) -> SF2Networks:
+) -> Networks:
     """Build and initialise every network of `algo` ∈ {"td3", "sac"} (seed with `torch.manual_seed` first).
 
     Draw order: ψ, ζ, Q head 0, Q head 1, policy; targets copy the online networks.
     """
-    return SF2Networks(cfg, algo, dtype=dtype, device=device)
+    return Networks(cfg, algo, dtype=dtype, device=device)
 
 
 # ------------------------------------------------------------------------------------ functional helpers
@@ -454,7 +454,7 @@ def init_normalizer(size: int, dtype: torch.dtype | None = None) -> dict[str, to
 
 
 def _stats_of(stats) -> Mapping[str, torch.Tensor]:
-    if isinstance(stats, SF2Networks):
+    if isinstance(stats, Networks):
         stats = stats.obs_norm
     if isinstance(stats, ObsNormalizer):
         return stats._stats()
@@ -486,12 +486,12 @@ def _running_update(stats, obs_batch, obs_size, std_min, std_max) -> dict[str, t
 def update_normalizer(stats, obs_batch: torch.Tensor, cfg: SF2Config):
     """Brax's running-statistics update (Welford over the batch, std = clip(√(summed_var/count))).
 
-    `stats` an `ObsNormalizer` (or `SF2Networks`): updated in place and returned. `stats` a mapping
+    `stats` an `ObsNormalizer` (or `Networks`): updated in place and returned. `stats` a mapping
     {count, mean, summed_var, std}: a new dict is returned. Every leading dimension of `obs_batch` is a
     sample.
     """
     with torch.no_grad():
-        if isinstance(stats, SF2Networks):
+        if isinstance(stats, Networks):
             stats = stats.obs_norm
         s = _stats_of(stats)
         new = _running_update(s, obs_batch, cfg.obs_size, cfg.normalizer_std_min, cfg.normalizer_std_max)
@@ -502,7 +502,7 @@ def update_normalizer(stats, obs_batch: torch.Tensor, cfg: SF2Config):
         return new
 
 
-def psi(nets: SF2Networks, obs: torch.Tensor, action: torch.Tensor, target: bool = False) -> torch.Tensor:
+def psi(nets: Networks, obs: torch.Tensor, action: torch.Tensor, target: bool = False) -> torch.Tensor:
     """ψ(s, a) (B, F) on raw observations (normalized here with `nets.obs_norm`); `target` uses ψ̄."""
     _check_last("obs", obs, nets.cfg.obs_size, "obs_size")
     _check_last("action", action, nets.cfg.action_size, "action_size")
@@ -510,24 +510,24 @@ def psi(nets: SF2Networks, obs: torch.Tensor, action: torch.Tensor, target: bool
     return net(normalize(obs, nets.obs_norm), action)
 
 
-def zeta(nets: SF2Networks, x: torch.Tensor, k: torch.Tensor, target: bool = False) -> torch.Tensor:
+def zeta(nets: Networks, x: torch.Tensor, k: torch.Tensor, target: bool = False) -> torch.Tensor:
     """ζ(x, k) (B, D, F); x lives in normalized-observation space."""
     return (nets.target_zeta if target else nets.zeta)(x, k)
 
 
-def zeta_hidden(nets: SF2Networks, x: torch.Tensor, k: torch.Tensor, target: bool = False) -> torch.Tensor:
+def zeta_hidden(nets: Networks, x: torch.Tensor, k: torch.Tensor, target: bool = False) -> torch.Tensor:
     """h(x, k) (B, H): ζ up to (not including) its last Dense."""
     return (nets.target_zeta if target else nets.zeta).hidden(x, k)
 
 
-def zeta_last_layer(nets: SF2Networks, target: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+def zeta_last_layer(nets: Networks, target: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """ζ's last Dense in canonical layout: kernel W (H, F·D) (a transposed view), bias b (F·D,)."""
     last = (nets.target_zeta if target else nets.zeta).last
     return last.weight.T, last.bias
 
 
 def velocity(
-    nets: SF2Networks, x: torch.Tensor, k: torch.Tensor, features: torch.Tensor, target: bool = False
+    nets: Networks, x: torch.Tensor, k: torch.Tensor, features: torch.Tensor, target: bool = False
 ) -> torch.Tensor:
     """Plain velocity u_d = Σ_f ζ(x, k)_{d f} ψ_f (Definition 3.1), (B, D). Materializes ζ (B, D, F)."""
     _check_last("features", features, nets.cfg.feature_size, "feature_size")
@@ -535,9 +535,9 @@ def velocity(
 
 
 def contract(
-    nets: SF2Networks, features: torch.Tensor, target: bool = False
+    nets: Networks, features: torch.Tensor, target: bool = False
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """(M (B, D, H), c (B, D)) of the fast path (DESIGN.md §6).
+    """(M (B, D, H), c (B, D)) of the fast path (docs/core-contract.md "Networks", fast path).
 
     M[b, d, h] = Σ_f W[h, d·F + f] ψ[b, f] and c[b, d] = Σ_f b[d·F + f] ψ[b, f], with W ζ's last kernel
     (H, F·D) in canonical layout and b its bias. Layout (as `sf2_jax.networks.contract`): the torch weight
@@ -556,7 +556,7 @@ def contract(
 
 
 def velocity_contracted(
-    nets: SF2Networks,
+    nets: Networks,
     x: torch.Tensor,
     k: torch.Tensor,
     m: torch.Tensor,
@@ -574,17 +574,17 @@ def velocity_contracted(
     return torch.einsum("bh,bdh->bd", h, m) + c
 
 
-def q_values(nets: SF2Networks, features: torch.Tensor, target: bool = False) -> torch.Tensor:
+def q_values(nets: Networks, features: torch.Tensor, target: bool = False) -> torch.Tensor:
     """[Q_0(ψ), Q_1(ψ)] (B, 2)."""
     return (nets.target_q if target else nets.q)(features)
 
 
-def _require(nets: SF2Networks, algo: str, fn: str) -> None:
+def _require(nets: Networks, algo: str, fn: str) -> None:
     if nets.algo != algo:
         raise ConfigError(f"{fn} needs networks built with algo={algo!r}, found algo={nets.algo!r}")
 
 
-def td3_action(nets: SF2Networks, obs: torch.Tensor, target: bool = False) -> torch.Tensor:
+def td3_action(nets: Networks, obs: torch.Tensor, target: bool = False) -> torch.Tensor:
     """TD3 policy action tanh(MLP(normalized s)) (B, A); `target` uses the target policy."""
     _require(nets, "td3", "td3_action")
     _check_last("obs", obs, nets.cfg.obs_size, "obs_size")
@@ -592,7 +592,7 @@ def td3_action(nets: SF2Networks, obs: torch.Tensor, target: bool = False) -> to
 
 
 def sac_sample(
-    nets: SF2Networks, obs: torch.Tensor, noise: torch.Tensor
+    nets: Networks, obs: torch.Tensor, noise: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """(action (B, A), log π(action|s) (B,)) from the online SAC policy with explicit noise ξ (B, A)."""
     _require(nets, "sac", "sac_sample")
@@ -600,16 +600,14 @@ def sac_sample(
     return nets.policy.sample(normalize(obs, nets.obs_norm), noise)
 
 
-def sac_distribution(nets: SF2Networks, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def sac_distribution(nets: Networks, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """SAC pre-tanh Gaussian (loc, σ), each (B, A): loc = out[:, :A], σ = softplus(out[:, A:]) + min_std."""
     _require(nets, "sac", "sac_distribution")
     _check_last("obs", obs, nets.cfg.obs_size, "obs_size")
     return nets.policy(normalize(obs, nets.obs_norm))
 
 
-def sac_mode(nets: SF2Networks, obs: torch.Tensor) -> torch.Tensor:
+def sac_mode(nets: Networks, obs: torch.Tensor) -> torch.Tensor:
     """Deterministic SAC action tanh(loc) (B, A)."""
     return torch.tanh(sac_distribution(nets, obs)[0])
 
-
-sac_deterministic = sac_mode

@@ -14,9 +14,8 @@ import numbers
 from collections.abc import Callable
 
 import torch
-
-from .config import INTEGRATORS
-from .errors import ConfigError, ShapeError
+from sf2_common.config import INTEGRATORS
+from sf2_common.errors import ConfigError, ShapeError
 
 __all__ = ["integrate", "METHODS"]
 

@@ -46,10 +46,9 @@ from pathlib import Path
 import numpy as np
 import torch
 from sf2_common import paramfile
+from sf2_common.config import SF2Config
+from sf2_common.errors import ParamsError
 from torch import nn
-
-from .config import SF2Config
-from .errors import ParamsError
 
 __all__ = ["to_canonical", "from_canonical", "validate", "expected_shapes", "save", "load"]
 
@@ -105,7 +104,7 @@ def _networks_for(nets_or_cfg, algo: str | None) -> nn.Module:
         return make_networks(nets_or_cfg, algo if algo is not None else "td3", device="meta")
     if isinstance(nets_or_cfg, nn.Module):
         return nets_or_cfg
-    raise TypeError(f"expected SF2Networks or SF2Config, found {type(nets_or_cfg).__name__}")
+    raise TypeError(f"expected Networks or SF2Config, found {type(nets_or_cfg).__name__}")
 
 
 def expected_shapes(nets_or_cfg, algo: str | None = None) -> dict[str, tuple[int, ...]]:

@@ -17,7 +17,7 @@ def make_cfg(**overrides) -> SF2Config:
     return SF2Config.small(D, A, **overrides)
 
 
-def make_nets(algo: str = "td3", seed: int = 0, **overrides) -> networks.SF2Networks:
+def make_nets(algo: str = "td3", seed: int = 0, **overrides) -> networks.Networks:
     """float64 networks whose every entry is non-trivial (LN scales ≠ 1, targets ≠ online, stats ≠ 0/1)."""
     torch.manual_seed(seed)
     nets = networks.make_networks(make_cfg(**overrides), algo).double()
