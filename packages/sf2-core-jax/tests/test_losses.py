@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import A, B, D, make_batch, small_cfg
+from jax_helpers import A, B, D, make_batch, small_cfg
 from sf2_jax import ShapeError, losses
 from sf2_jax import networks as nw
 
@@ -174,6 +174,87 @@ def test_sac_losses_by_formula(sac, data):
     loss, grads = jax.value_and_grad(alpha_loss)(params)
     np.testing.assert_allclose(loss, np.mean(alpha * (-lp - target_entropy)), rtol=1e-12)
     np.testing.assert_allclose(grads["log_alpha"], loss, rtol=1e-12)   # d/dlogα of α·c is α·c
+
+
+def _linear_critic(weights):
+    """A critic other than SF²'s: Q_j(s, a) = w_j·[s, a] (target: 2·w_j), so the TD losses are checkable by
+    hand and its gradient lands in the group `lin` only."""
+
+    def critic(p, obs, action, target=False):
+        x = jnp.concatenate([obs, action], axis=-1)
+        return x @ (p["lin"].T * (2.0 if target else 1.0))
+
+    return critic
+
+
+def test_td3_and_sac_losses_on_a_given_critic(td3, sac, data):
+    """`critic=` replaces Q(ψ) in every TD3/SAC loss (value by formula); the losses leave the caller's params
+    untouched, so the gradient of the critic's own group is the formula's too."""
+    batch, noise = data
+    w = np.random.default_rng(7).normal(size=(2, D + A))
+    critic = _linear_critic(w)
+    m = 1 - batch.truncation
+
+    def q(obs, act, target=False):
+        return np.concatenate([obs, act], -1) @ w.T * (2.0 if target else 1.0)
+
+    def td(cfg, next_v):
+        y = cfg.reward_scaling * batch.reward + batch.discount * cfg.discount * next_v
+        err = m[:, None] * (q(batch.obs, batch.action) - y[:, None])
+        return 0.5 * np.mean(err**2), err, y
+
+    nets, params = td3
+    p = {**params, "lin": jnp.asarray(w)}
+    cfg = nets.cfg
+    smooth = np.clip(cfg.smoothing_noise * noise["smoothing"], -cfg.noise_clip, cfg.noise_clip)
+    a_next = np.clip(np.asarray(nw.td3_action(nets, params, batch.next_obs, target=True)) + smooth, -1, 1)
+    expected, err, y = td(cfg, np.min(q(batch.next_obs, a_next, True), -1))
+    f = lambda p: losses.td3_critic_loss(nets, p, batch, noise["smoothing"], critic=critic)  # noqa: E731
+    (loss, aux), grads = jax.value_and_grad(f, has_aux=True)(p)
+    np.testing.assert_allclose(loss, expected, rtol=1e-12)
+    np.testing.assert_allclose(aux["target_q"], np.mean(y), rtol=1e-12)
+    x = np.concatenate([batch.obs, batch.action], -1)
+    np.testing.assert_allclose(grads["lin"], (m[:, None] * err).T @ x / err.size, rtol=1e-10)   # y constant
+    pi = np.asarray(nw.td3_action(nets, params, batch.obs))
+    np.testing.assert_allclose(losses.td3_actor_loss(nets, p, batch, critic=critic)[0],
+                               -np.mean(q(batch.obs, pi)[:, 0]), rtol=1e-12)
+
+    nets, params = sac
+    p = {**params, "lin": jnp.asarray(w)}
+    cfg, alpha = nets.cfg, float(np.exp(params["log_alpha"]))
+    a2, lp2 = nw.sac_sample(nets, params, batch.next_obs, noise["noise"])
+    expected, _, _ = td(cfg, np.min(q(batch.next_obs, np.asarray(a2), True), -1) - alpha * np.asarray(lp2))
+    np.testing.assert_allclose(losses.sac_critic_loss(nets, p, batch, noise["noise"], critic=critic)[0],
+                               expected, rtol=1e-12)
+    a, lp = nw.sac_sample(nets, params, batch.obs, noise["noise"])
+    f = lambda p: losses.sac_actor_loss(nets, p, batch, noise["noise"], critic=critic)  # noqa: E731
+    (loss, _), grads = jax.value_and_grad(f, has_aux=True)(p)
+    expected = np.mean(alpha * np.asarray(lp) - np.min(q(batch.obs, np.asarray(a)), -1))
+    np.testing.assert_allclose(loss, expected, rtol=1e-12)
+    assert float(grads["log_alpha"]) == 0.0   # α is a constant of the actor loss
+
+
+def test_sf2_critic_is_the_default(td3, data):
+    nets, params = td3
+    batch, noise = data
+    critic = losses.sf2_critic(nets)
+    q = nw.q_values(nets, params, nw.psi(nets, params, batch.obs, batch.action))
+    np.testing.assert_array_equal(critic(params, batch.obs, batch.action), q)
+    for fn in (lambda p, **kw: losses.td3_critic_loss(nets, p, batch, noise["smoothing"], **kw),
+               lambda p, **kw: losses.td3_actor_loss(nets, p, batch, **kw)):
+        np.testing.assert_array_equal(fn(params)[0], fn(params, critic=critic)[0])
+
+
+def test_losses_take_2d_batches_only(td3, data):
+    nets, params = td3
+    batch, noise = data
+    stacked = losses.Batch(*(np.stack([v, v]) for v in batch))
+    with pytest.raises(ShapeError, match=r"batch.obs: expected shape \(B, 3\) \(a 2-D batch; vmap"):
+        losses.td3_critic_loss(nets, params, stacked, np.stack([noise["smoothing"]] * 2))
+    vmapped = jax.vmap(lambda b, s: losses.td3_critic_loss(nets, params, b, s)[0])(
+        stacked, np.stack([noise["smoothing"]] * 2))
+    one = losses.td3_critic_loss(nets, params, batch, noise["smoothing"])[0]
+    np.testing.assert_allclose(vmapped, [one, one], rtol=1e-12)
 
 
 def test_explicit_mixture_loss():

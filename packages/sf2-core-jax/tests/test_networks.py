@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import A, B, D
+from jax_helpers import A, B, D
 from sf2_jax import ConfigError, ShapeError
 from sf2_jax import networks as nw
 

@@ -2,7 +2,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import A, D, small_cfg
+from jax_helpers import A, D, small_cfg
 from sf2_jax import ParamsError
 from sf2_jax import networks as nw
 from sf2_jax import params as pm

@@ -4,9 +4,21 @@ Paper: eq. (3)–(4) and Algorithm 1 (flow), Appendix A.3 (explicit mixture), Ap
 (TD3 and SAC on features); docs/core-contract.md "Losses". Every random draw (ε, flow_time k, smoothing
 ξ, SAC noise) is an argument, so the same inputs give the same numbers in JAX and torch.
 
-Each loss returns `(loss, aux)` with `aux` a dict of scalars. Parameter groups a loss does not train are
-wrapped in `stop_gradient`, so `jax.grad` over the whole `params` dict gives zeros for them. Batch means
-divide by B; samples masked by m_b = 1 − truncation_b count as zeros.
+Each loss returns `(loss, aux)` with `aux` a dict of scalars. Batches are 2-D: every field is (B, ·)
+(vmap a loss for more batch dimensions). Batch means divide by B; samples masked by
+m_b = 1 − truncation_b count as zeros.
+
+The TD3 and SAC losses are written once, against a critic: `critic(params, obs, action, target=False)`
+→ twin Q (B, 2), online or target. The default (`critic=None`) is SF²'s Q(ψ(s, a)) (`sf2_critic`);
+the agents pass their representation's critic (vanilla Q(s, a), Sim, SPR, ...). `nets` still gives the
+config and the policy (π, π̄, SAC sampling).
+
+Gradient contract: the caller chooses the trained groups and takes `jax.grad` with respect to those
+groups only. With the default critic the losses also stop the gradient of every group they do not
+train (flow: ψ, ζ; critics: ψ, Q; actors: the policy; temperature: log α), so `jax.grad` over the whole
+`params` dict gives zeros for the others. The TD target y and SAC's α in the critic and actor losses
+are constants (stop_gradient) in every case. (torch: `loss.backward(inputs=...)` on the trained
+groups' parameters.)
 """
 
 from __future__ import annotations
@@ -16,16 +28,18 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+from sf2_common.errors import ShapeError
 
 from sf2_jax import networks as nw
 from sf2_jax.ode import integrate
 
 __all__ = [
-    "Batch", "flow_loss", "explicit_mixture_loss", "td3_critic_loss", "td3_actor_loss",
-    "sac_critic_loss", "sac_actor_loss", "sac_alpha_loss", "ema_update",
+    "Batch", "Critic", "sf2_critic", "flow_loss", "explicit_mixture_loss", "td3_critic_loss",
+    "td3_actor_loss", "sac_critic_loss", "sac_actor_loss", "sac_alpha_loss", "ema_update",
 ]
 
 sg = jax.lax.stop_gradient
+Critic = Callable[..., Any]   # critic(params, obs, action, target=False) -> (B, 2)
 
 
 class Batch(NamedTuple):
@@ -40,14 +54,36 @@ class Batch(NamedTuple):
     truncation: Any
 
 
+def sf2_critic(nets: nw.Networks) -> Critic:
+    """SF²'s critic Q(ψ(s, a)) (Appendix D): `critic(params, obs, action, target=False)` → (B, 2), the
+    core's twin Q heads on ψ (`target=True`: Q̄(ψ̄(s, a)))."""
+
+    def critic(params: nw.Params, obs, action, target: bool = False):
+        return nw.q_values(nets, params, nw.psi(nets, params, obs, action, target=target), target=target)
+
+    return critic
+
+
 def _trainable(params: nw.Params, groups: tuple[str, ...]) -> nw.Params:
     """Stop the gradient of every group not in `groups` (targets, normalizer, untrained networks)."""
     return {name: (value if name in groups else sg(value)) for name, value in params.items()}
 
 
-def _check_batch(nets: nw.Networks, batch: Batch) -> tuple[int, ...]:
+def _with_critic(nets: nw.Networks, params: nw.Params, trained: tuple[str, ...], critic: Critic | None):
+    """(params, critic) of a TD3/SAC loss: the default SF² critic with the gradient of every group but
+    `trained` stopped, or the caller's critic on the caller's params (module docstring)."""
+    if critic is None:
+        return _trainable(params, trained), sf2_critic(nets)
+    return params, critic
+
+
+def _check_batch(nets: nw.Networks, batch: Batch) -> tuple[int]:
+    """Check a 2-D batch against the config; returns its batch shape (B,)."""
     cfg = nets.cfg
     nw._check_last("batch.obs", batch.obs, cfg.obs_size, "obs_size")
+    if jnp.ndim(batch.obs) != 2:
+        raise ShapeError(f"batch.obs: expected shape (B, {cfg.obs_size}) (a 2-D batch; vmap the loss for "
+                            f"more batch dimensions), found shape {tuple(jnp.shape(batch.obs))}")
     nw._check_last("batch.next_obs", batch.next_obs, cfg.obs_size, "obs_size")
     nw._check_last("batch.action", batch.action, cfg.action_size, "action_size")
     b = tuple(jnp.shape(batch.obs)[:-1])
@@ -72,9 +108,11 @@ def flow_loss(nets: nw.Networks, params: nw.Params, batch: Batch, next_action, e
     [0, k] under the target field ζ̄ψ̄′ (`denoising_steps` steps of `integrator`).
 
     `next_action` ā′ (B, A) gets no gradient; `eps` ε (B, D) ~ N(0, I); `flow_time` k (B,) ~ U(0, 1).
-    With `cfg.contract_zeta` the fast path (DESIGN.md §6) contracts ζ's last layer with ψ once (M, c) and
-    with ψ̄′ once (M̄, c̄) and reuses them for every evaluation; otherwise ζ (B, D, F) is materialized.
-    With γ_su = 0 the bootstrap branch is skipped and loss_boot = 0. Trains ψ and ζ.
+    With `cfg.contract_zeta` the fast path (docs/core-contract.md "Networks", fast path) contracts ζ's
+    last layer with ψ once (M, c) and with ψ̄′ once (M̄, c̄) and reuses them for every evaluation; the two
+    online evaluations (at x_k and x̂) go through ζ's hidden layers as one batch of 2B, then one product
+    with M. Otherwise (the oracle) ζ (B, D, F) is materialized at each point. With γ_su = 0 the
+    bootstrap branch is skipped and loss_boot = 0. Trains ψ and ζ.
     Returns (loss, {"loss_p": mean_b m_b ℓ_P, "loss_boot": mean_b m_b ℓ_B}).
     """
     cfg = nets.cfg
@@ -88,21 +126,22 @@ def flow_loss(nets: nw.Networks, params: nw.Params, batch: Batch, next_action, e
     next_obs_n = nw.normalize(batch.next_obs, p["obs_norm"])
     features = nw.psi(nets, p, batch.obs, batch.action)
     k = flow_time
-    x_k = k[..., None] * next_obs_n + (1 - k[..., None]) * eps
+    x_k = k[:, None] * next_obs_n + (1 - k[:, None]) * eps
     if cfg.contract_zeta:
         M, c = nw.contract(nets, p, features)
 
-        def online(x):
-            return nw.velocity_contracted(nets, p, x, k, M, c)
+        def online(*xs):   # ζ(x, k)ψ at every x of `xs`: one hidden-layer pass over all of them
+            h = nw.zeta_hidden(nets, p, jnp.concatenate(xs), jnp.concatenate([k] * len(xs)))
+            return jnp.einsum("nbh,bdh->nbd", h.reshape(len(xs), *b, h.shape[-1]), M) + c
     else:
-        def online(x):
-            return nw.velocity(nets, p, x, k, features)
+        def online(*xs):
+            return [nw.velocity(nets, p, x, k, features) for x in xs]
 
-    loss_p = jnp.sum((online(x_k) - (next_obs_n - eps)) ** 2, axis=-1)
     mask = 1 - batch.truncation
     if cfg.gamma_su == 0:
-        loss = jnp.mean(mask * ((1 - cfg.gamma_su) * loss_p))
-        return loss, {"loss_p": jnp.mean(mask * loss_p), "loss_boot": jnp.zeros_like(loss)}
+        (u_p,) = online(x_k)
+        loss_p = jnp.mean(mask * jnp.sum((u_p - (next_obs_n - eps)) ** 2, axis=-1))
+        return loss_p, {"loss_p": loss_p, "loss_boot": jnp.zeros_like(loss_p)}
 
     next_features = sg(nw.psi(nets, p, batch.next_obs, next_action, target=True))
     if cfg.contract_zeta:
@@ -115,7 +154,9 @@ def flow_loss(nets: nw.Networks, params: nw.Params, batch: Batch, next_action, e
             return nw.velocity(nets, p, x, kk, next_features, target=True)
 
     x_hat = sg(integrate(target_velocity, eps, k, cfg.denoising_steps, cfg.integrator))
-    loss_b = jnp.sum((online(x_hat) - sg(target_velocity(x_hat, k))) ** 2, axis=-1)
+    u_p, u_b = online(x_k, x_hat)
+    loss_p = jnp.sum((u_p - (next_obs_n - eps)) ** 2, axis=-1)
+    loss_b = jnp.sum((u_b - sg(target_velocity(x_hat, k))) ** 2, axis=-1)
     loss = jnp.mean(mask * ((1 - cfg.gamma_su) * loss_p + cfg.gamma_su * loss_b))
     return loss, {"loss_p": jnp.mean(mask * loss_p), "loss_boot": jnp.mean(mask * loss_b)}
 
@@ -134,73 +175,77 @@ def explicit_mixture_loss(velocity_fn: Callable, x1, x2, eps1, eps2, k1, k2, wei
 
 
 # ------------------------------------------------------------------------------------------------ TD3
-def _td_loss(q, y, truncation):
-    """½ mean_{b,j}(m_b(Q_j − sg(y)))²."""
-    err = (1 - truncation)[..., None] * (q - sg(y)[..., None])
-    return 0.5 * jnp.mean(err**2)
+def _td_loss(cfg, batch: Batch, q, next_value):
+    """The TD loss of both critics: y = rs·r + discount·γ·next_value (B,), loss = ½ mean_{b,j}(m_b(Q_j −
+    sg(y)))² over the twin Q (B, 2). Returns (loss, {"q": mean Q, "target_q": mean y})."""
+    y = sg(cfg.reward_scaling * batch.reward + batch.discount * cfg.discount * next_value)
+    err = (1 - batch.truncation)[:, None] * (q - y[:, None])
+    return 0.5 * jnp.mean(err**2), {"q": jnp.mean(q), "target_q": jnp.mean(y)}
 
 
-def td3_critic_loss(nets: nw.Networks, params: nw.Params, batch: Batch, smoothing):
-    """TD3 critic on features (Algorithm 2): ã′ = clip(π̄(s′) + clip(σ_s ξ, −c, c), −1, 1),
-    y = rs·r + discount·γ·min_j Q̄_j(ψ̄(s′, ã′)), loss = ½ mean_{b,j}(m_b(Q_j(ψ(s, a)) − sg(y)))².
-    `smoothing` ξ (B, A) ~ N(0, I). Trains Q and ψ. aux: q (mean Q), target_q (mean y)."""
+def td3_critic_loss(nets: nw.Networks, params: nw.Params, batch: Batch, smoothing, *,
+                    critic: Critic | None = None):
+    """TD3 critic (Algorithm 2 on features): ã′ = clip(π̄(s′) + clip(σ_s ξ, −c, c), −1, 1),
+    y = rs·r + discount·γ·min_j Q̄_j(s′, ã′), loss = ½ mean_{b,j}(m_b(Q_j(s, a) − sg(y)))².
+    `smoothing` ξ (B, A) ~ N(0, I); Q = `critic` (default: SF²'s Q(ψ), trains Q and ψ).
+    aux: q (mean Q), target_q (mean y)."""
     cfg = nets.cfg
     b = _check_batch(nets, batch)
     _check_noise(nets, "smoothing", smoothing, b, cfg.action_size, "action_size")
-    p = _trainable(params, ("psi", "q"))
+    p, critic = _with_critic(nets, params, ("psi", "q"), critic)
     noise = jnp.clip(cfg.smoothing_noise * smoothing, -cfg.noise_clip, cfg.noise_clip)
     next_action = jnp.clip(nw.td3_action(nets, p, batch.next_obs, target=True) + noise, -1, 1)
-    next_q = nw.q_values(nets, p, nw.psi(nets, p, batch.next_obs, next_action, target=True), target=True)
-    y = cfg.reward_scaling * batch.reward + batch.discount * cfg.discount * jnp.min(next_q, axis=-1)
-    q = nw.q_values(nets, p, nw.psi(nets, p, batch.obs, batch.action))
-    return _td_loss(q, y, batch.truncation), {"q": jnp.mean(q), "target_q": jnp.mean(sg(y))}
+    next_q = critic(p, batch.next_obs, next_action, target=True)
+    return _td_loss(cfg, batch, critic(p, batch.obs, batch.action), jnp.min(next_q, axis=-1))
 
 
-def td3_actor_loss(nets: nw.Networks, params: nw.Params, batch: Batch):
-    """TD3 actor (Algorithm 2): −mean_b Q_0(ψ(s, π(s))). Trains the policy only. aux: q (mean Q_0)."""
+def td3_actor_loss(nets: nw.Networks, params: nw.Params, batch: Batch, *, critic: Critic | None = None):
+    """TD3 actor (Algorithm 2): −mean_b Q_0(s, π(s)) (the deterministic policy gradient; rlax's
+    `dpg_loss`, which the authors call, has the same gradient for A = 1 and 1/A of it otherwise:
+    docs/core-contract.md). Trains the policy only. aux: q (mean Q_0)."""
     _check_batch(nets, batch)
-    p = _trainable(params, ("policy",))
+    p, critic = _with_critic(nets, params, ("policy",), critic)
     action = nw.td3_action(nets, p, batch.obs)
-    q0 = nw.q_values(nets, p, nw.psi(nets, p, batch.obs, action))[..., 0]
-    loss = -jnp.mean(q0)
+    loss = -jnp.mean(critic(p, batch.obs, action)[:, 0])
     return loss, {"q": -loss}
 
 
 # ------------------------------------------------------------------------------------------------ SAC
-def sac_critic_loss(nets: nw.Networks, params: nw.Params, batch: Batch, noise):
-    """SAC critic on features (Algorithm 3): a′, log π(a′|s′) from the online policy at s′ with ξ′ = `noise`;
-    y = rs·r + discount·γ·(min_j Q̄_j(ψ̄(s′, a′)) − α log π(a′|s′)), α = exp(log_alpha) constant;
-    loss = ½ mean_{b,j}(m_b(Q_j(ψ(s, a)) − sg(y)))². Trains Q and ψ. aux: q, target_q."""
+def sac_critic_loss(nets: nw.Networks, params: nw.Params, batch: Batch, noise, *,
+                    critic: Critic | None = None):
+    """SAC critic (Algorithm 3 on features): a′, log π(a′|s′) from the online policy at s′ with ξ′ = `noise`;
+    y = rs·r + discount·γ·(min_j Q̄_j(s′, a′) − α log π(a′|s′)), α = exp(log_alpha) constant;
+    loss = ½ mean_{b,j}(m_b(Q_j(s, a) − sg(y)))². Q = `critic` (default: SF²'s Q(ψ), trains Q and ψ).
+    aux: q, target_q."""
     cfg = nets.cfg
     b = _check_batch(nets, batch)
     _check_noise(nets, "noise", noise, b, cfg.action_size, "action_size")
-    p = _trainable(params, ("psi", "q"))
-    alpha = jnp.exp(p["log_alpha"])
+    p, critic = _with_critic(nets, params, ("psi", "q"), critic)
+    alpha = sg(jnp.exp(p["log_alpha"]))
     next_action, next_log_prob = nw.sac_sample(nets, p, batch.next_obs, noise)
-    next_q = nw.q_values(nets, p, nw.psi(nets, p, batch.next_obs, next_action, target=True), target=True)
-    y = cfg.reward_scaling * batch.reward + batch.discount * cfg.discount * (
-        jnp.min(next_q, axis=-1) - alpha * next_log_prob)
-    q = nw.q_values(nets, p, nw.psi(nets, p, batch.obs, batch.action))
-    return _td_loss(q, y, batch.truncation), {"q": jnp.mean(q), "target_q": jnp.mean(sg(y))}
+    next_q = critic(p, batch.next_obs, next_action, target=True)
+    next_value = jnp.min(next_q, axis=-1) - alpha * next_log_prob
+    return _td_loss(cfg, batch, critic(p, batch.obs, batch.action), next_value)
 
 
-def sac_actor_loss(nets: nw.Networks, params: nw.Params, batch: Batch, noise):
-    """SAC actor (Algorithm 3): a ~ π(s) with ξ = `noise`; loss = mean_b(α log π(a|s) − min_j Q_j(ψ(s, a))).
-    Trains the policy only. aux: entropy (−mean log π)."""
+def sac_actor_loss(nets: nw.Networks, params: nw.Params, batch: Batch, noise, *,
+                   critic: Critic | None = None):
+    """SAC actor (Algorithm 3): a ~ π(s) with ξ = `noise`; loss = mean_b(α log π(a|s) − min_j Q_j(s, a)),
+    α constant. Trains the policy only. aux: entropy (−mean log π)."""
     cfg = nets.cfg
     b = _check_batch(nets, batch)
     _check_noise(nets, "noise", noise, b, cfg.action_size, "action_size")
-    p = _trainable(params, ("policy",))
-    alpha = jnp.exp(p["log_alpha"])
+    p, critic = _with_critic(nets, params, ("policy",), critic)
+    alpha = sg(jnp.exp(p["log_alpha"]))
     action, log_prob = nw.sac_sample(nets, p, batch.obs, noise)
-    q = nw.q_values(nets, p, nw.psi(nets, p, batch.obs, action))
-    loss = jnp.mean(alpha * log_prob - jnp.min(q, axis=-1))
+    loss = jnp.mean(alpha * log_prob - jnp.min(critic(p, batch.obs, action), axis=-1))
     return loss, {"entropy": -jnp.mean(log_prob)}
 
 
 def sac_alpha_loss(nets: nw.Networks, params: nw.Params, batch: Batch, noise):
     """SAC temperature: loss = mean_b(exp(log_alpha)·sg(−log π(a|s) − target_entropy)),
-    target_entropy = −target_entropy_scale·A. Trains log_alpha only. aux: alpha."""
+    target_entropy = −target_entropy_scale·A, a ~ π(s) with ξ = `noise`. Trains log_alpha only.
+    aux: alpha."""
     cfg = nets.cfg
     b = _check_batch(nets, batch)
     _check_noise(nets, "noise", noise, b, cfg.action_size, "action_size")

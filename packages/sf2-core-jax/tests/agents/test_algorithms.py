@@ -7,10 +7,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from sf2_common.config import SF2Config
 from sf2_jax import losses, networks
 from sf2_jax.agents import representations
 from sf2_jax.agents.algorithms import make_algorithm
-from sf2_jax.config import SF2Config
 
 D, A, B = 5, 2, 8
 
@@ -45,26 +45,31 @@ def _grads(fn, params, groups):
 
 
 @pytest.mark.parametrize("algo_name", ["td3", "sac"])
-def test_losses_equal_core_for_sf2(algo_name):
+def test_losses_are_the_cores_default_sf2_losses(algo_name):
+    """With SF², the agents' losses (the core's on `critic=SF2Representation.critic`, gradient taken over
+    the trained groups only) equal the core's losses with the default critic (gradients stopped inside)."""
     _, algo, params, _ = _setup(algo_name)
     batch = _batch(jax.random.PRNGKey(1))
-    noise = jax.random.normal(jax.random.PRNGKey(2), (B, A))
+    noise = algo.step_noise(jax.random.PRNGKey(2), batch)
     nets = algo.nets
-    ours_critic = lambda p: algo.critic_loss(p, batch, noise)  # noqa: E731
+    policy = algo.policy_losses(params, batch, noise)
     if algo_name == "td3":
         pairs = [
-            (ours_critic, lambda p: losses.td3_critic_loss(nets, p, batch, noise), ("q", "psi")),
-            (lambda p: algo.actor_loss(p, batch), lambda p: losses.td3_actor_loss(nets, p, batch),
-             ("policy",)),
+            (lambda p: algo.critic_loss(p, batch, noise),
+             lambda p: losses.td3_critic_loss(nets, p, batch, noise["smoothing_noise"]), ("q", "psi")),
+            (policy["policy"][1], lambda p: losses.td3_actor_loss(nets, p, batch), ("policy",)),
         ]
     else:
         pairs = [
-            (ours_critic, lambda p: losses.sac_critic_loss(nets, p, batch, noise), ("q", "psi")),
-            (lambda p: algo.actor_loss(p, batch, noise),
-             lambda p: losses.sac_actor_loss(nets, p, batch, noise), ("policy",)),
-            (lambda p: algo.alpha_loss(p, batch, noise),
-             lambda p: losses.sac_alpha_loss(nets, p, batch, noise), ("log_alpha",)),
+            (lambda p: algo.critic_loss(p, batch, noise),
+             lambda p: losses.sac_critic_loss(nets, p, batch, noise["next_action_noise"]), ("q", "psi")),
+            (policy["policy"][1], lambda p: losses.sac_actor_loss(nets, p, batch, noise["actor_noise"]),
+             ("policy",)),
+            (policy["log_alpha"][1], lambda p: losses.sac_alpha_loss(nets, p, batch, noise["alpha_noise"]),
+             ("log_alpha",)),
         ]
+    expected = {"policy": "actor_loss", **({"log_alpha": "alpha_loss"} if algo_name == "sac" else {})}
+    assert {g: name for g, (name, _) in policy.items()} == expected
     for ours, core, groups in pairs:
         np.testing.assert_allclose(ours(params)[0], core(params)[0], rtol=1e-6)
         _close(_grads(ours, params, groups), _grads(core, params, groups))
@@ -78,7 +83,7 @@ def test_td3_sgd_step_order_matches_contract():
     cfg, algo, params, opt = _setup("td3")
     batch = _batch(jax.random.PRNGKey(3))
     key = jax.random.PRNGKey(4)
-    new_params, _, metrics = algo.sgd_step(params, opt, batch, key, 0)
+    new_params, _, metrics = algo.sgd_step(params, opt, batch, algo.step_noise(key, batch), 0)
 
     nets, adam = algo.nets, optax.adam(cfg.learning_rate, eps=cfg.adam_eps)
     k_critic, k_aux, _, _ = jax.random.split(key, 4)
@@ -118,7 +123,8 @@ def test_td3_sgd_step_order_matches_contract():
 def test_every_combination_steps(algo_name, rep):
     _, algo, params, opt = _setup(algo_name, rep)
     batch = _batch(jax.random.PRNGKey(5))
-    new_params, new_opt, metrics = jax.jit(algo.sgd_step)(params, opt, batch, jax.random.PRNGKey(6), 0)
+    noise = algo.step_noise(jax.random.PRNGKey(6), batch)
+    new_params, new_opt, metrics = jax.jit(algo.sgd_step)(params, opt, batch, noise, 0)
     assert set(new_params) == set(params) and set(new_opt) == set(opt)
     assert all(np.isfinite(v) for v in metrics.values())
     changed = [g for g in params if not all(np.array_equal(a, b) for a, b in zip(
@@ -135,30 +141,21 @@ def test_every_combination_steps(algo_name, rep):
 @pytest.mark.parametrize("algo_name", ["td3", "sac"])
 @pytest.mark.parametrize("rep", ["none", "sf2"])
 def test_step_noise_is_every_random_input(algo_name, rep):
-    """`step_noise` draws exactly `noise_keys()`, and `sgd_step` consumes nothing else: its result is
-    the same for any key that gives the same noise (here: the step under a patched `step_noise`). float64,
-    since XLA fuses a step whose noise is an input differently (float32 rounding, amplified by Adam)."""
-    with jax.enable_x64(True):
-        _check_step_noise(algo_name, rep)
-
-
-def _check_step_noise(algo_name, rep):
-    algo = make_algorithm(algo_name, SF2Config.small(D, A, gamma_su=0.9), representations.get(rep),
-                          dtype=jnp.float64)
+    """`step_noise` draws exactly `noise_keys()` with the batch's leading shape and dtype, and `sgd_step`
+    reads nothing else of the noise: a dict with an extra entry gives the same step."""
+    algo = make_algorithm(algo_name, SF2Config.small(D, A, gamma_su=0.9), representations.get(rep))
     params, opt = algo.init(jax.random.PRNGKey(0))
-    batch = jax.tree_util.tree_map(lambda x: x.astype(jnp.float64), _batch(jax.random.PRNGKey(5)))
+    batch = _batch(jax.random.PRNGKey(5))
     noise = algo.step_noise(jax.random.PRNGKey(6), batch)
     assert list(noise) == list(algo.noise_keys())
-    assert all(v.shape[0] == B and v.dtype == jnp.float64 for v in noise.values())
-    ref = jax.jit(algo.sgd_step)(params, opt, batch, jax.random.PRNGKey(6), 0)
-
-    def with_noise(params, opt, batch, noise):
-        algo.step_noise = lambda key, b: noise  # the given noise, whatever the key
-        return algo.sgd_step(params, opt, batch, jax.random.PRNGKey(123), 0)
-
-    out = jax.jit(with_noise)(params, opt, batch, noise)
+    assert all(v.shape[0] == B and v.dtype == batch.obs.dtype for v in noise.values())
+    step = jax.jit(algo.sgd_step)
+    ref = step(params, opt, batch, noise, 0)
+    out = step(params, opt, batch, {**noise, "unused": jnp.ones(3)}, 0)
     for x, y in zip(jax.tree_util.tree_leaves(ref), jax.tree_util.tree_leaves(out)):
-        np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-10, atol=1e-14)
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    other = algo.step_noise(jax.random.PRNGKey(7), batch)[algo.critic_noise_key]
+    assert not np.array_equal(np.asarray(other), np.asarray(noise[algo.critic_noise_key]))
 
 
 class _ZetaEvery3(representations.SF2Representation):
@@ -173,8 +170,9 @@ def test_aux_every_keeps_group_and_adam_state_off_period():
     params, opt = algo.init(jax.random.PRNGKey(0))
     step = jax.jit(algo.sgd_step)
     for i in range(5):
-        new_p, new_o, _ = step(params, opt, _batch(jax.random.PRNGKey(i)), jax.random.PRNGKey(10 + i),
-                               jnp.asarray(i, jnp.int32))
+        batch = _batch(jax.random.PRNGKey(i))
+        noise = algo.step_noise(jax.random.PRNGKey(10 + i), batch)
+        new_p, new_o, _ = step(params, opt, batch, noise, jnp.asarray(i, jnp.int32))
         due = i % 3 == 0
         for g in ("zeta",):
             same_p = all(np.array_equal(a, b) for a, b in zip(jax.tree_util.tree_leaves(params[g]),
@@ -187,6 +185,30 @@ def test_aux_every_keeps_group_and_adam_state_off_period():
         # ζ̄ is averaged every step (towards the current ζ)
         assert not np.array_equal(np.asarray(jax.tree_util.tree_leaves(new_p["target_zeta"])[0]),
                                   np.asarray(jax.tree_util.tree_leaves(params["target_zeta"])[0]))
+        params, opt = new_p, new_o
+
+
+def _same(a, b) -> bool:
+    leaves = jax.tree_util.tree_leaves
+    return all(np.array_equal(x, y) for x, y in zip(leaves(a), leaves(b)))
+
+
+def test_policy_delay_skips_policy_and_its_targets_off_step():
+    """TD3 with policy_delay 2 (traced step): odd steps leave π, its Adam state, Q̄ and π̄ as they were and
+    report actor_loss 0; even steps move them; ψ̄, ζ̄ move every step."""
+    algo = make_algorithm("td3", SF2Config.small(D, A, policy_delay=2), representations.get("sf2"))
+    params, opt = algo.init(jax.random.PRNGKey(0))
+    step = jax.jit(algo.sgd_step)
+    for i in range(3):
+        batch = _batch(jax.random.PRNGKey(20 + i))
+        new_p, new_o, metrics = step(params, opt, batch, algo.step_noise(jax.random.PRNGKey(i), batch),
+                                     jnp.asarray(i, jnp.int32))
+        actor = i % 2 == 0
+        for g in ("policy", "target_q", "target_policy"):
+            assert _same(params[g], new_p[g]) == (not actor), (i, g)
+        assert _same(opt["policy"], new_o["policy"]) == (not actor)
+        assert (float(metrics["actor_loss"]) != 0.0) == actor
+        assert not _same(params["target_psi"], new_p["target_psi"])
         params, opt = new_p, new_o
 
 

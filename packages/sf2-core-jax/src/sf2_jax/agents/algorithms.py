@@ -1,62 +1,68 @@
 """Base algorithms TD3 and SAC, written once against the representation interface.
 
-One SGD step follows docs/core-contract.md "One SGD step" (the authors' order):
-1. critic step: Adam on `q` + `representation.critic_groups` from the TD loss;
-2. representation step: Adam on `representation.aux_groups` (after step 1) from its own loss;
-3. actor step (every `policy_delay`): Adam on the policy from Q (and features) as they were *before*
-   step 1; SAC first takes its temperature step from the pre-step policy;
-4. targets: TD3 averages Q̄ and π̄ into the targets on actor steps (the authors blended the new policy
-   into the old *online* policy; we do not); SAC averages Q̄ every step; the representation's targets
-   are updated every step.
+The losses are the core's (`sf2_jax.losses.td3_critic_loss`, ..., with `critic=` the representation's
+critic); this module only schedules them. The vocabulary is the same in sf2_torch.agents.algorithms
+(table: docs/core-contract.md "Agents: the plug-in vocabulary"); JAX methods are pure, take `params`
+(and `opt_state` where they update it) first and a PRNG `key` where torch takes a generator.
 
-Each group has its own Adam state, so ψ, trained in steps 1 and 2, keeps one state across both (as in
-the authors' code). The TD and actor losses here equal `sf2_jax.losses.td3_critic_loss`, ... when the
-representation is SF² (tests/agents/test_algorithms.py proves it); they are written against
-`representation.critic` so that every representation shares them.
+One SGD step (`sgd_step`; docs/core-contract.md "One SGD step", the authors' order):
+1. at the pre-step parameters: the critic gradient (groups `q` + `representation.critic_groups`) and,
+   on actor steps (`step % policy_delay == 0`), each policy group's gradient from its loss
+   (`policy_losses`: TD3 the actor; SAC the temperature and the actor);
+2. Adam on the critic groups;
+3. the representation's loss at the parameters after 2 (ā′ = `aux_next_action` from the pre-step
+   policy), Adam on `representation.aux_groups`;
+4. Adam on the policy groups (actor steps only);
+5. targets: Q̄ (TD3: and π̄) ← EMA with τ when `updates_q_target(step)` (TD3: on actor steps; SAC: every
+   step), the representation's `targets()` every step. The authors' TD3 blended the new policy into the
+   old *online* policy; we average into the target.
+Each group has its own Adam state, so ψ, trained in steps 2 and 3, keeps one state across both (as in
+the authors' code).
 
-Noise: `step_noise(key, batch)` is the thin wrapper that draws every random input of one SGD step, a
-dict keyed by `noise_keys()`: TD3 `smoothing_noise` ξ (target-policy smoothing); SAC
-`next_action_noise` ξ′ (a′ ~ π(s′) in the TD target), `actor_noise`, `alpha_noise` (a ~ π(s) in the
-actor and temperature losses) and, with a representation loss, `flow_action_noise` (ā′ ~ π(s′));
-then the representation's `noise_keys` (SF²: `flow_noise` ε, `flow_time` t). The names are the torch
-agents' tensordict keys, so tests hand one draw to both frameworks. `sgd_step` is pure given it.
+Noise: `step_noise(key, batch)` draws every random input of one SGD step, a dict keyed by
+`noise_keys()`: TD3 `smoothing_noise` ξ (target-policy smoothing); SAC `next_action_noise` ξ′ (a′ ~ π(s′)
+in the TD target), `actor_noise`, `alpha_noise` (a ~ π(s) in the actor and temperature losses) and, with a
+representation loss, `flow_action_noise` (ā′ ~ π(s′)); then the representation's `noise_keys` (SF²:
+`flow_noise` ε, `flow_time` k). The names are the torch agents' keys, so tests hand one draw to both
+frameworks. `sgd_step` is pure given it.
 
-Schedules (`step`, the run's gradient-step index): the actor step is taken when
-`step % policy_delay == 0`; a group of `representation.aux_every` ({group: period}) takes its aux Adam
-step only when `step % period == 0`. On the other steps that group's parameters and whole Adam state
-(moments and step count) are kept by `jnp.where` on the step (no Python branch on a traced value, so
-the step stays one program under `jit`, `scan` and the trainer's seed `vmap`): the authors' separate
-task-vector optimizer only steps when it is used, so its bias correction counts its own updates.
+Schedules (`step`, the run's gradient-step index): a group of `representation.aux_every` ({group:
+period}) takes its aux Adam step only when `step % period == 0`; on the other steps its parameters and
+whole Adam state (moments and step count) are kept by `jnp.where` on the step, and a `policy_delay` > 1
+skips the policy by `lax.cond` (no Python branch on a traced value, so the step stays one program under
+`jit`, `scan` and the trainer's seed `vmap`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import optax
 from sf2_common.agents.registry import check_aux_every
+from sf2_common.config import SF2Config
 
 from sf2_jax import losses, networks
-from sf2_jax.config import SF2Config
 
 from .representations import Representation
 
-__all__ = ["Algorithm", "TD3", "SAC", "make_algorithm", "check_aux_every"]
+__all__ = ["Algorithm", "TD3", "SAC", "make_algorithm"]
 
 sg = jax.lax.stop_gradient
 Params = dict[str, Any]
 
 
-def _td_loss(q, y, truncation):
-    """½ mean_{b,j}(m_b(Q_j − sg(y)))², m_b = 1 − truncation_b."""
-    err = (1 - truncation)[..., None] * (q - sg(y)[..., None])
-    return 0.5 * jnp.mean(err**2)
+def _when(flag, fn: Callable, otherwise: Callable):
+    """fn() where `flag`, else otherwise(): a Python bool decides while tracing, a traced one by lax.cond."""
+    if isinstance(flag, bool):
+        return fn() if flag else otherwise()
+    return jax.lax.cond(flag, fn, otherwise)
 
 
 class Algorithm:
-    """Shared machinery: parameter/optimizer init, per-group Adam steps, the SGD step skeleton."""
+    """The SGD step skeleton (module docstring), parameter and optimizer init, per-group Adam steps."""
 
     name = ""
     policy_groups: tuple[str, ...] = ()
@@ -89,6 +95,13 @@ class Algorithm:
         opt_state = {g: self._tx(g).init(params[g]) for g in self.trained_groups()}
         return params, opt_state
 
+    def _value_and_grad(self, loss_fn, groups, params):
+        """((loss, aux), {group: gradient}) of `loss_fn(params)` with respect to `groups` only."""
+        def f(trained):
+            return loss_fn({**params, **trained})
+
+        return jax.value_and_grad(f, has_aux=True)({g: params[g] for g in groups})
+
     def _adam_step(self, params, opt_state, grads, due=None):
         """Adam on every group of `grads`; a group of `due` ({group: bool scalar}) keeps its parameters
         and Adam state (moments and count) where its flag is False."""
@@ -105,16 +118,6 @@ class Algorithm:
             params[group], opt_state[group] = new, state
         return params, opt_state
 
-    def _loss_step(self, loss_fn, groups, params, opt_state, due=None):
-        """One Adam step on `groups` of `loss_fn(params) → (loss, aux)`; other groups are constants.
-        `due`: see `_adam_step`."""
-        def f(trained):
-            return loss_fn({**params, **trained})
-
-        (loss, aux), grads = jax.value_and_grad(f, has_aux=True)({g: params[g] for g in groups})
-        params, opt_state = self._adam_step(params, opt_state, grads, due)
-        return params, opt_state, loss, aux
-
     # ------------------------------------------------------------------ acting (overridden)
     def explore(self, params, obs, key):
         raise NotImplementedError
@@ -123,14 +126,14 @@ class Algorithm:
         raise NotImplementedError
 
     # ------------------------------------------------------------------ noise (the thin wrapper)
+    def noise_keys(self) -> tuple[str, ...]:
+        raise NotImplementedError
+
     def _algo_noise(self, k_critic, k_next, k_actor, batch) -> dict[str, jax.Array]:
         raise NotImplementedError
 
     def _randn(self, key, batch):
         return jax.random.normal(key, batch.action.shape, batch.action.dtype)
-
-    def noise_keys(self) -> tuple[str, ...]:
-        raise NotImplementedError
 
     def step_noise(self, key: jax.Array, batch: losses.Batch) -> dict[str, jax.Array]:
         """Every random input of one SGD step on `batch`, drawn from `key` (module docstring): the keys
@@ -147,55 +150,78 @@ class Algorithm:
             noise.update(aux)
         return noise
 
-    # ------------------------------------------------------------------ the SGD step
+    # ------------------------------------------------------------------ the losses (overridden)
     def critic_loss(self, params, batch, noise):
+        """The TD loss of the representation's critic with `noise[critic_noise_key]`: (loss, aux)."""
+        raise NotImplementedError
+
+    def policy_losses(self, params, batch, noise) -> dict[str, tuple[str, Callable]]:
+        """{policy group: (metric name, loss_fn)}, `loss_fn(params) -> (loss, aux metrics)`."""
         raise NotImplementedError
 
     def aux_next_action(self, params, batch, noise):
+        """ā′, the next action of the representation's loss."""
         raise NotImplementedError
 
-    def actor_update(self, pre, params, opt_state, batch, noise, step):
+    def updates_q_target(self, step):
+        """Whether Q̄ (TD3: and π̄) move this step: a Python bool or a traced bool scalar."""
         raise NotImplementedError
 
-    def update_q_target(self, params, step) -> Params:
-        raise NotImplementedError
+    def _actor_step(self, step):
+        return True if self.cfg.policy_delay == 1 else step % self.cfg.policy_delay == 0
 
-    def aux_due(self, step) -> dict[str, Any]:
-        """{group: step % period == 0} for the groups of `representation.aux_every`."""
-        return {g: step % every == 0 for g, every in self.rep.aux_every.items()}
-
-    def sgd_step(self, params: Params, opt_state: Params, batch: losses.Batch, key: jax.Array, step):
-        """One SGD step (module docstring) with the noise `step_noise(key, batch)`; `step` is the
-        gradient-step index (policy delay, `aux_every`). Returns (params, opt_state, metrics dict of
-        scalars)."""
-        noise = self.step_noise(key, batch)
-        pre = params
-        metrics = {}
-        # 1. critic
-        critic_noise = noise[self.critic_noise_key]
-        params, opt_state, loss, aux = self._loss_step(
-            lambda p: self.critic_loss(p, batch, critic_noise), ("q", *self.rep.critic_groups), params,
-            opt_state)
-        metrics["critic_loss"] = loss
-        metrics["q"] = aux["q"]
-        # 2. the representation's own loss, on the parameters after step 1
-        if self.rep.aux_groups:
+    # ------------------------------------------------------------------ the SGD step
+    def sgd_step(self, params: Params, opt_state: Params, batch: losses.Batch, noise: dict, step):
+        """One SGD step (module docstring) with `noise` (keys `noise_keys()`, from `step_noise`); `step` is
+        the gradient-step index (policy delay, `aux_every`). Returns (params, opt_state, metrics dict
+        of scalars)."""
+        rep, pre = self.rep, params
+        # 1. the critic gradient at the pre-step parameters (the policy's: in `policy_step`, also at `pre`)
+        (loss, aux), grads = self._value_and_grad(lambda p: self.critic_loss(p, batch, noise),
+                                                  ("q", *rep.critic_groups), pre)
+        metrics = {"critic_loss": loss, "q": aux["q"]}
+        # 2. Adam on the critic groups
+        params, opt_state = self._adam_step(params, opt_state, grads)
+        # 3. the representation's own loss, on the parameters after step 2
+        if rep.aux_groups:
             next_action = sg(self.aux_next_action(pre, batch, noise))
-            aux_noise = {k: noise[k] for k in self.rep.noise_keys}
-            params, opt_state, loss, aux = self._loss_step(
-                lambda p: self.rep.aux_loss(p, batch, next_action, aux_noise), self.rep.aux_groups,
-                params, opt_state, due=self.aux_due(step))
-            metrics[self.rep.aux_loss_name] = loss
-            metrics.update(aux)
-        # 3. actor (and temperature) from the pre-step critic
-        params, opt_state, actor_metrics = self.actor_update(pre, params, opt_state, batch, noise, step)
-        metrics.update(actor_metrics)
-        # 4. targets
-        params = {**params, **self.update_q_target(params, step), **self.rep.update_targets(params)}
-        return params, opt_state, metrics
+            aux_noise = {k: noise[k] for k in rep.noise_keys}
+            (loss, aux), grads = self._value_and_grad(
+                lambda p: rep.aux_loss(p, batch, next_action, aux_noise), rep.aux_groups, params)
+            due = {g: step % every == 0 for g, every in rep.aux_every.items()}
+            params, opt_state = self._adam_step(params, opt_state, grads, due)
+            metrics.update({rep.aux_loss_name: loss, **aux})
 
-    def _policy_step_due(self, step):
-        return step % self.cfg.policy_delay == 0
+        # 1 and 4: the policy groups' gradients at `pre`, then Adam on them (actor steps only)
+        def policy_step():
+            grads, out = {}, {}
+            for group, (name, loss_fn) in self.policy_losses(pre, batch, noise).items():
+                (out[name], aux), grad = self._value_and_grad(loss_fn, (group,), pre)
+                grads.update(grad)
+                out.update(aux)
+            return (*self._adam_step(params, opt_state, grads), out)
+
+        def no_policy_step():
+            zeros = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype),
+                                           jax.eval_shape(policy_step)[2])
+            return params, opt_state, zeros
+
+        params, opt_state, policy_metrics = _when(self._actor_step(step), policy_step, no_policy_step)
+        metrics.update(policy_metrics)
+        if "log_alpha" in params:
+            metrics["alpha"] = jnp.exp(params["log_alpha"])   # SAC's temperature after this step
+        # 5. targets
+        pairs = {"target_q": ("q", self.cfg.tau)}
+        if "target_policy" in params:
+            pairs["target_policy"] = ("policy", self.cfg.tau)
+        moved = _when(self.updates_q_target(step), lambda: self._ema(params, pairs),
+                      lambda: {t: params[t] for t in pairs})
+        return {**params, **moved, **self._ema(params, rep.targets())}, opt_state, metrics
+
+    @staticmethod
+    def _ema(params, pairs) -> Params:
+        """{target: ema_update(target, online, τ)} for `pairs` = {target: (online, τ)}."""
+        return {t: losses.ema_update(params[t], params[o], tau) for t, (o, tau) in pairs.items()}
 
 
 class TD3(Algorithm):
@@ -217,59 +243,28 @@ class TD3(Algorithm):
             return networks.td3_action(self.nets, params, obs)
         return self.explore(params, obs, key)
 
-    def critic_loss(self, params, batch, noise):
-        """y = rs·r + discount·γ·min_j Q̄_j(s′, ã′), ã′ = clip(π̄(s′) + clip(σ_s ξ, −c, c), −1, 1)."""
-        cfg = self.cfg
-        smoothing = jnp.clip(cfg.smoothing_noise * noise, -cfg.noise_clip, cfg.noise_clip)
-        next_action = jnp.clip(networks.td3_action(self.nets, params, batch.next_obs, target=True)
-                               + smoothing, -1.0, 1.0)
-        next_q = self.rep.critic(params, batch.next_obs, next_action, target=True)
-        y = cfg.reward_scaling * batch.reward + batch.discount * cfg.discount * jnp.min(next_q, axis=-1)
-        q = self.rep.critic(params, batch.obs, batch.action)
-        return _td_loss(q, y, batch.truncation), {"q": jnp.mean(q)}
-
-    def actor_loss(self, params, batch):
-        """−mean_b Q_0(s, π(s))."""
-        action = networks.td3_action(self.nets, params, batch.obs)
-        return -jnp.mean(self.rep.critic(params, batch.obs, action)[..., 0]), {}
-
     def noise_keys(self):
         return ("smoothing_noise", *(self.rep.noise_keys if self.rep.aux_groups else ()))
 
     def _algo_noise(self, k_critic, k_next, k_actor, batch):
         return {"smoothing_noise": self._randn(k_critic, batch)}
 
+    def critic_loss(self, params, batch, noise):
+        return losses.td3_critic_loss(self.nets, params, batch, noise[self.critic_noise_key],
+                                      critic=self.rep.critic)
+
+    def policy_losses(self, params, batch, noise):
+        def actor(p):
+            return losses.td3_actor_loss(self.nets, p, batch, critic=self.rep.critic)[0], {}
+
+        return {"policy": ("actor_loss", actor)}
+
     def aux_next_action(self, params, batch, noise):
         """ā′ = π̄(s′) (no smoothing)."""
         return networks.td3_action(self.nets, params, batch.next_obs, target=True)
 
-    def actor_update(self, pre, params, opt_state, batch, noise, step):
-        def update(args):
-            params, opt_state = args
-            # differentiate the policy only; Q and features stay at their pre-step values
-            new_pre, new_opt, loss, _ = self._loss_step(lambda p: self.actor_loss(p, batch), ("policy",),
-                                                        pre, opt_state)
-            return {**params, "policy": new_pre["policy"]}, new_opt, loss
-
-        if self.cfg.policy_delay == 1:
-            params, opt_state, loss = update((params, opt_state))
-        else:
-            params, opt_state, loss = jax.lax.cond(
-                self._policy_step_due(step), update,
-                lambda args: (args[0], args[1], jnp.zeros((), self.dtype)), (params, opt_state))
-        return params, opt_state, {"actor_loss": loss}
-
-    def update_q_target(self, params, step):
-        tau = self.cfg.tau
-
-        def new_targets():
-            return {"target_q": losses.ema_update(params["target_q"], params["q"], tau),
-                    "target_policy": losses.ema_update(params["target_policy"], params["policy"], tau)}
-
-        if self.cfg.policy_delay == 1:
-            return new_targets()
-        keep = {"target_q": params["target_q"], "target_policy": params["target_policy"]}
-        return jax.lax.cond(self._policy_step_due(step), new_targets, lambda: keep)
+    def updates_q_target(self, step):
+        return self._actor_step(step)
 
 
 class SAC(Algorithm):
@@ -287,31 +282,6 @@ class SAC(Algorithm):
     def act(self, params, obs, key, deterministic):
         return networks.sac_mode(self.nets, params, obs) if deterministic else self.explore(params, obs, key)
 
-    def critic_loss(self, params, batch, noise):
-        """y = rs·r + discount·γ·(min_j Q̄_j(s′, a′) − α log π(a′|s′)), a′ ~ π(s′) with ξ′ = noise."""
-        cfg = self.cfg
-        alpha = sg(jnp.exp(params["log_alpha"]))
-        next_action, next_log_prob = networks.sac_sample(self.nets, params, batch.next_obs, noise)
-        next_q = self.rep.critic(params, batch.next_obs, next_action, target=True)
-        y = cfg.reward_scaling * batch.reward + batch.discount * cfg.discount * (
-            jnp.min(next_q, axis=-1) - alpha * next_log_prob)
-        q = self.rep.critic(params, batch.obs, batch.action)
-        return _td_loss(q, y, batch.truncation), {"q": jnp.mean(q)}
-
-    def actor_loss(self, params, batch, noise):
-        """mean_b(α log π(a|s) − min_j Q_j(s, a)), a ~ π(s) with ξ = noise; α constant."""
-        alpha = sg(jnp.exp(params["log_alpha"]))
-        action, log_prob = networks.sac_sample(self.nets, params, batch.obs, noise)
-        q = self.rep.critic(params, batch.obs, action)
-        return jnp.mean(alpha * log_prob - jnp.min(q, axis=-1)), {"entropy": -jnp.mean(log_prob)}
-
-    def alpha_loss(self, params, batch, noise):
-        """mean_b(exp(log_alpha)·sg(−log π(a|s) − target_entropy)), target = −scale·A."""
-        _, log_prob = networks.sac_sample(self.nets, params, batch.obs, noise)
-        target_entropy = -self.cfg.target_entropy_scale * self.cfg.action_size
-        alpha = jnp.exp(params["log_alpha"])
-        return jnp.mean(alpha * sg(-log_prob - target_entropy)), {}
-
     def noise_keys(self):
         keys = ("next_action_noise", "actor_noise", "alpha_noise")
         return keys + (("flow_action_noise", *self.rep.noise_keys) if self.rep.aux_groups else ())
@@ -324,35 +294,25 @@ class SAC(Algorithm):
             out["flow_action_noise"] = self._randn(k_next, batch)
         return out
 
+    def critic_loss(self, params, batch, noise):
+        return losses.sac_critic_loss(self.nets, params, batch, noise[self.critic_noise_key],
+                                      critic=self.rep.critic)
+
+    def policy_losses(self, params, batch, noise):
+        def alpha(p):
+            return losses.sac_alpha_loss(self.nets, p, batch, noise["alpha_noise"])[0], {}
+
+        def actor(p):
+            return losses.sac_actor_loss(self.nets, p, batch, noise["actor_noise"], critic=self.rep.critic)
+
+        return {"log_alpha": ("alpha_loss", alpha), "policy": ("actor_loss", actor)}
+
     def aux_next_action(self, params, batch, noise):
         """ā′ ~ π(s′) with the explicit noise `flow_action_noise`."""
         return networks.sac_sample(self.nets, params, batch.next_obs, noise["flow_action_noise"])[0]
 
-    def actor_update(self, pre, params, opt_state, batch, noise, step):
-        a_noise, p_noise = noise["alpha_noise"], noise["actor_noise"]
-
-        def update(args):
-            params, opt_state = args
-            new, opt_state, alpha_loss, _ = self._loss_step(
-                lambda p: self.alpha_loss(p, batch, a_noise), ("log_alpha",), pre, opt_state)
-            new2, opt_state, actor_loss, aux = self._loss_step(
-                lambda p: self.actor_loss(p, batch, p_noise), ("policy",), pre, opt_state)
-            params = {**params, "log_alpha": new["log_alpha"], "policy": new2["policy"]}
-            return params, opt_state, (actor_loss, alpha_loss, aux["entropy"])
-
-        if self.cfg.policy_delay == 1:
-            params, opt_state, out = update((params, opt_state))
-        else:
-            zero = jnp.zeros((), self.dtype)
-            params, opt_state, out = jax.lax.cond(
-                self._policy_step_due(step), update, lambda args: (args[0], args[1], (zero, zero, zero)),
-                (params, opt_state))
-        actor_loss, alpha_loss, entropy = out
-        return params, opt_state, {"actor_loss": actor_loss, "alpha_loss": alpha_loss,
-                                   "alpha": jnp.exp(params["log_alpha"]), "entropy": entropy}
-
-    def update_q_target(self, params, step):
-        return {"target_q": losses.ema_update(params["target_q"], params["q"], self.cfg.tau)}
+    def updates_q_target(self, step):
+        return True
 
 
 _ALGORITHMS = {"td3": TD3, "sac": SAC}

@@ -1,30 +1,39 @@
-"""Pluggable representations: what the critic sees, and the representation's own loss step.
+"""Pluggable representations: what the critic sees, and the representation's own loss.
 
-A representation is the part of an agent between the raw (s, a) and the twin Q values:
+A representation is the part of an agent between the raw (s, a) and the twin Q values. The vocabulary
+is the same in sf2_torch.agents.representations (table: docs/core-contract.md "Agents: the plug-in
+vocabulary"); JAX methods are pure and take `params` (and a PRNG `key` where torch takes a generator).
 
-- `init(key, core_params)` → the parameter groups it owns. It always owns the Q heads `q`/`target_q`
-  (their input is its features); SF² adds ψ, ζ and their targets. `core_params` are the groups
-  `sf2_jax.networks.init_params` made, so a representation that reuses core networks can take them.
-- `critic(params, obs, action, target)` → (B, 2): twin Q on its features (online or target groups).
+Class attributes:
+- `name`, `label` (tables and plots, e.g. "SF²"), `supported_algos`;
 - `critic_groups`: groups besides `q` that the critic (TD) loss trains (SF²: ψ, the authors'
-  `back_critic_grad=True`).
-- `aux_groups`, `aux_noise(key, batch)`, `aux_loss(params, batch, next_action, noise)`: its own loss,
-  one Adam step on `aux_groups` right after the critic step of every SGD step (SF²: the flow loss on
-  ψ and ζ). `aux_noise` is the thin wrapper that draws the loss's random inputs, a dict keyed by
-  `noise_keys` (SF²: `flow_noise` ε and `flow_time` t, eq. 3); the loss is pure. The names are those
-  of the torch agents' tensordict keys, so one draw feeds both frameworks (`Algorithm.step_noise`).
-  `next_action` is ā′, given by the base algorithm (TD3: target policy at s′; SAC: a policy sample).
+  `back_critic_grad=True`);
+- `aux_groups`, `aux_loss_name`: the groups its own loss trains, one Adam step right after the critic
+  step of every SGD step (SF²: the flow loss `flow_loss` on ψ and ζ);
+- `noise_keys`: the entries of `aux_noise` (SF²: `flow_noise` ε and `flow_time` k, eq. 3); the names are
+  the torch agents' too, so one draw feeds both frameworks;
 - `aux_every` ({group: period}, default {}): groups of `aux_groups` that the aux step updates only on
   gradient steps `step % period == 0` (Sim/SimLap's task vector w: every 10 TD3 / 16 SAC steps, the
   authors' `gradient_steps % 10 == 0` cond). On the other steps the base algorithm leaves that group's
   parameters *and* its whole Adam state (moments and step count) unchanged, as the authors' separate w
   optimizer, which only steps when it is used: Adam's bias correction counts w's own updates.
-- `update_targets(params)` → the EMA-updated target groups it owns other than `target_q` (the base
-  algorithm updates `target_q` on its own schedule).
+
+Methods:
+- `__init__(cfg, nets)`: `nets` are the core `Networks` of the algorithm (policy, SF² networks);
+- `init(key, core_params)` → {group: params}: the groups it owns. It always owns the Q heads
+  `q`/`target_q` (their input is its features); SF² adds ψ, ζ and their targets. `core_params` are the
+  groups `sf2_jax.networks.init_params` made, so a representation that reuses core networks takes them;
+- `critic(params, obs, action, target=False)` → (B, 2): twin Q on its features (online or target);
+- `aux_noise(key, batch)` → {noise key: array}: the random inputs of its loss, shapes from
+  `batch.obs.shape[:-1]` (any leading dims); the loss is pure;
+- `aux_loss(params, batch, next_action, noise)` → (loss, aux dict): its own loss; `next_action` ā′ is
+  given by the base algorithm (TD3: target policy at s′; SAC: a policy sample);
+- `targets()` → {target group: (online group, τ)}: the EMA targets it owns besides `target_q`; the base
+  algorithm applies them every step (`losses.ema_update`) and moves `target_q` on its own schedule.
 
 The base algorithms (algorithms.py) are written once against this interface; the trainer never looks
 inside a representation. Baselines (Sim, SimLap, SPR) plug in by subclassing `Representation` and
-calling `register`. Every group a representation returns is saved, restored and EMA'd by name.
+calling `register`. Every group a representation returns is saved, restored and trained by name.
 """
 
 from __future__ import annotations
@@ -35,9 +44,9 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 from sf2_common.agents.registry import Registry
+from sf2_common.config import SF2Config
 
 from sf2_jax import losses, networks
-from sf2_jax.config import SF2Config
 
 __all__ = ["Representation", "NoRepresentation", "SF2Representation", "VanillaQ", "register", "get",
            "names", "REGISTRY"]
@@ -74,7 +83,7 @@ class Representation:
     def aux_loss(self, params: Params, batch: losses.Batch, next_action, noise):
         raise NotImplementedError(f"representation {self.name!r} has no loss of its own")
 
-    def update_targets(self, params: Params) -> Params:
+    def targets(self) -> dict[str, tuple[str, float]]:
         return {}
 
 
@@ -143,8 +152,7 @@ class SF2Representation(Representation):
         return {n: core_params[n] for n in names_}
 
     def critic(self, params, obs, action, target=False):
-        features = networks.psi(self.nets, params, obs, action, target=target)
-        return networks.q_values(self.nets, params, features, target=target)
+        return losses.sf2_critic(self.nets)(params, obs, action, target)
 
     def aux_noise(self, key, batch):
         k_eps, k_time = jax.random.split(key)
@@ -157,8 +165,5 @@ class SF2Representation(Representation):
         return losses.flow_loss(self.nets, params, batch, next_action, noise["flow_noise"],
                                 noise["flow_time"])
 
-    def update_targets(self, params):
-        return {
-            "target_psi": losses.ema_update(params["target_psi"], params["psi"], self.cfg.tau),
-            "target_zeta": losses.ema_update(params["target_zeta"], params["zeta"], self.cfg.tau_zeta),
-        }
+    def targets(self):
+        return {"target_psi": ("psi", self.cfg.tau), "target_zeta": ("zeta", self.cfg.tau_zeta)}

@@ -169,7 +169,8 @@ class Program:
         def sgd(carry, xs):
             params, opt_state, step = carry
             batch, k = xs
-            params, opt_state, metrics = self.algo.sgd_step(params, opt_state, batch, k, step)
+            noise = self.algo.step_noise(k, batch)
+            params, opt_state, metrics = self.algo.sgd_step(params, opt_state, batch, noise, step)
             return (params, opt_state, step + 1), metrics
 
         (params, opt_state, grad_steps), metrics = jax.lax.scan(
