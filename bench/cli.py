@@ -65,7 +65,7 @@ def _has_gpu() -> bool:
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--size", choices=("small", "medium", "paper"), default=None,
+    p.add_argument("--size", choices=("small", "quick", "medium", "paper"), default=None,
                    help="network/batch preset (default: paper on a GPU, small otherwise)")
     p.add_argument("--tasks", default="cartpole,cheetah",
                    help="comma list of tasks or aliases, 'unique' (the six distinct sizes) or 'all'")
@@ -113,9 +113,6 @@ def parser() -> argparse.ArgumentParser:
                    help="updates per call of the `jax-scan` framework (lax.scan, as the trainer's "
                         "grad_updates_per_step = 8); `jax` makes one call per update")
     r.add_argument("--device", default="auto", help="torch device: auto, cpu, cuda")
-    r.add_argument("--torch-impl", choices=("auto", "agents", "composed"), default="auto",
-                   help="torch step: sf2_torch.agents (needs torchrl, tensordict) or the one composed from "
-                        "sf2_torch.losses in bench/torch_steps.py; auto = agents when importable")
     r.add_argument("--flow-step", action="store_true", help="also run the flow-step table in this run")
     r.add_argument("--flow-steps", default="1,8")
     r.add_argument("--flow-variants", default="", help="bench/prototypes.py variants for the flow step")
@@ -162,7 +159,7 @@ def main(argv=None) -> int:
         render(Path(args.folder))
         print(f"re-rendered {args.folder}")
         return 0
-    # JAX and torch in one process: no preallocation (DESIGN.md §7)
+    # JAX and torch in one process: no preallocation (JAX would reserve most of the GPU)
     os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
     gpu_host = bool(shutil.which("nvidia-smi")) or os.path.exists("/dev/nvidia0")
     if args.threads is None and not gpu_host:
@@ -286,15 +283,9 @@ def run(args, out: Path, info: dict, log) -> None:
     else:
         reps = list(_names(args.reps))
     if any(fw.startswith("torch") for fw in frameworks):
-        from . import torch_steps
-
-        agents = args.torch_impl == "agents" or (args.torch_impl == "auto" and torch_steps.agents_available())
-        args.torch_impl = "agents" if agents else "composed"
-        info["torch_impl"] = ("sf2_torch.agents sgd_step (eager; torch-compile: compile_mode='default'; "
-                              "torch-cudagraphs: + tensordict CudaGraphModule)" if agents else
-                              "composed from sf2_torch.losses (bench/torch_steps.py; torch-compile: each "
-                              "loss "
-                              "torch.compile'd + fused Adam; torch-cudagraphs: mode='reduce-overhead')")
+        info["torch_impl"] = ("sf2_torch.agents sgd_step (torch: eager; torch-graphs: + tensordict "
+                              "CudaGraphModule; torch-compile: compile_mode='default'; "
+                              "torch-cudagraphs: both)")
     device = _torch_device(args.device)
     cases = sizes.grid(frameworks, _names(args.algos), reps, tasks, args.size, steps,
                        _names(args.integrators), compiled_steps, _ints(args.variant_steps),
@@ -400,7 +391,7 @@ def _build(case, device, args):
         return jax_steps.update_runner(case, seed=args.seed, scan=scan)
     from . import torch_steps
 
-    runner, extra = torch_steps.update_runner(case, device, seed=args.seed, impl=args.torch_impl)
+    runner, extra = torch_steps.update_runner(case, device, seed=args.seed)
     try:
         extra["flops"] = torch_steps.count_flops(case, device, seed=args.seed)
         extra["flops_source"] = "torch FlopCounterMode (matmuls)"

@@ -23,9 +23,10 @@ COLUMNS = [
     "flops", "flops_source", "bytes", "achieved_tflops", "finite", "impl", "times_ms",
 ]
 FW_LABEL = {"jax": "JAX (jit)", "jax-scan": "JAX (jit, lax.scan of 8)", "torch": "torch eager",
-            "torch-compile": "torch compiled", "torch-cudagraphs": "torch compiled + CUDA graphs"}
-FW_ORDER = ("jax", "jax-scan", "torch", "torch-compile", "torch-cudagraphs")
-TORCH_FW = ("torch", "torch-compile", "torch-cudagraphs")
+            "torch-graphs": "torch eager + CUDA graphs", "torch-compile": "torch compiled",
+            "torch-cudagraphs": "torch compiled + CUDA graphs"}
+FW_ORDER = ("jax", "jax-scan", "torch", "torch-graphs", "torch-compile", "torch-cudagraphs")
+TORCH_FW = ("torch", "torch-graphs", "torch-compile", "torch-cudagraphs")
 TARGETS = {"sf2_over_vanilla": 1.3, "per_step_pct": 3.0, "torch_over_jax": 1.5}
 
 
@@ -166,6 +167,7 @@ def markdown(rows: list[dict], machine: dict, extra: str = "") -> str:
                         out.append("| " + " | ".join(cells) + " |")
             out.append("")
         out += _ratio_section(idx, tasks, algos, fws, size, steps, integrators)
+        out += _baseline_section(idx, tasks, algos, fws, size, reps)
         out += _variant_section(idx, rows, tasks, algos, size, steps)
         out += _torch_jax_section(idx, rows, size)
         out += _flops_section(rows, size, machine)
@@ -218,6 +220,25 @@ def _ratio_section(idx, tasks, algos, fws, size, steps, integrators) -> list[str
                 out.append(f"| {task} | {algo} | {FW_LABEL.get(fw, fw)} | {_rfmt(_ratio(t1, van))} | "
                            f"{_rfmt(_ratio(tm, van))} | {_rfmt(_ratio(tm, t1))} | {_pct(pm)} | {_pct(pe)} |")
     return out + [""]
+
+
+def _baseline_section(idx, tasks, algos, fws, size, reps) -> list[str]:
+    """Each representation without an ODE (the baselines) and SF² (T=1, midpoint) over vanilla, paired."""
+    cols = [(rep, 0, "") for rep in reps] + [("sf2", 1, "midpoint")]
+    rows = []
+    for task in tasks:
+        for algo in algos:
+            for fw in fws:
+                van = idx.get((fw, algo, "none", task, size, 0, ""))
+                cells = [_ratio(idx.get((fw, algo, rep, task, size, T, i)), van) for rep, T, i in cols]
+                if van is not None and reps and any(not math.isnan(c[0]) for c in cells):
+                    rows.append(f"| {task} | {algo} | {FW_LABEL.get(fw, fw)} | "
+                                + " | ".join(_rfmt(c) for c in cells) + " |")
+    if not rows:
+        return []
+    return [f"### Representations / vanilla, size `{size}` (paired)", "",
+            "| task | algo | framework | " + " | ".join(f"{_case_label(*c)} / vanilla" for c in cols) + " |",
+            "|---|---|---|" + "---|" * len(cols), *rows, ""]
 
 
 def _variant_section(idx, rows, tasks, algos, size, steps) -> list[str]:
@@ -285,7 +306,7 @@ def _flops_section(rows, size, machine) -> list[str]:
            "FLOPs: JAX rows from XLA's HLO `cost_analysis()` of the lowered update (before backend "
            "passes; every op, a dot counts 2·m·n·k); bytes from the compiled executable (after fusion); "
            "torch rows from `torch.utils.flop_counter.FlopCounterMode` on one eager update "
-           "of the composed step (matmuls only; the same arithmetic as the agents' step). "
+           "of the agents' step (matmuls only). "
            "Achieved = FLOPs / median time"
            + ("; % of the measured fp32 matmul ceiling of the same framework." if peak else "."), "",
            "| task | algo | framework | case | GFLOP | GB accessed (XLA) | achieved TFLOP/s | % of ceiling |",

@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 
-# The paper's seven tasks (DESIGN.md §7): (obs_size D, action_size A).
+# The paper's seven tasks (sf2_common.agents.tasks): (obs_size D, action_size A).
 TASKS: dict[str, tuple[int, int]] = {
     "AcrobotSwingup": (6, 1),
     "CartpoleBalanceSparse": (5, 1),
@@ -30,16 +30,19 @@ ALIASES = {
 # Network/batch presets. `paper`: Table 1 (B = F = 512, every hidden width 512, embedding 64).
 # `small`: the cores' test size (SF2Config.small) with B = 256, for CPUs and the pytest-benchmark suite.
 # `medium`: in between, for CPU tables where the ζ algebra is visible above the Python overhead.
+# `quick`: the agents' `quick` preset (sf2_common.agents.configs), the size of the CPU training runs.
 SIZES: dict[str, dict] = {
     "small": dict(batch_size=256, feature_size=16, hidden_sizes=(32, 32), q_hidden_size=32,
                   zeta_hidden_sizes=(32, 32), embedding_size=8),
+    "quick": dict(batch_size=128, feature_size=32, hidden_sizes=(64, 64), q_hidden_size=64,
+                  zeta_hidden_sizes=(64, 64), embedding_size=16),
     "medium": dict(batch_size=256, feature_size=128, hidden_sizes=(128, 128, 128), q_hidden_size=128,
                    zeta_hidden_sizes=(128, 128), embedding_size=16),
     "paper": dict(batch_size=512, feature_size=512, hidden_sizes=(512, 512, 512), q_hidden_size=512,
                   zeta_hidden_sizes=(512, 512), embedding_size=64),
 }
 
-FRAMEWORKS = ("jax", "jax-scan", "torch", "torch-compile", "torch-cudagraphs")
+FRAMEWORKS = ("jax", "jax-scan", "torch", "torch-graphs", "torch-compile", "torch-cudagraphs")
 JAX = ("jax", "jax-scan")
 COMPILED = ("torch-compile", "torch-cudagraphs")
 ALGOS = ("td3", "sac")

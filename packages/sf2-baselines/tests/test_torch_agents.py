@@ -1,5 +1,5 @@
-"""The baselines plugged into sf2_torch's agents (TorchRL loss modules): registration, shared modules,
-and SGD steps that train exactly the right groups."""
+"""The baselines plugged into sf2_torch's agents: registration, shared modules, groups, critics, and SGD
+steps that train exactly the right groups on their schedules."""
 
 from __future__ import annotations
 
@@ -9,14 +9,13 @@ import numpy as np
 import pytest
 
 torch = pytest.importorskip("torch")
-pytest.importorskip("torchrl")
 reps = pytest.importorskip("sf2_torch.agents.representations")
 
 import sf2_baselines.torch as bt  # noqa: E402
-from _baseline_helpers import B, numpy_batch, small_kwargs  # noqa: E402
-from sf2_torch import SF2Config  # noqa: E402
+from baselines_helpers import numpy_batch, small_kwargs  # noqa: E402
+from sf2_torch import SF2Config, params  # noqa: E402
 from sf2_torch.agents.algorithms import make_algorithm  # noqa: E402
-from tensordict import TensorDict  # noqa: E402
+from sf2_torch.losses import Batch  # noqa: E402
 
 CRITIC = {"sim": ("q", "phi"), "simlap": ("q",), "simlap_authors": ("q", "phi"), "spr": ("q", "encoder")}
 AUX = {
@@ -27,30 +26,17 @@ AUX = {
 }
 
 
-def _td(agent, seed=0):
-    raw = numpy_batch(seed)
+MODULES = {"sim": bt.sim, "simlap": bt.simlap, "simlap_authors": bt.simlap, "spr": bt.spr}
 
-    def t(x):
-        return torch.as_tensor(np.asarray(x), dtype=torch.float64)
 
-    done = torch.as_tensor(raw["discount"] == 0).unsqueeze(-1)
-    trunc = torch.as_tensor(raw["truncation"] > 0.5).unsqueeze(-1)
-    td = TensorDict(
-        {
-            "observation": t(raw["obs"]),
-            "action": t(raw["action"]),
-            "next": {
-                "observation": t(raw["next_obs"]),
-                "reward": t(raw["reward"]).unsqueeze(-1),
-                "done": done,
-                "terminated": done & ~trunc,
-                "truncated": trunc,
-            },
-        },
-        [B],
-    )
-    td.update(agent.draw_noise((B,), torch.Generator().manual_seed(seed)))
-    return td
+def _batch(seed=0, dtype=torch.float64):
+    return Batch(**{k: torch.as_tensor(np.asarray(v), dtype=dtype) for k, v in numpy_batch(seed).items()})
+
+
+def _step(agent, seed, step, batch=None):
+    """One SGD step on batch `seed` with the noise `step_noise` draws from a generator seeded `seed`."""
+    batch = _batch(seed) if batch is None else batch
+    return agent.sgd_step(batch, agent.step_noise(torch.Generator().manual_seed(seed), batch), step)
 
 
 def test_registered():
@@ -69,24 +55,35 @@ def test_sgd_step_trains_the_right_groups(algo, name):
     if algo == "sac":
         assert nets.log_alpha is agent.nets.log_alpha
     assert ("q", *agent.rep.critic_groups) == CRITIC[name] and agent.rep.aux_groups == AUX[name]
-    before = agent.canonical()
-    metrics = agent.sgd_step(_td(agent), actor_step=True)
-    assert agent.rep.aux_loss_name in metrics.keys()
+    module = MODULES[name]
+    assert set(agent.groups) == {"obs_norm", "policy", "target_policy" if algo == "td3" else "log_alpha",
+                                 *module.GROUPS}
+    b = _batch()
+    for target in (False, True):  # the critic the base algorithm hands to the core's TD3/SAC losses
+        torch.testing.assert_close(agent.rep.critic(b.obs, b.action, target),
+                                   module.critic(nets, b.obs, b.action, target), rtol=0, atol=0)
+    before = params.to_canonical(agent.groups)
+    metrics = _step(agent, 0, 0)
+    assert agent.rep.aux_loss_name in metrics
     assert all(np.isfinite(float(v)) for v in metrics.values())
-    after = agent.canonical()
+    after = params.to_canonical(agent.groups)
     for group in {*CRITIC[name], *AUX[name], "policy", *(g for g in {n.split(".")[0] for n in before}
                                                           if g.startswith("target_"))}:  # fmt: skip
         assert any(not np.array_equal(before[n], after[n]) for n in before if n.split(".")[0] == group), group
     assert set(after) == set(bt.params.expected_shapes(nets))
 
 
-def test_simlap_critic_does_not_train_features():
+@pytest.mark.parametrize("name,critic_steps_phi", [("simlap", False), ("simlap_authors", True)])
+def test_simlap_critic_trains_features_only_in_the_authors_variant(name, critic_steps_phi):
+    """The paper's SimLap: the TD step does not move φ (its Adam counts the Laplacian steps only); the
+    authors' variant steps φ in both (two Adam steps per SGD step, one Adam state, as ψ in SF²)."""
     torch.manual_seed(0)
-    agent = make_algorithm("td3", SF2Config(**small_kwargs()), reps.get("simlap"), dtype=torch.float64)
-    agent._zero(agent.groups)
-    agent.loss(_td(agent)).get("loss_qvalue").backward()
-    assert all(p.grad is None or not torch.any(p.grad) for p in agent.rep.baseline_nets.phi.parameters())
-    assert any(p.grad is not None and torch.any(p.grad) for p in agent.rep.baseline_nets.q.parameters())
+    agent = make_algorithm("td3", SF2Config(**small_kwargs()), reps.get(name), dtype=torch.float64)
+    phi = agent._params(("phi",))[0]
+    for i in range(3):
+        _step(agent, i, i)
+        assert int(agent.optimizers["phi"].state[phi]["step"]) == (i + 1) * (1 + critic_steps_phi)
+        assert int(agent.optimizers["q"].state[agent._params(("q",))[0]]["step"]) == i + 1
 
 
 @pytest.mark.parametrize("algo,every", [("td3", 10), ("sac", 16)])
@@ -99,16 +96,16 @@ def test_task_vector_schedule(algo, every, name):
     agent = make_algorithm(algo, SF2Config(**small_kwargs()), reps.get(name), dtype=torch.float64)
     assert agent.rep.aux_every == {"task": every}
     w = agent.rep.baseline_nets.task.w
-    others = [g for g in agent.groups if g not in ("task", "log_alpha", "policy")]
+    others = [g for g in agent.trained_groups() if g not in ("task", "log_alpha", "policy")]
 
     def count(g):
-        return int(agent.optimizers[g].state.get(agent.groups[g][0], {}).get("step", 0))
+        return int(agent.optimizers[g].state.get(agent._params((g,))[0], {}).get("step", 0))
 
     for i in range(every + 2):
         w_before = w.detach().clone()
         state = {k: v.clone() for k, v in agent.optimizers["task"].state.get(w, {}).items()}
         counts = {g: count(g) for g in others}
-        agent.sgd_step(_td(agent, i), step=i)
+        _step(agent, i, i)
         due = i % every == 0
         assert (not torch.equal(w_before, w)) == due, i
         new_state = agent.optimizers["task"].state[w]
@@ -139,15 +136,17 @@ def test_compiled_schedule_equals_eager(device):
         agents.append(make_algorithm("td3", cfg, reps.get("sim"), device=device,
                                      compile_mode="default" if compiled else None,
                                      cudagraphs=compiled and device == "cuda"))  # fmt: skip
-    noise_source = make_algorithm("td3", cfg, reps.get("sim"))  # draws the noise on the CPU
     for i in range(22):
-        td = _td(noise_source, i).apply(lambda x: x.float() if x.is_floating_point() else x).to(device)
+        batch = _batch(i, torch.float32)
+        noise = agents[0].step_noise(torch.Generator().manual_seed(i), batch)  # drawn on the CPU
+        batch = Batch(*(x.to(device) for x in batch))
+        noise = {k: v.to(device) for k, v in noise.items()}
         w_before = [a.rep.baseline_nets.task.w.detach().clone() for a in agents]
         for a in agents:
-            a.sgd_step(td.clone(), step=i)
+            a.sgd_step(batch, noise, i)
         for a, w in zip(agents, w_before):
             assert (not torch.equal(w, a.rep.baseline_nets.task.w)) == (i % 10 == 0), i
-    eager, compiled = (a.canonical() for a in agents)
+    eager, compiled = (params.to_canonical(a.groups) for a in agents)
     for k in eager:
         np.testing.assert_allclose(compiled[k], eager[k], rtol=1e-3, atol=1e-5, err_msg=k)
     for a in agents:

@@ -2,17 +2,19 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 
 torch = pytest.importorskip("torch")
 pytest.importorskip("sf2_torch")
 
-from _baseline_helpers import A, B, D, laplacian_reference, numpy_batch, numpy_noise, small_kwargs  # noqa: E402
+from baselines_helpers import A, B, D, laplacian_reference, numpy_batch, numpy_noise, small_kwargs  # noqa: E402
 from sf2_baselines.torch import params as bparams  # noqa: E402
 from sf2_baselines.torch import sim, simlap, spr  # noqa: E402
-from sf2_torch import SF2Config  # noqa: E402
-from sf2_torch.errors import ConfigError, ParamsError, ShapeError  # noqa: E402
+from sf2_common.errors import ConfigError, ParamsError, ShapeError  # noqa: E402
+from sf2_torch import SF2Config, losses  # noqa: E402
 from sf2_torch.losses import Batch  # noqa: E402
 
 f64 = torch.float64
@@ -69,50 +71,38 @@ def test_sim_modules_and_shapes():
 
 
 def test_sim_feature_size_512():
-    """DESIGN.md §5: the authors' Sim breaks at F = 512; here w is one (F,) parameter."""
+    """README.md "Sim": the authors' Sim breaks at F = 512; here w is one (F,) parameter."""
     nets = _nets(sim, feature_size=512, q_hidden_size=16)
     assert tuple(nets.task.w.shape) == (512,)
     b, n = _batch(), _noise()
     assert torch.isfinite(simlap.simlap_loss(nets, b, n["next_action"])[0])
-    assert torch.isfinite(sim.td3_critic_loss(nets, b, n["smoothing"])[0])
+    critic = functools.partial(sim.critic, nets)
+    assert torch.isfinite(losses.td3_critic_loss(nets, b, n["smoothing"], critic=critic)[0])
 
 
 @pytest.mark.parametrize("algo", ["td3", "sac"])
 def test_each_loss_trains_exactly_its_groups(algo):
+    """The baselines' own losses reach only the groups they train; their TD3/SAC losses are the core's on
+    the baseline's critic, whose graph reaches every online group the critic reads (the agents choose the
+    trained ones with `backward(inputs=...)`: the representation's critic groups)."""
     b, n = _batch(), _noise()
     xi = n["smoothing"] if algo == "td3" else n["noise"]
     nets = _nets(sim, algo)
-    crit = getattr(sim, f"{algo}_critic_loss")
-    actor = (
-        (lambda: sim.td3_actor_loss(nets, b)) if algo == "td3" else (lambda: sim.sac_actor_loss(nets, b, xi))
-    )
     cases = [
         (lambda: sim.reward_loss(nets, b, n["next_action"]), {"task"}),
         (lambda: simlap.laplacian_loss(nets, b, n["next_action"]), {"phi"}),
         (lambda: simlap.simlap_loss(nets, b, n["next_action"]), {"phi", "task"}),
-        (lambda: crit(nets, b, xi), {"q", "phi"}),
-        (lambda: crit(nets, b, xi, train_features=False), {"q"}),
-        (lambda: getattr(simlap, f"{algo}_critic_loss")(nets, b, xi), {"q"}),
-        (actor, {"policy"}),
     ]
     for fn, groups in cases:
         assert _trained(nets, fn()[0]) == groups
+    crit = getattr(losses, f"{algo}_critic_loss")
+    assert _trained(nets, crit(nets, b, xi, critic=functools.partial(sim.critic, nets))[0]) == {
+        "q", "phi", "task"}
     snets = _nets(spr, algo)
-    sactor = (
-        (lambda: spr.td3_actor_loss(snets, b))
-        if algo == "td3"
-        else (lambda: spr.sac_actor_loss(snets, b, xi))
-    )
-    cases = [
-        (
-            lambda: spr.spr_loss(snets, b, n["next_action"], n["obs_noise"], n["next_obs_noise"]),
-            {"encoder", "projection", "prediction"},
-        ),
-        (lambda: getattr(spr, f"{algo}_critic_loss")(snets, b, xi), {"q", "encoder"}),
-        (sactor, {"policy"}),
-    ]
-    for fn, groups in cases:
-        assert _trained(snets, fn()[0]) == groups
+    spr_loss = spr.spr_loss(snets, b, n["next_action"], n["obs_noise"], n["next_obs_noise"])[0]
+    assert _trained(snets, spr_loss) == {"encoder", "projection", "prediction"}
+    assert _trained(snets, crit(snets, b, xi, critic=functools.partial(spr.critic, snets))[0]) == {
+        "q", "encoder"}
 
 
 def test_task_input_is_normalized_and_detached():
@@ -160,10 +150,11 @@ def test_shape_errors():
         sim.critic(nets, torch.zeros(B, D + 1, dtype=f64), b.action)
     with pytest.raises(ShapeError, match="next_action"):
         sim.reward_loss(nets, b, torch.zeros(B, A + 1, dtype=f64))
-    with pytest.raises(ConfigError, match="sac"):
-        sim.sac_actor_loss(nets, b, n["noise"])
     with pytest.raises(ConfigError, match="algo"):
         sim.make_networks(nets.cfg, "ppo")
+    stacked = Batch(*(torch.stack([v, v]) for v in b))
+    with pytest.raises(ShapeError, match="a 2-D batch"):
+        sim.reward_loss(nets, stacked, torch.stack([n["next_action"]] * 2))
 
 
 @pytest.mark.parametrize("module", [sim, spr])

@@ -50,6 +50,8 @@ def test_from_canonical_keeps_dtype_and_copies():
     out = params.to_canonical(nets)
     out["psi.dense_0.bias"][:] = 123.0  # a copy, not a view
     assert not torch.any(nets.psi.dense_0.bias == 123.0)
+    out["q.head_0.dense_1.kernel"][:] = 123.0  # (H, 1): its transpose is contiguous, still a copy
+    assert not torch.any(nets.q.head_0.dense_1.weight == 123.0)
 
 
 def test_grads_in_canonical_layout(td3_nets):

@@ -23,6 +23,11 @@ index d·F + f is entry (d, f) of ζ's (D, F) matrix, `q.head_0.dense_1.kernel` 
 
 Functions
 ---------
+Every function takes `nets` as one module (the core's `Networks`, a baseline's networks) or as a mapping
+{group: module or parameter} (an agent's groups, e.g. {"obs_norm": ..., "q": ..., "log_alpha": ...}):
+a group's entries are named `<group>.<path>`, a parameter group (`log_alpha`) is named by its group. The
+modules use the canonical layer names, so this one converter serves every representation.
+
 - `to_canonical(nets, grads=False)`: the flat dict (numpy copies, never views of the module's memory).
   With `grads=True`, the `.grad` of every parameter in the same layout (zeros where `.grad` is None;
   the normalizer's buffers, which are not parameters, are left out).
@@ -55,12 +60,31 @@ __all__ = ["to_canonical", "from_canonical", "validate", "expected_shapes", "sav
 FORMATS = paramfile.FORMATS
 
 
-def _slots(nets: nn.Module, buffers: bool = True) -> Iterator[tuple[str, torch.Tensor, bool]]:
+class _Groups(nn.Module):
+    """{group: module or parameter} as one module tree (shared, not copied)."""
+
+    def __init__(self, groups: Mapping[str, nn.Module | torch.Tensor]):
+        super().__init__()
+        for name, value in groups.items():
+            if isinstance(value, nn.Module):
+                self.add_module(name, value)
+            elif isinstance(value, nn.Parameter):
+                self.register_parameter(name, value)
+            else:
+                raise TypeError(f"group {name!r} must be an nn.Module or an nn.Parameter, found "
+                                f"{type(value).__name__}")
+
+
+def _module(nets) -> nn.Module:
+    return _Groups(nets) if isinstance(nets, Mapping) else nets
+
+
+def _slots(nets, buffers: bool = True) -> Iterator[tuple[str, torch.Tensor, bool]]:
     """(canonical name, tensor, stored transposed) for every parameter (and buffer) of `nets`.
 
     Order: module registration order, the root's own entries (`log_alpha`) last.
     """
-    modules = list(nets.named_modules())
+    modules = list(_module(nets).named_modules())
     for mod_name, module in modules[1:] + modules[:1]:
         prefix = f"{mod_name}." if mod_name else ""
         for leaf, p in module.named_parameters(recurse=False):
@@ -82,10 +106,10 @@ def _canonical_shape(tensor: torch.Tensor, transposed: bool) -> tuple[int, ...]:
 
 def _to_numpy(tensor: torch.Tensor, transposed: bool) -> np.ndarray:
     arr = tensor.detach().cpu().numpy()
-    return np.ascontiguousarray(arr.T) if transposed else arr.copy()
+    return arr.T.copy() if transposed else arr.copy()  # a copy even where .T is already contiguous
 
 
-def to_canonical(nets: nn.Module, grads: bool = False) -> dict[str, np.ndarray]:
+def to_canonical(nets, grads: bool = False) -> dict[str, np.ndarray]:
     """The canonical flat dict of `nets` (or, with `grads=True`, of its parameters' `.grad`)."""
     out: dict[str, np.ndarray] = {}
     for name, tensor, transposed in _slots(nets, buffers=not grads):
@@ -102,9 +126,10 @@ def _networks_for(nets_or_cfg, algo: str | None) -> nn.Module:
         from .networks import make_networks
 
         return make_networks(nets_or_cfg, algo if algo is not None else "td3", device="meta")
-    if isinstance(nets_or_cfg, nn.Module):
-        return nets_or_cfg
-    raise TypeError(f"expected Networks or SF2Config, found {type(nets_or_cfg).__name__}")
+    if isinstance(nets_or_cfg, (nn.Module, Mapping)):
+        return _module(nets_or_cfg)
+    raise TypeError(f"expected Networks, a mapping of groups or an SF2Config, found "
+                    f"{type(nets_or_cfg).__name__}")
 
 
 def expected_shapes(nets_or_cfg, algo: str | None = None) -> dict[str, tuple[int, ...]]:
@@ -162,7 +187,7 @@ def validate(flat: Mapping[str, object], nets_or_cfg, algo: str | None = None) -
         )
 
 
-def from_canonical(flat: Mapping[str, object], nets: nn.Module) -> nn.Module:
+def from_canonical(flat: Mapping[str, object], nets):
     """Copy canonical `flat` into `nets` in place (validated first; nets keep their dtype and device)."""
     validate(flat, nets)
     with torch.no_grad():

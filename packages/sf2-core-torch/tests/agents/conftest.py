@@ -25,6 +25,11 @@ if _MISSING:
 import pytest  # noqa: E402
 
 
+def pytest_configure(config):
+    config.addinivalue_line("markers", "slow: a real learning run (about a minute of training on a CPU); "
+                            "deselect with -m 'not slow'")
+
+
 @pytest.fixture(scope="session", autouse=True)
 def _agents_setup(request):
     import torch

@@ -8,10 +8,10 @@ import importlib.util
 
 import pytest
 from sf2_common import cli as _cli
+from sf2_common.errors import ConfigError
 from sf2_common.testing import BAD_TRAIN_INPUTS, cli_error
 from sf2_torch import cli
 from sf2_torch.agents import configs, envs, representations, trainer
-from sf2_torch.errors import ConfigError
 
 
 @pytest.fixture(autouse=True)

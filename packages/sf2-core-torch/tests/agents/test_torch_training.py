@@ -25,7 +25,10 @@ def _seed_rows(rows, seed):
 def _state(result, i=0):
     """Every tensor of seed i's agent (parameters, targets, Adam states) as numpy, by name."""
     state = result.state.agents[i].algo.state_dict()
-    out = {f"m.{k}": v.numpy() for k, v in state["modules"].items()}
+    out = {}
+    for g, v in state["groups"].items():
+        out.update({f"g.{g}": v.numpy()} if isinstance(v, torch.Tensor) else
+                   {f"g.{g}.{k}": t.numpy() for k, t in v.items()})
     for g, opt in state["optimizers"].items():
         for pid, st in opt["state"].items():
             for k, v in st.items():
@@ -62,8 +65,7 @@ def test_reference_run_folder(reference, tiny_cfg):
     assert "psi.dense_0.kernel" in flat and "target_zeta.dense_1.bias" in flat
     from sf2_torch import params
 
-    nets = reference.state.agents[0].algo.nets
-    params.validate(flat, nets)  # the canonical layout both frameworks read
+    params.validate(flat, reference.state.agents[0].algo.groups)  # the layout both frameworks read
 
 
 def test_same_seed_same_metrics(reference, tiny_cfg, tmp_path):
@@ -109,7 +111,7 @@ def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tiny_cfg, tmp_path
     def poisoned_epoch(state, epoch):
         if epoch == 3:
             with torch.no_grad():
-                for p in state.agents[0].algo.groups["q"]:
+                for p in state.agents[0].algo.groups["q"].parameters():
                     p.mul_(torch.nan)
         return real_epoch(state, epoch)
 
@@ -188,6 +190,7 @@ class _Fixed:
         return torch.rand(obs.shape[0], self.action_size, generator=generator) * 2 - 1
 
 
+@pytest.mark.slow
 def test_learns(tmp_path):
     """TD3+SF² learns to balance CartpoleBalance (1000-step episodes, action repeat 4) in 3.4k SGD steps
     (31k env steps; one to two minutes on a shared 2-core CPU). γ = 0.95 and τ = 0.05 (instead of 0.99 and
@@ -219,7 +222,7 @@ def test_a_jax_run_folder_is_refused(tiny_cfg, tmp_path, capsys):
     folder.mkdir()
     (folder / "config.json").write_text(json.dumps({"config": tiny_cfg.to_dict(), "seeds": [0],
                                                     "versions": {"jax": "0.10", "flax": "0.12"}}))
-    from sf2_torch.agents.runfolder import RunFolderMismatch
+    from sf2_common.agents.runfolder import RunFolderMismatch
 
     with pytest.raises(RunFolderMismatch, match="sf2-jax"):
         train(tiny_cfg, (0,), folder, progress=False)

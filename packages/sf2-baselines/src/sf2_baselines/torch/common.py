@@ -1,41 +1,21 @@
-"""Pieces every baseline shares (PyTorch): shape checks, L2 normalization, TD3/SAC losses on any critic.
+"""Pieces every baseline shares (PyTorch): shape checks, L2 normalization, target copies, the modules
+shared with the core agent.
 
-Mirror of `sf2_baselines.jax.common` (same names, same numbers). The TD3/SAC losses are the core's
-(docs/core-contract.md; paper Appendix D, Algorithms 2–3) written against a critic function; the caller
-passes a critic that differentiates exactly the modules the loss trains (`frozen` evaluates a module
-through detached parameters, so gradients reach its inputs but never its `.grad`). Targets are
-evaluated under `torch.no_grad()`. Batch means divide by B; m_b = 1 − truncation_b.
+The baselines' TD3 and SAC losses are the core's (`sf2_torch.losses.td3_critic_loss`, ..., paper
+Appendix D, Algorithms 2–3) with `critic=` the baseline's critic (`sim.critic`, `spr.critic`, or a
+representation's `critic`); the agents pass it. Their own losses (reward prediction, Laplacian, SPR)
+take 2-D batches (B, ·), as the core's do. Mirror of `sf2_baselines.jax.common`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import torch
-from sf2_torch import networks as core_nw
-from sf2_torch.errors import ConfigError, ShapeError
+from sf2_common.errors import ConfigError, ShapeError
 from sf2_torch.losses import Batch
 from torch import nn
-from torch.func import functional_call
 
-__all__ = [
-    "NORM_EPS",
-    "l2_normalize",
-    "frozen",
-    "frozen_copy",
-    "share_core",
-    "check_last",
-    "check_batch",
-    "check_noise",
-    "td_loss",
-    "td3_critic_loss",
-    "td3_actor_loss",
-    "sac_critic_loss",
-    "sac_actor_loss",
-    "alpha",
-]
-
-Critic = Callable[..., torch.Tensor]  # critic(obs, action, target=False) -> (B, 2)
+__all__ = ["NORM_EPS", "l2_normalize", "frozen_copy", "share_core", "check_last", "check_batch",
+           "check_noise"]
 
 NORM_EPS = 1e-8
 
@@ -43,11 +23,6 @@ NORM_EPS = 1e-8
 def l2_normalize(x: torch.Tensor, dim: int = -1) -> torch.Tensor:
     """x / (‖x‖₂ + 1e-8) along `dim`."""
     return x / (torch.linalg.vector_norm(x, dim=dim, keepdim=True) + NORM_EPS)
-
-
-def frozen(module: nn.Module, *args: torch.Tensor) -> torch.Tensor:
-    """module(*args) through detached parameters: gradients reach the inputs, never the module."""
-    return functional_call(module, {n: p.detach() for n, p in module.named_parameters()}, args)
 
 
 def frozen_copy(module: nn.Module) -> nn.Module:
@@ -86,9 +61,12 @@ def check_last(name: str, x: torch.Tensor, expected: int, what: str) -> None:
         )
 
 
-def check_batch(cfg, batch: Batch) -> tuple[int, ...]:
-    """Validate a `Batch` against the config; returns the batch shape (B,)."""
+def check_batch(cfg, batch: Batch) -> tuple[int]:
+    """Validate a 2-D `Batch` against the config; returns the batch shape (B,)."""
     check_last("batch.obs", batch.obs, cfg.obs_size, "obs_size")
+    if batch.obs.ndim != 2:
+        raise ShapeError(f"batch.obs: expected shape (B, {cfg.obs_size}) (a 2-D batch), found shape "
+                         f"{tuple(batch.obs.shape)}")
     check_last("batch.next_obs", batch.next_obs, cfg.obs_size, "obs_size")
     check_last("batch.action", batch.action, cfg.action_size, "action_size")
     b = tuple(batch.obs.shape[:-1])
@@ -112,71 +90,3 @@ def check_noise(name: str, x: torch.Tensor, batch_shape, size: int, what: str) -
         raise ShapeError(
             f"{name}: expected batch shape {tuple(batch_shape)} (that of batch.obs), found {found}"
         )
-
-
-def alpha(nets) -> torch.Tensor:
-    """exp(log_alpha), detached (a constant in the critic and actor losses)."""
-    if nets.algo != "sac":
-        raise ConfigError(f"SAC losses need networks built with algo='sac', found algo={nets.algo!r}")
-    return torch.exp(nets.log_alpha.detach())
-
-
-# ------------------------------------------------------------------------------------------ TD3 / SAC
-def td_loss(q: torch.Tensor, y: torch.Tensor, truncation: torch.Tensor) -> torch.Tensor:
-    """½ mean_{b,j}(m_b(Q_j − sg(y)))², m_b = 1 − truncation_b."""
-    err = (1.0 - truncation)[..., None] * (q - y.detach()[..., None])
-    return 0.5 * torch.mean(err.square())
-
-
-def td3_critic_loss(critic: Critic, nets, batch: Batch, smoothing: torch.Tensor):
-    """TD3 critic (Algorithm 2): ã′ = clip(π̄(s′) + clip(σ_s ξ, −c, c), −1, 1),
-    y = rs·r + discount·γ·min_j Q̄_j(s′, ã′), loss = ½ mean_{b,j}(m_b(Q_j(s, a) − sg(y)))².
-    aux: q (mean Q), target_q (mean y)."""
-    cfg = nets.cfg
-    b = check_batch(cfg, batch)
-    check_noise("smoothing", smoothing, b, cfg.action_size, "action_size")
-    with torch.no_grad():
-        noise = torch.clamp(cfg.smoothing_noise * smoothing, -cfg.noise_clip, cfg.noise_clip)
-        next_action = torch.clamp(core_nw.td3_action(nets, batch.next_obs, target=True) + noise, -1.0, 1.0)
-        next_q = critic(batch.next_obs, next_action, target=True)
-        y = cfg.reward_scaling * batch.reward + batch.discount * cfg.discount * next_q.min(-1).values
-    q = critic(batch.obs, batch.action)
-    return td_loss(q, y, batch.truncation), {"q": q.mean().detach(), "target_q": y.mean()}
-
-
-def td3_actor_loss(frozen_critic: Critic, nets, batch: Batch):
-    """TD3 actor: −mean_b Q_0(s, π(s)); `frozen_critic` must not train anything. aux: q (mean Q_0)."""
-    check_batch(nets.cfg, batch)
-    action = core_nw.td3_action(nets, batch.obs)
-    loss = -torch.mean(frozen_critic(batch.obs, action)[..., 0])
-    return loss, {"q": -loss.detach()}
-
-
-def sac_critic_loss(critic: Critic, nets, batch: Batch, noise: torch.Tensor):
-    """SAC critic (Algorithm 3): a′, log π(a′|s′) from the online policy with ξ′ = `noise`;
-    y = rs·r + discount·γ·(min_j Q̄_j(s′, a′) − α log π(a′|s′)); loss = ½ mean_{b,j}(m_b(Q_j − sg(y)))².
-    aux: q, target_q."""
-    cfg = nets.cfg
-    a = alpha(nets)
-    b = check_batch(cfg, batch)
-    check_noise("noise", noise, b, cfg.action_size, "action_size")
-    with torch.no_grad():
-        next_action, next_log_prob = core_nw.sac_sample(nets, batch.next_obs, noise)
-        next_q = critic(batch.next_obs, next_action, target=True)
-        y = cfg.reward_scaling * batch.reward + batch.discount * cfg.discount * (
-            next_q.min(-1).values - a * next_log_prob
-        )
-    q = critic(batch.obs, batch.action)
-    return td_loss(q, y, batch.truncation), {"q": q.mean().detach(), "target_q": y.mean()}
-
-
-def sac_actor_loss(frozen_critic: Critic, nets, batch: Batch, noise: torch.Tensor):
-    """SAC actor: a ~ π(s) with ξ = `noise`; mean_b(α log π(a|s) − min_j Q_j(s, a)), α constant;
-    `frozen_critic` must not train anything. aux: entropy (−mean log π)."""
-    cfg = nets.cfg
-    a = alpha(nets)
-    b = check_batch(cfg, batch)
-    check_noise("noise", noise, b, cfg.action_size, "action_size")
-    action, log_prob = core_nw.sac_sample(nets, batch.obs, noise)
-    q = frozen_critic(batch.obs, action).min(-1).values
-    return torch.mean(a * log_prob - q), {"entropy": -log_prob.mean().detach()}

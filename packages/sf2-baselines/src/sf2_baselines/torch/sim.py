@@ -13,9 +13,9 @@ trains ψ_j and φ; the reward-prediction loss (wᵀφ(s′, ā′, ŵ) − rs·
 from __future__ import annotations
 
 import torch
+from sf2_common.config import SF2Config
+from sf2_common.errors import ConfigError
 from sf2_torch import networks as core_nw
-from sf2_torch.config import SF2Config
-from sf2_torch.errors import ConfigError
 from sf2_torch.losses import Batch
 from torch import nn
 
@@ -33,10 +33,6 @@ __all__ = [
     "successor_features",
     "critic",
     "reward_loss",
-    "td3_critic_loss",
-    "td3_actor_loss",
-    "sac_critic_loss",
-    "sac_actor_loss",
 ]
 
 GROUPS = ("phi", "q", "task", "target_phi", "target_q")
@@ -102,7 +98,7 @@ class SimNetworks(nn.Module):
 
 def make_networks(cfg: SF2Config, algo: str = "td3", *, dtype=None, device=None, core=None) -> SimNetworks:
     """Build and initialise a Sim agent's modules (seed with `torch.manual_seed` first). `core`: an agent's
-    `SF2Networks` whose `obs_norm`, `policy`, `target_policy` / `log_alpha` are shared, not copied."""
+    `Networks` whose `obs_norm`, `policy`, `target_policy` / `log_alpha` are shared, not copied."""
     return common.share_core(SimNetworks(cfg, algo, dtype=dtype, device=device), core)
 
 
@@ -139,29 +135,6 @@ def critic(nets: SimNetworks, obs: torch.Tensor, action: torch.Tensor, target: b
     return torch.einsum("...jf,f->...j", psi, task_vector(nets))
 
 
-def _critic_trained(nets: SimNetworks, train_features: bool):
-    """The critic as the TD loss differentiates it: ψ_j always, φ if `train_features`, never w."""
-
-    def fn(obs, action, target=False):
-        if target:
-            return critic(nets, obs, action, target=True)
-        x = _input(nets, obs, action)
-        phi = nets.phi(x) if train_features else common.frozen(nets.phi, x)
-        return torch.einsum("...jf,f->...j", nets.q(phi), task_vector(nets).detach())
-
-    return fn
-
-
-def _critic_frozen(nets: SimNetworks):
-    """The critic through detached parameters: gradients reach the action only (actor losses)."""
-
-    def fn(obs, action, target=False):
-        phi = common.frozen(nets.phi, _input(nets, obs, action))
-        return torch.einsum("...jf,f->...j", common.frozen(nets.q, phi), task_vector(nets).detach())
-
-    return fn
-
-
 # ------------------------------------------------------------------------------------------ losses
 def reward_loss(nets: SimNetworks, batch: Batch, next_action: torch.Tensor):
     """Reward prediction: mean_b m_b (wᵀφ(s′, ā′, ŵ) − rs·r)²; trains w only.
@@ -175,23 +148,3 @@ def reward_loss(nets: SimNetworks, batch: Batch, next_action: torch.Tensor):
     err = pred - cfg.reward_scaling * batch.reward
     loss = torch.mean((1.0 - batch.truncation) * err.square())
     return loss, {"predicted_reward_rms": pred.detach().square().mean().sqrt()}
-
-
-def td3_critic_loss(nets: SimNetworks, batch: Batch, smoothing: torch.Tensor, train_features: bool = True):
-    """TD3Sim critic: trains ψ_j (`q`) and, if `train_features`, `phi`. `smoothing` ξ (B, A) ~ N(0, I)."""
-    return common.td3_critic_loss(_critic_trained(nets, train_features), nets, batch, smoothing)
-
-
-def td3_actor_loss(nets: SimNetworks, batch: Batch):
-    """TD3Sim actor: −mean_b Q_0(s, π(s)); trains the policy only."""
-    return common.td3_actor_loss(_critic_frozen(nets), nets, batch)
-
-
-def sac_critic_loss(nets: SimNetworks, batch: Batch, noise: torch.Tensor, train_features: bool = True):
-    """SACSim critic: trains `q` and, if `train_features`, `phi`. `noise` ξ′ (B, A) ~ N(0, I)."""
-    return common.sac_critic_loss(_critic_trained(nets, train_features), nets, batch, noise)
-
-
-def sac_actor_loss(nets: SimNetworks, batch: Batch, noise: torch.Tensor):
-    """SACSim actor: mean_b(α log π(a|s) − min_j Q_j(s, a)); trains the policy only."""
-    return common.sac_actor_loss(_critic_frozen(nets), nets, batch, noise)

@@ -7,17 +7,17 @@ With φ̂ = φ(s, a, ŵ)/(‖·‖ + 1e-8) and φ̂′ = φ(s′, ā′, ŵ)/(�
     L_diag = −(2/B) Σ_b m_b φ̂_bᵀφ̂′_b
     L_off  = (1/(B(B−1))) Σ_{i≠j} (φ̂_iᵀφ̂′_j)²
     laplacian_loss = L_lap + L_diag + L_off        (trains φ)
-The TD loss trains the SF heads only by default (`TRAIN_FEATURES_BY_CRITIC = False`, the paper); the
-authors' code also trains φ with it (representation `simlap_authors`).
+Who trains φ is the critic groups of the agents' representations: the paper's (`simlap`) TD loss trains
+the SF heads only; the authors' code (`simlap_authors`) also trains φ with it.
 """
 
 from __future__ import annotations
 
 import torch
-from sf2_torch.errors import ShapeError
+from sf2_common.errors import ShapeError
 from sf2_torch.losses import Batch
 
-from . import common, sim
+from . import common
 from .sim import (
     GROUPS,
     REWARD_EVERY,
@@ -33,7 +33,6 @@ from .sim import (
 __all__ = [
     "GROUPS",
     "REWARD_EVERY",
-    "TRAIN_FEATURES_BY_CRITIC",
     "SimNetworks",
     "make_networks",
     "task_vector",
@@ -43,13 +42,7 @@ __all__ = [
     "reward_loss",
     "laplacian_loss",
     "simlap_loss",
-    "td3_critic_loss",
-    "td3_actor_loss",
-    "sac_critic_loss",
-    "sac_actor_loss",
 ]
-
-TRAIN_FEATURES_BY_CRITIC = False
 
 
 def laplacian_loss(nets: SimNetworks, batch: Batch, next_action: torch.Tensor):
@@ -58,7 +51,7 @@ def laplacian_loss(nets: SimNetworks, batch: Batch, next_action: torch.Tensor):
     cfg = nets.cfg
     b = common.check_batch(cfg, batch)
     common.check_noise("next_action", next_action, b, cfg.action_size, "action_size")
-    if len(b) != 1 or b[0] < 2:
+    if b[0] < 2:
         raise ShapeError(f"laplacian_loss needs a batch of shape (B, ...) with B >= 2, found batch shape {b}")
     B = b[0]
     phi = common.l2_normalize(features(nets, batch.obs, batch.action))
@@ -78,21 +71,3 @@ def simlap_loss(nets: SimNetworks, batch: Batch, next_action: torch.Tensor):
     lap, aux = laplacian_loss(nets, batch, next_action)
     rew, rew_aux = reward_loss(nets, batch, next_action)
     return lap + rew, {**aux, **rew_aux, "laplacian_loss": lap.detach(), "reward_loss": rew.detach()}
-
-
-def td3_critic_loss(
-    nets: SimNetworks, batch: Batch, smoothing: torch.Tensor, train_features: bool = TRAIN_FEATURES_BY_CRITIC
-):
-    """TD3SimLap critic: Sim's TD3 critic; by default (paper) it trains the SF heads only."""
-    return sim.td3_critic_loss(nets, batch, smoothing, train_features)
-
-
-def sac_critic_loss(
-    nets: SimNetworks, batch: Batch, noise: torch.Tensor, train_features: bool = TRAIN_FEATURES_BY_CRITIC
-):
-    """SACSimLap critic: Sim's SAC critic; by default (paper) it trains the SF heads only."""
-    return sim.sac_critic_loss(nets, batch, noise, train_features)
-
-
-td3_actor_loss = sim.td3_actor_loss
-sac_actor_loss = sim.sac_actor_loss

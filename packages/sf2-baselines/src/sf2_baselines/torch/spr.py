@@ -14,9 +14,9 @@ the SF² paper's Appendix B.1 (K = 1, Gaussian-noise augmentation with std 0.05)
 from __future__ import annotations
 
 import torch
+from sf2_common.config import SF2Config
+from sf2_common.errors import ConfigError
 from sf2_torch import networks as core_nw
-from sf2_torch.config import SF2Config
-from sf2_torch.errors import ConfigError
 from sf2_torch.losses import Batch
 from torch import nn
 
@@ -33,10 +33,6 @@ __all__ = [
     "project",
     "predict",
     "spr_loss",
-    "td3_critic_loss",
-    "td3_actor_loss",
-    "sac_critic_loss",
-    "sac_actor_loss",
 ]
 
 GROUPS = ("encoder", "q", "projection", "prediction", "target_encoder", "target_q", "target_projection")
@@ -97,7 +93,7 @@ def make_networks(
     core=None,
 ) -> SPRNetworks:
     """Build and initialise an SPR agent's modules (seed with `torch.manual_seed` first). `core`: an agent's
-    `SF2Networks` whose `obs_norm`, `policy`, `target_policy` / `log_alpha` are shared, not copied."""
+    `Networks` whose `obs_norm`, `policy`, `target_policy` / `log_alpha` are shared, not copied."""
     return common.share_core(SPRNetworks(cfg, algo, augmentation_std, dtype=dtype, device=device), core)
 
 
@@ -140,17 +136,6 @@ def predict(nets: SPRNetworks, y: torch.Tensor) -> torch.Tensor:
     return nets.prediction(y)
 
 
-def _critic_frozen(nets: SPRNetworks):
-    def fn(obs, action, target=False):
-        return common.frozen(nets.q, common.frozen(nets.encoder, _input(nets, obs, action)))
-
-    return fn
-
-
-def _critic_fn(nets: SPRNetworks):
-    return lambda obs, action, target=False: critic(nets, obs, action, target)
-
-
 # ------------------------------------------------------------------------------------------ losses
 def spr_loss(
     nets: SPRNetworks,
@@ -174,23 +159,3 @@ def spr_loss(
     mask = 1.0 - batch.truncation
     loss = torch.mean(mask * (pred - tgt).square().sum(-1))
     return loss, {"spr_cosine": torch.mean(mask * (pred.detach() * tgt).sum(-1))}
-
-
-def td3_critic_loss(nets: SPRNetworks, batch: Batch, smoothing: torch.Tensor):
-    """TD3+SPR critic; trains `q` and `encoder`."""
-    return common.td3_critic_loss(_critic_fn(nets), nets, batch, smoothing)
-
-
-def td3_actor_loss(nets: SPRNetworks, batch: Batch):
-    """TD3+SPR actor: −mean_b Q_0(s, π(s)); trains the policy only."""
-    return common.td3_actor_loss(_critic_frozen(nets), nets, batch)
-
-
-def sac_critic_loss(nets: SPRNetworks, batch: Batch, noise: torch.Tensor):
-    """SAC+SPR critic; trains `q` and `encoder`."""
-    return common.sac_critic_loss(_critic_fn(nets), nets, batch, noise)
-
-
-def sac_actor_loss(nets: SPRNetworks, batch: Batch, noise: torch.Tensor):
-    """SAC+SPR actor: mean_b(α log π(a|s) − min_j Q_j(s, a)); trains the policy only."""
-    return common.sac_actor_loss(_critic_frozen(nets), nets, batch, noise)

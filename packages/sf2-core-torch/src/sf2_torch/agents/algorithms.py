@@ -1,77 +1,75 @@
-"""Base algorithms TD3 and SAC, written once against the representation interface (torch mirror of
-`sf2_jax.agents.algorithms`).
+"""Base algorithms TD3 and SAC, written once against the representation interface.
 
-One SGD step follows docs/core-contract.md "One SGD step" (the authors' order), exactly as the JAX agents:
-1. critic step: Adam on `q` + `representation.critic_groups` from the TD loss;
-2. representation step: Adam on `representation.aux_groups` (after step 1) from its own loss;
-3. actor step (every `policy_delay`): Adam on the policy from Q (and features) as they were *before*
-   step 1; SAC also takes its temperature step from the pre-step policy;
-4. targets: TD3 averages Q̄ and π̄ into the targets on actor steps; SAC averages Q̄ every step; the
-   representation's targets (SF²: ψ̄ at τ, ζ̄ at τ_ζ) every step.
+The losses are the core's (`sf2_torch.losses.td3_critic_loss`, ..., with `critic=` the representation's
+critic); this module only schedules them. The vocabulary is the same in sf2_jax.agents.algorithms
+(table: docs/core-contract.md "Agents: the plug-in vocabulary"); torch methods act on the modules the
+algorithm holds and update them in place, and take a `torch.Generator` where JAX takes a PRNG key.
 
-How torch gets "pre-step" values without copying parameters: the critic loss module computes the TD,
-actor and temperature losses in one forward from the parameters as they are at the start of the step
-(TorchRL's convention: the actor loss reads Q and ψ through detached parameters, the TD target reads the
-targets and the policy without gradient), and one backward fills the disjoint gradients of (Q, ψ), the
-policy and log α. Step 1 applies the (Q, ψ) gradients; step 2 recomputes ψ's gradient from the flow loss
-on the updated ψ; step 3 applies the policy and temperature gradients kept from the first backward.
+One SGD step (`sgd_step`; docs/core-contract.md "One SGD step", the authors' order):
+1. at the pre-step parameters: the critic gradient (groups `q` + `representation.critic_groups`) and,
+   on actor steps (`step % policy_delay == 0`), each policy group's gradient from its loss
+   (`policy_losses`: TD3 the actor; SAC the temperature and the actor);
+2. Adam on the critic groups;
+3. the representation's loss at the parameters after 2 (ā′ = `aux_next_action` from the pre-step
+   policy), Adam on `representation.aux_groups`;
+4. Adam on the policy groups (actor steps only);
+5. targets: Q̄ (TD3: and π̄) ← EMA with τ when `updates_q_target(step)` (TD3: on actor steps; SAC: every
+   step), the representation's `targets()` every step. The authors' TD3 blended the new policy into the
+   old *online* policy; we average into the target.
+Each group has its own Adam state, so ψ, trained in steps 2 and 3, keeps one state across both (as in
+the authors' code). torch: each loss's gradient lands only in the groups it trains,
+`loss.backward(inputs=...)` with their parameters (losses.py, "Gradient contract"); one `torch.optim.Adam`
+per group (lr `learning_rate`, ε `adam_eps`; log α: lr `alpha_learning_rate`, ε 1e-8 as optax's default);
+the targets move by one `torch._foreach_lerp_` per rate.
 
-Each group has its own `torch.optim.Adam` (lr `learning_rate`, ε `adam_eps`; log α: lr
-`alpha_learning_rate`, ε 1e-8 as optax's default), so ψ, trained in steps 1 and 2, keeps one state across
-both, as in the authors' code and the JAX agents. Targets move with TorchRL `SoftUpdate`s (one per loss
-module), run inside the step as one `torch._foreach_lerp_` per rate.
+Noise: `step_noise(generator, batch)` draws every random input of one SGD step, a dict keyed by
+`noise_keys()`: TD3 `smoothing_noise` ξ (target-policy smoothing); SAC `next_action_noise` ξ′ (a′ ~ π(s′)
+in the TD target), `actor_noise`, `alpha_noise` (a ~ π(s) in the actor and temperature losses) and, with a
+representation loss, `flow_action_noise` (ā′ ~ π(s′)); then the representation's `noise_keys` (SF²:
+`flow_noise` ε, `flow_time` k). The names are the JAX agents' keys, so tests hand one draw to both
+frameworks. `sgd_step` is pure given it.
 
-All randomness is explicit: `sgd_step(td, step)` reads every noise tensor from `td` (keys listed by
-`noise_keys()`: the algorithm's, then the representation's `noise_keys`, the same names as sf2_jax's
-`Algorithm.step_noise`); `draw_noise(shape, generator)` is the thin wrapper that draws them.
+Schedules (`step`, the run's gradient-step index, a host int): a group of `representation.aux_every`
+({group: period}) takes its aux Adam step only when `step % period == 0`; on the other steps its Adam does
+not step, so its parameters and whole Adam state (moments and step count) stay as they were. The schedule
+is decided on the host: each combination (actor step or not, the groups skipped, Q̄ moved or not) is its
+own step function, so nothing in a step branches on a device value.
 
-Schedules (`step`, the run's gradient-step index, a host int as the trainer counts it): the actor step
-is taken when `step % policy_delay == 0`; a group of `representation.aux_every` ({group: period})
-takes its aux Adam step only when `step % period == 0`. Off its period that group's Adam does not step,
-so its parameters and whole Adam state (moments and step count) stay as they were: the authors' separate
-task-vector optimizer only steps when it is used, and sf2_jax keeps the same by `jnp.where`. The
-schedule is decided on the host: each combination (actor step or not, the groups skipped) is its own
-step function, so nothing in a step branches on a device value.
-
-Compilation: `torch.compile` (`compile_mode`) compiles the two loss forwards, `_critic_losses` and
-`_aux_losses`, each once; AOTAutograd compiles their backward with them, so the compiled code is the
-loss + gradient computation. The Adam steps and the target lerps run outside it: dynamo guards on the
-optimizer object, so a compiled `Optimizer.step` recompiles once per parameter group (4 to 5 groups,
-each a full compilation), which buys nothing at these sizes. On CUDA (`cudagraphs`) the whole step of
-each schedule combination (compiled forwards, backward, capturable Adam, lerps) is captured as one CUDA
-graph by tensordict's `CudaGraphModule`. The step does no `.item()` and no host synchronization.
+Compilation: `torch.compile` (`compile_mode`) compiles the loss parts, `_critic`, `_policy` and `_aux`,
+each once; AOTAutograd compiles their backward with them, so the compiled code is the loss + gradient
+computation. The Adam steps and the target lerps run outside it: dynamo guards on the optimizer object,
+so a compiled `Optimizer.step` recompiles once per parameter group, which buys nothing at these sizes. On
+CUDA (`cudagraphs`) the whole step of each schedule combination (compiled losses, backward, capturable
+Adam, lerps) is captured as one CUDA graph by tensordict's `CudaGraphModule` (it takes the `Batch` and
+the noise dict as they are: pytrees of tensors). The step does no `.item()` and no host synchronization.
 """
 
 from __future__ import annotations
 
 import functools
+from collections import defaultdict
 from typing import Any
 
-import numpy as np
 import torch
 from sf2_common.agents.registry import check_aux_every
-from tensordict import TensorDict, TensorDictBase
-from torchrl.objectives import SoftUpdate
+from sf2_common.config import SF2Config
+from torch import nn
 
-from sf2_torch import networks
-from sf2_torch.config import SF2Config
+from sf2_torch import losses, networks
 
-from .objectives import target_pairs
 from .representations import Representation
 
-__all__ = ["Algorithm", "TD3", "SAC", "make_algorithm", "METRICS", "check_aux_every"]
+__all__ = ["Algorithm", "TD3", "SAC", "make_algorithm"]
 
-METRICS = {
-    "td3": ("critic_loss", "q", "actor_loss"),
-    "sac": ("critic_loss", "q", "actor_loss", "alpha_loss", "alpha", "entropy"),
-}
+Metrics = dict[str, torch.Tensor]
 
 
 class Algorithm:
-    """Shared machinery: networks, loss modules, per-group Adam, target updaters, the SGD step skeleton."""
+    """The SGD step skeleton (module docstring), the groups and their per-group Adam states."""
 
     name = ""
     policy_groups: tuple[str, ...] = ()
+    critic_noise_key = ""   # the `step_noise` entry of the TD loss
 
     def __init__(self, cfg: SF2Config, representation_cls: type[Representation], dtype=torch.float32,
                  device="cpu", compile_mode: str | None = None, cudagraphs: bool = False):
@@ -81,24 +79,28 @@ class Algorithm:
         self.nets = networks.make_networks(cfg, self.name, dtype=dtype, device=self.device)
         self.rep = representation_cls(cfg, self.nets)
         check_aux_every(self.rep)
-        self.loss = self.rep.critic_loss(self.name)
-        self.q_updater = SoftUpdate(self.loss, tau=cfg.tau)
-        groups = dict(self.rep.groups(self.loss))
-        groups["policy"] = list(self.nets.policy.parameters())
-        if self.name == "sac":
-            groups["log_alpha"] = [self.loss.log_alpha]
-        self.groups = {g: groups[g] for g in self.trained_groups()}
-        capturable = bool(cudagraphs)
-        self.optimizers = {g: self._make_adam(g, self.groups[g], capturable) for g in self.groups}
-        self._q_targets = target_pairs(self.q_updater)
-        self._rep_targets = target_pairs(self.rep.target_updater) if self.rep.target_updater else []
+        # {group: module | parameter}: the algorithm's groups, then the representation's (as sf2_jax's
+        # `init` returns its params)
+        core = ("obs_norm", "policy", "target_policy", "log_alpha")
+        self.groups: dict[str, nn.Module | nn.Parameter] = {
+            n: getattr(self.nets, n) for n in core if hasattr(self.nets, n)}
+        self.groups.update(self.rep.init(self.nets))
+        self.optimizers = {g: self._make_adam(g, bool(cudagraphs)) for g in self.trained_groups()}
         self.compile_mode = compile_mode
         self.cudagraphs = bool(cudagraphs)
-        self._steps: dict[tuple[bool, frozenset[str]], Any] = {}
-        self._forwards: dict[str, Any] = {}
+        self._steps: dict[tuple, Any] = {}
+        self._compiled: dict[str, Any] = {}
+        self._policy_names: tuple[str, ...] | None = None
 
     # ------------------------------------------------------------------ parameters and optimizers
-    def _make_adam(self, group, params, capturable):
+    def _params(self, groups) -> list[torch.Tensor]:
+        out = []
+        for g in groups:
+            value = self.groups[g]
+            out += [value] if isinstance(value, torch.Tensor) else list(value.parameters())
+        return out
+
+    def _make_adam(self, group: str, capturable: bool) -> torch.optim.Adam:
         cfg = self.cfg
         lr = cfg.alpha_learning_rate if group == "log_alpha" else cfg.learning_rate
         eps = 1e-8 if group == "log_alpha" else cfg.adam_eps
@@ -106,41 +108,28 @@ class Algorithm:
             lr = torch.tensor(lr, device=self.device)
         # CUDA: the fused kernel (one launch per group, also under CUDA-graph capture); elsewhere foreach
         fused = self.device.type == "cuda"
-        return torch.optim.Adam(params, lr=lr, eps=eps, capturable=capturable,
+        return torch.optim.Adam(self._params((group,)), lr=lr, eps=eps, capturable=capturable,
                                 fused=True if fused else None, foreach=None if fused else True)
 
     def trained_groups(self) -> tuple[str, ...]:
         groups = ["q", *self.rep.critic_groups, *self.rep.aux_groups, *self.policy_groups]
         return tuple(dict.fromkeys(groups))
 
-    def modules(self) -> torch.nn.ModuleDict:
-        """Every module whose state a checkpoint must hold (shared tensors appear more than once)."""
-        mods = {"nets": self.nets, "loss": self.loss}
-        if self.rep.aux_loss is not None:
-            mods["aux_loss"] = self.rep.aux_loss
-        return torch.nn.ModuleDict(mods)
-
     def state_dict(self) -> dict:
-        return {"modules": self.modules().state_dict(),
+        """Every group (modules' state dicts, parameters' values) and every Adam state."""
+        return {"groups": {g: (v.detach().clone() if isinstance(v, torch.Tensor) else v.state_dict())
+                           for g, v in self.groups.items()},
                 "optimizers": {g: o.state_dict() for g, o in self.optimizers.items()}}
 
     def load_state_dict(self, state: dict) -> None:
-        self.modules().load_state_dict(state["modules"])
+        for g, v in self.groups.items():
+            if isinstance(v, torch.Tensor):
+                with torch.no_grad():
+                    v.copy_(state["groups"][g])
+            else:
+                v.load_state_dict(state["groups"][g])
         for g, o in self.optimizers.items():
             o.load_state_dict(state["optimizers"][g])
-
-    def canonical(self) -> dict[str, np.ndarray]:
-        """Every parameter group in the canonical naming of `sf2_torch.params` (for `final/`)."""
-        return self.rep.canonical(self.loss)
-
-    def adam_moments(self) -> dict[str, dict[str, list[torch.Tensor]]]:
-        """{group: {"mu": [...], "nu": [...], "step": [...]}} in the order of `self.groups[group]`."""
-        out = {}
-        for g, opt in self.optimizers.items():
-            st = [opt.state.get(p, {}) for p in self.groups[g]]
-            out[g] = {"mu": [s.get("exp_avg") for s in st], "nu": [s.get("exp_avg_sq") for s in st],
-                      "step": [s.get("step") for s in st]}
-        return out
 
     # ------------------------------------------------------------------ acting (overridden)
     @torch.no_grad()
@@ -157,127 +146,161 @@ class Algorithm:
         networks.update_normalizer(self.nets.obs_norm, obs, self.cfg)
 
     # ------------------------------------------------------------------ noise (the thin wrapper)
-    def _randn(self, shape, generator):
-        return torch.randn(*shape, self.cfg.action_size, dtype=self.dtype, device=self.device,
-                           generator=generator)
-
     def noise_keys(self) -> tuple[str, ...]:
         raise NotImplementedError
 
-    def draw_noise(self, shape: tuple[int, ...], generator: torch.Generator) -> dict[str, torch.Tensor]:
-        """Every random input of `shape` SGD steps' losses (e.g. (G, B)), drawn from `generator`."""
+    def _algo_noise(self, generator: torch.Generator, batch: losses.Batch) -> dict[str, torch.Tensor]:
         raise NotImplementedError
+
+    def _randn(self, generator, batch):
+        a = batch.action
+        return torch.randn(a.shape, dtype=a.dtype, device=a.device, generator=generator)
+
+    def step_noise(self, generator: torch.Generator, batch: losses.Batch) -> dict[str, torch.Tensor]:
+        """Every random input of one SGD step on `batch`, drawn from `generator` (module docstring): the
+        keys are `noise_keys()`, shapes from `batch.obs.shape[:-1]` (a (G, B) stack of batches draws G
+        steps' noise at once). Order: the algorithm's noise, then the representation's `aux_noise`."""
+        noise = self._algo_noise(generator, batch)
+        if self.rep.aux_groups:
+            aux = self.rep.aux_noise(generator, batch)
+            if set(aux) != set(self.rep.noise_keys):
+                raise ValueError(f"{type(self.rep).__name__}.aux_noise returned {sorted(aux)}, but its "
+                                 f"noise_keys are {self.rep.noise_keys}")
+            noise.update(aux)
+        return noise
+
+    # ------------------------------------------------------------------ the losses (overridden)
+    def critic_loss(self, batch: losses.Batch, noise: dict[str, torch.Tensor]):
+        """The TD loss of the representation's critic with `noise[critic_noise_key]`: (loss, aux)."""
+        raise NotImplementedError
+
+    def policy_losses(self, batch: losses.Batch, noise: dict[str, torch.Tensor]) -> dict[str, tuple]:
+        """{policy group: (metric name, loss, aux metrics)}, each at the current parameters."""
+        raise NotImplementedError
+
+    def aux_next_action(self, batch: losses.Batch, noise: dict[str, torch.Tensor]) -> torch.Tensor:
+        """ā′, the next action of the representation's loss."""
+        raise NotImplementedError
+
+    def updates_q_target(self, step: int) -> bool:
+        """Whether Q̄ (TD3: and π̄) move this step."""
+        raise NotImplementedError
+
+    def _actor_step(self, step: int) -> bool:
+        return step % self.cfg.policy_delay == 0
 
     # ------------------------------------------------------------------ the SGD step
-    def aux_next_action(self, td: TensorDictBase) -> torch.Tensor:
-        raise NotImplementedError
+    def sgd_step(self, batch: losses.Batch, noise: dict[str, torch.Tensor], step: int) -> Metrics:
+        """One SGD step (module docstring) on the 2-D `batch` with `noise` (keys `noise_keys()`, from
+        `step_noise`); `step` is the gradient-step index (policy delay, `aux_every`), a host int. Returns
+        the metrics, a dict of 0-d tensors (no host synchronization)."""
+        step = int(step)
+        skip = frozenset(g for g, every in self.rep.aux_every.items() if step % every)
+        actor_step = self._actor_step(step)
+        if not actor_step and self._policy_names is None:  # the metrics a step without policy step zeroes
+            with torch.no_grad():
+                self._policy_names = tuple(self._policy(batch, noise)[1])
+        return self._step_fn(actor_step, skip, self.updates_q_target(step))(batch, noise)
 
-    def _critic_total(self, out: dict[str, torch.Tensor], actor_step: bool) -> torch.Tensor:
-        raise NotImplementedError
+    def _step_fn(self, actor_step: bool, skip: frozenset[str], q_target: bool):
+        """The step of one schedule combination (a CUDA graph of its own with `cudagraphs`)."""
+        key = (actor_step, skip, q_target)
+        fn = self._steps.get(key)
+        if fn is None:
+            pairs = {"target_q": ("q", self.cfg.tau)}
+            if "target_policy" in self.groups:
+                pairs["target_policy"] = ("policy", self.cfg.tau)
+            lerps = self._lerps({**(pairs if q_target else {}), **self.rep.targets()})
+            fn = functools.partial(self._step, actor_step=actor_step, skip=skip, lerps=lerps)
+            if self.cudagraphs:
+                from tensordict.nn import CudaGraphModule
 
-    def _actor_metrics(self, out: dict[str, torch.Tensor], actor_step: bool) -> dict[str, torch.Tensor]:
-        raise NotImplementedError
+                fn = CudaGraphModule(fn, warmup=3)
+            self._steps[key] = fn
+        return fn
 
-    def _updates_q_target(self, actor_step: bool) -> bool:
-        raise NotImplementedError
-
-    def _adam(self, group: str) -> None:
-        self.optimizers[group].step()
-
-    def _zero(self, groups) -> None:
-        for g in groups:
-            for p in self.groups[g]:
-                p.grad = None
-
-    def _critic_losses(self, td: TensorDictBase) -> dict[str, torch.Tensor]:
-        """The critic loss module's forward (TD, actor and temperature losses from the parameters as they
-        are): {entry: tensor}. Compiled by `_forward`."""
-        out = self.loss(td)
-        return {k: out.get(k) for k in out.keys()}
-
-    def _aux_losses(self, td: TensorDictBase) -> dict[str, torch.Tensor]:
-        """ā′ (no gradient) and the representation loss module's forward: {entry: tensor}. Compiled by
-        `_forward`."""
+    def _step(self, batch, noise, actor_step: bool, skip: frozenset[str], lerps) -> Metrics:
+        """One SGD step (module docstring) of one schedule combination; returns the metrics."""
+        rep = self.rep
+        critic_groups = ("q", *rep.critic_groups)
+        self._zero(self.trained_groups())
+        # 1. the critic gradient and the policy groups' gradients at the pre-step parameters
+        loss, metrics = self._part("_critic")(batch, noise)
+        loss.backward(inputs=self._params(critic_groups))
+        if actor_step:
+            policy, policy_metrics = self._part("_policy")(batch, noise)
+            # no policy loss reaches another policy group: one backward serves them all
+            torch.autograd.backward(list(policy.values()), inputs=self._params(policy))
+        # 2. Adam on the critic groups
+        self._adam(critic_groups)
+        # 3. the representation's own loss, on the parameters after step 2
+        if rep.aux_groups:
+            self._zero(rep.aux_groups)
+            loss, aux_metrics = self._part("_aux")(batch, noise)
+            loss.backward(inputs=self._params(rep.aux_groups))
+            self._adam(g for g in rep.aux_groups if g not in skip)
+            metrics.update(aux_metrics)
+        # 4. Adam on the policy groups (actor steps only; zeros as their metrics otherwise)
+        if actor_step:
+            self._adam(self.policy_groups)
+        else:
+            policy_metrics = {name: torch.zeros_like(metrics["q"]) for name in self._policy_names}
+        metrics.update(policy_metrics)
+        if "log_alpha" in self.groups:  # SAC's temperature after this step
+            metrics["alpha"] = torch.exp(self.groups["log_alpha"].detach())
+        # 5. targets
         with torch.no_grad():
-            next_action = self.aux_next_action(td)
-        aux_td = td.clone(False)
-        aux_td.set(self.rep.aux_loss.tensor_keys.next_action, next_action)
-        out = self.rep.aux_loss(aux_td)
-        return {k: out.get(k) for k in out.keys()}
+            for tau, targets, online in lerps:
+                torch._foreach_lerp_(targets, online, tau)
+        return metrics
 
-    def _forward(self, name: str):
-        """`_critic_losses` or `_aux_losses`, `torch.compile`d once when `compile_mode` is set."""
-        fn = self._forwards.get(name)
+    # the parts of the step, compiled by `_part`
+    def _critic(self, batch, noise):
+        loss, aux = self.critic_loss(batch, noise)
+        return loss, {"critic_loss": loss.detach(), "q": aux["q"]}
+
+    def _policy(self, batch, noise):
+        losses_, metrics = {}, {}
+        for group, (name, loss, aux) in self.policy_losses(batch, noise).items():
+            losses_[group] = loss
+            metrics.update({name: loss.detach(), **aux})
+        return losses_, metrics
+
+    def _aux(self, batch, noise):
+        with torch.no_grad():
+            next_action = self.aux_next_action(batch, noise)
+        loss, aux = self.rep.aux_loss(batch, next_action, {k: noise[k] for k in self.rep.noise_keys})
+        return loss, {self.rep.aux_loss_name: loss.detach(), **aux}
+
+    def _part(self, name: str):
+        """`_critic`, `_policy` or `_aux`, `torch.compile`d once when `compile_mode` is set."""
+        fn = self._compiled.get(name)
         if fn is None:
             fn = getattr(self, name)
             if self.compile_mode is not None:
                 # fill the flow-time embedding's table cache first: a miss inside the traced region
                 # would make dynamo recompile once on the next call (its guard on the cache)
-                p = next(self.nets.parameters())  # its device carries the index ("cuda:0"), as k's will
+                p = self.nets.obs_norm.mean  # its device carries the index ("cuda:0"), as k's will
                 networks._embedding_tables(self.cfg.embedding_size, p.dtype, p.device)
                 fn = torch.compile(fn, mode=self.compile_mode)
-            self._forwards[name] = fn
+            self._compiled[name] = fn
         return fn
 
-    def _step(self, td: TensorDictBase, actor_step: bool, skip: frozenset[str] = frozenset()
-              ) -> TensorDictBase:
-        """One SGD step (module docstring) on the transition batch + noise `td`; returns metrics. The aux
-        groups in `skip` (off their `aux_every` period) take no Adam step."""
-        critic_groups = ("q", *self.rep.critic_groups)
-        self._zero(self.groups)
-        # 1. critic (the actor and temperature losses are evaluated here too, from pre-step parameters)
-        out = self._forward("_critic_losses")(td)
-        self._critic_total(out, actor_step).backward()
-        for g in critic_groups:
-            self._adam(g)
-        metrics = {"critic_loss": out["loss_qvalue"].detach(), "q": out["pred_value"].detach()}
-        # 2. the representation's own loss, on the parameters after step 1
-        if self.rep.aux_loss is not None:
-            self._zero(self.rep.aux_groups)
-            aux = self._forward("_aux_losses")(td)
-            aux[self.rep.aux_loss_key].backward()
-            for g in self.rep.aux_groups:
-                if g not in skip:
-                    self._adam(g)
-            for k, v in aux.items():
-                metrics[self.rep.aux_loss_name if k == self.rep.aux_loss_key else k] = v.detach()
-        # 3. actor (and temperature), with the gradients of the pre-step parameters
-        if actor_step:
-            for g in self.policy_groups:
-                self._adam(g)
-        metrics.update(self._actor_metrics(out, actor_step))
-        # 4. targets
-        with torch.no_grad():
-            pairs = list(self._rep_targets)
-            if self._updates_q_target(actor_step):
-                pairs += self._q_targets
-            for w, targets, sources in pairs:
-                torch._foreach_lerp_(targets, sources, w)
-        return TensorDict(metrics, [])
+    def _zero(self, groups) -> None:
+        for p in self._params(groups):
+            p.grad = None
 
-    def _step_fn(self, actor_step: bool, skip: frozenset[str]):
-        """The step of one schedule combination (a CUDA graph of its own with `cudagraphs`)."""
-        fn = self._steps.get((actor_step, skip))
-        if fn is None:
-            fn = functools.partial(self._step, actor_step=actor_step, skip=skip)
-            if self.cudagraphs:
-                from tensordict.nn import CudaGraphModule
+    def _adam(self, groups) -> None:
+        for g in groups:
+            self.optimizers[g].step()
 
-                fn = CudaGraphModule(fn, warmup=3)
-            self._steps[(actor_step, skip)] = fn
-        return fn
-
-    def sgd_step(self, td: TensorDictBase, step: int = 0, *,
-                 actor_step: bool | None = None) -> TensorDictBase:
-        """One SGD step on `td` (a transition batch with every noise key). `step`: the gradient-step index
-        (a host int; the trainer's counter, sf2_jax's `step`): the policy (and SAC's temperature) steps
-        when `step % policy_delay == 0`, unless `actor_step` says otherwise, and each group of
-        `representation.aux_every` when `step % period == 0` (module docstring). Returns a TensorDict of
-        0-d metric tensors (no host synchronization)."""
-        if actor_step is None:
-            actor_step = step % self.cfg.policy_delay == 0
-        skip = frozenset(g for g, every in self.rep.aux_every.items() if step % every)
-        return self._step_fn(bool(actor_step), skip)(td)
+    def _lerps(self, pairs: dict[str, tuple[str, float]]) -> list[tuple[float, list, list]]:
+        """[(τ, target tensors, online tensors)] of `pairs` = {target: (online, τ)}, one entry per rate."""
+        by_rate = defaultdict(lambda: ([], []))
+        for target, (online, tau) in pairs.items():
+            by_rate[float(tau)][0].extend(self._params((target,)))
+            by_rate[float(tau)][1].extend(self._params((online,)))
+        return [(tau, t, o) for tau, (t, o) in by_rate.items()]
 
 
 class TD3(Algorithm):
@@ -285,6 +308,7 @@ class TD3(Algorithm):
 
     name = "td3"
     policy_groups = ("policy",)
+    critic_noise_key = "smoothing_noise"
 
     @torch.no_grad()
     def explore(self, obs, generator):
@@ -300,27 +324,24 @@ class TD3(Algorithm):
         return networks.td3_action(self.nets, obs) if deterministic else self.explore(obs, generator)
 
     def noise_keys(self):
-        return ("smoothing_noise", *(self.rep.noise_keys if self.rep.aux_loss is not None else ()))
+        return ("smoothing_noise", *(self.rep.noise_keys if self.rep.aux_groups else ()))
 
-    def draw_noise(self, shape, generator):
-        out = {"smoothing_noise": self._randn(shape, generator)}
-        out.update(self.rep.aux_noise(shape, generator))
-        return out
+    def _algo_noise(self, generator, batch):
+        return {"smoothing_noise": self._randn(generator, batch)}
 
-    def aux_next_action(self, td):
+    def critic_loss(self, batch, noise):
+        return losses.td3_critic_loss(self.nets, batch, noise[self.critic_noise_key], critic=self.rep.critic)
+
+    def policy_losses(self, batch, noise):
+        loss, _ = losses.td3_actor_loss(self.nets, batch, critic=self.rep.critic)
+        return {"policy": ("actor_loss", loss, {})}
+
+    def aux_next_action(self, batch, noise):
         """ā′ = π̄(s′) (no smoothing)."""
-        return networks.td3_action(self.nets, td.get(("next", "observation")), target=True)
+        return networks.td3_action(self.nets, batch.next_obs, target=True)
 
-    def _critic_total(self, out, actor_step):
-        total = out.get("loss_qvalue")
-        return total + out.get("loss_actor") if actor_step else total
-
-    def _actor_metrics(self, out, actor_step):
-        loss = out.get("loss_actor").detach()
-        return {"actor_loss": loss if actor_step else torch.zeros_like(loss)}
-
-    def _updates_q_target(self, actor_step):
-        return actor_step
+    def updates_q_target(self, step):
+        return self._actor_step(step)
 
 
 class SAC(Algorithm):
@@ -329,6 +350,7 @@ class SAC(Algorithm):
 
     name = "sac"
     policy_groups = ("policy", "log_alpha")
+    critic_noise_key = "next_action_noise"
 
     @torch.no_grad()
     def explore(self, obs, generator):
@@ -342,33 +364,28 @@ class SAC(Algorithm):
 
     def noise_keys(self):
         keys = ("next_action_noise", "actor_noise", "alpha_noise")
-        if self.rep.aux_loss is not None:
-            keys += ("flow_action_noise", *self.rep.noise_keys)
-        return keys
+        return keys + (("flow_action_noise", *self.rep.noise_keys) if self.rep.aux_groups else ())
 
-    def draw_noise(self, shape, generator):
-        out = {"next_action_noise": self._randn(shape, generator),
-               "actor_noise": self._randn(shape, generator), "alpha_noise": self._randn(shape, generator)}
-        if self.rep.aux_loss is not None:
-            out["flow_action_noise"] = self._randn(shape, generator)
-            out.update(self.rep.aux_noise(shape, generator))
+    def _algo_noise(self, generator, batch):
+        out = {k: self._randn(generator, batch) for k in ("next_action_noise", "actor_noise", "alpha_noise")}
+        if self.rep.aux_groups:
+            out["flow_action_noise"] = self._randn(generator, batch)
         return out
 
-    def aux_next_action(self, td):
+    def critic_loss(self, batch, noise):
+        return losses.sac_critic_loss(self.nets, batch, noise[self.critic_noise_key], critic=self.rep.critic)
+
+    def policy_losses(self, batch, noise):
+        alpha_loss, _ = losses.sac_alpha_loss(self.nets, batch, noise["alpha_noise"])
+        actor_loss, actor_aux = losses.sac_actor_loss(self.nets, batch, noise["actor_noise"],
+                                                      critic=self.rep.critic)
+        return {"log_alpha": ("alpha_loss", alpha_loss, {}), "policy": ("actor_loss", actor_loss, actor_aux)}
+
+    def aux_next_action(self, batch, noise):
         """ā′ ~ π(s′) with the explicit noise `flow_action_noise`."""
-        return networks.sac_sample(self.nets, td.get(("next", "observation")), td.get("flow_action_noise"))[0]
+        return networks.sac_sample(self.nets, batch.next_obs, noise["flow_action_noise"])[0]
 
-    def _critic_total(self, out, actor_step):
-        total = out.get("loss_qvalue")
-        return total + out.get("loss_actor") + out.get("loss_alpha") if actor_step else total
-
-    def _actor_metrics(self, out, actor_step):
-        zero = torch.zeros_like(out.get("loss_actor").detach())
-        keep = (lambda x: x.detach()) if actor_step else (lambda x: zero)
-        return {"actor_loss": keep(out.get("loss_actor")), "alpha_loss": keep(out.get("loss_alpha")),
-                "alpha": torch.exp(self.loss.log_alpha.detach()), "entropy": keep(out.get("entropy"))}
-
-    def _updates_q_target(self, actor_step):
+    def updates_q_target(self, step):
         return True
 
 

@@ -31,7 +31,8 @@ __all__ = [
 ]
 
 TORCH_FIELDS = ("device", "compile", "cudagraphs")
-# "auto": compile on CUDA, eager on the CPU. Measured (TD3+SF² step, python -m sf2_torch.agents.timing):
+# "auto": compile on CUDA, eager on the CPU. Measured (TD3+SF² step; bench/results/h200/6-torch-agents,
+# bench/results/cpu-amd-epyc-torch-agents):
 # on an H200 at paper sizes eager 11.6 ms, compiled 8.4 ms, compiled + CUDA graphs 2.3 ms (JAX 4.2 ms);
 # on a shared 2-core CPU (1 torch thread) at paper sizes eager 0.85 s, compiled 1.31 s (after 173 s of
 # compilation), at quick sizes eager 29 ms, compiled 17 ms (after 80 s). Other values: torch.compile modes.

@@ -26,7 +26,7 @@ and runs `vmap(jit(step))`, which re-traces the vmap on every call. The subclass
   evaluation episodes from the same states as the JAX trainer with the same seed.
 - `get_state_leaves()` / `set_state_leaves(leaves)`: the JAX env state as numpy arrays, for checkpoints.
 
-Playground and JAX are imported lazily, so `import sf2_torch.agents` stays cheap.
+Playground and JAX are imported when an env is built.
 """
 
 from __future__ import annotations
@@ -46,12 +46,14 @@ from sf2_common.agents.tasks import (
     valid_tasks,
     validate_task,
 )
-
-from sf2_torch.errors import ConfigError
+from sf2_common.errors import ConfigError
+from tensordict import TensorDict
+from torchrl.data.tensor_specs import Bounded, Composite, Unbounded
+from torchrl.envs import MujocoPlaygroundWrapper
 
 __all__ = [
     "PAPER_TASKS", "PAPER_BUDGETS", "PAPER_ACTION_REPEAT", "valid_tasks", "validate_task",
-    "paper_budget", "paper_action_repeat", "EnvSpec", "env_spec", "make_env", "env_class",
+    "paper_budget", "paper_action_repeat", "EnvSpec", "env_spec", "make_env", "PlaygroundEnv",
 ]
 
 
@@ -88,143 +90,121 @@ def env_spec(task: str, episode_length: int, action_repeat: int) -> EnvSpec:
 
 
 def make_env(task: str, episode_length: int, action_repeat: int, num_envs: int,
-             device: torch.device | str = "cpu"):
+             device: torch.device | str = "cpu") -> PlaygroundEnv:
     """A `PlaygroundEnv` of `num_envs` parallel copies of `task` on `device`."""
-    return env_class()(env_spec(task, episode_length, action_repeat), num_envs=num_envs, device=device)
+    return PlaygroundEnv(env_spec(task, episode_length, action_repeat), num_envs=num_envs, device=device)
 
 
-@functools.lru_cache(maxsize=1)
-def env_class():
-    """`PlaygroundEnv`, a subclass of TorchRL's `MujocoPlaygroundWrapper` (built on first use so that
-    TorchRL is imported only then). Also reachable as `sf2_torch.agents.envs.PlaygroundEnv`."""
-    return _build_env_class()
+class PlaygroundEnv(MujocoPlaygroundWrapper):
+    """TorchRL env over a Brax-wrapped Playground task (see the module docstring):
+    `PlaygroundEnv(spec, num_envs, device)`, `spec = env_spec(task, episode_length, action_repeat)`."""
 
+    def __init__(self, spec: EnvSpec, num_envs: int, device="cpu"):
+        self._spec = spec
+        super().__init__(env=spec.jax_env, batch_size=torch.Size([int(num_envs)]), device=device)
 
-def __getattr__(name):
-    if name == "PlaygroundEnv":
-        return env_class()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    # ---------------------------------------------------------------- TorchRL hooks
+    def _make_specs(self, env) -> None:
+        n, a, d = self.batch_size, self._spec.action_size, self._spec.obs_size
+        self.action_spec = Bounded(low=-1, high=1, shape=(*n, a), device=self.device)
+        self.reward_spec = Unbounded(shape=(*n, 1), device=self.device)
+        self.observation_spec = Composite(observation=Unbounded(shape=(*n, d), device=self.device),
+                                          shape=n)
+        bool_spec = Composite(
+            done=Unbounded(shape=(*n, 1), dtype=torch.bool, device=self.device),
+            terminated=Unbounded(shape=(*n, 1), dtype=torch.bool, device=self.device),
+            truncated=Unbounded(shape=(*n, 1), dtype=torch.bool, device=self.device),
+            shape=n)
+        self.done_spec = bool_spec
 
+    def _init_env(self):
+        import jax
 
-def _build_env_class():
-    from tensordict import TensorDict
-    from torchrl.data.tensor_specs import Bounded, Composite, Unbounded
-    from torchrl.envs import MujocoPlaygroundWrapper
+        self._key = None
+        self._current_state = None
+        self._treedef = None
+        self._jax_device = jax.devices("gpu" if self.device.type == "cuda" else "cpu")[0]
 
-    class _PlaygroundEnv(MujocoPlaygroundWrapper):
-        """TorchRL env over a Brax-wrapped Playground task (see the module docstring):
-        `PlaygroundEnv(spec, num_envs, device)`, `spec = env_spec(task, episode_length, action_repeat)`."""
+    def _set_seed(self, seed):
+        import jax
 
-        def __init__(self, spec: EnvSpec, num_envs: int, device="cpu"):
-            self._spec = spec
-            super().__init__(env=spec.jax_env, batch_size=torch.Size([int(num_envs)]), device=device)
+        self._key = jax.random.PRNGKey(0 if seed is None else int(seed))
 
-        # ---------------------------------------------------------------- TorchRL hooks
-        def _make_specs(self, env) -> None:
-            n, a, d = self.batch_size, self._spec.action_size, self._spec.obs_size
-            self.action_spec = Bounded(low=-1, high=1, shape=(*n, a), device=self.device)
-            self.reward_spec = Unbounded(shape=(*n, 1), device=self.device)
-            self.observation_spec = Composite(observation=Unbounded(shape=(*n, d), device=self.device),
-                                              shape=n)
-            bool_spec = Composite(
-                done=Unbounded(shape=(*n, 1), dtype=torch.bool, device=self.device),
-                terminated=Unbounded(shape=(*n, 1), dtype=torch.bool, device=self.device),
-                truncated=Unbounded(shape=(*n, 1), dtype=torch.bool, device=self.device),
-                shape=n)
-            self.done_spec = bool_spec
+    def _reset(self, tensordict=None, **kwargs):
+        import jax
 
-        def _init_env(self):
-            import jax
+        if self._key is None:
+            self._key = jax.random.PRNGKey(0)
+        self._key, sub = jax.random.split(self._key)
+        return self._reset_from(jax.random.split(sub, self.batch_size.numel()))
 
-            self._key = None
-            self._current_state = None
-            self._treedef = None
-            self._jax_device = jax.devices("gpu" if self.device.type == "cuda" else "cpu")[0]
+    def _step(self, tensordict):
+        action = tensordict.get("action")
+        state = self._spec.step(self._current_state, self._to_jax(action.to(torch.float32)))
+        self._current_state = state
+        return self._outputs(state, with_reward=True)
 
-        def _set_seed(self, seed):
-            import jax
+    # ---------------------------------------------------------------- helpers
+    def reset_from_keys(self, keys) -> TensorDict:
+        """Reset every env from explicit JAX PRNG keys (num_envs, 2); returns the reset TensorDict."""
+        self._reset_from(keys)
+        return self._outputs(self._current_state, with_reward=False)
 
-            self._key = jax.random.PRNGKey(0 if seed is None else int(seed))
+    def _reset_from(self, keys):
+        import jax
 
-        def _reset(self, tensordict=None, **kwargs):
-            import jax
+        keys = jax.device_put(keys, self._jax_device)  # committed, like every later input
+        state = self._spec.reset(keys)
+        self._current_state = state
+        self._treedef = jax.tree_util.tree_structure(state)
+        return self._outputs(state, with_reward=False)
 
-            if self._key is None:
-                self._key = jax.random.PRNGKey(0)
-            self._key, sub = jax.random.split(self._key)
-            return self._reset_from(jax.random.split(sub, self.batch_size.numel()))
+    def _to_jax(self, t: torch.Tensor):
+        """`t` as a JAX array of JAX's default float width: MJX builds its state in float64 when
+        `jax_enable_x64` is on (a float32 action would then break its `lax.scan` carry)."""
+        import jax
 
-        def _step(self, tensordict):
-            action = tensordict.get("action")
-            state = self._spec.step(self._current_state, self._to_jax(action.to(torch.float32)))
-            self._current_state = state
-            return self._outputs(state, with_reward=True)
+        if t.device.type == "cuda":
+            x = jax.dlpack.from_dlpack(t.contiguous())
+        else:
+            x = jax.device_put(t.detach().contiguous().numpy(), self._jax_device)
+        return x.astype(jax.dtypes.canonicalize_dtype(np.float64))
 
-        # ---------------------------------------------------------------- helpers
-        def reset_from_keys(self, keys) -> TensorDict:
-            """Reset every env from explicit JAX PRNG keys (num_envs, 2); returns the reset TensorDict."""
-            self._reset_from(keys)
-            return self._outputs(self._current_state, with_reward=False)
+    def _to_torch(self, x) -> torch.Tensor:
+        return torch.from_dlpack(x).to(self.device)
 
-        def _reset_from(self, keys):
-            import jax
+    def _outputs(self, state, with_reward: bool):
+        n = (*self.batch_size, 1)
+        done = self._to_torch(state.done).view(n) > 0.5
+        trunc = self._to_torch(state.info["truncation"]).view(n) > 0.5
+        out = {"observation": self._to_torch(state.obs).to(torch.float32).clone(),
+               "done": done, "terminated": done & ~trunc, "truncated": trunc}
+        if with_reward:
+            out["reward"] = self._to_torch(state.reward).to(torch.float32).view(n).clone()
+        return TensorDict._new_unsafe(source=out, batch_size=self.batch_size, device=self.device)
 
-            keys = jax.device_put(keys, self._jax_device)  # committed, like every later input
-            state = self._spec.reset(keys)
-            self._current_state = state
-            self._treedef = jax.tree_util.tree_structure(state)
-            return self._outputs(state, with_reward=False)
+    def get_state_leaves(self) -> list[np.ndarray]:
+        import jax
 
-        def _to_jax(self, t: torch.Tensor):
-            """`t` as a JAX array of JAX's default float width: MJX builds its state in float64 when
-            `jax_enable_x64` is on (a float32 action would then break its `lax.scan` carry)."""
-            import jax
-            import numpy as np
+        return [np.asarray(x) for x in jax.tree_util.tree_leaves(self._current_state)]
 
-            if t.device.type == "cuda":
-                x = jax.dlpack.from_dlpack(t.contiguous())
-            else:
-                x = jax.device_put(t.detach().contiguous().numpy(), self._jax_device)
-            return x.astype(jax.dtypes.canonicalize_dtype(np.float64))
+    def set_state_leaves(self, leaves) -> None:
+        import jax
 
-        def _to_torch(self, x) -> torch.Tensor:
-            return torch.from_dlpack(x).to(self.device)
+        if self._treedef is None:
+            raise RuntimeError("reset the env once before restoring its state")
+        template = jax.tree_util.tree_leaves(self._current_state)
+        if len(template) != len(leaves):
+            raise ValueError(f"env state has {len(template)} arrays, got {len(leaves)}")
+        arrays = []
+        for t, x in zip(template, leaves):
+            x = np.asarray(x)
+            if x.shape != t.shape or x.dtype != t.dtype:
+                raise ValueError(f"env state array {x.shape} {x.dtype} does not fit {t.shape} {t.dtype}")
+            arrays.append(jax.device_put(x, self._jax_device))
+        self._current_state = jax.tree_util.tree_unflatten(self._treedef, arrays)
 
-        def _outputs(self, state, with_reward: bool):
-            n = (*self.batch_size, 1)
-            done = self._to_torch(state.done).view(n) > 0.5
-            trunc = self._to_torch(state.info["truncation"]).view(n) > 0.5
-            out = {"observation": self._to_torch(state.obs).to(torch.float32).clone(),
-                   "done": done, "terminated": done & ~trunc, "truncated": trunc}
-            if with_reward:
-                out["reward"] = self._to_torch(state.reward).to(torch.float32).view(n).clone()
-            return TensorDict._new_unsafe(source=out, batch_size=self.batch_size, device=self.device)
-
-        def get_state_leaves(self) -> list[np.ndarray]:
-            import jax
-
-            return [np.asarray(x) for x in jax.tree_util.tree_leaves(self._current_state)]
-
-        def set_state_leaves(self, leaves) -> None:
-            import jax
-
-            if self._treedef is None:
-                raise RuntimeError("reset the env once before restoring its state")
-            template = jax.tree_util.tree_leaves(self._current_state)
-            if len(template) != len(leaves):
-                raise ValueError(f"env state has {len(template)} arrays, got {len(leaves)}")
-            arrays = []
-            for t, x in zip(template, leaves):
-                x = np.asarray(x)
-                if x.shape != t.shape or x.dtype != t.dtype:
-                    raise ValueError(f"env state array {x.shape} {x.dtype} does not fit {t.shape} {t.dtype}")
-                arrays.append(jax.device_put(x, self._jax_device))
-            self._current_state = jax.tree_util.tree_unflatten(self._treedef, arrays)
-
-        def __repr__(self) -> str:
-            return (f"PlaygroundEnv(task={self._spec.task!r}, num_envs={self.batch_size.numel()}, "
-                    f"episode_length={self._spec.episode_length}, action_repeat={self._spec.action_repeat}, "
-                    f"device={self.device})")
-
-    _PlaygroundEnv.__name__ = _PlaygroundEnv.__qualname__ = "PlaygroundEnv"
-    return _PlaygroundEnv
+    def __repr__(self) -> str:
+        return (f"PlaygroundEnv(task={self._spec.task!r}, num_envs={self.batch_size.numel()}, "
+                f"episode_length={self._spec.episode_length}, action_repeat={self._spec.action_repeat}, "
+                f"device={self.device})")

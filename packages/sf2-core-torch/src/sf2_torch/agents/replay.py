@@ -3,7 +3,8 @@ sampling with replacement (`RandomSampler`) from the filled part, round-robin wr
 transitions: statistically the buffer of `sf2_jax.agents.replay` (a fixed-size ring, uniform over the last
 `capacity` transitions). The sampling generator is an explicit argument, so all randomness of a seed flows
 from that seed's `torch.Generator`. Transitions use TorchRL's layout (`observation`, `action`,
-`("next", observation | reward | done | terminated | truncated)`).
+`("next", observation | reward | done | terminated | truncated)`); `to_batch` turns sampled transitions
+into the core's `sf2_torch.losses.Batch` (discount = 1 − done, truncation = truncated, as the JAX trainer).
 """
 
 from __future__ import annotations
@@ -13,7 +14,22 @@ import logging
 import torch
 from tensordict import TensorDictBase
 
-__all__ = ["ReplayBuffer"]
+from sf2_torch.losses import Batch
+
+__all__ = ["ReplayBuffer", "to_batch"]
+
+
+def to_batch(td: TensorDictBase) -> Batch:
+    """The core `Batch` of transitions of any batch shape (…): obs (…, D), action (…, A), reward,
+    discount = 1 − done and truncation (…) in the observations' dtype, next_obs (…, D)."""
+    obs, nxt = td.get("observation"), td.get("next")
+
+    def flag(x):
+        return x.squeeze(-1).to(obs.dtype)
+
+    return Batch(obs=obs, action=td.get("action"), reward=flag(nxt.get("reward")),
+                 discount=1.0 - flag(nxt.get("done")), next_obs=nxt.get("observation"),
+                 truncation=flag(nxt.get("truncated")))
 
 
 class ReplayBuffer:

@@ -1,53 +1,49 @@
 """Pluggable representations: what the critic sees, and the representation's own loss step.
 
-The torch mirror of `sf2_jax.agents.representations` (same names, registry, class attributes and
-meaning; the methods hold state in modules instead of taking `params`). A representation is the part of
-an agent between the raw (s, a) and the twin Q values:
+A representation is the part of an agent between the raw (s, a) and the twin Q values (the torch
+mirror of `sf2_jax.agents.representations`: same names, arguments and meaning; torch methods act on the
+modules the representation holds instead of taking `params`):
 
-- `critic_loss(algo, obs_norm)` → the TorchRL `LossModule` of the base algorithm on its critic (TD3 or
-  SAC: `forward(td)` → `loss_qvalue`, `loss_actor`, [`loss_alpha`], `pred_value`, ...). It owns the Q heads
-  and their targets (`target_qvalue_network_params`) and, for TD3, the target policy.
-- `groups(critic_loss)` → {group name: parameters} of the groups it trains: always `q` (the Q heads,
-  whose input is its features); SF² adds `psi` and `zeta`. The base algorithm adds `policy` and
-  `log_alpha`. Each group has one Adam state (ψ keeps one across the critic and the flow steps).
+- `init(core)` → the groups it owns, {group: nn.Module}. It always owns the Q heads `q`/`target_q`
+  (their input is its features); SF² adds ψ, ζ and their targets. `core` is the algorithm's
+  `sf2_torch.networks.Networks`, so a representation that reuses core networks can take them; new
+  modules are initialised from torch's global generator (the trainer seeds it).
+- `critic(obs, action, target=False)` → (B, 2): twin Q on its features (online or target groups).
 - `critic_groups`: groups besides `q` that the critic (TD) loss trains (SF²: ψ, the authors'
   `back_critic_grad=True`).
-- `aux_groups`, `aux_loss` (a `LossModule` whose `forward` returns `loss_<aux_loss_name>`), `aux_noise`:
-  its own loss, one Adam step on `aux_groups` right after the critic step of every SGD step (SF²: the
-  flow loss on ψ and ζ, `objectives.SF2FlowLoss`). `aux_noise(n, generator)` is the thin wrapper that
-  draws the loss's random inputs, a dict keyed by `noise_keys` (SF²: `flow_noise` ε, `flow_time` t;
-  the names sf2_jax's `aux_noise` uses too); the loss is pure. The next action ā′ is given by the base
-  algorithm (TD3: target policy at s′; SAC: a policy sample) under the loss's `next_action` key.
+- `aux_groups`, `aux_noise(generator, batch)`, `aux_loss(batch, next_action, noise)`: its own loss, one
+  Adam step on `aux_groups` right after the critic step of every SGD step (SF²: the flow loss on ψ and
+  ζ). `aux_noise` is the thin wrapper that draws the loss's random inputs, a dict keyed by `noise_keys`
+  with shapes from `batch.obs.shape[:-1]` (SF²: `flow_noise` ε and `flow_time` t, eq. 3); the loss is
+  pure. `next_action` is ā′, given by the base algorithm (TD3: target policy at s′; SAC: a policy
+  sample). `aux_loss_name` names the loss in the metrics.
 - `aux_every` ({group: period}, default {}): groups of `aux_groups` that the aux step updates only on
   gradient steps `step % period == 0` (Sim/SimLap's task vector w: every 10 TD3 / 16 SAC steps, the
-  authors' `gradient_steps % 10 == 0` cond). On the other steps the base algorithm does not step that
-  group's Adam, so its parameters and whole Adam state (moments and step count) stay unchanged, as the
-  authors' separate w optimizer, which only steps when it is used (as in sf2_jax).
-- `target_updater` → a TorchRL `SoftUpdate` of the targets it owns other than Q̄, applied every SGD step
-  (SF²: ψ̄ at τ and ζ̄ at τ_ζ), or None.
-- `canonical(critic_loss)` → its groups in the canonical naming of `sf2_torch.params` (for `final/`).
+  authors' `gradient_steps % 10 == 0` cond). On the other steps the base algorithm leaves that group's
+  parameters *and* its whole Adam state (moments and step count) unchanged, as the authors' separate w
+  optimizer, which only steps when it is used: Adam's bias correction counts w's own updates.
+- `targets()` → {target group: (online group, τ)}: the targets it owns other than `target_q`, moved by
+  the base algorithm every SGD step (the base algorithm moves `target_q` on its own schedule).
 
-The base algorithms (algorithms.py) are written once against this interface. Baselines plug in by
-subclassing `Representation` and calling `register`.
+The base algorithms (algorithms.py) are written once against this interface; the trainer never looks
+inside a representation. Baselines (Sim, SimLap, SPR) plug in by subclassing `Representation` and
+calling `register`. Every group a representation returns is saved, restored, exported
+(`sf2_torch.params.to_canonical` of the groups) and averaged by name.
 """
 
 from __future__ import annotations
 
 from typing import ClassVar
 
-import numpy as np
 import torch
 from sf2_common.agents.registry import Registry
-from tensordict.nn import TensorDictModule
+from sf2_common.config import SF2Config
 from torch import nn
 
-from sf2_torch import params as params_mod
-from sf2_torch.config import SF2Config
-from sf2_torch.networks import SF2Networks
+from sf2_torch import losses, networks
 
-from . import objectives
-
-__all__ = ["Representation", "NoRepresentation", "SF2Representation", "register", "get", "names", "REGISTRY"]
+__all__ = ["Representation", "NoRepresentation", "SF2Representation", "VanillaQ", "register", "get",
+           "names", "REGISTRY"]
 
 
 class Representation:
@@ -59,28 +55,28 @@ class Representation:
     supported_algos: ClassVar[tuple[str, ...]] = ("td3", "sac")
     critic_groups: ClassVar[tuple[str, ...]] = ()
     aux_groups: ClassVar[tuple[str, ...]] = ()
-    aux_loss_name: ClassVar[str] = "aux_loss"   # the metric's name (as in sf2_jax)
-    aux_loss_key: ClassVar[str] = "loss_aux"    # the aux loss module's output entry
+    aux_loss_name: ClassVar[str] = "aux_loss"
     noise_keys: ClassVar[tuple[str, ...]] = ()     # the entries of `aux_noise`
     aux_every: ClassVar[dict[str, int]] = {}       # {aux group: period in gradient steps}
 
-    def __init__(self, cfg: SF2Config, nets: SF2Networks):
+    def __init__(self, cfg: SF2Config, nets: networks.Networks):
         self.cfg = cfg
         self.nets = nets
-        self.aux_loss: nn.Module | None = None
-        self.target_updater = None
 
-    def critic_loss(self, algo: str):
+    def init(self, core: networks.Networks) -> dict[str, nn.Module]:
         raise NotImplementedError
 
-    def groups(self, critic_loss) -> dict[str, list[torch.Tensor]]:
+    def critic(self, obs: torch.Tensor, action: torch.Tensor, target: bool = False) -> torch.Tensor:
         raise NotImplementedError
 
-    def aux_noise(self, n: tuple[int, ...], generator: torch.Generator) -> dict[str, torch.Tensor]:
+    def aux_noise(self, generator: torch.Generator, batch: losses.Batch) -> dict[str, torch.Tensor]:
         return {}
 
-    def canonical(self, critic_loss) -> dict[str, np.ndarray]:
-        raise NotImplementedError
+    def aux_loss(self, batch: losses.Batch, next_action: torch.Tensor, noise: dict[str, torch.Tensor]):
+        raise NotImplementedError(f"representation {self.name!r} has no loss of its own")
+
+    def targets(self) -> dict[str, tuple[str, float]]:
+        return {}
 
 
 # Selectable by `--repr NAME`: the classes `register`ed in this process (`none`, `sf2`, tests' and the
@@ -90,114 +86,74 @@ REGISTRY = Registry("torch")
 register, names, get = REGISTRY.register, REGISTRY.names, REGISTRY.get
 
 
+def _frozen_copy(module: nn.Module) -> nn.Module:
+    import copy
+
+    return copy.deepcopy(module).requires_grad_(False)
+
+
 # ------------------------------------------------------------------------------------------- none
-class _SACLocScale(nn.Module):
-    """The core SAC policy as TorchRL's actor expects it: normalized obs → (loc, scale)."""
+class VanillaQ(nn.Module):
+    """Twin Q(s, a): two heads `head_0`, `head_1`, each the core `MLP(hidden_sizes → 1)` with LayerNorm,
+    on concat[normalize(s), a] (Brax's Q network with `q_network_layer_norm=True`, as the authors ran
+    vanilla TD3 and SAC)."""
 
-    def __init__(self, policy: nn.Module):
+    def __init__(self, cfg: SF2Config, **kw):
         super().__init__()
-        self.policy = policy
+        n_in = cfg.obs_size + cfg.action_size
+        self.head_0 = networks.MLP(n_in, cfg.hidden_sizes, 1, cfg.layer_norm, **kw)
+        self.head_1 = networks.MLP(n_in, cfg.hidden_sizes, 1, cfg.layer_norm, **kw)
 
-    def forward(self, obs_normalized):
-        return self.policy(obs_normalized)
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.cat([self.head_0(x), self.head_1(x)], dim=-1)
 
 
 @register
 class NoRepresentation(Representation):
-    """`none`: vanilla TD3/SAC with TorchRL's own `TD3Loss`/`SACLoss` (objectives.VanillaTD3Loss,
-    VanillaSACLoss: squared error, the JAX trainer's reduction), the critic on (s, a) directly: two
-    `VanillaQHead`s (LayerNorm MLPs on concat[s̄, a]); no loss of its own."""
+    """`none`: vanilla TD3/SAC, the critic on (s, a) directly; no loss of its own."""
 
     name = "none"
     label = ""
 
-    def critic_loss(self, algo: str):
-        from tensordict.nn import ProbabilisticTensorDictModule, ProbabilisticTensorDictSequential
+    def init(self, core):
+        p = core.obs_norm.mean
+        self.q = VanillaQ(self.cfg, dtype=p.dtype, device=p.device)
+        self.target_q = _frozen_copy(self.q)
+        return {"q": self.q, "target_q": self.target_q}
 
-        cfg, nets = self.cfg, self.nets
-        p = next(nets.policy.parameters())
-        kw = dict(dtype=p.dtype, device=p.device)
-        heads = [TensorDictModule(objectives.VanillaQHead(cfg, **kw), in_keys=["observation", "action"],
-                                  out_keys=["state_action_value"]) for _ in range(2)]
-        if algo == "td3":
-            actor = TensorDictModule(nets.policy, in_keys=["observation"], out_keys=["action"])
-            return objectives.VanillaTD3Loss(actor, heads, cfg, nets.obs_norm)
-        loc_scale = TensorDictModule(_SACLocScale(nets.policy), in_keys=["observation"],
-                                     out_keys=["loc", "scale"])
-        actor = ProbabilisticTensorDictSequential(
-            loc_scale,
-            ProbabilisticTensorDictModule(in_keys=["loc", "scale"], out_keys=["action"],
-                                          distribution_class=objectives.TanhGaussian,
-                                          return_log_prob=True))
-        return objectives.VanillaSACLoss(actor, heads, cfg, nets.obs_norm)
-
-    def groups(self, critic_loss):
-        return {"q": list(critic_loss.qvalue_network_params.values(True, True))}
-
-    def canonical(self, critic_loss):
-        out = {}
-        for prefix, stacked in (("q", critic_loss.qvalue_network_params),
-                                ("target_q", critic_loss.target_qvalue_network_params)):
-            for j in range(2):
-                out.update(_canonical_td(f"{prefix}.head_{j}", stacked[j]))
-        flat = params_mod.to_canonical(self.nets)
-        out.update({k: v for k, v in flat.items() if k.startswith(("obs_norm.", "policy."))})
-        if self.nets.algo == "td3":
-            out.update(_canonical_td("target_policy", critic_loss.target_actor_network_params))
-        else:
-            out["log_alpha"] = critic_loss.log_alpha.detach().cpu().numpy().copy()
-        return out
-
-
-def _canonical_td(prefix: str, params) -> dict[str, np.ndarray]:
-    """Canonical names of a TorchRL parameter tensordict of one MLP (keys like ("module", "mlp",
-    "dense_0", "weight")): kernels (in, out), LayerNorm `weight` → `scale`."""
-    out = {}
-    for key, value in params.items(True, True):
-        layer, leaf = key[-2], key[-1]
-        arr = value.detach().cpu().numpy()
-        if leaf == "weight" and layer.startswith("dense"):
-            out[f"{prefix}.{layer}.kernel"] = np.ascontiguousarray(arr.T)
-        elif leaf == "weight":
-            out[f"{prefix}.{layer}.scale"] = arr.copy()
-        else:
-            out[f"{prefix}.{layer}.{leaf}"] = arr.copy()
-    return out
+    def critic(self, obs, action, target=False):
+        x = torch.cat([networks.normalize(obs, self.nets.obs_norm), action], dim=-1)
+        return (self.target_q if target else self.q)(x)
 
 
 # ------------------------------------------------------------------------------------------- sf2
 @register
 class SF2Representation(Representation):
     """`sf2`: the critic on ψ(s, a) (twin Q heads of the core), ψ also trained by the TD loss; the flow
-    step trains (ψ, ζ) on `objectives.SF2FlowLoss` (eq. 3–4, Algorithm 1); targets ψ̄ (τ) and ζ̄ (τ_ζ)
-    averaged every step by `objectives.SF2SoftUpdate`."""
+    step trains (ψ, ζ) on `sf2_torch.losses.flow_loss` (eq. 3–4, Algorithm 1); targets ψ̄ (τ) and ζ̄ (τ_ζ)."""
 
     name = "sf2"
     label = "SF²"
     critic_groups = ("psi",)
     aux_groups = ("psi", "zeta")
     aux_loss_name = "flow_loss"
-    aux_loss_key = "loss_flow"
     noise_keys = ("flow_noise", "flow_time")
 
-    def __init__(self, cfg: SF2Config, nets: SF2Networks):
-        super().__init__(cfg, nets)
-        self.aux_loss = objectives.SF2FlowLoss(nets)
-        self.target_updater = objectives.SF2SoftUpdate(self.aux_loss, tau=cfg.tau,
-                                                        taus={"zeta_network": cfg.tau_zeta})
+    def init(self, core):
+        # the core already initialised ψ, ζ and the Q heads
+        return {n: getattr(core, n) for n in ("psi", "zeta", "q", "target_psi", "target_zeta", "target_q")}
 
-    def critic_loss(self, algo: str):
-        return objectives.TD3SF2Loss(self.nets) if algo == "td3" else objectives.SACSF2Loss(self.nets)
+    def critic(self, obs, action, target=False):
+        features = networks.psi(self.nets, obs, action, target=target)
+        return networks.q_values(self.nets, features, target=target)
 
-    def groups(self, critic_loss):
-        nets = self.nets
-        return {"q": list(nets.q.parameters()), "psi": list(nets.psi.parameters()),
-                "zeta": list(nets.zeta.parameters())}
+    def aux_noise(self, generator, batch):
+        obs = batch.obs
+        kw = dict(dtype=obs.dtype, device=obs.device, generator=generator)
+        return {"flow_noise": torch.randn(obs.shape, **kw), "flow_time": torch.rand(obs.shape[:-1], **kw)}
 
-    def aux_noise(self, n, generator):
-        p = next(self.nets.psi.parameters())
-        kw = dict(dtype=p.dtype, device=p.device, generator=generator)
-        return {"flow_noise": torch.randn(*n, self.cfg.obs_size, **kw), "flow_time": torch.rand(*n, **kw)}
+    def aux_loss(self, batch, next_action, noise):
+        return losses.flow_loss(self.nets, batch, next_action, noise["flow_noise"], noise["flow_time"])
 
-    def canonical(self, critic_loss):
-        return params_mod.to_canonical(self.nets)
+    def targets(self):
+        return {"target_psi": ("psi", self.cfg.tau), "target_zeta": ("zeta", self.cfg.tau_zeta)}

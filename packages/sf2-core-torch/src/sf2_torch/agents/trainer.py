@@ -14,8 +14,9 @@ the other; all seeds' envs step together in one Playground batch. Per seed s:
 - `epoch(state, epoch)`: `actor_steps_per_epoch` actor steps. The first `prefill_actor_steps` actor
   steps of the run act uniformly at random and do no SGD (the prefill); every later one acts with
   exploration noise, updates the observation statistics (Brax's rule, with the observations acted on),
-  inserts the transitions, samples `grad_updates_per_step` batches at once and runs that many SGD steps
-  (`Algorithm.sgd_step`, compiled or not; the noise of all of them is drawn in one go). Metrics stay on
+  inserts the transitions, samples `grad_updates_per_step` batches at once, draws the noise of all of
+  them in one go (`Algorithm.step_noise` of the (G, B) batch) and runs that many SGD steps
+  (`Algorithm.sgd_step`, compiled or not). Metrics stay on
   the device until the epoch ends; then the mean of every metric over the epoch's SGD steps and the
   index of its first non-finite value are computed (indexed as the JAX trainer's: actor step · G + g).
 - `evaluate`: one episode from each evaluation start state (deterministic or acting policy; the acting
@@ -23,9 +24,9 @@ the other; all seeds' envs step together in one Playground batch. Per seed s:
 
 The host loop between epochs (`sf2_common.agents.hostloop.run_epochs`, shared with sf2_jax): train →
 NaN guard → evaluate → append rows → checkpoint. A run killed at any moment resumes from its last
-checkpoint; rows of later epochs are dropped and produced again identically (runfolder.py). Vanilla
-(`none`) runs use TorchRL's TD3Loss/SACLoss, which draw their noise from torch's global generator: it is
-seeded with the first seed and checkpointed too.
+checkpoint; rows of later epochs are dropped and produced again identically
+(`sf2_common.agents.runfolder`). TorchRL provides the env wrapper (envs.py) and the replay buffer
+(replay.py); the losses are `sf2_torch.losses`.
 """
 
 from __future__ import annotations
@@ -40,16 +41,18 @@ import numpy as np
 import torch
 from sf2_common.agents import hostloop
 from sf2_common.agents.hostloop import WALL_FIELDS, TrainingDiverged
+from sf2_common.agents.plotting import method_label
+from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch
+from sf2_common.errors import ConfigError
 from tensordict import TensorDict
 
-from sf2_torch.errors import ConfigError
+from sf2_torch import losses, params
 
 from . import configs, envs, representations
 from .algorithms import Algorithm, make_algorithm
 from .checkpoint import Checkpointer, CheckpointMismatch
 from .configs import TrainConfig
-from .replay import ReplayBuffer
-from .runfolder import RunFolder, RunFolderMismatch
+from .replay import ReplayBuffer, to_batch
 
 __all__ = ["Program", "SeedState", "TrainState", "get_program", "TrainingDiverged", "TrainResult", "train",
            "evaluate_checkpoint", "env_reset_keys", "eval_key", "fresh_eval_start_keys", "EVAL_STREAM",
@@ -131,7 +134,6 @@ class Program:
     def init(self, seeds) -> TrainState:
         self.precision()
         agents = [self.make_agent(s) for s in seeds]
-        torch.manual_seed(seeds[0])  # torch's global generator: TorchRL's own losses draw from it
         env = envs.make_env(self.cfg.task, self.cfg.episode_length, self.cfg.action_repeat,
                             len(seeds) * self.cfg.num_envs, self.device)
         import jax.numpy as jnp
@@ -179,17 +181,19 @@ class Program:
         G, B = cfg.grad_updates_per_step, cfg.batch_size
         local = actor_step % self.sched.actor_steps_per_epoch
         for i, ag in enumerate(state.agents):
-            batches = ag.replay.sample(G * B).reshape(G, B)
-            batches.update(ag.algo.draw_noise((G, B), ag.generator))
+            batches = to_batch(ag.replay.sample(G * B).reshape(G, B))
+            noise = ag.algo.step_noise(ag.generator, batches)
             for g in range(G):  # the step index drives the policy delay and `aux_every` schedules
-                metrics[i].append(ag.algo.sgd_step(batches[g], step=state.grad_steps + g))
+                batch = losses.Batch(*(x[g] for x in batches))
+                metrics[i].append(ag.algo.sgd_step(batch, {k: v[g] for k, v in noise.items()},
+                                                   step=state.grad_steps + g))
         sgd_index.extend(local * G + g for g in range(G))
         state.grad_steps += G
 
     def epoch(self, state: TrainState, epoch: int) -> tuple[TrainState, dict, dict]:
         """Run epoch `epoch` (1-based). Returns (state, {metric: (seeds,) means over the epoch's SGD
         steps, "sgd_steps": (seeds,) counts}, {metric: (seeds,) first non-finite index | −1})."""
-        metrics: list[list[TensorDict]] = [[] for _ in state.agents]
+        metrics: list[list[dict]] = [[] for _ in state.agents]
         sgd_index: list[int] = []
         first = (epoch - 1) * self.sched.actor_steps_per_epoch
         for actor_step in range(first, first + self.sched.actor_steps_per_epoch):
@@ -198,9 +202,12 @@ class Program:
         means = {"sgd_steps": np.full(n, len(sgd_index))}
         first_bad: dict[str, np.ndarray] = {}
         if sgd_index:
-            stacked = [torch.stack(m).to("cpu") for m in metrics]  # the epoch's one host transfer
-            for name in stacked[0].keys():
-                per_seed = [s.get(name).double().numpy() for s in stacked]
+            names = sorted(metrics[0][0])
+            # (seeds, steps, metrics): the epoch's one host transfer
+            stacked = torch.stack([torch.stack([torch.stack([m[k] for k in names]) for m in ms])
+                                   for ms in metrics]).to("cpu").double().numpy()
+            for j, name in enumerate(names):
+                per_seed = [s[:, j] for s in stacked]
                 means[name] = np.array([v.mean() for v in per_seed])
                 first_bad[name] = np.array([
                     -1 if np.isfinite(v).all() else sgd_index[int(np.argmin(np.isfinite(v)))]
@@ -238,9 +245,7 @@ class Program:
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self, state: TrainState) -> dict:
         out = {"seeds": list(state.seeds), "env_steps": state.env_steps, "grad_steps": state.grad_steps,
-               "obs": state.obs.cpu(), "torch_rng": torch.get_rng_state(), "agents": []}
-        if self.device.type == "cuda":
-            out["cuda_rng"] = torch.cuda.get_rng_state(self.device)
+               "obs": state.obs.cpu(), "agents": []}
         for ag in state.agents:
             out["agents"].append({"seed": ag.seed, "algo": ag.algo.state_dict(),
                                   "replay": ag.replay.state_dict(), "generator": ag.generator.get_state()})
@@ -259,9 +264,6 @@ class Program:
             raise CheckpointMismatch(f"checkpoint does not fit this program: {err}") from err
         state.obs = saved["obs"].to(self.device)
         state.env_steps, state.grad_steps = int(saved["env_steps"]), int(saved["grad_steps"])
-        torch.set_rng_state(saved["torch_rng"])
-        if "cuda_rng" in saved and self.device.type == "cuda":
-            torch.cuda.set_rng_state(saved["cuda_rng"], self.device)
         return state
 
 
@@ -386,15 +388,13 @@ def _eval_env(program: Program, seeds):
 
 
 def _label(cfg: TrainConfig) -> str:
-    from .plotting import method_label
-
-    return method_label(cfg.algo, cfg.representation)
+    return method_label(cfg.algo, cfg.representation, representations.REGISTRY)
 
 
 def _write_final(run: RunFolder, state: TrainState) -> None:
     run.final_dir.mkdir(parents=True, exist_ok=True)
     for ag in state.agents:
-        np.savez(run.final_dir / f"params_seed{ag.seed}.npz", **ag.algo.canonical())
+        np.savez(run.final_dir / f"params_seed{ag.seed}.npz", **params.to_canonical(ag.algo.groups))
 
 
 def _versions() -> dict:
