@@ -8,13 +8,15 @@ import pytest
 jax = pytest.importorskip("jax")
 pytest.importorskip("sf2_jax")
 
+import functools  # noqa: E402
+
 import jax.numpy as jnp  # noqa: E402
 import optax  # noqa: E402
-from _baseline_helpers import A, B, D, laplacian_reference, numpy_batch, numpy_noise, small_kwargs  # noqa: E402
+from baselines_helpers import A, B, D, laplacian_reference, numpy_batch, numpy_noise, small_kwargs  # noqa: E402
 from sf2_baselines.jax import params as bparams  # noqa: E402
 from sf2_baselines.jax import sim, simlap, spr  # noqa: E402
-from sf2_jax import SF2Config  # noqa: E402
-from sf2_jax.errors import ConfigError, ParamsError, ShapeError  # noqa: E402
+from sf2_common.errors import ConfigError, ParamsError, ShapeError  # noqa: E402
+from sf2_jax import SF2Config, losses  # noqa: E402
 from sf2_jax.losses import Batch  # noqa: E402
 
 
@@ -65,15 +67,16 @@ def test_sim_groups_and_shapes():
 
 
 def test_sim_feature_size_512():
-    """DESIGN.md §5: the authors' Sim stores the task vector with a shape that breaks F = 512."""
+    """README.md "Sim": the authors' Sim stores the task vector with a shape that breaks F = 512."""
     nets, params = _setup(sim, feature_size=512, q_hidden_size=16)
     assert params["task"]["w"].shape == (512,)
     b, n = _batch(), _noise()
     assert sim.critic(nets, params, b.obs, b.action).shape == (B, 2)
+    critic = functools.partial(sim.critic, nets)
     for fn in (
         lambda p: sim.reward_loss(nets, p, b, n["next_action"]),
         lambda p: simlap.simlap_loss(nets, p, b, n["next_action"]),
-        lambda p: sim.td3_critic_loss(nets, p, b, n["smoothing"]),
+        lambda p: losses.td3_critic_loss(nets.core, p, b, n["smoothing"], critic=critic),
     ):
         assert np.isfinite(float(fn(params)[0]))
 
@@ -105,30 +108,20 @@ def test_sim_features_see_the_normalized_task_without_gradient():
 
 @pytest.mark.parametrize("algo", ["td3", "sac"])
 def test_each_loss_trains_exactly_its_groups(algo):
+    """The baselines' own losses stop the gradient of every group they do not train (their TD3/SAC losses
+    are the core's, differentiated by the agents over the representation's critic groups)."""
     nets, params = _setup(sim, algo)
     b, n = _batch(), _noise()
-    xi = n["smoothing"] if algo == "td3" else n["noise"]
-    critic_loss = getattr(sim, f"{algo}_critic_loss")
     cases = [
         (lambda p: sim.reward_loss(nets, p, b, n["next_action"]), {"task"}),
         (lambda p: simlap.laplacian_loss(nets, p, b, n["next_action"]), {"phi"}),
         (lambda p: simlap.simlap_loss(nets, p, b, n["next_action"]), {"phi", "task"}),
-        (lambda p: critic_loss(nets, p, b, xi), {"q", "phi"}),
-        (lambda p: critic_loss(nets, p, b, xi, train_features=False), {"q"}),
-        (lambda p: getattr(simlap, f"{algo}_critic_loss")(nets, p, b, xi), {"q"}),
     ]
     for fn, groups in cases:
         assert _nonzero_groups(fn, params) == groups
     snets, sparams = _setup(spr, algo)
-    cases = [
-        (
-            lambda p: spr.spr_loss(snets, p, b, n["next_action"], n["obs_noise"], n["next_obs_noise"]),
-            {"encoder", "projection", "prediction"},
-        ),
-        (lambda p: getattr(spr, f"{algo}_critic_loss")(snets, p, b, xi), {"q", "encoder"}),
-    ]
-    for fn, groups in cases:
-        assert _nonzero_groups(fn, sparams) == groups
+    spr_loss = lambda p: spr.spr_loss(snets, p, b, n["next_action"], n["obs_noise"], n["next_obs_noise"])  # noqa: E731
+    assert _nonzero_groups(spr_loss, sparams) == {"encoder", "projection", "prediction"}
 
 
 def test_reward_loss_formula():
@@ -207,8 +200,9 @@ def test_shape_errors_name_the_sizes():
         spr.spr_loss(snets, sparams, b, n["next_action"], jnp.zeros((B, D - 1)), n["next_obs_noise"])
     with pytest.raises(ConfigError, match="algo"):
         sim.make_networks(nets.cfg, "ppo")
-    with pytest.raises(ConfigError, match="sac"):
-        sim.sac_actor_loss(nets, params, b, n["noise"])
+    stacked = Batch(*(jnp.stack([v, v]) for v in b))
+    with pytest.raises(ShapeError, match="a 2-D batch"):
+        sim.reward_loss(nets, params, stacked, jnp.stack([n["next_action"]] * 2))
 
 
 @pytest.mark.parametrize("module", [sim, spr])

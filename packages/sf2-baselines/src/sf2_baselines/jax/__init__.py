@@ -1,7 +1,8 @@
 """sf2_baselines.jax: Sim, SimLap and SPR on the JAX core (`sf2_jax`).
 
-Modules: `sim`, `simlap`, `spr` (networks and pure losses with explicit noise), `common` (shared
-checks, L2 normalization, TD3/SAC losses on any critic), `params` (canonical interchange),
+Modules: `sim`, `simlap`, `spr` (networks, critics and their own pure losses with explicit noise;
+their TD3/SAC losses are `sf2_jax.losses`' with `critic=`), `common` (shared checks, L2 normalization),
+`params` (canonical interchange),
 `representations` (the agents' plug-ins). Importing this package registers `sim`, `simlap`,
 `simlap_authors` and `spr` with `sf2_jax.agents.representations` when the agents are importable.
 """

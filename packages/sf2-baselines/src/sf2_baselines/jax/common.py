@@ -1,43 +1,25 @@
-"""Pieces every baseline shares (JAX): shape checks, L2 normalization, TD3/SAC losses on any critic.
+"""Pieces every baseline shares (JAX): shape checks, L2 normalization, gradient stops, tree casts.
 
-The TD3 and SAC losses below are the core's (docs/core-contract.md "TD3 on features", "SAC on
-features"; paper Appendix D, Algorithms 2–3) written against a `critic(params, obs, action, target)`
-function instead of ψ and the core's Q heads, so each baseline gets the same critic and actor losses
-that `sf2_jax.agents.algorithms` computes with its representation. They are pure: the TD3 smoothing
-noise ξ and the SAC action noise ξ are arguments. Batch means divide by B; samples with
-truncation_b = 1 count as zeros (m_b = 1 − truncation_b).
+The baselines' TD3 and SAC losses are the core's (`sf2_jax.losses.td3_critic_loss`, ..., paper
+Appendix D, Algorithms 2–3) with `critic=` the baseline's critic (`sim.critic`, `spr.critic`, or a
+representation's `critic`); the agents pass it. Their own losses (reward prediction, Laplacian, SPR)
+take 2-D batches (B, ·), as the core's do.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any
 
 import jax
 import jax.numpy as jnp
-from sf2_jax import networks as core_nw
-from sf2_jax.errors import ShapeError
+from sf2_common.errors import ShapeError
 from sf2_jax.losses import Batch
 
-__all__ = [
-    "NORM_EPS",
-    "l2_normalize",
-    "trainable",
-    "check_last",
-    "check_batch",
-    "check_noise",
-    "td_loss",
-    "td3_critic_loss",
-    "td3_actor_loss",
-    "sac_critic_loss",
-    "sac_actor_loss",
-    "cast_tree",
-    "copy_tree",
-]
+__all__ = ["NORM_EPS", "l2_normalize", "trainable", "check_last", "check_batch", "check_noise", "cast_tree",
+           "copy_tree"]
 
 sg = jax.lax.stop_gradient
 Params = dict[str, Any]
-Critic = Callable[..., Any]  # critic(params, obs, action, target=False) -> (B, 2)
 
 # x / (‖x‖ + NORM_EPS): the normalization the authors' SimLap code and Chua et al. use (both frameworks).
 NORM_EPS = 1e-8
@@ -71,9 +53,12 @@ def check_last(name: str, x, expected: int, what: str) -> None:
         )
 
 
-def check_batch(cfg, batch: Batch) -> tuple[int, ...]:
-    """Validate a `Batch` against the config; returns the batch shape (B,)."""
+def check_batch(cfg, batch: Batch) -> tuple[int]:
+    """Validate a 2-D `Batch` against the config; returns the batch shape (B,)."""
     check_last("batch.obs", batch.obs, cfg.obs_size, "obs_size")
+    if jnp.ndim(batch.obs) != 2:
+        raise ShapeError(f"batch.obs: expected shape (B, {cfg.obs_size}) (a 2-D batch; vmap the loss for "
+                         f"more batch dimensions), found shape {tuple(jnp.shape(batch.obs))}")
     check_last("batch.next_obs", batch.next_obs, cfg.obs_size, "obs_size")
     check_last("batch.action", batch.action, cfg.action_size, "action_size")
     b = tuple(jnp.shape(batch.obs)[:-1])
@@ -97,70 +82,3 @@ def check_noise(name: str, x, batch_shape, size: int, what: str) -> None:
         raise ShapeError(
             f"{name}: expected batch shape {tuple(batch_shape)} (that of batch.obs), found {found}"
         )
-
-
-# ------------------------------------------------------------------------------------------ TD3 / SAC
-def td_loss(q, y, truncation):
-    """½ mean_{b,j}(m_b(Q_j − sg(y)))², m_b = 1 − truncation_b."""
-    err = (1 - truncation)[..., None] * (q - sg(y)[..., None])
-    return 0.5 * jnp.mean(err**2)
-
-
-def td3_critic_loss(
-    critic: Critic, core: core_nw.Networks, params: Params, batch: Batch, smoothing, trained: tuple[str, ...]
-):
-    """TD3 critic (Algorithm 2) on `critic`: ã′ = clip(π̄(s′) + clip(σ_s ξ, −c, c), −1, 1),
-    y = rs·r + discount·γ·min_j Q̄_j(s′, ã′), loss = ½ mean_{b,j}(m_b(Q_j(s, a) − sg(y)))².
-    Trains the groups `trained`. aux: q (mean Q), target_q (mean y)."""
-    cfg = core.cfg
-    b = check_batch(cfg, batch)
-    check_noise("smoothing", smoothing, b, cfg.action_size, "action_size")
-    p = trainable(params, trained)
-    noise = jnp.clip(cfg.smoothing_noise * smoothing, -cfg.noise_clip, cfg.noise_clip)
-    next_action = jnp.clip(core_nw.td3_action(core, p, batch.next_obs, target=True) + noise, -1, 1)
-    next_q = critic(p, batch.next_obs, next_action, target=True)
-    y = cfg.reward_scaling * batch.reward + batch.discount * cfg.discount * jnp.min(next_q, axis=-1)
-    q = critic(p, batch.obs, batch.action)
-    return td_loss(q, y, batch.truncation), {"q": jnp.mean(q), "target_q": jnp.mean(sg(y))}
-
-
-def td3_actor_loss(critic: Critic, core: core_nw.Networks, params: Params, batch: Batch):
-    """TD3 actor: −mean_b Q_0(s, π(s)). Trains the policy only. aux: q (mean Q_0)."""
-    check_batch(core.cfg, batch)
-    p = trainable(params, ("policy",))
-    action = core_nw.td3_action(core, p, batch.obs)
-    loss = -jnp.mean(critic(p, batch.obs, action)[..., 0])
-    return loss, {"q": -loss}
-
-
-def sac_critic_loss(
-    critic: Critic, core: core_nw.Networks, params: Params, batch: Batch, noise, trained: tuple[str, ...]
-):
-    """SAC critic (Algorithm 3) on `critic`: a′, log π(a′|s′) from the online policy with ξ′ = `noise`;
-    y = rs·r + discount·γ·(min_j Q̄_j(s′, a′) − α log π(a′|s′)), α = exp(log_alpha) constant;
-    loss = ½ mean_{b,j}(m_b(Q_j(s, a) − sg(y)))². Trains `trained`. aux: q, target_q."""
-    cfg = core.cfg
-    b = check_batch(cfg, batch)
-    check_noise("noise", noise, b, cfg.action_size, "action_size")
-    p = trainable(params, trained)
-    alpha = jnp.exp(p["log_alpha"])
-    next_action, next_log_prob = core_nw.sac_sample(core, p, batch.next_obs, noise)
-    next_q = critic(p, batch.next_obs, next_action, target=True)
-    y = cfg.reward_scaling * batch.reward + batch.discount * cfg.discount * (
-        jnp.min(next_q, axis=-1) - alpha * next_log_prob
-    )
-    q = critic(p, batch.obs, batch.action)
-    return td_loss(q, y, batch.truncation), {"q": jnp.mean(q), "target_q": jnp.mean(sg(y))}
-
-
-def sac_actor_loss(critic: Critic, core: core_nw.Networks, params: Params, batch: Batch, noise):
-    """SAC actor: a ~ π(s) with ξ = `noise`; loss = mean_b(α log π(a|s) − min_j Q_j(s, a)), α constant.
-    Trains the policy only. aux: entropy (−mean log π)."""
-    cfg = core.cfg
-    b = check_batch(cfg, batch)
-    check_noise("noise", noise, b, cfg.action_size, "action_size")
-    p = trainable(params, ("policy",))
-    alpha = jnp.exp(p["log_alpha"])
-    action, log_prob = core_nw.sac_sample(core, p, batch.obs, noise)
-    q = critic(p, batch.obs, action)
-    return jnp.mean(alpha * log_prob - jnp.min(q, axis=-1)), {"entropy": -jnp.mean(log_prob)}

@@ -15,7 +15,7 @@ from collections.abc import Mapping
 import jax
 import jax.numpy as jnp
 import numpy as np
-from sf2_jax.errors import ParamsError
+from sf2_common.errors import ParamsError
 from sf2_jax.params import load, save, to_canonical
 
 from . import sim, spr

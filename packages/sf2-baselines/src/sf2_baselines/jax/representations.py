@@ -1,8 +1,9 @@
 """The baselines as pluggable representations of `sf2_jax.agents` (TD3 and SAC, `--repr NAME`).
 
 Each class wires one baseline's networks and pure losses into the interface of
-`sf2_jax.agents.representations.Representation` (critic, critic_groups, aux_groups, aux_noise, aux_loss,
-update_targets). `register_all()` adds them to the registry; `sf2_baselines.jax` calls it on import.
+`sf2_jax.agents.representations.Representation` (init, critic, critic_groups, aux_groups, aux_noise,
+aux_loss, targets); the base algorithms train them with the core's TD3/SAC losses on `critic`.
+`register_all()` adds them to the registry; `sf2_baselines.jax` calls it on import.
 
 ==================  ==============  ==================  =====================================  ============
 name                critic trains   aux step trains     aux loss                               targets (τ)
@@ -22,7 +23,6 @@ with their separate w optimizer.
 from __future__ import annotations
 
 import jax
-from sf2_jax import losses as core_losses
 from sf2_jax.agents import representations as reps
 
 from . import sim, simlap, spr
@@ -54,8 +54,8 @@ class _SimBase(reps.Representation):
     def critic(self, params, obs, action, target=False):
         return sim.critic(self.baseline_nets, params, obs, action, target)
 
-    def update_targets(self, params):
-        return {"target_phi": core_losses.ema_update(params["target_phi"], params["phi"], self.cfg.tau)}
+    def targets(self):
+        return {"target_phi": ("phi", self.cfg.tau)}
 
 
 @reps.register
@@ -131,14 +131,9 @@ class SPRRepresentation(reps.Representation):
         obs_noise, next_obs_noise = noise["spr_obs_noise"], noise["spr_next_obs_noise"]
         return spr.spr_loss(self.baseline_nets, params, batch, next_action, obs_noise, next_obs_noise)
 
-    def update_targets(self, params):
+    def targets(self):
         tau = self.cfg.tau
-        return {
-            "target_encoder": core_losses.ema_update(params["target_encoder"], params["encoder"], tau),
-            "target_projection": core_losses.ema_update(
-                params["target_projection"], params["projection"], tau
-            ),
-        }
+        return {"target_encoder": ("encoder", tau), "target_projection": ("projection", tau)}
 
 
 def register_all() -> tuple[str, ...]:

@@ -9,7 +9,7 @@ Networks (parameter groups, canonical names as docs/params.md):
   j = 0, 1 (``q.head_{j}.dense_{0,1}``), no LayerNorm.
 - ``task``: the task vector ``task.w`` of shape (F,) ~ N(0, 1) at init. Stored as one (F,) vector,
   never in the replay (the authors' code stores it per insert with the wrong shape, which breaks
-  F = 512, DESIGN.md §5).
+  F = 512; README.md "Sim").
 
 Q_j(s, a) = wᵀψ_j(φ(s, a, ŵ)). The TD loss trains ψ_j and φ; the reward-prediction loss
 (wᵀφ(s′, ā′, ŵ) − rs·r)² trains w only, on its own schedule (`REWARD_EVERY`). Target critic:
@@ -24,9 +24,8 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 from flax import struct
+from sf2_common.config import SF2Config
 from sf2_jax import networks as core_nw
-from sf2_jax.config import SF2Config
-from sf2_jax.errors import ConfigError
 from sf2_jax.losses import Batch
 
 from . import common
@@ -44,10 +43,6 @@ __all__ = [
     "successor_features",
     "critic",
     "reward_loss",
-    "td3_critic_loss",
-    "td3_actor_loss",
-    "sac_critic_loss",
-    "sac_actor_loss",
 ]
 
 sg = jax.lax.stop_gradient
@@ -180,53 +175,3 @@ def reward_loss(nets: SimNetworks, params: Params, batch: Batch, next_action):
     err = pred - cfg.reward_scaling * batch.reward
     loss = jnp.mean((1 - batch.truncation) * err**2)
     return loss, {"predicted_reward_rms": jnp.sqrt(jnp.mean(sg(pred) ** 2))}
-
-
-def _critic_groups(train_features: bool) -> tuple[str, ...]:
-    return ("q", "phi") if train_features else ("q",)
-
-
-def td3_critic_loss(nets: SimNetworks, params: Params, batch: Batch, smoothing, train_features: bool = True):
-    """TD3Sim critic: `common.td3_critic_loss` on `critic`. Trains ψ_j (`q`) and, when `train_features`
-    (Sim's Q-alignment of φ), `phi`. `smoothing` ξ (B, A) ~ N(0, I)."""
-    return common.td3_critic_loss(
-        lambda p, o, a, target=False: critic(nets, p, o, a, target),
-        nets.core,
-        params,
-        batch,
-        smoothing,
-        _critic_groups(train_features),
-    )
-
-
-def td3_actor_loss(nets: SimNetworks, params: Params, batch: Batch):
-    """TD3Sim actor: −mean_b Q_0(s, π(s)). Trains the policy only."""
-    return common.td3_actor_loss(
-        lambda p, o, a, target=False: critic(nets, p, o, a, target), nets.core, params, batch
-    )
-
-
-def sac_critic_loss(nets: SimNetworks, params: Params, batch: Batch, noise, train_features: bool = True):
-    """SACSim critic: `common.sac_critic_loss` on `critic`; trains `q` and (if `train_features`) `phi`."""
-    _require_sac(nets)
-    return common.sac_critic_loss(
-        lambda p, o, a, target=False: critic(nets, p, o, a, target),
-        nets.core,
-        params,
-        batch,
-        noise,
-        _critic_groups(train_features),
-    )
-
-
-def sac_actor_loss(nets: SimNetworks, params: Params, batch: Batch, noise):
-    """SACSim actor: mean_b(α log π(a|s) − min_j Q_j(s, a)). Trains the policy only."""
-    _require_sac(nets)
-    return common.sac_actor_loss(
-        lambda p, o, a, target=False: critic(nets, p, o, a, target), nets.core, params, batch, noise
-    )
-
-
-def _require_sac(nets):
-    if nets.algo != "sac":
-        raise ConfigError(f"SAC losses need networks made with algo='sac', these have algo={nets.algo!r}")

@@ -2,11 +2,11 @@
 objective on L2-normalized features (TD3SimLap, SACSimLap; SF² paper §4.2). README.md "SimLap".
 
 Same networks and parameter groups as `sim` (φ, SF heads ψ_j, task vector w, Q_j = wᵀψ_j(φ)).
-What changes is who trains φ:
-- paper (default, `TRAIN_FEATURES_BY_CRITIC = False`): the TD loss trains the SF heads only; φ is
-  trained by `laplacian_loss` alone;
-- the authors' code (`sf2_baselines` representation `simlap_authors`): the TD loss trains φ too, then
-  the Laplacian step trains φ again.
+What changes is who trains φ (the critic groups of the agents' representations):
+- paper (representation `simlap`): the TD loss trains the SF heads only; φ is trained by
+  `laplacian_loss` alone;
+- the authors' code (representation `simlap_authors`): the TD loss trains φ too, then the Laplacian
+  step trains φ again.
 w is trained by Sim's `reward_loss` on its own schedule in both.
 
 Laplacian objective on φ̂ = φ/(‖φ‖ + 1e-8), φ = φ(s, a, ŵ), φ̂′ = normalized φ(s′, ā′, ŵ) (both online):
@@ -22,10 +22,10 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-from sf2_jax.errors import ShapeError
+from sf2_common.errors import ShapeError
 from sf2_jax.losses import Batch
 
-from . import common, sim
+from . import common
 from .sim import (
     GROUPS,
     REWARD_EVERY,
@@ -43,7 +43,6 @@ from .sim import (
 __all__ = [
     "GROUPS",
     "REWARD_EVERY",
-    "TRAIN_FEATURES_BY_CRITIC",
     "SimNetworks",
     "make_networks",
     "init_representation",
@@ -55,18 +54,10 @@ __all__ = [
     "reward_loss",
     "laplacian_loss",
     "simlap_loss",
-    "td3_critic_loss",
-    "td3_actor_loss",
-    "sac_critic_loss",
-    "sac_actor_loss",
 ]
 
 sg = jax.lax.stop_gradient
 Params = dict[str, Any]
-
-# The paper's SimLap "removes the Q-function alignment constraint": the TD loss does not train φ.
-TRAIN_FEATURES_BY_CRITIC = False
-
 
 def laplacian_loss(nets: SimNetworks, params: Params, batch: Batch, next_action):
     """Graph-Laplacian orthogonality objective (module docstring). ā′ (B, A) is given (TD3: target policy
@@ -75,7 +66,7 @@ def laplacian_loss(nets: SimNetworks, params: Params, batch: Batch, next_action)
     cfg = nets.cfg
     b = common.check_batch(cfg, batch)
     common.check_noise("next_action", next_action, b, cfg.action_size, "action_size")
-    if len(b) != 1 or b[0] < 2:
+    if b[0] < 2:
         raise ShapeError(f"laplacian_loss needs a batch of shape (B, ...) with B >= 2, found batch shape {b}")
     B = b[0]
     p = common.trainable(params, ("phi",))
@@ -96,25 +87,3 @@ def simlap_loss(nets: SimNetworks, params: Params, batch: Batch, next_action):
     lap, aux = laplacian_loss(nets, params, batch, next_action)
     rew, rew_aux = reward_loss(nets, params, batch, next_action)
     return lap + rew, {**aux, **rew_aux, "laplacian_loss": lap, "reward_loss": rew}
-
-
-def td3_critic_loss(
-    nets: SimNetworks,
-    params: Params,
-    batch: Batch,
-    smoothing,
-    train_features: bool = TRAIN_FEATURES_BY_CRITIC,
-):
-    """TD3SimLap critic: Sim's TD3 critic; by default (paper) it trains the SF heads only."""
-    return sim.td3_critic_loss(nets, params, batch, smoothing, train_features)
-
-
-def sac_critic_loss(
-    nets: SimNetworks, params: Params, batch: Batch, noise, train_features: bool = TRAIN_FEATURES_BY_CRITIC
-):
-    """SACSimLap critic: Sim's SAC critic; by default (paper) it trains the SF heads only."""
-    return sim.sac_critic_loss(nets, params, batch, noise, train_features)
-
-
-td3_actor_loss = sim.td3_actor_loss
-sac_actor_loss = sim.sac_actor_loss

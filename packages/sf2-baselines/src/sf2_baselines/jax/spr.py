@@ -25,9 +25,9 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 from flax import struct
+from sf2_common.config import SF2Config
+from sf2_common.errors import ConfigError
 from sf2_jax import networks as core_nw
-from sf2_jax.config import SF2Config
-from sf2_jax.errors import ConfigError
 from sf2_jax.losses import Batch
 
 from . import common
@@ -45,10 +45,6 @@ __all__ = [
     "project",
     "predict",
     "spr_loss",
-    "td3_critic_loss",
-    "td3_actor_loss",
-    "sac_critic_loss",
-    "sac_actor_loss",
 ]
 
 sg = jax.lax.stop_gradient
@@ -176,37 +172,3 @@ def spr_loss(nets: SPRNetworks, params: Params, batch: Batch, next_action, obs_n
     mask = 1 - batch.truncation
     loss = jnp.mean(mask * jnp.sum((pred - tgt) ** 2, axis=-1))
     return loss, {"spr_cosine": jnp.mean(mask * jnp.sum(sg(pred) * tgt, axis=-1))}
-
-
-_TD_GROUPS = ("q", "encoder")
-
-
-def _critic_fn(nets):
-    return lambda p, o, a, target=False: critic(nets, p, o, a, target)
-
-
-def td3_critic_loss(nets: SPRNetworks, params: Params, batch: Batch, smoothing):
-    """TD3+SPR critic: `common.td3_critic_loss` on `critic`; trains `q` and `encoder`."""
-    return common.td3_critic_loss(_critic_fn(nets), nets.core, params, batch, smoothing, _TD_GROUPS)
-
-
-def td3_actor_loss(nets: SPRNetworks, params: Params, batch: Batch):
-    """TD3+SPR actor: −mean_b Q_0(s, π(s)); trains the policy only."""
-    return common.td3_actor_loss(_critic_fn(nets), nets.core, params, batch)
-
-
-def sac_critic_loss(nets: SPRNetworks, params: Params, batch: Batch, noise):
-    """SAC+SPR critic: `common.sac_critic_loss` on `critic`; trains `q` and `encoder`."""
-    _require_sac(nets)
-    return common.sac_critic_loss(_critic_fn(nets), nets.core, params, batch, noise, _TD_GROUPS)
-
-
-def sac_actor_loss(nets: SPRNetworks, params: Params, batch: Batch, noise):
-    """SAC+SPR actor: mean_b(α log π(a|s) − min_j Q_j(s, a)); trains the policy only."""
-    _require_sac(nets)
-    return common.sac_actor_loss(_critic_fn(nets), nets.core, params, batch, noise)
-
-
-def _require_sac(nets):
-    if nets.algo != "sac":
-        raise ConfigError(f"SAC losses need networks made with algo='sac', these have algo={nets.algo!r}")
