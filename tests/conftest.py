@@ -22,7 +22,7 @@ import torch  # noqa: E402
 torch.backends.cuda.matmul.allow_tf32 = False
 torch.set_num_threads(1)
 
-from _bridge import RECORD  # noqa: E402
+from cross_bridge import RECORD  # noqa: E402
 
 
 def pytest_terminal_summary(terminalreporter):

@@ -2,7 +2,7 @@
 
 Same method as the core's suite: one canonical parameter file per (method, config, algo), built from the
 JAX initializer with every entry redrawn so that nothing sits at a default, loaded into both
-frameworks; identical batch and explicit noise; float64 to 1e-10 relative, float32 to _bridge.TOL. Each
+frameworks; identical batch and explicit noise; float64 to 1e-10 relative, float32 to cross_bridge.TOL. Each
 loss's value, aux and the gradient of every trained group are compared in canonical layout, and every
 parameter a loss must not train is checked to get exactly zero gradient in torch (JAX differentiates
 only the trained groups, whose other groups are stop-gradient inside the loss).
@@ -15,7 +15,7 @@ import numpy as np
 import optax
 import pytest
 import torch
-from _bridge import check, jbatch, jx, make_batch, np_, tbatch, th
+from cross_bridge import check, jbatch, jx, make_batch, np_, tbatch, th
 
 pytest.importorskip("sf2_baselines")
 import sf2_baselines.jax as bj  # noqa: E402
@@ -45,7 +45,7 @@ METHOD = {"sim": (bj.sim, bt.sim), "simlap": (bj.simlap, bt.simlap), "spr": (bj.
 
 
 def canonical_file(tmp_path, method, cfg_kwargs, algo, seed=0):
-    """A canonical file of `method`'s networks with every entry non-trivial (as _bridge.canonical_file):
+    """A canonical file of `method`'s networks with every entry non-trivial (as cross_bridge.canonical_file):
     names and shapes from `expected_shapes`, values drawn with numpy so that LayerNorm, the normalizer
     and the targets all differ from their defaults and from the online networks."""
     jmod = METHOD[method][0]
@@ -398,7 +398,7 @@ AGENT_CASES = [(name, algo) for name in ("sim", "simlap", "simlap_authors", "spr
 
 
 def _torch_td(batch: dict, noise: dict, dtype):
-    """TorchRL transition tensordict of a `_bridge.make_batch` batch (done = 1 − discount) plus noise."""
+    """TorchRL transition tensordict of a `cross_bridge.make_batch` batch (done = 1 − discount) plus noise."""
     from tensordict import TensorDict
 
     def t(x):

@@ -1,7 +1,7 @@
 """JAX and torch agree on every loss term and every parameter gradient (contract: docs/core-contract.md).
 
 One canonical file → both cores; identical batch and explicit noise; float64 to 1e-10 relative, float32
-to the tolerance in _bridge.TOL. Gradients are compared entry by entry in canonical layout, and every
+to the tolerance in cross_bridge.TOL. Gradients are compared entry by entry in canonical layout, and every
 parameter a loss must not train (targets, other networks) is checked to receive exactly zero gradient.
 """
 
@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import sf2_jax
 import sf2_torch
-from _bridge import build_pair, canonical_file, check, jbatch, jx, make_batch, np_, tbatch, th
+from cross_bridge import build_pair, canonical_file, check, jbatch, jx, make_batch, np_, tbatch, th
 from sf2_jax import params as jparams
 from sf2_torch import params as tparams
 

@@ -13,7 +13,7 @@ import jax
 import numpy as np
 import pytest
 import torch
-from _bridge import build_pair, canonical_file, check, jx, np_, th
+from cross_bridge import build_pair, canonical_file, check, jx, np_, th
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 from sf2_jax import networks as jnet

@@ -10,7 +10,7 @@ Noise: `sf2_jax.agents.algorithms.Algorithm.step_noise(key, batch)` draws every 
 step (the step uses exactly that draw); the test hands the same arrays, under the same names (the torch
 agents' `noise_keys()`), to torch, whose step takes its noise as input.
 
-Tolerances: the `_bridge` ones (float64 1e-10 relative; float32 the "grad" bound 2e-4, since Adam divides
+Tolerances: the `cross_bridge` ones (float64 1e-10 relative; float32 the "grad" bound 2e-4, since Adam divides
 by √v̂ + ε and amplifies the rounding differences of the gradients). The largest differences per term are
 printed at the end of the cross run.
 """
@@ -24,7 +24,7 @@ import pytest
 import sf2_jax
 import sf2_torch
 import torch
-from _bridge import canonical_file, check, make_batch
+from cross_bridge import canonical_file, check, make_batch
 from sf2_jax import params as jparams
 
 pytest.importorskip("torchrl")
@@ -41,7 +41,7 @@ BATCH = 16
 
 
 def torch_td(batch: dict, noise: dict, dtype) -> TensorDict:
-    """The TorchRL transition tensordict of a `_bridge.make_batch` batch (done = 1 − discount)."""
+    """The TorchRL transition tensordict of a `cross_bridge.make_batch` batch (done = 1 − discount)."""
     def t(x):
         return torch.as_tensor(np.array(x), dtype=dtype)
 

@@ -12,7 +12,7 @@ import pytest
 import sf2_jax
 import sf2_torch
 import torch
-from _bridge import build_pair, canonical_file, check, jbatch, jx, make_batch, np_, tbatch, th
+from cross_bridge import build_pair, canonical_file, check, jbatch, jx, make_batch, np_, tbatch, th
 from sf2_jax import params as jparams
 from sf2_torch import params as tparams
 

@@ -20,7 +20,7 @@ from sf2_torch import params as tparams
 
 # Tolerances (relative, see the module docstring). float64: anything above ~1e-10 is a bug.
 # float32: the two frameworks round differently (summation order, fused multiply-adds, XLA's reciprocal
-# rewrites), and the flow-time embedding multiplies k by 10⁴ (DESIGN.md §5): one float32 ulp of k (6e-8)
+# rewrites), and the flow-time embedding multiplies k by 10⁴ (docs/parity.md): one float32 ulp of k (6e-8)
 # becomes 6e-4 rad of phase in the highest frequency. Outputs that pass through ζ at an ODE-integrated k
 # therefore differ by up to ~3e-5 relative (observed), gradients by up to ~1e-4; the bounds leave 3x room.
 # A bare ODE solution compared at several intermediate flow times (kind "ode") is the worst-conditioned
