@@ -4,19 +4,20 @@ Paper: eq. (3)–(4) and Algorithm 1 (flow), Appendix A.3 (explicit mixture), Ap
 (TD3 and SAC on features); docs/core-contract.md "Losses". Every random draw (ε, flow_time k, smoothing
 ξ, SAC noise) is an argument, so the same inputs give the same numbers in JAX and torch.
 
-Each loss returns `(loss, aux)`: a 0-d tensor with a graph, and a dict of detached 0-d tensors. Batches
-are exactly 2-D, `(B, ·)`. Batch means divide by B; samples masked by m_b = 1 − truncation_b count as
-zeros. No host synchronization happens inside a loss.
+Each loss returns `(loss, aux)` with `aux` a dict of scalars (torch: a 0-d tensor with a graph and
+detached 0-d tensors; no host synchronization inside a loss). Batches are 2-D: every field is (B, ·).
+Batch means divide by B; samples masked by m_b = 1 − truncation_b count as zeros.
 
-The TD3 and SAC losses are written against a critic callable `critic(obs, action, target=False) → (B, 2)`
-(keyword `critic`); `None` means the SF² critic Q(ψ(s, a)) of `nets` (`sf2_critic(nets)`). `nets` provides
-the config and the policy (π, π̄, SAC sampling), so the agents' representations (`none`: Q(s, a); `sf2`;
-the baselines) all train with these functions.
+The TD3 and SAC losses are written once, against a critic: `critic(obs, action, target=False)`
+→ twin Q (B, 2), online or target. The default (`critic=None`) is SF²'s Q(ψ(s, a)) (`sf2_critic`);
+the agents pass their representation's critic (vanilla Q(s, a), Sim, SPR, ...). `nets` still gives the
+config and the policy (π, π̄, SAC sampling).
 
-Gradient contract: the caller chooses the trained groups. torch: `loss.backward(inputs=...)` with the
-trained groups' parameters (`sf2_jax`: `jax.grad` with respect to those groups). Targets are evaluated
-under `torch.no_grad()` and the TD target is detached, so no loss reaches a target network; the actor
-losses also reach the critic's parameters, which `inputs` leaves out.
+Gradient contract: the caller chooses the trained groups: `loss.backward(inputs=...)` with the trained
+groups' parameters. Targets are evaluated under `torch.no_grad()`, and the TD target y and SAC's α in
+the critic and actor losses are constants (detached) in every case, so no loss reaches a target; the
+actor losses also reach the critic's online parameters, which `inputs` leaves out. (sf2_jax: `jax.grad`
+with respect to the trained groups only.)
 """
 
 from __future__ import annotations
@@ -118,11 +119,12 @@ def flow_loss(
     [0, k] under the target field ζ̄ψ̄′ (`denoising_steps` steps of `integrator`).
 
     `next_action` ā′ (B, A) gets no gradient; `eps` ε (B, D) ~ N(0, I); `flow_time` k (B,) ~ U(0, 1).
-    With `cfg.contract_zeta` the fast path (docs/core-contract.md "Networks") contracts ζ's last layer
-    with ψ once (M, c) and with ψ̄′ once (M̄, c̄) and reuses them for every evaluation, and the two online
-    evaluations (at x_k and x̂) run through ζ's hidden layers as one batch of 2B; otherwise ζ (B, D, F) is
-    materialized (the plain oracle). With γ_su = 0 the bootstrap branch is skipped and loss_boot = 0.
-    Trains ψ and ζ. Returns (loss, {"loss_p": mean_b m_b ℓ_P, "loss_boot": mean_b m_b ℓ_B}).
+    With `cfg.contract_zeta` the fast path (docs/core-contract.md "Networks", fast path) contracts ζ's
+    last layer with ψ once (M, c) and with ψ̄′ once (M̄, c̄) and reuses them for every evaluation; the two
+    online evaluations (at x_k and x̂) go through ζ's hidden layers as one batch of 2B, then one product
+    with M. Otherwise (the oracle) ζ (B, D, F) is materialized at each point. With γ_su = 0 the
+    bootstrap branch is skipped and loss_boot = 0. Trains ψ and ζ.
+    Returns (loss, {"loss_p": mean_b m_b ℓ_P, "loss_boot": mean_b m_b ℓ_B}).
     """
     cfg = nets.cfg
     b = _check_batch(nets, batch)
@@ -189,8 +191,8 @@ def explicit_mixture_loss(
 
 # ------------------------------------------------------------------------------------------------ critic
 def sf2_critic(nets: Networks) -> Critic:
-    """The SF² critic of `nets`: critic(obs, action, target=False) = [Q_0, Q_1](ψ(s, a)) (B, 2); `target`
-    uses ψ̄ and Q̄ (Algorithms 2–3)."""
+    """SF²'s critic Q(ψ(s, a)) (Appendix D): `critic(obs, action, target=False)` → (B, 2), the core's twin
+    Q heads on ψ (`target=True`: Q̄(ψ̄(s, a)))."""
 
     def critic(obs, action, target=False):
         return q_values(nets, psi(nets, obs, action, target=target), target=target)
@@ -210,10 +212,10 @@ def _td_loss(cfg, batch: Batch, q: torch.Tensor, next_value: torch.Tensor):
 def td3_critic_loss(
     nets: Networks, batch: Batch, smoothing: torch.Tensor, *, critic: Critic | None = None
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """TD3 critic (Algorithm 2): ã′ = clip(π̄(s′) + clip(σ_s ξ, −c, c), −1, 1),
-    y = rs·r + discount·γ·min_j Q̄_j(s′, ã′), loss = ½ mean_{b,j}(m_b(Q_j(s, a) − sg(y)))², with Q the
-    `critic` (default: Q(ψ(s, a)) of `nets`). `smoothing` ξ (B, A) ~ N(0, I). Trains the critic's online
-    groups (SF²: Q and ψ). aux: q (mean Q), target_q (mean y)."""
+    """TD3 critic (Algorithm 2 on features): ã′ = clip(π̄(s′) + clip(σ_s ξ, −c, c), −1, 1),
+    y = rs·r + discount·γ·min_j Q̄_j(s′, ã′), loss = ½ mean_{b,j}(m_b(Q_j(s, a) − sg(y)))².
+    `smoothing` ξ (B, A) ~ N(0, I); Q = `critic` (default: SF²'s Q(ψ), trains Q and ψ).
+    aux: q (mean Q), target_q (mean y)."""
     cfg = nets.cfg
     critic = critic or sf2_critic(nets)
     b = _check_batch(nets, batch)
@@ -228,8 +230,9 @@ def td3_critic_loss(
 def td3_actor_loss(
     nets: Networks, batch: Batch, *, critic: Critic | None = None
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """TD3 actor (Algorithm 2): −mean_b Q_0(s, π(s)) on the `critic`. Trains the policy only (the caller
-    leaves the critic's groups out of `inputs`). aux: q (mean Q_0)."""
+    """TD3 actor (Algorithm 2): −mean_b Q_0(s, π(s)) (the deterministic policy gradient; rlax's
+    `dpg_loss`, which the authors call, has the same gradient for A = 1 and 1/A of it otherwise:
+    docs/core-contract.md). Trains the policy only. aux: q (mean Q_0)."""
     critic = critic or sf2_critic(nets)
     _check_batch(nets, batch)
     action = td3_action(nets, batch.obs)
@@ -248,10 +251,10 @@ def _alpha(nets: Networks) -> torch.Tensor:
 def sac_critic_loss(
     nets: Networks, batch: Batch, noise: torch.Tensor, *, critic: Critic | None = None
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """SAC critic (Algorithm 3): a′, log π(a′|s′) from the online policy at s′ with ξ′ = `noise`;
+    """SAC critic (Algorithm 3 on features): a′, log π(a′|s′) from the online policy at s′ with ξ′ = `noise`;
     y = rs·r + discount·γ·(min_j Q̄_j(s′, a′) − α log π(a′|s′)), α = exp(log_alpha) constant;
-    loss = ½ mean_{b,j}(m_b(Q_j(s, a) − sg(y)))², with Q the `critic` (default: Q(ψ(s, a)) of `nets`).
-    Trains the critic's online groups (SF²: Q and ψ). aux: q, target_q."""
+    loss = ½ mean_{b,j}(m_b(Q_j(s, a) − sg(y)))². Q = `critic` (default: SF²'s Q(ψ), trains Q and ψ).
+    aux: q, target_q."""
     cfg = nets.cfg
     critic = critic or sf2_critic(nets)
     alpha = _alpha(nets)
@@ -266,8 +269,8 @@ def sac_critic_loss(
 def sac_actor_loss(
     nets: Networks, batch: Batch, noise: torch.Tensor, *, critic: Critic | None = None
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """SAC actor (Algorithm 3): a ~ π(s) with ξ = `noise`; loss = mean_b(α log π(a|s) − min_j Q_j(s, a)) on
-    the `critic`. Trains the policy only. aux: entropy (−mean log π)."""
+    """SAC actor (Algorithm 3): a ~ π(s) with ξ = `noise`; loss = mean_b(α log π(a|s) − min_j Q_j(s, a)),
+    α constant. Trains the policy only. aux: entropy (−mean log π)."""
     critic = critic or sf2_critic(nets)
     alpha = _alpha(nets)
     b = _check_batch(nets, batch)
@@ -281,7 +284,8 @@ def sac_alpha_loss(
     nets: Networks, batch: Batch, noise: torch.Tensor
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """SAC temperature: loss = mean_b(exp(log_alpha)·sg(−log π(a|s) − target_entropy)),
-    target_entropy = −target_entropy_scale·A. Trains log_alpha only. aux: alpha."""
+    target_entropy = −target_entropy_scale·A, a ~ π(s) with ξ = `noise`. Trains log_alpha only.
+    aux: alpha."""
     cfg = nets.cfg
     _alpha(nets)
     b = _check_batch(nets, batch)

@@ -35,7 +35,8 @@ def _algo(name="td3", rep="sf2", cls=None, **kw):
     cfg = SF2Config.small(D, A, gamma_su=0.9, **kw)
     algo = algorithms.make_algorithm(name, cfg, cls or representations.get(rep))
     # a non-trivial normalizer and targets that differ from the online networks
-    algo.observe(torch.randn(64, D, generator=torch.Generator().manual_seed(9)) * 2 + 1)
+    obs = torch.randn(64, D, generator=torch.Generator().manual_seed(9)) * 2 + 1
+    networks.update_normalizer(algo.nets.obs_norm, obs, cfg)
     with torch.no_grad():
         for group, module in algo.groups.items():
             if group.startswith("target_"):

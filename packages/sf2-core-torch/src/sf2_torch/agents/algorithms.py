@@ -140,11 +140,6 @@ class Algorithm:
     def act(self, obs: torch.Tensor, generator: torch.Generator, deterministic: bool) -> torch.Tensor:
         raise NotImplementedError
 
-    @torch.no_grad()
-    def observe(self, obs: torch.Tensor) -> None:
-        """Brax's running-statistics update of the observation normalizer with a batch of observations."""
-        networks.update_normalizer(self.nets.obs_norm, obs, self.cfg)
-
     # ------------------------------------------------------------------ noise (the thin wrapper)
     def noise_keys(self) -> tuple[str, ...]:
         raise NotImplementedError

@@ -1,34 +1,43 @@
-"""Pluggable representations: what the critic sees, and the representation's own loss step.
+"""Pluggable representations: what the critic sees, and the representation's own loss.
 
-A representation is the part of an agent between the raw (s, a) and the twin Q values (the torch
-mirror of `sf2_jax.agents.representations`: same names, arguments and meaning; torch methods act on the
-modules the representation holds instead of taking `params`):
+A representation is the part of an agent between the raw (s, a) and the twin Q values. The vocabulary
+is the same in sf2_jax.agents.representations (table: docs/core-contract.md "Agents: the plug-in
+vocabulary"); torch methods act on the modules the representation holds (and take a `torch.Generator`
+where JAX takes a PRNG key).
 
-- `init(core)` → the groups it owns, {group: nn.Module}. It always owns the Q heads `q`/`target_q`
-  (their input is its features); SF² adds ψ, ζ and their targets. `core` is the algorithm's
-  `sf2_torch.networks.Networks`, so a representation that reuses core networks can take them; new
-  modules are initialised from torch's global generator (the trainer seeds it).
-- `critic(obs, action, target=False)` → (B, 2): twin Q on its features (online or target groups).
+Class attributes:
+- `name`, `label` (tables and plots, e.g. "SF²"), `supported_algos`;
 - `critic_groups`: groups besides `q` that the critic (TD) loss trains (SF²: ψ, the authors'
-  `back_critic_grad=True`).
-- `aux_groups`, `aux_noise(generator, batch)`, `aux_loss(batch, next_action, noise)`: its own loss, one
-  Adam step on `aux_groups` right after the critic step of every SGD step (SF²: the flow loss on ψ and
-  ζ). `aux_noise` is the thin wrapper that draws the loss's random inputs, a dict keyed by `noise_keys`
-  with shapes from `batch.obs.shape[:-1]` (SF²: `flow_noise` ε and `flow_time` t, eq. 3); the loss is
-  pure. `next_action` is ā′, given by the base algorithm (TD3: target policy at s′; SAC: a policy
-  sample). `aux_loss_name` names the loss in the metrics.
+  `back_critic_grad=True`);
+- `aux_groups`, `aux_loss_name`: the groups its own loss trains, one Adam step right after the critic
+  step of every SGD step (SF²: the flow loss `flow_loss` on ψ and ζ);
+- `noise_keys`: the entries of `aux_noise` (SF²: `flow_noise` ε and `flow_time` k, eq. 3); the names are
+  the JAX agents' too, so one draw feeds both frameworks;
 - `aux_every` ({group: period}, default {}): groups of `aux_groups` that the aux step updates only on
   gradient steps `step % period == 0` (Sim/SimLap's task vector w: every 10 TD3 / 16 SAC steps, the
   authors' `gradient_steps % 10 == 0` cond). On the other steps the base algorithm leaves that group's
   parameters *and* its whole Adam state (moments and step count) unchanged, as the authors' separate w
   optimizer, which only steps when it is used: Adam's bias correction counts w's own updates.
-- `targets()` → {target group: (online group, τ)}: the targets it owns other than `target_q`, moved by
-  the base algorithm every SGD step (the base algorithm moves `target_q` on its own schedule).
+
+Methods:
+- `__init__(cfg, nets)`: `nets` are the core `Networks` of the algorithm (policy, SF² networks);
+- `init(core)` → {group: nn.Module}: the groups it owns. It always owns the Q heads `q`/`target_q`
+  (their input is its features); SF² adds ψ, ζ and their targets. `core` is the algorithm's
+  `sf2_torch.networks.Networks`, so a representation that reuses core networks takes them; new modules
+  are initialised from torch's global generator (the trainer seeds it);
+- `critic(obs, action, target=False)` → (B, 2): twin Q on its features (online or target);
+- `aux_noise(generator, batch)` → {noise key: tensor}: the random inputs of its loss, shapes from
+  `batch.obs.shape[:-1]` (any leading dims); the loss is pure;
+- `aux_loss(batch, next_action, noise)` → (loss, aux dict): its own loss; `next_action` ā′ is given by
+  the base algorithm (TD3: target policy at s′; SAC: a policy sample);
+- `targets()` → {target group: (online group, τ)}: the EMA targets it owns besides `target_q`; the base
+  algorithm applies them every step (one `torch._foreach_lerp_` per rate) and moves `target_q` on its
+  own schedule.
 
 The base algorithms (algorithms.py) are written once against this interface; the trainer never looks
 inside a representation. Baselines (Sim, SimLap, SPR) plug in by subclassing `Representation` and
-calling `register`. Every group a representation returns is saved, restored, exported
-(`sf2_torch.params.to_canonical` of the groups) and averaged by name.
+calling `register`. Every group a representation returns is saved, restored, trained and exported
+(`sf2_torch.params.to_canonical` of the groups) by name.
 """
 
 from __future__ import annotations
@@ -141,11 +150,11 @@ class SF2Representation(Representation):
 
     def init(self, core):
         # the core already initialised ψ, ζ and the Q heads
-        return {n: getattr(core, n) for n in ("psi", "zeta", "q", "target_psi", "target_zeta", "target_q")}
+        names_ = ("psi", "zeta", "q", "target_psi", "target_zeta", "target_q")
+        return {n: getattr(core, n) for n in names_}
 
     def critic(self, obs, action, target=False):
-        features = networks.psi(self.nets, obs, action, target=target)
-        return networks.q_values(self.nets, features, target=target)
+        return losses.sf2_critic(self.nets)(obs, action, target)
 
     def aux_noise(self, generator, batch):
         obs = batch.obs

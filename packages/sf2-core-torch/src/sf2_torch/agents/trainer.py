@@ -46,7 +46,7 @@ from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch
 from sf2_common.errors import ConfigError
 from tensordict import TensorDict
 
-from sf2_torch import losses, params
+from sf2_torch import losses, networks, params
 
 from . import configs, envs, representations
 from .algorithms import Algorithm, make_algorithm
@@ -162,7 +162,8 @@ class Program:
         for i, agent in enumerate(state.agents):
             t = trans[i]
             if self.cfg.normalize_observations:
-                agent.algo.observe(t.get("observation"))
+                # Brax's running statistics, updated with the observations acted on
+                networks.update_normalizer(agent.algo.nets.obs_norm, t.get("observation"), self.sf2)
             agent.replay.insert(t)
 
     def _actor_step(self, state: TrainState, actor_step: int, metrics, sgd_index) -> None:
