@@ -1,7 +1,8 @@
 """The command line of both cores, written once: `sf2-jax` and `sf2-torch` are this module with a
-`Framework` (the program name, the core's package, its help texts and environment). Both cores' agents
-have the same module names (`agents.configs`, `agents.trainer`, `agents.plotting`, ...), which the
-handlers import from `Framework.package` only after the arguments are parsed.
+`Framework` (the program name, help texts and environment, and the core's functions the commands call:
+its TrainConfig class, validation, training and evaluation). Each core's cli.py builds its `Framework`
+from small functions that import the core's agents only when called, so `PROG --help` and `PROG tasks`
+import no framework.
 
     PROG train --task CartpoleBalance --algo td3 --repr sf2 --config quick --seeds 0-3 --out runs/cp
     PROG train --task CartpoleBalance --algo td3 --repr sf2,none,sim --config quick --seeds 0-1 --out runs/cmp
@@ -19,12 +20,17 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import importlib
 import json
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+
+from sf2_common.agents import configs, plotting
+from sf2_common.agents.hostloop import TrainingDiverged
+from sf2_common.agents.registry import Registry
+from sf2_common.errors import ConfigError
 
 __all__ = ["Framework", "build_parser", "main", "print_table", "expand_runs"]
 
@@ -33,25 +39,29 @@ _RUN_FIELDS_SKIPPED = ("task", "algo", "representation")
 
 @dataclasses.dataclass(frozen=True)
 class Framework:
-    """What differs between `sf2-jax` and `sf2-torch`."""
+    """What differs between `sf2-jax` and `sf2-torch`: names and texts, and the core's functions."""
 
     prog: str                     # "sf2-jax"
-    package: str                  # "sf2_jax": its `agents` modules are imported from here
+    package: str                  # "sf2_jax" (its command line is the module `{package}.cli`)
     doc: str                      # the CLI module's docstring (its first paragraph is the --help text)
     seeds_help: str               # how the seeds run
     cache_env: str                # environment variable of the JAX compilation cache folder
+    config_class: type            # the core's TrainConfig (sf2_common's, or torch's with its run fields)
+    registry: Callable[[], Registry]      # the core's representation registry (names, labels)
+    validate: Callable            # validate(cfg, seeds) -> cfg: everything checkable before building
+    train: Callable               # the core's agents.trainer.train
+    evaluate_checkpoint: Callable  # the core's agents.trainer.evaluate_checkpoint
     env_defaults: tuple[tuple[str, str], ...] = ()   # environment defaults set before JAX is imported
-
-    def module(self, name: str):
-        return importlib.import_module(f"{self.package}.{name}")
 
     def compile_cache(self) -> str:
         return os.environ.get(self.cache_env, str(Path.home() / ".cache" / self.prog / "xla"))
 
+    def method_label(self, algo: str, representation: str) -> str:
+        return plotting.method_label(algo, representation, self.registry())
+
 
 def _field_names(fw: Framework) -> list[str]:
-    config_class = fw.module("agents.configs").TrainConfig
-    return [f.name for f in dataclasses.fields(config_class) if f.name not in _RUN_FIELDS_SKIPPED]
+    return [f.name for f in dataclasses.fields(fw.config_class) if f.name not in _RUN_FIELDS_SKIPPED]
 
 
 def build_parser(fw: Framework) -> argparse.ArgumentParser:
@@ -107,14 +117,11 @@ def build_parser(fw: Framework) -> argparse.ArgumentParser:
 # ------------------------------------------------------------------------------------------- train
 def resolve_configs(fw: Framework, args):
     """All configs of the command, validated; raises ConfigError before anything is compiled."""
-    from sf2_common.errors import ConfigError
-
-    configs = fw.module("agents.configs")
-    overrides = configs.parse_overrides(args.set)
+    overrides = configs.parse_overrides(args.set, fw.config_class)
     for name in _field_names(fw):
         value = getattr(args, f"field_{name}")
         if value is not None:
-            overrides[name] = configs.parse_value(name, value)
+            overrides[name] = configs.parse_value(name, value, fw.config_class)
     seeds = configs.parse_seeds(args.seeds)
     reps = [r.strip() for r in args.representation.split(",") if r.strip()]
     if not reps:
@@ -124,8 +131,8 @@ def resolve_configs(fw: Framework, args):
     cfgs = []
     for rep in reps:
         cfg = configs.make_config(args.config, args.task, algo=args.algo, representation=rep,
-                                  overrides=overrides)
-        cfgs.append(configs.validate(cfg, seeds))
+                                  overrides=overrides, config_class=fw.config_class)
+        cfgs.append(fw.validate(cfg, seeds))
     return cfgs, seeds
 
 
@@ -140,9 +147,6 @@ def _setup_jax(compile_cache: str):
 
 
 def _train(fw: Framework, args) -> int:
-    plotting = fw.module("agents.plotting")
-    train = fw.module("agents.trainer").train
-
     cfgs, seeds = resolve_configs(fw, args)
     _setup_jax(args.compile_cache)
     out = Path(args.out)
@@ -150,10 +154,10 @@ def _train(fw: Framework, args) -> int:
     folders, seconds = [], {}
     for cfg in cfgs:
         folder = out / f"{cfg.algo}-{cfg.representation}" if several else out
-        label = plotting.method_label(cfg.algo, cfg.representation)
+        label = fw.method_label(cfg.algo, cfg.representation)
         print(f"== {label} on {cfg.task}, seeds {','.join(map(str, seeds))} → {folder}", file=sys.stderr)
         t0 = time.time()
-        train(cfg, seeds, folder, resume=not args.no_resume, fresh=args.fresh,
+        fw.train(cfg, seeds, folder, resume=not args.no_resume, fresh=args.fresh,
               progress=not args.no_progress, stop_after_epoch=args.stop_after_epoch)
         seconds[label] = time.time() - t0
         folders.append(folder)
@@ -195,10 +199,9 @@ def print_table(table, seconds=None) -> None:
 def _eval(fw: Framework, args) -> int:
     import numpy as np
 
-    evaluate_checkpoint = fw.module("agents.trainer").evaluate_checkpoint
     _setup_jax(fw.compile_cache())
     deterministic = True if args.deterministic else (False if args.stochastic else None)
-    res = evaluate_checkpoint(args.run, epoch=args.epoch, num_eval_envs=args.episodes,
+    res = fw.evaluate_checkpoint(args.run, epoch=args.epoch, num_eval_envs=args.episodes,
                               deterministic=deterministic)
     if args.json:
         print(json.dumps(res))
@@ -229,9 +232,6 @@ def expand_runs(paths) -> list[Path]:
 
 
 def _plot(fw: Framework, args) -> int:
-    from sf2_common.errors import ConfigError
-
-    plotting = fw.module("agents.plotting")
     runs = expand_runs(args.runs)
     try:
         table = plotting.plot_runs(runs, args.out)
@@ -256,10 +256,8 @@ _HANDLERS = {"train": _train, "eval": _eval, "plot": _plot, "tasks": _tasks}
 
 
 def main(fw: Framework, argv=None) -> int:
-    """Run one command; the exit status: 0 done, 2 bad input, 3 training diverged, 130 interrupted."""
-    from sf2_common.agents.hostloop import TrainingDiverged
-    from sf2_common.errors import ConfigError
-
+    """Run one command; the exit status: 0 done, 2 bad input (a ConfigError, e.g. a run folder or a
+    checkpoint of another run), 3 training diverged, 130 interrupted."""
     for name, value in fw.env_defaults:
         os.environ.setdefault(name, value)
     args = build_parser(fw).parse_args(argv)
@@ -275,8 +273,3 @@ def main(fw: Framework, argv=None) -> int:
         print(f"{fw.prog} {args.command}: interrupted; rerun the same command to resume from the last "
               f"checkpoint", file=sys.stderr)
         return 130
-    except Exception as err:
-        if isinstance(err, fw.module("agents.checkpoint").CheckpointMismatch):
-            print(f"{fw.prog} {args.command}: error: {err}", file=sys.stderr)
-            return 2
-        raise

@@ -3,8 +3,8 @@ one class (`sf2_jax.SF2Config is sf2_torch.SF2Config`), so their fields, default
 
 Defaults follow the paper's Appendix E Table 1, except where the authors' published runs differ
 (`tau_zeta` = 0.05 and `learning_rate` = 1e-3; docs/core-contract.md lists every such place; the field's
-comment says so). Names follow DESIGN.md §3: `gamma_su` is γ_su of eq. (3), `denoising_steps` is T of
-Algorithm 1's ODE.
+comment says so). Names follow docs/core-contract.md "Notation": `gamma_su` is γ_su of eq. (3),
+`denoising_steps` is T of Algorithm 1's ODE.
 """
 
 from __future__ import annotations
@@ -54,7 +54,7 @@ class SF2Config:
     gamma_su: float = 0.99  # successor discount weighting L_P against L_boot, in [0, 1)
     denoising_steps: int = 1  # T >= 1 steps of the bootstrap ODE
     integrator: str = "midpoint"  # "midpoint" (2 evaluations/step, Algorithm 1) or "euler"
-    contract_zeta: bool = True  # fast path of DESIGN.md §6; False = plain oracle formulation
+    contract_zeta: bool = True  # fast path (docs/core-contract.md "Networks"); False = plain oracle
     discount: float = 0.99  # MDP gamma
     reward_scaling: float = 1.0
     tau: float = 0.005  # EMA rate of target psi, Q, policy

@@ -19,12 +19,39 @@ from __future__ import annotations
 import sys
 
 from sf2_common import cli as _cli
+from sf2_common.agents import configs
 
 __all__ = ["main", "build_parser", "FRAMEWORK"]
+
+
+# The JAX agents' functions the commands call, imported on first use (`sf2-jax tasks` imports no JAX).
+def _registry():
+    from sf2_jax.agents import representations
+
+    return representations.REGISTRY
+
+
+def _validate(cfg, seeds):
+    return configs.validate(cfg, seeds, _registry())
+
+
+def _train(*args, **kwargs):
+    from sf2_jax.agents.trainer import train
+
+    return train(*args, **kwargs)
+
+
+def _evaluate_checkpoint(*args, **kwargs):
+    from sf2_jax.agents.trainer import evaluate_checkpoint
+
+    return evaluate_checkpoint(*args, **kwargs)
+
 
 FRAMEWORK = _cli.Framework(
     prog="sf2-jax", package="sf2_jax", doc=__doc__,
     seeds_help="all seeds run in one vmapped program", cache_env="SF2_JAX_COMPILE_CACHE",
+    config_class=configs.TrainConfig, registry=_registry, validate=_validate, train=_train,
+    evaluate_checkpoint=_evaluate_checkpoint,
 )
 
 

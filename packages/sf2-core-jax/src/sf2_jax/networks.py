@@ -1,6 +1,6 @@
 """Networks of SF²: ψ, ζ, twin Q heads, TD3 and SAC policies, observation normalizer, flow-time embedding.
 
-Paper: Definition 3.1 (u = ζ(x, k)ᵀψ(s, a)), Appendix E (architectures); DESIGN.md §5–§6;
+Paper: Definition 3.1 (u = ζ(x, k)ᵀψ(s, a)), Appendix E (architectures);
 docs/core-contract.md "Networks". JAX is functional: `make_networks(cfg, algo)` returns a `Networks`
 container of flax.linen modules (no parameters), `init_params(nets, key)` returns the parameter dict of
 canonical groups, and the helpers below (`psi`, `zeta`, `velocity`, ...) apply a group to inputs.
@@ -20,10 +20,9 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 from flax import struct
+from sf2_common.config import SF2Config
 from sf2_common.embedding import EMBEDDING_K_GRID, embedding_turns
-
-from sf2_jax.config import SF2Config
-from sf2_jax.errors import ConfigError, ShapeError
+from sf2_common.errors import ConfigError, ShapeError
 
 __all__ = [
     "ALGOS", "MLP", "TwinQ", "Networks", "make_networks", "init_params", "init_normalizer",
@@ -45,7 +44,8 @@ class MLP(nn.Module):
     """Hidden layers Dense → ReLU → LayerNorm(ε = 1e-6), then a last Dense (Appendix E).
 
     Submodules are `dense_0..dense_n` and `layer_norm_0..layer_norm_{n-1}` (n = len(hidden_sizes)).
-    `hidden(x)` is everything before the last Dense (ζ's h in the fast path of DESIGN.md §6).
+    `hidden(x)` is everything before the last Dense (ζ's h in the fast path, docs/core-contract.md
+    "Networks").
     """
 
     hidden_sizes: tuple[int, ...]
@@ -275,7 +275,7 @@ def zeta(nets: Networks, params: Params, x, k, target: bool = False):
 
 
 def zeta_hidden(nets: Networks, params: Params, x, k, target: bool = False):
-    """h(x, k) (B, H): ζ's MLP up to (not including) its last Dense (DESIGN.md §6)."""
+    """h(x, k) (B, H): ζ's MLP up to (not including) its last Dense (the fast path's h)."""
     return nets.zeta.apply({"params": _group(nets, params, "zeta", target)}, _zeta_input(nets, x, k),
                            method=MLP.hidden)
 
@@ -293,8 +293,8 @@ def velocity(nets: Networks, params: Params, x, k, features, target: bool = Fals
 
 
 def contract(nets: Networks, params: Params, features, target: bool = False):
-    """Contract ζ's last layer with ψ once (DESIGN.md §6): M (B, D, H) and c (B, D) with
-    M[b, d, h] = Σ_f W[h, d·F + f] ψ[b, f] and c[b, d] = Σ_f b[d·F + f] ψ[b, f].
+    """Contract ζ's last layer with ψ once (docs/core-contract.md "Networks", fast path): M (B, D, H) and
+    c (B, D) with M[b, d, h] = Σ_f W[h, d·F + f] ψ[b, f] and c[b, d] = Σ_f b[d·F + f] ψ[b, f].
 
     Layout: the kernel W (H, F·D) is re-laid (D, H, F) here, once per contraction (an internal transpose;
     the stored parameter keeps its canonical (in, out) layout), so the single GEMM ψ·W_tᵀ emits M already
@@ -310,7 +310,7 @@ def contract(nets: Networks, params: Params, features, target: bool = False):
 
 def velocity_contracted(nets: Networks, params: Params, x, k, M, c, target: bool = False):
     """Fast velocity u = einsum('bh,bdh->bd', h(x, k), M) + c with (M, c) from `contract`; equal to
-    `velocity` (DESIGN.md §6)."""
+    `velocity` (u is linear in ζ's last layer)."""
     h = zeta_hidden(nets, params, x, k, target)
     if jnp.shape(M) != (*jnp.shape(h)[:-1], nets.cfg.obs_size, jnp.shape(h)[-1]):
         raise ShapeError(f"M: expected shape {(*jnp.shape(h)[:-1], nets.cfg.obs_size, jnp.shape(h)[-1])} "

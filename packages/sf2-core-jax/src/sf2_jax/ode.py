@@ -10,9 +10,8 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import jax.numpy as jnp
-
-from sf2_jax.config import INTEGRATORS
-from sf2_jax.errors import ConfigError, ShapeError
+from sf2_common.config import INTEGRATORS
+from sf2_common.errors import ConfigError, ShapeError
 
 __all__ = ["integrate", "INTEGRATORS"]
 

@@ -1,4 +1,4 @@
-"""Canonical parameters: the framework-neutral interchange format of SF² (DESIGN.md §4.2).
+"""Canonical parameters: the framework-neutral interchange format of SF² (docs/params.md).
 
 A canonical mapping is a flat ``dict[str, numpy.ndarray]`` whose keys are dot-joined paths. Loading the
 same canonical mapping into `sf2_jax` and `sf2_torch` gives networks that compute the same numbers.
@@ -55,10 +55,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from sf2_common import paramfile
+from sf2_common.config import SF2Config
+from sf2_common.errors import ParamsError
 
 from sf2_jax import networks as nw
-from sf2_jax.config import SF2Config
-from sf2_jax.errors import ParamsError
 
 __all__ = ["to_canonical", "from_canonical", "validate", "expected_shapes", "save", "load", "FORMATS"]
 

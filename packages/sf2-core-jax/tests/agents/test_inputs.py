@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import pytest
 from sf2_common import cli as _cli
+from sf2_common.agents import configs
+from sf2_common.errors import ConfigError
 from sf2_common.testing import BAD_TRAIN_INPUTS, cli_error
 from sf2_jax import cli
-from sf2_jax.agents import configs, envs, representations, trainer
-from sf2_jax.errors import ConfigError
+from sf2_jax.agents import envs, representations, trainer
 
 
 @pytest.fixture(autouse=True)
@@ -82,7 +83,7 @@ def test_presets():
     quick = configs.make_config("quick", "CartpoleBalance", overrides={"hidden_sizes": "64,64",
                                                                        "deterministic_eval": "false"})
     assert quick.hidden_sizes == (64, 64) and quick.deterministic_eval is False
-    configs.validate(quick, "0-3")
+    assert cli.FRAMEWORK.validate(quick, "0-3") is quick   # against the JAX agents' representations
     sf2 = quick.sf2_config(5, 1)
     for name in configs.SF2_FIELDS:
         assert getattr(sf2, name) == getattr(quick, name)
@@ -106,3 +107,16 @@ def test_cli_tasks_lists_paper_tasks(capsys):
     assert cli.main(["tasks"]) == 0
     out = capsys.readouterr().out
     assert "PendulumSwingup" in out and "10,000,000" in out
+
+
+def test_checkpoint_of_another_program_is_bad_input(capsys, monkeypatch):
+    """A checkpoint that does not fit (CheckpointMismatch, a ConfigError) exits with status 2 and a message,
+    through the CLI's handle on the trainer (`sf2_jax.cli` imports it when the command runs)."""
+    from sf2_jax.agents.checkpoint import CheckpointMismatch
+
+    def mismatch(*args, **kwargs):
+        raise CheckpointMismatch("checkpoint 3 does not fit this program")
+
+    monkeypatch.setattr(trainer, "evaluate_checkpoint", mismatch)
+    assert cli.main(["eval", "/nonexistent"]) == 2
+    assert "sf2-jax eval: error: checkpoint 3 does not fit this program" in capsys.readouterr().err

@@ -12,7 +12,8 @@ import importlib
 
 __all__ = ["EXPORTS", "lazy_getattr"]
 
-# name → module of a core's agents package that defines it (the same module names in both cores)
+# name → module that defines it: a module of the core's agents package (the same module names in both
+# cores), or a dotted module path (a name a core takes from sf2_common: "sf2_common.agents.configs")
 EXPORTS = {
     "TrainConfig": "configs", "make_config": "configs", "parse_seeds": "configs", "validate": "configs",
     "Representation": "representations", "register": "representations",
@@ -21,13 +22,14 @@ EXPORTS = {
 }
 
 
-def lazy_getattr(package: str):
-    """The module `__getattr__` of the agents package `package` (e.g. "sf2_jax.agents"): `EXPORTS` are
-    imported on first access, so importing a light module (e.g. `configs`) does not pull in the trainer."""
+def lazy_getattr(package: str, exports: dict[str, str] = EXPORTS):
+    """The module `__getattr__` of the agents package `package` (e.g. "sf2_jax.agents"): the names of
+    `exports` are imported on first access, so importing a light module does not pull in the trainer."""
 
     def __getattr__(name):
-        if name in EXPORTS:
-            return getattr(importlib.import_module(f"{package}.{EXPORTS[name]}"), name)
+        if name in exports:
+            module = exports[name] if "." in exports[name] else f"{package}.{exports[name]}"
+            return getattr(importlib.import_module(module), name)
         raise AttributeError(f"module {package!r} has no attribute {name!r}")
 
     return __getattr__

@@ -1,15 +1,16 @@
 """`TrainConfig`: everything one training run needs, the `paper` and `quick` presets, CLI overrides, and
 validation that fails before any compilation with a message naming the field, the value and what is valid.
 
-Written once for both cores: `sf2_jax.agents.configs` re-exports this module (its `TrainConfig` is this
-class), `sf2_torch.agents.configs` subclasses `TrainConfig` with its torch-only run fields. The functions
-that build or parse a config take the class (`config_class`); `validate` takes the framework's
-representation registry (`sf2_common.agents.registry.Registry`).
+Written once for both cores: the JAX agents use this module as it is (its `TrainConfig` is theirs),
+`sf2_torch.agents.configs` subclasses `TrainConfig` with its torch-only run fields. The functions that
+build or parse a config take the class (`config_class`); `validate` takes the framework's representation
+registry (`sf2_common.agents.registry.Registry`).
 
 The SF² network/loss fields are the fields of `sf2_common.config.SF2Config` (same names, same defaults),
 minus `obs_size`/`action_size`, which come from the task. `TrainConfig.sf2_config(obs, act)` builds it.
 
-Where the `paper` preset follows the authors' code rather than Table 1 (DESIGN.md §5):
+Where the `paper` preset follows the authors' code rather than Table 1 (docs/core-contract.md, "The
+authors' code"):
 learning_rate 1e-3 (table: 1e-4), tau_zeta 0.05 (table: 0.005), denoising_steps 1 midpoint step = 2
 function evaluations (the table's "2 Function Evaluations"), evaluation with the acting noise
 (Brax's `deterministic_eval=False` default, which the authors kept). Per-task budgets and action repeat
@@ -93,7 +94,7 @@ class TrainConfig:
     # run management
     checkpoint_every: int = 1     # evaluations between checkpoints (the last one is always saved)
     keep_checkpoints: int = 2
-    matmul_precision: str = "highest"   # DESIGN.md §4: TF32 breaks training on these tasks
+    matmul_precision: str = "highest"   # docs/parity.md "Precision": TF32 breaks training on these tasks
 
     def sf2_config(self, obs_size: int, action_size: int) -> SF2Config:
         """The core's `SF2Config` of this run for a task with these sizes (validated)."""

@@ -6,9 +6,8 @@ fixed generator, so plots are reproducible). Unlike a Student-t interval it stay
 the seeds' returns (with two seeds it is their range). No band with one seed. matplotlib is imported
 lazily (Agg).
 
-The same for both cores (`sf2_jax.agents.plotting` and `sf2_torch.agents.plotting` re-export it and bind
-`method_label` to their representation registry). A run folder's method is the `label` its trainer wrote
-into config.json, so plotting needs no framework."""
+The same for both cores (`method_label` takes the core's representation registry). A run folder's method
+is the `label` its trainer wrote into config.json, so plotting needs no framework."""
 
 from __future__ import annotations
 

@@ -1,6 +1,7 @@
 """The task table: which MuJoCo Playground DM Control tasks exist and the paper's per-task settings
-(Appendix E Table 1, DESIGN.md §7): budgets and action repeat. Building the environments is each core's
-own `agents.envs` (JAX: Brax wrappers; torch: a TorchRL env over the same JAX env), which re-exports these.
+(Appendix E Table 1; docs/core-contract.md "Agents"): budgets and action repeat. Building the
+environments is each core's own `agents.envs` (JAX: Brax wrappers; torch: a TorchRL env over the same
+JAX env), which re-exports these.
 
 Playground is imported lazily (for the task list and the budgets of tasks outside the paper).
 """
@@ -17,7 +18,7 @@ __all__ = [
     "paper_budget", "paper_action_repeat",
 ]
 
-# The seven tasks of the paper's DM Control experiments (DESIGN.md §7).
+# The seven tasks of the paper's DM Control experiments (§4.2, Appendix E Table 1).
 PAPER_TASKS = (
     "AcrobotSwingup", "CartpoleBalanceSparse", "CartpoleSwingupSparse", "CheetahRun", "FishSwim",
     "HopperHop", "PendulumSwingup",
@@ -30,7 +31,8 @@ PAPER_BUDGETS = {
 }
 # Table 1 "Action Repeat: 1 (4 for PendulumSwingUp)". The authors' runs took action repeat from
 # Playground's SAC config, which spells the task "PendulumSwingUp", so their PendulumSwingup runs used
-# action repeat 1 and 5M steps; the `paper` preset follows the table (DESIGN.md §7).
+# action repeat 1 and 5M steps; the `paper` preset follows the table (docs/core-contract.md, "The
+# authors' code").
 PAPER_ACTION_REPEAT = {"PendulumSwingup": 4}
 
 

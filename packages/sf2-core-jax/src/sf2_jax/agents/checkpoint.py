@@ -16,6 +16,7 @@ from typing import Any
 
 import jax
 import numpy as np
+from sf2_common.errors import ConfigError
 
 __all__ = ["Checkpointer", "CheckpointMismatch"]
 
@@ -24,8 +25,9 @@ def _size(x) -> int:
     return math.prod(np.shape(x))
 
 
-class CheckpointMismatch(ValueError):
-    """The checkpoint does not fit the program (a different config, seed count or code version)."""
+class CheckpointMismatch(ConfigError):
+    """The checkpoint does not fit the program (a different config, seed count or code version): bad
+    input, like a run folder of another run (the CLIs exit with status 2)."""
 
 
 class Checkpointer:

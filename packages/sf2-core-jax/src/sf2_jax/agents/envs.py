@@ -1,6 +1,6 @@
 """Tasks and env creation. The task table (which MuJoCo Playground DM Control tasks exist, the paper's
-per-task budgets and action repeat: Appendix E Table 1, DESIGN.md §7) is `sf2_common.agents.tasks`,
-re-exported here. Environments always use the pure-JAX MJX backend
+per-task budgets and action repeat: Appendix E Table 1; docs/core-contract.md "Agents") is
+`sf2_common.agents.tasks`, re-exported here. Environments always use the pure-JAX MJX backend
 (`config_overrides={'impl': 'jax'}`) and are wrapped with Playground's `wrap_for_brax_training`
 (Brax's VmapWrapper + EpisodeWrapper(episode_length, action_repeat) + auto-reset to the cached first
 state; `state.info['truncation']` is 1 on the step an episode is cut by the time limit). Nothing in
@@ -24,8 +24,7 @@ from sf2_common.agents.tasks import (
     valid_tasks,
     validate_task,
 )
-
-from sf2_jax.errors import ConfigError
+from sf2_common.errors import ConfigError
 
 __all__ = [
     "PAPER_TASKS", "PAPER_BUDGETS", "PAPER_ACTION_REPEAT", "valid_tasks", "validate_task",

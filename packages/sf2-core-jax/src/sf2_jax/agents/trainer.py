@@ -38,18 +38,19 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from sf2_common.agents import hostloop
+from sf2_common.agents import configs, hostloop, plotting
+from sf2_common.agents.configs import TrainConfig
 from sf2_common.agents.hostloop import WALL_FIELDS, TrainingDiverged
+from sf2_common.agents.runfolder import RunFolder
+from sf2_common.errors import ConfigError
 
 from sf2_jax import networks
 from sf2_jax.losses import Batch
 
-from . import configs, envs, representations
+from . import envs, representations
 from .algorithms import make_algorithm
 from .checkpoint import Checkpointer
-from .configs import TrainConfig
 from .replay import ReplayBuffer
-from .runfolder import RunFolder
 
 __all__ = ["TrainState", "Program", "get_program", "TrainingDiverged", "TrainResult", "train",
            "seed_keys", "eval_keys", "flatten_params", "WALL_FIELDS"]
@@ -109,8 +110,9 @@ class Program:
             return jax.eval_shape(self._init, seed_keys(seeds))
 
     def place(self, state):
-        """Spread the seeds over the local devices (DESIGN.md §9) when their number divides evenly;
-        the jitted functions then run each device's seeds where they live. One device: unchanged."""
+        """Spread the seeds over the local devices when their number divides evenly (docs/core-contract.md
+        "Agents": no cross-device traffic inside an epoch); the jitted functions then run each device's
+        seeds where they live. One device: unchanged."""
         devices = jax.local_devices()
         n = jax.tree_util.tree_leaves(state)[0].shape[0]
         if len(devices) < 2 or n % len(devices):
@@ -274,7 +276,7 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
     import shutil
 
     seeds = configs.parse_seeds(seeds)
-    configs.validate(cfg, seeds)
+    configs.validate(cfg, seeds, representations.REGISTRY)
     run = RunFolder(out)
     if fresh:
         run.clear()
@@ -334,9 +336,7 @@ class _Session:
 
 
 def _label(cfg: TrainConfig) -> str:
-    from .plotting import method_label
-
-    return method_label(cfg.algo, cfg.representation)
+    return plotting.method_label(cfg.algo, cfg.representation, representations.REGISTRY)
 
 
 def _write_final(run: RunFolder, state: TrainState, seeds) -> None:
@@ -377,7 +377,7 @@ def evaluate_checkpoint(out, epoch: int | None = None, num_eval_envs: int | None
     starts = state.eval_start
     if num_eval_envs is not None and num_eval_envs != cfg.num_eval_envs:
         if num_eval_envs < 1:
-            raise configs.ConfigError(f"episodes = {num_eval_envs} is invalid: must be >= 1")
+            raise ConfigError(f"episodes = {num_eval_envs} is invalid: must be >= 1")
         starts = program.fresh_eval_starts(seeds, num_eval_envs, 10_000 + epoch)
     returns = np.asarray(program.evaluate(state.params, starts, seeds, 10_000 + epoch))
     return {"epoch": epoch, "env_steps": meta.get("env_steps"),
