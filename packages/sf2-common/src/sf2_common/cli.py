@@ -8,6 +8,8 @@ import no framework.
     PROG train --task CartpoleBalance --algo td3 --repr sf2,none,sim --config quick --seeds 0-1 --out runs/cmp
     PROG eval runs/cp [--epoch N] [--episodes 20] [--stochastic]
     PROG plot runs/cmp/td3-sf2 runs/cmp/td3-none --out curves.png
+    PROG study run studies/fig7-td3.toml --out results/fig7-td3    (sf2_common.studies.commands)
+    PROG study report results/fig7-td3
     PROG tasks
 
 Every `TrainConfig` field can be overridden, either with its own flag (`--batch-size 128`,
@@ -31,6 +33,7 @@ from sf2_common.agents import configs, plotting
 from sf2_common.agents.hostloop import TrainingDiverged
 from sf2_common.agents.registry import Registry
 from sf2_common.errors import ConfigError
+from sf2_common.studies import commands as study_commands
 
 __all__ = ["Framework", "build_parser", "main", "print_table", "expand_runs"]
 
@@ -110,6 +113,7 @@ def build_parser(fw: Framework) -> argparse.ArgumentParser:
     p.add_argument("runs", nargs="+", help="run folders (folders holding run folders are expanded)")
     p.add_argument("--out", default="learning_curves.png", help="PNG to write")
 
+    study_commands.add_parser(sub, fw.prog)
     sub.add_parser("tasks", help="list the valid tasks and the paper preset's budget and action repeat")
     return parser
 
@@ -252,7 +256,7 @@ def _tasks(fw: Framework, args) -> int:
     return 0
 
 
-_HANDLERS = {"train": _train, "eval": _eval, "plot": _plot, "tasks": _tasks}
+_HANDLERS = {"train": _train, "eval": _eval, "plot": _plot, "study": study_commands.main, "tasks": _tasks}
 
 
 def main(fw: Framework, argv=None) -> int:
@@ -261,6 +265,7 @@ def main(fw: Framework, argv=None) -> int:
     for name, value in fw.env_defaults:
         os.environ.setdefault(name, value)
     args = build_parser(fw).parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
     try:
         return _HANDLERS[args.command](fw, args)
     except (ConfigError, FileNotFoundError) as err:

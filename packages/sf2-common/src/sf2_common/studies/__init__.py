@@ -1,0 +1,15 @@
+"""Studies: the paper's evaluation protocol (§4.2, Appendix C) over tasks × methods × seeds, for either
+framework. One module per job:
+
+- `spec`: study files (TOML), checked before anything is compiled
+- `folder`: the study folder (its study file, state, one run folder per training program)
+- `runner`: the runs on this host, one child process of the framework's CLI per GPU (or CPU worker)
+- `rayrun`: the runs as Ray tasks on a cluster (extra `ray`)
+- `progress`: the one progress line of a study run
+- `robustness`: a run's checkpoints evaluated under observation noise (App. C.2.2)
+- `stats`: AUC, normalization, rliable aggregates and bootstrap intervals (extra `studies`)
+- `report`, `figures`: results.csv, summary.md and the paper's figures
+- `commands`: the `study` subcommand of `sf2-jax` / `sf2-torch`
+
+Study files of the paper's experiments live in the repository's `studies/` folder.
+"""

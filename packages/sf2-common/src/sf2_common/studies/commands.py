@@ -1,0 +1,138 @@
+"""The `study` subcommand of `sf2-jax` and `sf2-torch` (sf2_common.cli adds it with `add_parser` and calls
+`main`):
+
+    PROG study run FILE --out DIR [--tasks A,B] [--methods m1,m2] [--workers N] [--ray ADDRESS] [--dry-run]
+    PROG study report DIR [--out REPORT_DIR]
+
+`run` checks the study file and every run's config before anything is compiled (bad input: exit status
+2, nothing written), then trains what is not done yet (runner.py, rayrun.py); exit status 0 when every
+selected run is done, 1 if one failed or was held by another runner. `report` writes results.csv,
+summary.md and the figures (report.py). FILE may also be the name of a file in ./studies/ (`smoke`).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import shlex
+import sys
+from pathlib import Path
+
+from .runner import Backend
+from .spec import StudyError
+
+__all__ = ["add_parser", "main", "backend"]
+
+
+def add_parser(sub, prog: str) -> None:
+    s = sub.add_parser("study", help="tasks × methods × seeds from a study file: run, report (paper §4.2)",
+                       description="Train a study file's tasks × methods × seeds (resumable, on every local "
+                       "GPU or a Ray cluster) and report them the way the paper does (§4.2, Appendix C).")
+    ssub = s.add_subparsers(dest="study_command", required=True)
+    r = ssub.add_parser("run", help="train a study's runs (resumable; skips finished runs)")
+    r.add_argument("file", help="study file (TOML), e.g. studies/fig7-td3.toml, or its name in ./studies/")
+    r.add_argument("--out", required=True, help="study folder (created, or continued if it holds this study)")
+    r.add_argument("--tasks", default=None, help="only these tasks (comma-separated)")
+    r.add_argument("--methods", default=None, help="only these methods (names or labels, comma-separated)")
+    r.add_argument("--workers", type=int, default=None,
+                   help="runs at a time on this host (default: one per visible GPU, else 1)")
+    r.add_argument("--ray", metavar="ADDRESS", default=None,
+                   help="dispatch each run as a Ray task to this cluster ('local': start one here, 'auto')")
+    r.add_argument("--ray-gpus", type=float, default=1.0,
+                   help="GPUs each Ray task requests (default 1; 0 on a CPU-only cluster)")
+    r.add_argument("--ray-cpus", type=float, default=1.0, help="CPUs each Ray task requests (default 1)")
+    r.add_argument("--dry-run", action="store_true", help="print the runs and their state; train nothing")
+    r.add_argument("--no-progress", action="store_true", help="no progress line (events only)")
+    p = ssub.add_parser("report", help="results.csv, summary.md and figures of a study folder")
+    p.add_argument("dir", help="study folder")
+    p.add_argument("--out", default=None, help="report folder (default: DIR/report)")
+
+
+def _study_file(text: str) -> Path:
+    path = Path(text)
+    if not path.exists() and not path.suffix and (Path("studies") / f"{text}.toml").exists():
+        return Path("studies") / f"{text}.toml"
+    return path
+
+
+def _names(text):
+    return [x.strip() for x in text.split(",") if x.strip()] if text else None
+
+
+def backend(fw) -> Backend:
+    """The `Backend` of a `sf2_common.cli.Framework`."""
+    from sf2_common.agents.configs import make_config
+
+    return Backend(prog=fw.prog, name=fw.package.removeprefix("sf2_"), cli_module=f"{fw.package}.cli",
+                   make_config=functools.partial(make_config, config_class=fw.config_class),
+                   validate=fw.validate)
+
+
+def main(fw, args) -> int:
+    """Run `PROG study ...` for the `sf2_common.cli.Framework` `fw` (`args.argv`: the command's arguments,
+    recorded in the study folder and summary.md)."""
+    command = " ".join([fw.prog, *map(shlex.quote, getattr(args, "argv", []))])
+    try:
+        if args.study_command == "report":
+            return _report(args, command)
+        return _run(backend(fw), args, command)
+    except ImportError as err:   # an extra that is not installed: the message names it
+        raise StudyError(str(err)) from None
+
+
+def _run(backend, args, command: str) -> int:
+    from . import runner, spec
+    from .folder import StudyFolder
+
+    base_env = dict(os.environ)
+    study = spec.load(_study_file(args.file))
+    if study.framework is not None and study.framework != backend.name:
+        raise StudyError(f"{study.path}: framework = {study.framework!r}: run it with "
+                         f"`sf2-{study.framework} study run`, not {backend.prog}")
+    if args.workers is not None and args.workers < 1:
+        raise StudyError(f"--workers {args.workers} is invalid: an int >= 1")
+    if args.ray is not None:
+        from .rayrun import _ray
+
+        _ray()
+    # The runner process only checks configs; its JAX (Playground imports it) stays off the GPUs the runs use.
+    os.environ["JAX_PLATFORMS"] = "cpu"
+    runs = spec.resolve(study, backend.make_config, backend.validate)
+    selected = spec.select_runs(study, runs, _names(args.tasks), _names(args.methods))
+    folder = StudyFolder(args.out)
+    folder.check(study, backend.name)
+    jobs, done = runner.plan(study, folder, selected)
+    if args.dry_run:
+        print(f"{study.name} ({study.path}) → {folder.path}: {len(selected)} run(s) selected of {len(runs)}")
+        for job in done:
+            print(f"  done     {job.name}")
+        for job in jobs:
+            state = "partial" if job.done_steps else "new"
+            steps = " ; ".join(f"{backend.prog} {' '.join(c)}" for c in job.commands)
+            print(f"  {state:8} {job.name}: {steps}")
+        return 0
+    folder.open(study, backend.name, runs, command)
+    if args.ray is not None:
+        from .rayrun import run_ray
+
+        outcome = run_ray(study, folder, jobs, done, backend=backend, address=args.ray,
+                          num_gpus=args.ray_gpus, num_cpus=args.ray_cpus, progress=not args.no_progress)
+    else:
+        outcome = runner.run_local(study, folder, jobs, done, backend=backend, base_env=base_env,
+                                   workers=args.workers, progress=not args.no_progress)
+    print(f"{study.name}: {len(outcome.done)} of {len(selected)} run(s) done"
+          + (f", {len(outcome.failed)} failed" if outcome.failed else "")
+          + (f", {len(outcome.busy)} held by another runner" if outcome.busy else ""))
+    for name, rc, log in outcome.failed:
+        print(f"  FAILED {name} (exit status {rc}): see {log}", file=sys.stderr)
+    print(f"report: {backend.prog} study report {folder.path}")
+    return 0 if outcome.ok else 1
+
+
+def _report(args, command: str) -> int:
+    from .report import report
+
+    written = report(args.dir, args.out, command)
+    for path in written.values():
+        print(f"wrote {path}")
+    return 0

@@ -1,0 +1,225 @@
+"""The report's figures, each written as PNG and SVG: the aggregate interval plot (paper Fig. 1 and 7), the
+per-task learning curves (Fig. 6 and 8), the hyperparameter sweeps (Fig. 2 a/b/d) and the observation-noise
+plot (Fig. 9 right). Every band and bar says what it is; where a method has fewer than `stats.MIN_SEEDS`
+seeds no interval is drawn and the legend says so. The numbers come from `report` (rliable); this module
+only draws. matplotlib is imported lazily with the Agg backend."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from . import stats
+
+__all__ = ["aggregate", "learning_curves", "sweeps", "obs_noise"]
+
+_CI = f"95% bootstrap CI ({stats.RESAMPLES} resamples)"
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _kind(label: str) -> str:
+    """The method without its family ('TD3+SF² (γ=0)' → '+SF² (γ=0)'), so both families share colors."""
+    for family in ("TD3", "SAC"):
+        if label.startswith(family):
+            return label[len(family):]
+    return label
+
+
+class _Colors:
+    def __init__(self):
+        self.map: dict[str, tuple] = {}
+        self.cycle = list(_plt().get_cmap("tab10").colors)
+
+    def __call__(self, label: str):
+        k = _kind(label)
+        if k not in self.map:
+            self.map[k] = self.cycle[len(self.map) % len(self.cycle)]
+        return self.map[k]
+
+
+def _save(fig, stem: Path) -> dict[str, Path]:
+    plt = _plt()
+    out = {}
+    for ext in ("png", "svg"):
+        path = stem.with_suffix(f".{ext}")
+        fig.savefig(path, dpi=150, bbox_inches="tight")
+        out[path.name] = path
+    plt.close(fig)
+    return out
+
+
+def _steps_formatter():
+    """Env-step ticks as 200k, 1M, ..."""
+    from matplotlib.ticker import EngFormatter
+
+    return EngFormatter(sep="")
+
+
+def _seed_note(ns) -> str:
+    few = sorted({n for n in ns if not stats.informative(n)})
+    return (f"; no interval where n < {stats.MIN_SEEDS} seeds (not informative)" if few else "")
+
+
+# ------------------------------------------------------------------------------------------- Fig. 1 / 7
+def aggregate(table: dict, stem: Path, study) -> dict[str, Path]:
+    """table: {family: [(label, n_seeds, points (4,), intervals (2, 4) or None)]} → one row of four panels
+    (median, IQM, mean, optimality gap) per family."""
+    plt = _plt()
+    colors = _Colors()
+    families = list(table)
+    rows = max(len(v) for v in table.values())
+    fig, axes = plt.subplots(len(families), 4, squeeze=False,
+                             figsize=(13, 0.9 + 0.42 * rows * len(families) + 0.5 * len(families)))
+    for r, family in enumerate(families):
+        entries = table[family]
+        for c, metric in enumerate(stats.METRICS):
+            ax = axes[r][c]
+            for y, (label, _, p, ci) in enumerate(entries):
+                color = colors(label)
+                if ci is not None:
+                    ax.barh(y, ci[1][c] - ci[0][c], left=ci[0][c], height=0.6, color=color, alpha=0.75)
+                    ax.vlines(p[c], y - 0.3, y + 0.3, color="k", lw=1.5)
+                else:
+                    ax.plot([p[c]], [y], marker="|", ms=14, mew=2, color=color)
+            ax.set_yticks(range(len(entries)))
+            ax.set_yticklabels([e[0] for e in entries] if c == 0 else [])
+            ax.set_ylim(-0.6, len(entries) - 0.4)
+            ax.invert_yaxis()
+            ax.grid(True, axis="x", alpha=0.3)
+            for side in ("top", "right", "left"):
+                ax.spines[side].set_visible(False)
+            ax.tick_params(axis="y", length=0)
+            ax.set_title(f"{family}: {metric}" + (" (lower is better)" if metric == "Optimality Gap" else ""),
+                         fontsize=10)
+            if r == len(families) - 1:
+                ax.set_xlabel("normalized AUC" if metric != "Optimality Gap" else "1 − mean normalized AUC")
+    ns = [n for v in table.values() for _, n, _, _ in v]
+    fig.suptitle(f"{study.name}: aggregate normalized AUC over {len(study.tasks)} task(s), "
+                 f"{max(ns)} seeds per task\nbar: {_CI}, stratified over tasks; tick: point estimate"
+                 + _seed_note(ns), fontsize=10)
+    fig.tight_layout()
+    return _save(fig, stem)
+
+
+# ------------------------------------------------------------------------------------------- Fig. 6 / 8
+def learning_curves(study, data: list, stem: Path) -> dict[str, Path]:
+    """data: finished `report.RunData`; one panel per (family, task): per method the mean eval return
+    over seeds and its 95% bootstrap band, point by point."""
+    plt = _plt()
+    colors = _Colors()
+    families = list(dict.fromkeys(d.method.family for d in data))
+    tasks = [t for t in study.tasks if any(d.task == t for d in data)]
+    fig, axes = plt.subplots(len(families), len(tasks), squeeze=False,
+                             figsize=(3.6 * len(tasks) + 2.4, 2.9 * len(families)))
+    ns = []
+    for r, family in enumerate(families):
+        for c, task in enumerate(tasks):
+            ax = axes[r][c]
+            for d in (d for d in data if d.task == task and d.method.family == family):
+                mat = d.matrix()
+                mean, lo, hi = stats.mean_interval(mat)
+                ns.append(mat.shape[0])
+                color = colors(d.method.label)
+                ax.plot(d.steps, mean, color=color, lw=1.6, label=f"{d.method.label} (n={mat.shape[0]})")
+                if lo is not None:
+                    ax.fill_between(d.steps, lo, hi, color=color, alpha=0.2, lw=0)
+            ax.set_title(f"{task} · {family}", fontsize=10)
+            ax.grid(alpha=0.3)
+            ax.xaxis.set_major_formatter(_steps_formatter())
+            if r == len(families) - 1:
+                ax.set_xlabel("env steps")
+            if c == 0:
+                ax.set_ylabel("eval return")
+        handles, labels = axes[r][0].get_legend_handles_labels()
+        for ax in axes[r][1:]:
+            for h, lab in zip(*ax.get_legend_handles_labels()):
+                if lab not in labels:
+                    handles.append(h)
+                    labels.append(lab)
+        axes[r][-1].legend(handles, labels, loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8,
+                           frameon=False)
+    fig.suptitle(f"{study.name}: learning curves\nline: mean eval return over seeds; band: {_CI} of the "
+                 f"mean at each evaluation" + _seed_note(ns), fontsize=10)
+    fig.tight_layout()
+    return _save(fig, stem)
+
+
+# ------------------------------------------------------------------------------------------- Fig. 2
+def sweeps(study, points: dict, stem: Path) -> dict[str, Path]:
+    """points: {field: {base label: [(text, value, n, mean, lo, hi)]}} → one panel per swept field."""
+    plt = _plt()
+    colors = _Colors()
+    titles = dict(study.report.sweeps)
+    fields = list(points)
+    fig, axes = plt.subplots(1, len(fields), squeeze=False, figsize=(4.4 * len(fields), 3.6))
+    ns = []
+    for ax, field in zip(axes[0], fields):
+        numeric = all(isinstance(v, float) for entries in points[field].values() for _, v, *_ in entries)
+        for base, entries in points[field].items():
+            entries = sorted(entries, key=lambda e: e[1]) if numeric else entries
+            xs = [e[1] if numeric else i for i, e in enumerate(entries)]
+            means = np.array([e[3] for e in entries])
+            ns += [e[2] for e in entries]
+            color = colors(base)
+            ax.plot(xs, means, marker="o", color=color, label=f"{base} (n={max(e[2] for e in entries)})")
+            have = [i for i, e in enumerate(entries) if e[4] is not None]
+            if have:
+                lo = means[have] - np.array([entries[i][4] for i in have])
+                hi = np.array([entries[i][5] for i in have]) - means[have]
+                ax.errorbar(np.array(xs)[have], means[have], yerr=[lo, hi], fmt="none", ecolor=color,
+                            capsize=3)
+            if not numeric:
+                ax.set_xticks(xs)
+                ax.set_xticklabels([e[0] for e in entries])
+        values = [v for entries in points[field].values() for _, v, *_ in entries]
+        if numeric and min(values) > 0 and max(values) / min(values) >= 10:
+            ax.set_xscale("log")
+        ax.set_title(titles.get(field, field), fontsize=10)
+        ax.set_xlabel(field)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    axes[0][0].set_ylabel(f"mean eval return, final {study.report.final_window:,} env steps")
+    fig.suptitle(f"{study.name}: mean over seeds; error bar: {_CI} of the mean" + _seed_note(ns),
+                 fontsize=10)
+    fig.tight_layout()
+    return _save(fig, stem)
+
+
+# ------------------------------------------------------------------------------------------- Fig. 9 right
+def obs_noise(study, points: dict, stem: Path) -> dict[str, Path]:
+    """points: {family: {label: [(noise, n, iqm, lo, hi)]}} → one panel per family."""
+    plt = _plt()
+    colors = _Colors()
+    families = list(points)
+    fig, axes = plt.subplots(1, len(families), squeeze=False, figsize=(5.2 * len(families), 3.8),
+                             sharey=True)
+    ns = []
+    for ax, family in zip(axes[0], families):
+        for label, entries in points[family].items():
+            entries = sorted(entries)
+            x = np.array([e[0] for e in entries])
+            y = np.array([e[2] for e in entries])
+            ns += [e[1] for e in entries]
+            color = colors(label)
+            ax.plot(x, y, marker="o", color=color, label=f"{label} (n={max(e[1] for e in entries)})")
+            if all(e[3] is not None for e in entries):
+                ax.fill_between(x, [e[3] for e in entries], [e[4] for e in entries], color=color, alpha=0.2,
+                                lw=0)
+        ax.set_title(family)
+        ax.set_xlabel("observation noise std (Gaussian, added to the observations)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    checkpoints = study.evaluation.checkpoints
+    axes[0][0].set_ylabel(f"IQM over seeds of the AUC over {checkpoints} checkpoint(s)")
+    fig.suptitle(f"{study.name}: band: {_CI} of the IQM" + _seed_note(ns), fontsize=10)
+    fig.tight_layout()
+    return _save(fig, stem)

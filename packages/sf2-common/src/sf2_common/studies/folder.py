@@ -1,0 +1,188 @@
+"""A study folder: the study file it was made from, its state, and one run folder per training program.
+
+    DIR/study.toml              a copy of the study file (a different file → `StudyError`, nothing written)
+    DIR/study.json              name, framework, id, the run folder of every (task, method), the commands
+    DIR/runs/<task>/<method>/   a run folder of the framework's trainer (sf2_common.agents.runfolder):
+                                config.json, metrics.jsonl, checkpoints/, final/, train.log,
+                                obs_noise.json (the study's [evaluation], when it has one)
+    DIR/report/                 `study report`: results.csv, summary.md, figures
+
+Runs are independent folders, so a study folder merges runs that finished elsewhere: copy
+`runs/<task>/<method>/` from the other machine (its study folder was made from the same file).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import socket
+import time
+import uuid
+from pathlib import Path
+
+from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch
+
+from .spec import Run, Study, StudyError, loads
+
+__all__ = ["StudyFolder", "RunState", "OBS_NOISE", "LOG", "evaluation_settings", "evaluation_done",
+           "write_bytes", "command_line"]
+
+OBS_NOISE = "obs_noise.json"
+LOG = "train.log"
+
+
+@dataclasses.dataclass(frozen=True)
+class RunState:
+    status: str            # "new", "partial", "trained" (evaluation missing), "done"
+    env_steps: int         # env steps done, summed over seeds
+    total_env_steps: int   # the run's budget, summed over seeds
+
+
+class StudyFolder:
+    STUDY, STATE, RUNS, REPORT = "study.toml", "study.json", "runs", "report"
+
+    def __init__(self, path):
+        self.path = Path(path)
+
+    # ------------------------------------------------------------------ the study it holds
+    @property
+    def study_path(self) -> Path:
+        return self.path / self.STUDY
+
+    def read_state(self) -> dict:
+        p = self.path / self.STATE
+        return json.loads(p.read_text()) if p.exists() else {}
+
+    def load_study(self) -> Study:
+        """The study this folder was made from (its copy of the study file)."""
+        if not self.study_path.exists():
+            raise StudyError(f"{self.path} is not a study folder (no {self.STUDY}); make one with "
+                             f"`study run FILE --out {self.path}`")
+        return loads(self.study_path.read_text(encoding="utf-8"), self.study_path)
+
+    def check(self, study: Study, framework: str) -> None:
+        """Raise `StudyError` if the folder holds another study or one run by another framework; write
+        nothing."""
+        if self.path.exists() and not self.path.is_dir():
+            raise StudyError(f"--out {self.path} is a file, not a folder")
+        if not self.study_path.exists():
+            if self.path.exists() and any(self.path.iterdir()):
+                raise StudyError(f"--out {self.path} is not empty and holds no study ({self.STUDY}); choose "
+                                 f"an empty or new folder")
+            return
+        old = self.load_study()
+        if old.data != study.data:
+            keys = sorted(k for k in set(old.data) | set(study.data) if old.data.get(k) != study.data.get(k))
+            raise StudyError(
+                f"study folder {self.path} was made from another study file: its copy {self.study_path} "
+                f"(study {old.name!r}) and {study.path} (study {study.name!r}) differ in {', '.join(keys)}. "
+                f"Nothing was changed; use another --out for {study.path}")
+        old_framework = self.read_state().get("framework")
+        if old_framework and old_framework != framework:
+            raise StudyError(f"study folder {self.path} holds runs of sf2-{old_framework}; continue it with "
+                             f"`sf2-{old_framework} study run` (runs of two frameworks do not mix)")
+
+    def open(self, study: Study, framework: str, runs: list[Run], command: str | None = None) -> dict:
+        """`check`, then create or update the folder: its copy of the study file, and study.json (the run
+        folder of every method, the command appended). Returns the state."""
+        self.check(study, framework)
+        self.path.mkdir(parents=True, exist_ok=True)
+        if not self.study_path.exists():
+            _atomic_write(self.study_path, study.text)
+        state = self.read_state()
+        state.setdefault("id", uuid.uuid4().hex)
+        state.update(name=study.name, framework=framework)
+        state["runs"] = [{"task": r.task, "folder": r.folder, "methods": [m.name for m in r.methods]}
+                         for r in runs]
+        if command is not None:
+            state.setdefault("commands", []).append({"command": command, "host": socket.gethostname(),
+                                                     "time": time.strftime("%Y-%m-%d %H:%M:%S")})
+        _atomic_write(self.path / self.STATE, json.dumps(state, indent=2, ensure_ascii=False) + "\n")
+        return state
+
+    # ------------------------------------------------------------------ runs
+    def run_path(self, task: str, folder: str) -> Path:
+        return self.path / self.RUNS / task / folder
+
+    def method_folders(self, study: Study) -> dict[tuple[str, str], Path]:
+        """{(task, method name): run folder}: study.json's map (methods sharing a config share a run),
+        else each method's own folder."""
+        out = {(t, m.name): self.run_path(t, m.name) for t in study.tasks for m in study.methods}
+        for r in self.read_state().get("runs", []):
+            for name in r["methods"]:
+                out[(r["task"], name)] = self.run_path(r["task"], r["folder"])
+        return out
+
+    def check_run(self, run: Run, seeds) -> None:
+        """Raise `StudyError` if the run's folder holds another config or other seeds (the trainer would
+        refuse it too, after compiling)."""
+        try:
+            RunFolder(self.run_path(run.task, run.folder)).check_compatible(run.config.to_dict(), seeds)
+        except RunFolderMismatch as err:
+            raise StudyError(f"{err} (the study folder's runs must come from its study file)") from None
+
+    def run_state(self, run: Run, study: Study) -> RunState:
+        from sf2_common.agents.configs import schedule
+
+        path = self.run_path(run.task, run.folder)
+        sched = schedule(run.config)
+        total = sched.total_env_steps * len(study.seeds)
+        rows = RunFolder(path).read_rows()
+        if not (path / RunFolder.CONFIG).exists():
+            return RunState("new", 0, total)
+        last = {}
+        for r in rows:
+            last[r["seed"]] = max(last.get(r["seed"], 0), int(r.get("env_steps", 0)))
+        steps = sum(last.values())
+        trained = (all(any(r["seed"] == s and r["epoch"] == sched.num_epochs for r in rows)
+                       for s in study.seeds)
+                   and all((path / RunFolder.FINAL / f"params_seed{s}.npz").exists() for s in study.seeds))
+        if not trained:
+            return RunState("partial" if rows else "new", steps, total)
+        if study.evaluation is not None and not evaluation_done(path, study):
+            return RunState("trained", steps, total)
+        return RunState("done", steps, total)
+
+
+def evaluation_settings(study: Study) -> dict:
+    e = study.evaluation
+    return {"obs_noise": list(e.obs_noise), "checkpoints": e.checkpoints, "episodes": e.episodes,
+            "deterministic": e.deterministic}
+
+
+def evaluation_done(run_dir: Path, study: Study) -> bool:
+    p = Path(run_dir) / OBS_NOISE
+    if not p.exists():
+        return False
+    try:
+        return json.loads(p.read_text()).get("settings") == evaluation_settings(study)
+    except json.JSONDecodeError:
+        return False
+
+
+def _atomic_write(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "w", encoding="utf-8") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def write_bytes(path: Path, data: bytes) -> None:
+    """Atomic write of a file that came back from another host (`study run --ray`)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def command_line(prog: str, argv) -> str:
+    """The command as a user would type it (for summary.md)."""
+    import shlex
+
+    return " ".join([prog, *map(shlex.quote, argv)])

@@ -1,0 +1,65 @@
+"""A run's checkpoints evaluated with Gaussian noise added to the observations the policy sees (paper
+App. C.2.2, Fig. 9 right): `PROG eval RUN --obs-noise 0,0.05,0.1,0.2 [--checkpoints 5] [--save]`, and
+the [evaluation] of a study file, which `study run` runs after training. Framework-free: it calls the
+framework's `evaluate_checkpoint(run, epoch, num_eval_envs, deterministic, obs_noise=σ)` once per
+(checkpoint, σ); the report turns the returns into an AUC over the checkpoints per seed and noise level.
+
+RUN/obs_noise.json (`--save`): {"settings": {"obs_noise", "checkpoints", "episodes", "deterministic"},
+"results": [{"noise", "epoch", "env_steps", "deterministic", "returns": {seed: [episode returns]}}]}.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+from sf2_common.errors import ConfigError
+
+from .folder import OBS_NOISE, _atomic_write
+
+__all__ = ["parse_noise", "evaluate_obs_noise", "save"]
+
+
+def parse_noise(text: str) -> tuple[float, ...]:
+    """'0,0.05,0.1' → (0.0, 0.05, 0.1); `ConfigError` unless every std is a number >= 0."""
+    try:
+        values = tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        values = ()
+    if not values or any(not (v >= 0) or v == float("inf") for v in values):
+        raise ConfigError(f"--obs-noise {text!r} is invalid: comma-separated noise stds >= 0, e.g. "
+                          f"0,0.05,0.1")
+    return values
+
+
+def evaluate_obs_noise(evaluate_checkpoint: Callable, run, noises, checkpoints: int = 1,
+                       episodes: int | None = None, deterministic: bool | None = None,
+                       log: Callable[[str], None] | None = None) -> dict:
+    """Evaluate the last `checkpoints` checkpoints of `run` at every noise std (module docstring)."""
+    if not isinstance(checkpoints, int) or checkpoints < 1:
+        raise ConfigError(f"--checkpoints {checkpoints!r} is invalid: an int >= 1")
+    first = evaluate_checkpoint(run, None, episodes, deterministic, obs_noise=noises[0])
+    available = sorted(first["checkpoints"])
+    if len(available) < checkpoints:
+        raise ConfigError(f"{run} holds {len(available)} checkpoint(s) ({available}), fewer than the "
+                          f"{checkpoints} asked for; train with keep_checkpoints >= {checkpoints}")
+    results = []
+    for epoch in available[-checkpoints:]:
+        for noise in noises:
+            res = (first if (epoch == first["epoch"] and noise == noises[0])
+                   else evaluate_checkpoint(run, epoch, episodes, deterministic, obs_noise=noise))
+            results.append({"noise": noise, "epoch": res["epoch"], "env_steps": res["env_steps"],
+                            "deterministic": res["deterministic"], "returns": res["returns"]})
+            if log:
+                means = [sum(r) / len(r) for r in res["returns"].values()]
+                log(f"  epoch {res['epoch']:>4} ({res['env_steps']} env steps), noise {noise:g}: mean return "
+                    f"over seeds {sum(means) / len(means):.1f}")
+    return {"settings": {"obs_noise": list(noises), "checkpoints": checkpoints, "episodes": episodes,
+                         "deterministic": deterministic}, "results": results}
+
+
+def save(run, result: dict) -> Path:
+    path = Path(run) / OBS_NOISE
+    _atomic_write(path, json.dumps(result, indent=1) + "\n")
+    return path

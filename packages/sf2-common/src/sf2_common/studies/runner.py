@@ -1,0 +1,270 @@
+"""Running a study's runs on this host. Each run (a task and a method, all seeds in one program: the JAX
+trainer vmaps them) is a child process of the framework's own CLI, `python -m sf2_jax.cli train ...
+--out DIR/runs/<task>/<method> --no-progress` (then `eval ... --obs-noise` when the study has an
+[evaluation]), so resuming, `kill -9` and the no-duplicate-row guarantee are the trainer's
+(sf2_common.agents.runfolder): a finished run is skipped, a partial one resumes from its last checkpoint.
+
+Where the children run: one per visible GPU (CUDA_VISIBLE_DEVICES set to that GPU alone, so two runs
+never share a GPU's memory), or on a CPU one at a time unless `workers` says more. A child dies with
+the runner (Linux: PR_SET_PDEATHSIG), and holds its run folder's lock (`.study-lock`, flock) for as long
+as it lives, so a second runner on the same folder never trains the same run twice at once.
+
+Children get PYTHONHASHSEED=0 unless the caller set it: the JAX program of a run depends on Python's
+string hashing (its persistent-compilation-cache key changes from one process to the next otherwise), so
+a fixed seed makes every process of a study compile, and compute, the same program.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import fcntl
+import functools
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from .folder import LOG, StudyFolder
+from .progress import Progress
+from .spec import Run, Study, StudyError
+
+__all__ = ["Backend", "Job", "plan", "eval_argv", "child_env", "visible_gpus", "run_local", "Outcome",
+           "LOCK"]
+
+LOCK = ".study-lock"
+
+
+@dataclasses.dataclass(frozen=True)
+class Backend:
+    """What a study needs from a framework (`sf2_common.cli` builds it from its `Framework`)."""
+
+    prog: str                       # "sf2-jax"
+    name: str                       # "jax" (study files' `framework`)
+    cli_module: str                 # "sf2_jax.cli": children run `python -m cli_module train ...`
+    make_config: Callable           # (preset, task, algo, representation, overrides) -> TrainConfig
+    validate: Callable              # (cfg, seeds) -> cfg, raises ConfigError
+
+
+@dataclasses.dataclass
+class Job:
+    run: Run
+    path: Path                      # the run folder
+    commands: list[list[str]]       # CLI arguments of each child, in order (train, eval)
+    total_steps: int
+    done_steps: int
+
+    @property
+    def name(self) -> str:
+        return f"{self.run.task}/{self.run.folder}"
+
+
+@dataclasses.dataclass
+class Outcome:
+    done: list[str]
+    failed: list[tuple[str, int, Path]]     # (run, exit status, log)
+    busy: list[str]                         # locked by another runner
+
+    @property
+    def ok(self) -> bool:
+        return not self.failed and not self.busy
+
+
+def eval_argv(study: Study, path: Path) -> list[str]:
+    """The `eval` arguments of the study's [evaluation] (observation noise, paper App. C.2.2)."""
+    e = study.evaluation
+    argv = ["eval", str(path), "--obs-noise", ",".join(repr(x) for x in e.obs_noise),
+            "--checkpoints", str(e.checkpoints), "--save"]
+    if e.episodes is not None:
+        argv += ["--episodes", str(e.episodes)]
+    if e.deterministic is not None:
+        argv.append("--deterministic" if e.deterministic else "--stochastic")
+    return argv
+
+
+def plan(study: Study, folder: StudyFolder, runs: list[Run]) -> tuple[list[Job], list[Job]]:
+    """(jobs to run, runs already done) of `runs`; raises `StudyError` if a run folder holds another run."""
+    todo, done = [], []
+    for run in runs:
+        folder.check_run(run, study.seeds)
+        state = folder.run_state(run, study)
+        path = folder.run_path(run.task, run.folder)
+        commands = []
+        if state.status in ("new", "partial"):
+            commands.append(["train", *run.argv, "--out", str(path), "--no-progress"])
+        if state.status != "done" and study.evaluation is not None:
+            commands.append(eval_argv(study, path))
+        job = Job(run, path, commands, state.total_env_steps, state.env_steps)
+        (todo if commands else done).append(job)
+    return todo, done
+
+
+def child_env(base: dict, **extra) -> dict:
+    env = dict(base)
+    env.setdefault("PYTHONHASHSEED", "0")
+    env.update(extra)
+    return env
+
+
+def visible_gpus(env: dict) -> list[str]:
+    """The GPUs children may use: CUDA_VISIBLE_DEVICES's entries when it is set, else those `nvidia-smi -L`
+    lists, else none."""
+    if "CUDA_VISIBLE_DEVICES" in env:
+        ids = [x.strip() for x in env["CUDA_VISIBLE_DEVICES"].split(",") if x.strip()]
+        return [] if ids and ids[0].startswith("-") else ids
+    if shutil.which("nvidia-smi") is None:
+        return []
+    try:
+        out = subprocess.run(["nvidia-smi", "-L"], capture_output=True, text=True, timeout=30).stdout
+    except (OSError, subprocess.SubprocessError):
+        return []
+    return [str(i) for i, line in enumerate(out.splitlines()) if line.startswith("GPU ")]
+
+
+# ------------------------------------------------------------------------------------------- children
+@functools.cache
+def _prctl():
+    try:
+        import ctypes
+
+        return ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+
+
+def _die_with_parent(parent: int, prctl) -> None:   # runs in the child between fork and exec
+    if prctl is not None:
+        prctl(1, signal.SIGKILL)   # PR_SET_PDEATHSIG
+        if os.getppid() != parent:
+            os._exit(1)
+
+
+def spawn(cli_module: str, argv: list[str], env: dict, log: Path, pass_fds=()) -> subprocess.Popen:
+    """`python -m cli_module *argv`, output appended to `log`, killed when this process dies."""
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with open(log, "ab") as f:
+        f.write(f"\n$ python -m {cli_module} {' '.join(argv)}   # {time.strftime('%F %T')}\n".encode())
+        return subprocess.Popen([sys.executable, "-m", cli_module, *argv], stdout=f, stderr=subprocess.STDOUT,
+                                stdin=subprocess.DEVNULL, env=env, pass_fds=pass_fds,
+                                preexec_fn=functools.partial(_die_with_parent, os.getpid(), _prctl()))
+
+
+def run_commands(cli_module: str, commands: list[list[str]], env: dict, log: Path) -> int:
+    """Run a job's children one after the other (stop at the first failure); the exit status."""
+    for argv in commands:
+        rc = spawn(cli_module, argv, env, log).wait()
+        if rc != 0:
+            return rc
+    return 0
+
+
+def lock(path: Path):
+    """An exclusive flock on the run folder's lock file, or None if another process holds it."""
+    path.mkdir(parents=True, exist_ok=True)
+    fd = os.open(path / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        return None
+    return fd
+
+
+# ------------------------------------------------------------------------------------------- local runner
+class _Slot:
+    def __init__(self, env: dict, label: str):
+        self.env, self.label = env, label
+        self.job: Job | None = None
+        self.proc: subprocess.Popen | None = None
+        self.fd: int | None = None
+        self.queue: list[list[str]] = []
+
+
+def run_local(study: Study, folder: StudyFolder, jobs: list[Job], done: list[Job], *, backend: Backend,
+              base_env: dict, workers: int | None = None, progress: bool = True, poll: float = 1.0,
+              stream=None) -> Outcome:
+    """Run `jobs` on this host (module docstring); `done` counts towards the progress view."""
+    stream = stream or sys.stderr
+    gpus = visible_gpus(base_env)
+    if gpus:
+        if workers is not None and workers > len(gpus):
+            raise StudyError(f"--workers {workers}: this host has {len(gpus)} visible GPU(s) "
+                             f"({','.join(gpus)}) and a run never shares a GPU; use --workers <= {len(gpus)}")
+        slots = [_Slot(child_env(base_env, CUDA_VISIBLE_DEVICES=g), f"GPU {g}") for g in gpus[:workers]]
+    else:
+        slots = [_Slot(child_env(base_env), f"worker {i}") for i in range(workers or 1)]
+    total_steps = sum(j.total_steps for j in jobs + done)
+    view = Progress(study.name, len(jobs) + len(done), total_steps, enabled=progress, stream=stream)
+    view.event(f"{study.name}: {len(jobs)} run(s) to do, {len(done)} done; "
+               f"{len(slots)} at a time ({', '.join(s.label for s in slots)})")
+    pending = list(jobs)
+    outcome = Outcome([j.name for j in done], [], [])
+    steps = {j.name: j.done_steps for j in jobs + done}
+
+    def start(slot: _Slot, job: Job) -> bool:
+        fd = lock(job.path)
+        if fd is None:
+            outcome.busy.append(job.name)
+            view.event(f"  {job.name}: skipped, another runner holds {job.path / LOCK}")
+            return False
+        slot.job, slot.fd, slot.queue = job, fd, list(job.commands)
+        _next(slot)
+        view.event(f"  {job.name}: started on {slot.label} ({' then '.join(c[0] for c in job.commands)})")
+        return True
+
+    def _next(slot: _Slot) -> None:
+        argv = slot.queue.pop(0)
+        slot.proc = spawn(backend.cli_module, argv, slot.env, slot.job.path / LOG, pass_fds=(slot.fd,))
+
+    def release(slot: _Slot) -> None:
+        os.close(slot.fd)
+        slot.job = slot.proc = slot.fd = None
+
+    try:
+        while pending or any(s.job for s in slots):
+            for slot in slots:
+                if slot.job is None:
+                    while pending and not start(slot, pending.pop(0)):
+                        pass
+                    continue
+                rc = slot.proc.poll()
+                if rc is None:
+                    continue
+                job = slot.job
+                if rc == 0 and slot.queue:
+                    _next(slot)
+                    continue
+                steps[job.name] = folder.run_state(job.run, study).env_steps
+                if rc == 0:
+                    outcome.done.append(job.name)
+                    view.event(f"  {job.name}: done")
+                else:
+                    outcome.failed.append((job.name, rc, job.path / LOG))
+                    view.event(f"  {job.name}: FAILED (exit status {rc}); log: {job.path / LOG}")
+                release(slot)
+            for slot in slots:
+                if slot.job is not None:
+                    steps[slot.job.name] = folder.run_state(slot.job.run, study).env_steps
+            view.update(len(outcome.done), sum(s.job is not None for s in slots), sum(steps.values()),
+                        len(outcome.failed))
+            time.sleep(poll)
+        view.update(len(outcome.done), 0, sum(steps.values()), len(outcome.failed), force=True)
+    except KeyboardInterrupt:
+        view.event("interrupted: stopping the runs (each resumes from its last checkpoint next time)")
+        for slot in slots:
+            if slot.proc is not None and slot.proc.poll() is None:
+                slot.proc.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + 60
+        for slot in slots:
+            if slot.proc is not None:
+                try:
+                    slot.proc.wait(timeout=max(deadline - time.monotonic(), 0.1))
+                except subprocess.TimeoutExpired:
+                    slot.proc.kill()
+        raise
+    finally:
+        view.close()
+    return outcome

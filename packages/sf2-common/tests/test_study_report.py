@@ -1,0 +1,161 @@
+"""`study report` (sf2_common.studies.report) on synthetic run folders whose numbers are derived by hand:
+AUC, per-task normalization, the aggregates against rliable's own functions, the final-window mean of a
+sweep, the observation-noise AUC, and "no interval" below 3 seeds."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rliable", reason="the studies extra: pip install packages/sf2-common[studies]")
+pytest.importorskip("matplotlib", reason="the studies extra: pip install packages/sf2-common[studies]")
+
+from rliable import library, metrics  # noqa: E402
+from sf2_common.studies import stats  # noqa: E402
+from sf2_common.studies.folder import StudyFolder  # noqa: E402
+from sf2_common.studies.report import report  # noqa: E402
+from sf2_common.studies.spec import loads  # noqa: E402
+
+STEPS = [0, 100, 200]
+
+
+def _study(tmp_path, text):
+    folder = StudyFolder(tmp_path / "study")
+    study = loads(text, tmp_path / "s.toml")
+    folder.open(study, "jax", [], command="sf2-jax study run s.toml --out study")
+    return folder
+
+
+def _write_run(path, seeds, returns, steps=STEPS, walltime=12.0, last_epoch=None, noise=None):
+    """A run folder as the trainers write it: config.json (schedule.num_epochs) and one metrics row per
+    evaluation and seed; `returns[seed]` is the eval-return curve at `steps`."""
+    path.mkdir(parents=True)
+    epochs = len(steps) - 1
+    (path / "config.json").write_text(json.dumps({"config": {}, "seeds": seeds,
+                                                  "schedule": {"num_epochs": epochs}}))
+    rows = [{"epoch": e, "seed": s, "env_steps": steps[e], "eval_return": float(returns[s][e]),
+             "walltime": walltime * e / epochs}
+            for e in range(epochs + 1) if last_epoch is None or e <= last_epoch for s in seeds]
+    (path / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    if noise is not None:
+        (path / "obs_noise.json").write_text(json.dumps({"settings": {}, "results": noise}))
+
+
+FAMILY = """
+name = "synthetic"
+seeds = "0-3"
+tasks = ["A", "B"]
+[[methods]]
+label = "TD3"
+name = "td3"
+algo = "td3"
+representation = "none"
+[[methods]]
+label = "TD3+SF²"
+name = "td3-sf2"
+algo = "td3"
+representation = "sf2"
+[[methods]]
+label = "SAC"
+name = "sac"
+algo = "sac"
+representation = "none"
+"""
+BASE = {"td3": 0.0, "td3-sf2": 10.0, "sac": 5.0}
+SCALE = {"A": 1.0, "B": 10.0}
+
+
+def test_report_numbers_by_hand_and_by_rliable(tmp_path):
+    """Seed s of method m on task t has the curve [0, v, v] at env steps 0, 100, 200 with v = SCALE[t] ·
+    (BASE[m] + s). Its AUC is (0 + v)/2 · 100 + v · 100, over 200 env steps: 3v/4. Per task the smallest
+    AUC is 0 (TD3, seed 0) and the largest 3/4 · SCALE[t] · 13 (TD3+SF², seed 3), so every normalized AUC
+    is (BASE[m] + s) / 13 on both tasks. SAC on B stops an epoch short: incomplete, left out."""
+    folder = _study(tmp_path, FAMILY)
+    seeds = [0, 1, 2, 3]
+    for task in ("A", "B"):
+        for m, base in BASE.items():
+            v = {s: SCALE[task] * (base + s) for s in seeds}
+            last = 1 if (task, m) == ("B", "sac") else None
+            _write_run(folder.run_path(task, m), seeds, {s: [0.0, v[s], v[s]] for s in seeds}, last_epoch=last)
+    written = report(folder.path, command="sf2-jax study report study")
+    rows = list(csv.DictReader(open(written["results.csv"])))
+    assert len(rows) == 2 * 4 + 2 * 4 + 4    # TD3 and TD3+SF² on A and B, SAC on A
+    for r in rows:
+        m = {"TD3": "td3", "TD3+SF²": "td3-sf2", "SAC": "sac"}[r["method"]]
+        v = SCALE[r["task"]] * (BASE[m] + int(r["seed"]))
+        assert float(r["auc"]) == pytest.approx(0.75 * v)
+        assert float(r["normalized_auc"]) == pytest.approx((BASE[m] + int(r["seed"])) / 13)
+        assert float(r["final_return"]) == pytest.approx(v)
+        assert float(r["final_window_return"]) == pytest.approx(2 * v / 3)   # 50k env steps: all of [0, v, v]
+        assert int(r["env_steps"]) == 200 and float(r["wall_time_s"]) == 12.0
+        assert r["family"] == ("SAC" if m == "sac" else "TD3")
+
+    summary = written["summary.md"].read_text()
+    # TD3's normalized scores are s/13 on both tasks: per-task means 1.5/13 (median, mean); the pooled
+    # 0 0 1 1 2 2 3 3 trimmed by 2 at each end: IQM 1.5/13; optimality gap 1 − 1.5/13.
+    td3 = np.array([[s / 13, s / 13] for s in seeds])
+    np.testing.assert_allclose(stats.aggregate(td3), [1.5 / 13, 1.5 / 13, 1.5 / 13, 1 - 1.5 / 13])
+
+    def fn(x):
+        return np.array([metrics.aggregate_median(x), metrics.aggregate_iqm(x), metrics.aggregate_mean(x),
+                         metrics.aggregate_optimality_gap(x)])
+
+    np.random.seed(stats.SEED)
+    _, ci = library.get_interval_estimates({"TD3": td3}, fn, reps=stats.RESAMPLES)
+    line = next(x for x in summary.splitlines() if x.startswith("| TD3 | 4 × 2 |"))
+    for k in range(4):
+        p = fn(td3)[k]
+        assert f"{p:.3f} [{ci['TD3'][0][k]:.3f}, {ci['TD3'][1][k]:.3f}]" in line, line
+    assert "Not in the aggregate (a task without a finished run): SAC." in summary
+    assert "B / SAC: epoch 1 of 2" in summary
+    assert "sf2-jax study run s.toml --out study" in summary and "sf2-jax study report study" in summary
+    for name in ("aggregate.png", "aggregate.svg", "curves.png", "curves.svg"):
+        assert name in written and written[name].stat().st_size > 1000
+
+
+SWEEP = """
+name = "sweep"
+seeds = "0-1"
+tasks = ["A"]
+[report]
+final_window = 100
+[evaluation]
+obs_noise = [0.0, 0.1]
+checkpoints = 2
+[[sweeps]]
+field = "tau_zeta"
+values = [0.01, 0.1]
+methods = [{ label = "TD3+SF²", name = "td3-sf2", algo = "td3", representation = "sf2" }]
+"""
+
+
+def test_sweep_and_obs_noise_with_two_seeds(tmp_path):
+    """Final-window mean over the evaluations at >= 200 − 100 env steps: the last two. Observation noise:
+    per seed the AUC of the checkpoints' mean returns over their env steps; with 2 seeds no interval."""
+    folder = _study(tmp_path, SWEEP)
+    for i, name in enumerate(["td3-sf2-tau-zeta-0.01", "td3-sf2-tau-zeta-0.1"]):
+        noise = [{"noise": sigma, "epoch": e, "env_steps": 100 * e,
+                  "returns": {str(s): [10.0 * e - 100 * sigma + s, 10.0 * e - 100 * sigma + s + 2] for s in (0, 1)}}
+                 for sigma in (0.0, 0.1) for e in (1, 2)]
+        _write_run(folder.run_path("A", name), [0, 1], {s: [0.0, 2.0 + i + s, 4.0 + i + s] for s in (0, 1)},
+                   noise=noise)
+    written = report(folder.path)
+    rows = list(csv.DictReader(open(written["results.csv"])))
+    for r in rows:
+        i = 0 if "0.01" in r["method"] else 1
+        s = int(r["seed"])
+        # (2 + i + s + 4 + i + s) / 2
+        assert float(r["final_window_return"]) == pytest.approx(3 + i + s)
+    summary = written["summary.md"].read_text()
+    # mean over the seeds of 3 + i + s: 3.5 + i; no interval with 2 seeds
+    assert "| tau_zeta | TD3+SF² | 0.01 | 2 | 3.500 (n < 3: no CI) |" in summary
+    assert "| tau_zeta | TD3+SF² | 0.1 | 2 | 4.500 (n < 3: no CI) |" in summary
+    # seed s, noise σ: mean returns 10e − 100σ + s + 1 at env steps 100e (e = 1, 2): AUC 15 − 100σ + s + 1;
+    # the IQM of two seeds is their mean: 16.5 − 100σ
+    assert "| TD3+SF² (tau_zeta=0.01) | 0 | 2 | 16.5 (n < 3: no CI) |" in summary
+    assert "| TD3+SF² (tau_zeta=0.01) | 0.1 | 2 | 6.500 (n < 3: no CI) |" in summary
+    for name in ("sweeps.png", "obs_noise.png", "curves.png"):
+        assert name in written

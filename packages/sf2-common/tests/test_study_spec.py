@@ -1,0 +1,150 @@
+"""Study files (sf2_common.studies.spec) and study folders (folder.py) without a framework: the shipped
+files parse, bad input names the file, the entry and the valid choices, and a study folder made from
+another study file is refused with nothing changed."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from sf2_common.studies import spec
+from sf2_common.studies.folder import StudyFolder
+from sf2_common.studies.spec import StudyError
+
+STUDIES = Path(__file__).resolve().parents[3] / "studies"
+
+BASE = """
+name = "t"
+seeds = "0-2"
+tasks = ["CartpoleBalance"]
+[[methods]]
+label = "TD3"
+algo = "td3"
+representation = "none"
+"""
+
+
+def _load(tmp_path, text, name="s.toml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return spec.load(path)
+
+
+def _error(tmp_path, text) -> str:
+    with pytest.raises(StudyError) as info:
+        _load(tmp_path, text)
+    msg = str(info.value)
+    assert str(tmp_path / "s.toml") in msg   # every message names the file
+    return msg
+
+
+@pytest.mark.parametrize("path", sorted(STUDIES.glob("*.toml")), ids=lambda p: p.stem)
+def test_shipped_study_files_parse(path):
+    study = spec.load(path)
+    assert study.name == path.stem
+    labels = [m.label for m in study.methods]
+    assert len(set(labels)) == len(labels)
+
+
+def test_paper_studies_declare_the_protocol():
+    fig7 = spec.load(STUDIES / "fig7-td3.toml")
+    assert fig7.seeds == tuple(range(15)) and len(fig7.tasks) == 7
+    assert dict(fig7.overrides)["num_timesteps"] == "1000000"
+    assert [m.label for m in fig7.methods] == ["TD3", "TD3+SF² (γ=0.99)", "TD3+SF² (γ=0)", "TD3+Sim",
+                                               "TD3+SimLap", "TD3+SPR"]
+    assert dict(fig7.method("td3-sf2-g0").overrides) == {"gamma_su": "0.0"}
+    fig9 = spec.load(STUDIES / "fig9-obs-noise.toml")
+    assert fig9.seeds == tuple(range(6)) and fig9.evaluation.obs_noise == (0.0, 0.05, 0.1, 0.2)
+    assert {m.family for m in fig9.methods} == {"TD3", "SAC"}
+
+
+def test_sweeps_expand_into_methods(tmp_path):
+    study = _load(tmp_path, BASE + """
+[[sweeps]]
+field = "tau_zeta"
+values = [0.01, 0.1]
+methods = [{ label = "SAC+SF²", algo = "sac", representation = "sf2" }]
+""")
+    swept = [m for m in study.methods if m.sweep]
+    assert [m.label for m in swept] == ["SAC+SF² (tau_zeta=0.01)", "SAC+SF² (tau_zeta=0.1)"]
+    assert [m.name for m in swept] == ["sac-sf2-tau-zeta-0.01", "sac-sf2-tau-zeta-0.1"]
+    assert dict(swept[1].overrides) == {"tau_zeta": "0.1"}
+    assert study.report.figures == ("aggregate", "curves", "sweeps")
+    assert study.text == (tmp_path / "s.toml").read_text()   # the study folder keeps this copy
+
+
+def test_budget_and_override_values_become_cli_text(tmp_path):
+    study = _load(tmp_path, BASE.replace('tasks', 'budget = 5_000\ntasks') + """
+overrides = { hidden_sizes = [16, 16], deterministic_eval = true, tau = 1e-3 }
+""")
+    assert dict(study.overrides) == {"num_timesteps": "5000"}
+    assert dict(study.methods[0].overrides) == {"hidden_sizes": "16,16", "deterministic_eval": "true",
+                                                "tau": "0.001"}
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("bogus = 1\n" + BASE, ["top level: unknown key 'bogus'", "valid keys: name,"]),
+    (BASE.replace("seeds", "seed"), ["unknown key 'seed'", "did you mean 'seeds'"]),
+    (BASE.replace('"0-2"', '"2-0"'), ["seeds: seeds '2-0' are invalid"]),
+    (BASE.replace('name = "t"', ""), ["name: a non-empty string is required"]),
+    ('preset = "huge"\n' + BASE, ["preset: 'huge' is not one of paper, quick"]),
+    ('framework = "tf"\n' + BASE, ["framework: 'tf' is not one of jax, torch"]),
+    (BASE + '[[methods]]\nlabel = "TD3"\nalgo = "td3"\nrepresentation = "sf2"\n',
+     ["the label 'TD3' is used twice", "every method needs its own label"]),
+    (BASE + '[[methods]]\nlabel = "TD3 again"\nname = "td3"\nalgo = "td3"\nrepresentation = "sf2"\n',
+     ["the name 'td3' is used twice"]),
+    (BASE + '[[methods]]\nlabel = "X"\nalgo = "td3"\n', ["methods[1]: representation is required"]),
+    (BASE + '[[methods]]\nlabel = "X"\nalgo = "td3"\nrepresentation = "sf2"\nrepr = "sf2"\n',
+     ["methods[1]: unknown key 'repr'", "valid keys: label, name, algo, representation, overrides"]),
+    (BASE + '[[methods]]\nlabel = "X"\nalgo = "td3"\nrepresentation = "sf2"\noverrides = { task = "A" }\n',
+     ["methods[1].overrides: 'task' is not an override"]),
+    (BASE + "[evaluation]\nobs_noise = [-0.1]\n", ["evaluation.obs_noise"]),
+    (BASE + "[evaluation]\nobs_noise = [0.1]\nepisodes = 0\n", ["evaluation.episodes = 0 is invalid"]),
+    (BASE + '[report]\nfigures = ["sweeps"]\n', ["asks for 'sweeps'", "no [[sweeps]]"]),
+    ("budget = -3\n" + BASE, ["budget: -3 is invalid"]),
+    ("name = [", ["not valid TOML"]),
+])
+def test_bad_study_files(tmp_path, text, expected):
+    msg = _error(tmp_path, text)
+    for part in expected:
+        assert part in msg, msg
+
+
+def test_select_names_the_valid_choices(tmp_path):
+    study = _load(tmp_path, BASE)
+    assert [(t, m.name) for t, m in study.select(methods=["TD3"])] == [("CartpoleBalance", "td3")]
+    with pytest.raises(StudyError, match="'HopperHop' is not a task of study 't'.*valid: CartpoleBalance"):
+        study.select(tasks=["HopperHop"])
+    with pytest.raises(StudyError, match="'sac' is not a method.*valid: td3"):
+        study.select(methods=["sac"])
+
+
+def test_folder_of_another_study_file_is_refused_untouched(tmp_path):
+    first = _load(tmp_path, BASE, "a.toml")
+    other = _load(tmp_path, BASE.replace('"0-2"', '"0-4"'), "b.toml")
+    folder = StudyFolder(tmp_path / "study")
+    folder.open(first, "jax", [], command="sf2-jax study run a.toml --out study")
+    (folder.path / "runs" / "x").mkdir(parents=True)
+    before = sorted((p.relative_to(folder.path), p.read_bytes() if p.is_file() else None)
+                    for p in folder.path.rglob("*"))
+    with pytest.raises(StudyError) as info:
+        folder.open(other, "jax", [])
+    msg = str(info.value)
+    assert str(tmp_path / "a.toml") not in msg   # the folder's own copy is named, and the new file
+    assert str(folder.study_path) in msg and str(tmp_path / "b.toml") in msg and "differ in seeds" in msg
+    with pytest.raises(StudyError, match="holds runs of sf2-jax"):
+        folder.open(first, "torch", [])
+    after = sorted((p.relative_to(folder.path), p.read_bytes() if p.is_file() else None)
+                   for p in folder.path.rglob("*"))
+    assert after == before
+    # the same file again (e.g. with a comment added) continues the folder
+    folder.open(_load(tmp_path, "# a comment\n" + BASE, "c.toml"), "jax", [], command="again")
+    assert [c["command"] for c in folder.read_state()["commands"]] == [
+        "sf2-jax study run a.toml --out study", "again"]
+
+
+def test_non_empty_folder_without_a_study_is_refused(tmp_path):
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "precious.txt").write_text("x")
+    with pytest.raises(StudyError, match="not empty and holds no study"):
+        StudyFolder(tmp_path / "out").check(_load(tmp_path, BASE), "jax")
