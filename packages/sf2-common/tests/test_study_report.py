@@ -79,7 +79,8 @@ def test_report_numbers_by_hand_and_by_rliable(tmp_path):
         for m, base in BASE.items():
             v = {s: SCALE[task] * (base + s) for s in seeds}
             last = 1 if (task, m) == ("B", "sac") else None
-            _write_run(folder.run_path(task, m), seeds, {s: [0.0, v[s], v[s]] for s in seeds}, last_epoch=last)
+            _write_run(folder.run_path(task, m), seeds, {s: [0.0, v[s], v[s]] for s in seeds},
+                       last_epoch=last)
     written = report(folder.path, command="sf2-jax study report study")
     rows = list(csv.DictReader(open(written["results.csv"])))
     assert len(rows) == 2 * 4 + 2 * 4 + 4    # TD3 and TD3+SF² on A and B, SAC on A
@@ -138,7 +139,7 @@ def test_sweep_and_obs_noise_with_two_seeds(tmp_path):
     folder = _study(tmp_path, SWEEP)
     for i, name in enumerate(["td3-sf2-tau-zeta-0.01", "td3-sf2-tau-zeta-0.1"]):
         noise = [{"noise": sigma, "epoch": e, "env_steps": 100 * e,
-                  "returns": {str(s): [10.0 * e - 100 * sigma + s, 10.0 * e - 100 * sigma + s + 2] for s in (0, 1)}}
+                  "returns": {str(s): [10.0 * e - 100 * sigma + s + d for d in (0, 2)] for s in (0, 1)}}
                  for sigma in (0.0, 0.1) for e in (1, 2)]
         _write_run(folder.run_path("A", name), [0, 1], {s: [0.0, 2.0 + i + s, 4.0 + i + s] for s in (0, 1)},
                    noise=noise)
