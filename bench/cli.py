@@ -521,7 +521,7 @@ def _flow_md(rows, runners, args, info) -> str:
            f"B = {s['batch_size']}, F = {s['feature_size']}, hidden {s['zeta_hidden_sizes']}; "
            f"`jax_default_matmul_precision={info.get('jax_default_matmul_precision', args.precision)}`; "
            f"{args.repeats} interleaved rounds, median ms [quartiles]. `fast` = `contract_zeta=True` "
-           "(DESIGN.md §6), `oracle` = `contract_zeta=False` (ζ materialized).", "",
+           "(docs/core-contract.md, fast path), `oracle` = `contract_zeta=False` (ζ materialized).", "",
            "| task | T | integrator | variant | ms | GFLOP (XLA) | first-step loss | oracle / variant |",
            "|---|---|---|---|---|---|---|---|"]
     for row in rows:

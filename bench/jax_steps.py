@@ -1,4 +1,5 @@
-"""JAX updates to time: the agents' `sgd_step` (jit, donated buffers) and the bare flow-loss step.
+"""JAX updates to time: the agents' `step_noise` + `sgd_step` (jit, donated buffers) and the bare flow-loss
+step (`sf2_jax.losses.flow_loss` + Adam).
 
 Measured with `jax.jit(...).lower(...).compile()` (compile time recorded, FLOPs and bytes from XLA's
 `cost_analysis()` of the very executable that is timed), then called with donated params/opt_state;
@@ -15,7 +16,7 @@ from .timing import Runner
 
 
 def configure(precision: str = "highest") -> None:
-    """Full fp32 matmuls for published numbers (DESIGN.md §4): jax_default_matmul_precision."""
+    """Full fp32 matmuls for published numbers (docs/core-contract.md "Precision")."""
     import jax
 
     jax.config.update("jax_default_matmul_precision", precision)
@@ -80,8 +81,8 @@ def baselines_available(framework: str = "jax") -> tuple[str, ...]:
 
 
 def _algorithm(case: Case):
+    from sf2_common.config import SF2Config
     from sf2_jax.agents import algorithms, representations
-    from sf2_jax.config import SF2Config
 
     if case.rep not in representations.names():
         baselines_available("jax")
@@ -91,9 +92,18 @@ def _algorithm(case: Case):
     return algorithms.make_algorithm(case.algo, cfg, representations.get(case.rep))
 
 
+def _update(alg):
+    """One agents' update as the trainer runs it: `step_noise(key, batch)`, then `sgd_step`."""
+    def update(params, opt_state, batch, key, step):
+        return alg.sgd_step(params, opt_state, batch, alg.step_noise(key, batch), step)
+
+    return update
+
+
 def update_runner(case: Case, seed: int = 0, scan: int = 1) -> tuple[Runner, dict]:
-    """A Runner over `algorithm.sgd_step` of `case` (one jitted call per update, or `scan` updates per
-    call through `lax.scan`, as the trainer does with `grad_updates_per_step`)."""
+    """A Runner over one agents' update of `case`, `step_noise` then `sgd_step` as the trainer calls them
+    (one jitted call per update, or `scan` updates per call through `lax.scan`, as the trainer does with
+    `grad_updates_per_step`)."""
     import jax
     import jax.numpy as jnp
 
@@ -103,13 +113,14 @@ def update_runner(case: Case, seed: int = 0, scan: int = 1) -> tuple[Runner, dic
     keys = list(jax.random.split(jax.random.key(seed + 1), len(batches)))
     steps = [jnp.asarray(i, jnp.int32) for i in range(len(batches))]
 
+    update = _update(alg)
     if scan == 1:
-        raw = alg.sgd_step
+        raw = update
     else:
         def many(params, opt_state, batch, key, step):
             def body(carry, k):
                 p, o = carry
-                p, o, m = alg.sgd_step(p, o, batch, k, step)
+                p, o, m = update(p, o, batch, k, step)
                 return (p, o), m["critic_loss"]
 
             keys = jax.random.split(key, scan)
@@ -158,7 +169,7 @@ def count_flops(case: Case, seed: int = 0) -> float:
         params, opt_state = alg.init(jax.random.key(seed))
         batch = _device_batches(case, 1, seed)[0]
         args = (params, opt_state, batch, jax.random.key(seed + 1), jax.numpy.asarray(0, "int32"))
-    return float(_analysis(_cpu_lowered(alg.sgd_step, args)).get("flops", float("nan")))
+    return float(_analysis(_cpu_lowered(_update(alg), args)).get("flops", float("nan")))
 
 
 # ------------------------------------------------------------------------------------------ flow step
@@ -171,8 +182,8 @@ def flow_step_runner(obs_size: int, action_size: int, size: str, steps: int, int
     import jax.numpy as jnp
     import numpy as np
     import optax
+    from sf2_common.config import SF2Config
     from sf2_jax import losses, networks
-    from sf2_jax.config import SF2Config
 
     case = Case("jax", "td3", "sf2", _task_for(obs_size, action_size), size, steps, integrator)
     cfg = SF2Config(obs_size=obs_size, action_size=action_size, contract_zeta=contract,

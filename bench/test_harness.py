@@ -42,26 +42,24 @@ def test_torch_runner_times_the_agents_step(algo):
 
 
 # ------------------------------------------------------------------------------------------ prototypes
-LAYOUT_VARIANTS = ("pre-wt", "bhd", "bdh", "bdhb", "merged", "merged-bhd")   # no reduced-precision dots
-
-
-@pytest.mark.parametrize("gamma_su", [0.0, 0.99])
-def test_prototypes_equal_the_cores_flow_loss(gamma_su):
-    """Every layout prototype is `sf2_jax.losses.flow_loss` rearranged: same loss, aux and (ψ, ζ) gradient
-    in float64; a retired name (`wt`, now the cores' layout) is refused with the valid names."""
+def test_prototypes_are_the_cores_flow_loss_under_another_dot_precision():
+    """A precision prototype is `sf2_jax.losses.flow_loss` itself with one networks function traced under
+    a dot algorithm: with "highest" it equals flow_loss (float64, loss and (ψ, ζ) gradient), the patch is
+    undone after each call, the GPU-only algorithms reach XLA (refused on a CPU), retired names are refused
+    with their reason."""
     jax = pytest.importorskip("jax")
+    import jax.numpy as jnp
+    from sf2_common.config import SF2Config
     from sf2_jax import losses, networks
-    from sf2_jax.config import SF2Config
     from sf2_jax.losses import Batch
 
     from bench import data, prototypes
 
     D, A, B = 5, 2, 8
     cfg = SF2Config(obs_size=D, action_size=A, hidden_sizes=(16,), zeta_hidden_sizes=(16, 12),
-                    feature_size=8, q_hidden_size=8, embedding_size=4, denoising_steps=2, gamma_su=gamma_su)
+                    feature_size=8, q_hidden_size=8, embedding_size=4, denoising_steps=2)
+    contract = networks.contract
     with jax.enable_x64(True):
-        import jax.numpy as jnp
-
         nets = networks.make_networks(cfg, "td3")
         params = networks.init_params(nets, jax.random.key(0), dtype=jnp.float64)
         raw = data.make_batches(D, A, B, 1, seed=0)[0]
@@ -71,20 +69,23 @@ def test_prototypes_equal_the_cores_flow_loss(gamma_su):
                   jnp.asarray(rng.uniform(size=B)))
 
         def run(fn):
-            return jax.jit(jax.value_and_grad(lambda p: fn(nets, p, batch, *inputs), has_aux=True))(params)
+            return jax.jit(jax.value_and_grad(lambda p: fn(nets, p, batch, *inputs)[0]))(params)
 
-        (ref, ref_aux), ref_grad = run(losses.flow_loss)
-        for name in LAYOUT_VARIANTS:
-            (loss, aux), grad = run(prototypes.variant(name))
-            np.testing.assert_allclose(loss, ref, rtol=1e-12, err_msg=name)
-            for key in ref_aux:
-                np.testing.assert_allclose(aux[key], ref_aux[key], rtol=1e-12, atol=1e-300, err_msg=name)
-            leaves = jax.tree_util.tree_leaves
-            for group in ("psi", "zeta"):
-                for a, b in zip(leaves(grad[group]), leaves(ref_grad[group])):
-                    np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-12 * np.max(np.abs(b)), err_msg=name)
-    with pytest.raises(ValueError, match="now the cores' layout.*valid are pre-wt"):
-        prototypes.variant("wt")
+        ref, ref_grad = run(losses.flow_loss)
+        for function, target_only in (("contract", False), ("velocity_contracted", True)):
+            loss, grad = run(prototypes.with_precision(function, target_only, "highest"))
+            assert networks.contract is contract
+            np.testing.assert_array_equal(loss, ref)
+            for a, b in zip(jax.tree_util.tree_leaves(grad), jax.tree_util.tree_leaves(ref_grad)):
+                np.testing.assert_array_equal(a, b)
+        if jax.default_backend() == "cpu":
+            with pytest.raises(ValueError, match="TF32_TF32_F32_X3.*not supported by dot_general on CPU"):
+                run(prototypes.variant("x3tf32"))
+    assert networks.contract is contract
+    with pytest.raises(ValueError, match=r"'bhd' \(a layout of M before .*valid are x3tf32"):
+        prototypes.variant("bhd")
+    with pytest.raises(ValueError, match="now the cores' flow_loss"):
+        prototypes.variant("merged")
 
 
 # ------------------------------------------------------------------------------------------ reports
