@@ -54,34 +54,37 @@ def check(term: str, a, b, dtype: str, kind: str = "value") -> float:
     return r
 
 
-def canonical_file(tmp_path: Path, cfg_kwargs: dict, algo: str, seed: int = 0) -> Path:
-    """One canonical parameter file with every entry non-trivial.
-
-    Names and shapes come from sf2_jax's `expected_shapes`; values are drawn with numpy so that
+def canonical_values(shapes: dict, seed: int = 0) -> dict[str, np.ndarray]:
+    """{name: array} for canonical `shapes` with every entry non-trivial: values drawn with numpy so that
     LayerNorm scales and biases, the normalizer statistics and the targets all differ from their
-    defaults (a test that leaves them at 1/0/copies cannot catch a mix-up between them).
-    """
-    shapes = jparams.expected_shapes(sf2_jax.SF2Config(**cfg_kwargs), algo)
+    defaults (a test that leaves them at 1/0/copies cannot catch a mix-up between them)."""
     rng = np.random.default_rng(seed)
     out = {}
     for name, shape in shapes.items():
         if name.endswith(".kernel"):  # LeCun-uniform scale, like the initializers
             v = rng.uniform(-1.0, 1.0, shape) * np.sqrt(3.0 / shape[0])
         elif name.endswith("obs_norm.std"):
-            v = rng.uniform(0.5, 2.0, v.shape)
+            v = rng.uniform(0.5, 2.0, shape)
         elif name.endswith("obs_norm.count"):
             v = np.asarray(100.0)
         elif name.endswith("obs_norm.summed_var"):
-            v = rng.uniform(50.0, 400.0, v.shape)
+            v = rng.uniform(50.0, 400.0, shape)
         elif name.endswith(".scale"):
-            v = rng.uniform(0.5, 1.5, v.shape)
+            v = rng.uniform(0.5, 1.5, shape)
         elif name == "log_alpha":
             v = np.asarray(rng.normal(-1.0, 0.3))
         else:
             v = rng.normal(0.0, 0.1, shape)
         out[name] = v
+    return out
+
+
+def canonical_file(tmp_path: Path, cfg_kwargs: dict, algo: str, seed: int = 0) -> Path:
+    """One canonical parameter file of the core networks (names and shapes from sf2_jax's
+    `expected_shapes`), every entry non-trivial (`canonical_values`)."""
+    shapes = jparams.expected_shapes(sf2_jax.SF2Config(**cfg_kwargs), algo)
     path = tmp_path / f"{algo}-{seed}.npz"
-    jparams.save(path, out)
+    jparams.save(path, canonical_values(shapes, seed))
     return path
 
 

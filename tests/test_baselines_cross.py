@@ -3,12 +3,15 @@
 Same method as the core's suite: one canonical parameter file per (method, config, algo), built from the
 JAX initializer with every entry redrawn so that nothing sits at a default, loaded into both
 frameworks; identical batch and explicit noise; float64 to 1e-10 relative, float32 to cross_bridge.TOL. Each
-loss's value, aux and the gradient of every trained group are compared in canonical layout, and every
-parameter a loss must not train is checked to get exactly zero gradient in torch (JAX differentiates
-only the trained groups, whose other groups are stop-gradient inside the loss).
+loss's value, aux and the gradient of every trained group are compared in canonical layout (JAX:
+`jax.grad` with respect to the trained groups; torch: `backward(inputs=...)` with their parameters), and
+every other parameter is checked to get no gradient in torch. The TD3/SAC losses are the cores' on the
+baseline's critic (`critic=`), as the agents train them; the agents' full SGD steps are compared too.
 """
 
 from __future__ import annotations
+
+import functools
 
 import jax
 import numpy as np
@@ -94,7 +97,8 @@ def compare_loss(term, dtype, jax_fn, jparams_all, groups, torch_fn, tnets):
     (jloss, jaux), jgrads = jax.jit(jax.value_and_grad(f, has_aux=True))({g: jparams_all[g] for g in groups})
     tnets.zero_grad(set_to_none=True)
     tloss, taux = torch_fn()
-    tloss.backward()
+    tloss.backward(inputs=[p for g in groups for p in (
+        [tnets.log_alpha] if g == "log_alpha" else getattr(tnets, g).parameters())])
     check(term, np_(jloss), np_(tloss), dtype)
     assert set(jaux) == set(taux), f"{term}: aux keys differ {sorted(jaux)} vs {sorted(taux)}"
     for key in jaux:
@@ -220,45 +224,42 @@ def test_laplacian_and_simlap_loss(tmp_path, dtype, algo, truncation):
     )
 
 
-@pytest.mark.parametrize("dtype", DTYPES)
-@pytest.mark.parametrize("algo", ALGOS)
-@pytest.mark.parametrize("train_features", [True, False])
-def test_sim_critic_and_actor_losses(tmp_path, dtype, algo, train_features):
-    jn, jp, tn, batch, noise = _setup(tmp_path, "sim", algo, dtype, seed=6 + train_features, truncation=True)
+def _rl_losses(name, jmod, tmod, jn, jp, tn, batch, noise, algo, dtype, critic_groups):
+    """The cores' TD3/SAC critic and actor losses on the baseline's critic (`critic=`), in both
+    frameworks: value, aux and the gradients of `critic_groups` (critic) and the policy (actor)."""
     jb, tb = jbatch(batch, dtype), tbatch(batch, dtype)
     xi = noise["smoothing"] if algo == "td3" else noise["noise"]
-    groups = ("q", "phi") if train_features else ("q",)
-    jcrit = getattr(bj.sim, f"{algo}_critic_loss")
-    tcrit = getattr(bt.sim, f"{algo}_critic_loss")
+    jcritic, tcritic = functools.partial(jmod.critic, jn), functools.partial(tmod.critic, tn)
+    jl, tl = sf2_jax.losses, sf2_torch.losses
     compare_loss(
-        f"sim.{algo}_critic_loss",
+        f"{name}: {algo}_critic_loss",
         dtype,
-        lambda p: jcrit(jn, p, jb, jx(xi, dtype), train_features),
+        lambda p: getattr(jl, f"{algo}_critic_loss")(jn.core, p, jb, jx(xi, dtype), critic=jcritic),
         jp,
-        groups,
-        lambda: tcrit(tn, tb, th(xi, dtype), train_features),
+        critic_groups,
+        lambda: getattr(tl, f"{algo}_critic_loss")(tn, tb, th(xi, dtype), critic=tcritic),
         tn,
     )
-    if algo == "td3":
-        compare_loss(
-            "sim.td3_actor_loss",
-            dtype,
-            lambda p: bj.sim.td3_actor_loss(jn, p, jb),
-            jp,
-            ("policy",),
-            lambda: bt.sim.td3_actor_loss(tn, tb),
-            tn,
-        )
-    else:
-        compare_loss(
-            "sim.sac_actor_loss",
-            dtype,
-            lambda p: bj.sim.sac_actor_loss(jn, p, jb, jx(xi, dtype)),
-            jp,
-            ("policy",),
-            lambda: bt.sim.sac_actor_loss(tn, tb, th(xi, dtype)),
-            tn,
-        )
+    extra_j, extra_t = ([], []) if algo == "td3" else ([jx(xi, dtype)], [th(xi, dtype)])
+    compare_loss(
+        f"{name}: {algo}_actor_loss",
+        dtype,
+        lambda p: getattr(jl, f"{algo}_actor_loss")(jn.core, p, jb, *extra_j, critic=jcritic),
+        jp,
+        ("policy",),
+        lambda: getattr(tl, f"{algo}_actor_loss")(tn, tb, *extra_t, critic=tcritic),
+        tn,
+    )
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("algo", ALGOS)
+@pytest.mark.parametrize("critic_groups", [("q", "phi"), ("q",)], ids=["sim", "simlap"])
+def test_sim_critic_and_actor_losses(tmp_path, dtype, algo, critic_groups):
+    """Sim's critic trained as `sim` and `simlap_authors` (Q heads and φ) and as `simlap` (Q heads)."""
+    jn, jp, tn, batch, noise = _setup(tmp_path, "sim", algo, dtype, seed=6 + len(critic_groups),
+                                      truncation=True)
+    _rl_losses("sim", bj.sim, bt.sim, jn, jp, tn, batch, noise, algo, dtype, critic_groups)
 
 
 # ------------------------------------------------------------------------------------------- SPR
@@ -286,38 +287,7 @@ def test_spr_loss(tmp_path, dtype, algo, truncation):
 @pytest.mark.parametrize("algo", ALGOS)
 def test_spr_critic_and_actor_losses(tmp_path, dtype, algo):
     jn, jp, tn, batch, noise = _setup(tmp_path, "spr", algo, dtype, seed=10, truncation=True)
-    jb, tb = jbatch(batch, dtype), tbatch(batch, dtype)
-    xi = noise["smoothing"] if algo == "td3" else noise["noise"]
-    jcrit, tcrit = getattr(bj.spr, f"{algo}_critic_loss"), getattr(bt.spr, f"{algo}_critic_loss")
-    compare_loss(
-        f"spr.{algo}_critic_loss",
-        dtype,
-        lambda p: jcrit(jn, p, jb, jx(xi, dtype)),
-        jp,
-        ("q", "encoder"),
-        lambda: tcrit(tn, tb, th(xi, dtype)),
-        tn,
-    )
-    if algo == "td3":
-        compare_loss(
-            "spr.td3_actor_loss",
-            dtype,
-            lambda p: bj.spr.td3_actor_loss(jn, p, jb),
-            jp,
-            ("policy",),
-            lambda: bt.spr.td3_actor_loss(tn, tb),
-            tn,
-        )
-    else:
-        compare_loss(
-            "spr.sac_actor_loss",
-            dtype,
-            lambda p: bj.spr.sac_actor_loss(jn, p, jb, jx(xi, dtype)),
-            jp,
-            ("policy",),
-            lambda: bt.spr.sac_actor_loss(tn, tb, th(xi, dtype)),
-            tn,
-        )
+    _rl_losses("spr", bj.spr, bt.spr, jn, jp, tn, batch, noise, algo, dtype, ("q", "encoder"))
 
 
 # ------------------------------------------------------------------------------------------- optimizer steps
@@ -397,37 +367,10 @@ def test_canonical_names_agree():
 AGENT_CASES = [(name, algo) for name in ("sim", "simlap", "simlap_authors", "spr") for algo in ALGOS]
 
 
-def _torch_td(batch: dict, noise: dict, dtype):
-    """TorchRL transition tensordict of a `cross_bridge.make_batch` batch (done = 1 − discount) plus noise."""
-    from tensordict import TensorDict
-
-    def t(x):
-        return torch.as_tensor(np.array(x), dtype=dtype)
-
-    done = torch.as_tensor(np.asarray(batch["discount"]) == 0).unsqueeze(-1)
-    trunc = torch.as_tensor(np.asarray(batch["truncation"]) > 0.5).unsqueeze(-1)
-    td = TensorDict(
-        {
-            "observation": t(batch["obs"]),
-            "action": t(batch["action"]),
-            "next": {
-                "observation": t(batch["next_obs"]),
-                "reward": t(batch["reward"]).unsqueeze(-1),
-                "done": done,
-                "terminated": done & ~trunc,
-                "truncated": trunc,
-            },
-        },
-        [len(batch["reward"])],
-    )
-    td.update({k: t(v) for k, v in noise.items()})
-    return td
-
-
 def _check_task_adam(name, jopt, talg, dtype, updates: int) -> None:
     """w's Adam state has taken `updates` steps in both frameworks, with equal moments."""
     adam = jopt["task"][0]
-    st = talg.optimizers["task"].state.get(talg.groups["task"][0], {})
+    st = talg.optimizers["task"].state.get(talg._params(("task",))[0], {})
     assert int(adam.count) == updates
     if updates == 0:  # torch creates the state on the first step
         assert not st and not np.any(np.asarray(adam.mu["w"])) and not np.any(np.asarray(adam.nu["w"]))
@@ -441,15 +384,15 @@ def _check_task_adam(name, jopt, talg, dtype, updates: int) -> None:
 @pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("name,algo", AGENT_CASES)
 def test_agent_sgd_steps(tmp_path, dtype, name, algo):
-    """Three SGD steps of the agents (sf2_jax's jitted `sgd_step`, sf2_torch's TorchRL step) with each
+    """Three SGD steps of the agents (sf2_jax's jitted `sgd_step`, sf2_torch's `sgd_step`) with each
     baseline, from one canonical file, fresh Adam states, the same batches and the noise of sf2_jax's
     `step_noise`, leave every parameter and target identical. The step indices P − 1, P, P + 1 (P = 10
     TD3, 16 SAC) span a period of the task-vector schedule (`aux_every`): w and its Adam state (moments,
     step count) move at P only, in both frameworks."""
     jalgs = pytest.importorskip("sf2_jax.agents.algorithms")
-    pytest.importorskip("torchrl")
     talgs = pytest.importorskip("sf2_torch.agents.algorithms")
     from sf2_jax.agents import representations as jreps
+    from sf2_torch import params as tparams
     from sf2_torch.agents import representations as treps
 
     jdt, tdt = getattr(jax.numpy, dtype), getattr(torch, dtype)
@@ -466,32 +409,32 @@ def test_agent_sgd_steps(tmp_path, dtype, name, algo):
     jstep = jax.jit(jalg.sgd_step)
 
     talg = talgs.make_algorithm(algo, sf2_torch.SF2Config(**kw), treps.get(name), dtype=tdt)
-    bt.params.from_canonical(bt.params.load(path), talg.rep.baseline_nets)  # shares obs_norm, policy, ...
-    assert set(talg.groups) == set(jalg.trained_groups())
+    tparams.from_canonical(bt.params.load(path), talg.groups)  # the agent's groups: the same names
+    assert set(talg.groups) == set(jp) and talg.trained_groups() == jalg.trained_groups()
     assert jalg.rep.aux_every == talg.rep.aux_every
     assert jalg.noise_keys() == talg.noise_keys()
 
     period = {"td3": 10, "sac": 16}[algo]
-    first = talg.canonical()
+    first = tparams.to_canonical(talg.groups)
     for i, step in enumerate((period - 1, period, period + 1)):
         raw, _ = make_batch(kw, BATCH, seed=400 + i, truncation=i == 1)
         jb = sf2_jax.losses.Batch(**{k: jax.numpy.asarray(v, dtype=jdt) for k, v in raw.items()})
-        key = jax.random.PRNGKey(50 + i)
-        noise = {k: np.asarray(v) for k, v in jalg.step_noise(key, jb).items()}
+        noise = jalg.step_noise(jax.random.PRNGKey(50 + i), jb)
         assert list(noise) == list(talg.noise_keys())
-        w_before = talg.canonical().get("task.w")
-        jp, jopt, jm = jstep(jp, jopt, jb, key, step)
-        tm = talg.sgd_step(_torch_td(raw, noise, tdt), step=step)
-        jflat, tflat = bj.params.to_canonical(jp), talg.canonical()
+        w_before = tparams.to_canonical(talg.groups).get("task.w")
+        jp, jopt, jm = jstep(jp, jopt, jb, noise, step)
+        tb = sf2_torch.losses.Batch(**{k: torch.as_tensor(np.asarray(v), dtype=tdt) for k, v in raw.items()})
+        tm = talg.sgd_step(tb, {k: torch.as_tensor(np.asarray(v)) for k, v in noise.items()}, step)
+        jflat, tflat = bj.params.to_canonical(jp), tparams.to_canonical(talg.groups)
         assert set(jflat) == set(tflat)
         for pname in sorted(jflat):
             check(f"agent step {name}: {pname.split('.')[0]}", jflat[pname], tflat[pname], dtype, kind="grad")
-        assert set(jm) == set(tm.keys()), (sorted(jm), sorted(tm.keys()))
+        assert set(jm) == set(tm), (sorted(jm), sorted(tm))
         for m in jm:
             check(f"agent step {name}: metric", np.asarray(jm[m]), tm[m].numpy(), dtype, kind="grad")
         if "task" in talg.rep.aux_every:
             assert (not np.array_equal(w_before, tflat["task.w"])) == (step == period), step
             _check_task_adam(name, jopt, talg, dtype, updates=int(step >= period))
-    last = talg.canonical()
+    last = tparams.to_canonical(talg.groups)
     for group in set(jalg.trained_groups()) | {g for g in jp if g.startswith("target_")}:
         assert any(not np.array_equal(first[n], last[n]) for n in first if n.split(".")[0] == group), group

@@ -1,8 +1,11 @@
 """JAX and torch agree on every loss term and every parameter gradient (contract: docs/core-contract.md).
 
 One canonical file → both cores; identical batch and explicit noise; float64 to 1e-10 relative, float32
-to the tolerance in cross_bridge.TOL. Gradients are compared entry by entry in canonical layout, and every
-parameter a loss must not train (targets, other networks) is checked to receive exactly zero gradient.
+to the tolerance in cross_bridge.TOL. Gradients are taken as the agents take them: JAX `jax.grad` with
+respect to the trained groups, torch `loss.backward(inputs=...)` with the trained groups' parameters;
+they are compared entry by entry in canonical layout, and every other parameter (targets, networks the
+loss reads but does not train) is checked to receive no gradient in torch. The TD3/SAC losses run with the
+`critic` keyword (each core's `sf2_critic`, the path the agents train with) and with the default.
 """
 
 from __future__ import annotations
@@ -36,6 +39,12 @@ def small(obs_size, action_size, **kw):
     return base
 
 
+def _torch_params(tnets, groups):
+    """The parameters of `groups` of torch `Networks` (what `backward(inputs=...)` trains)."""
+    return [p for g in groups
+            for p in ([tnets.log_alpha] if g == "log_alpha" else getattr(tnets, g).parameters())]
+
+
 def compare_loss(term, dtype, jax_fn, jparams_all, groups, torch_fn, tnets):
     """Run one loss in both cores; compare value, aux and the gradient of every trained group."""
 
@@ -47,7 +56,7 @@ def compare_loss(term, dtype, jax_fn, jparams_all, groups, torch_fn, tnets):
     (jloss, jaux), jgrads = grad_fn({g: jparams_all[g] for g in groups})
     tnets.zero_grad(set_to_none=True)
     tloss, taux = torch_fn()
-    tloss.backward()
+    tloss.backward(inputs=_torch_params(tnets, groups))
     check(term, np_(jloss), np_(tloss), dtype)
     assert set(jaux) == set(taux), f"{term}: aux keys differ {sorted(jaux)} vs {sorted(taux)}"
     for key in jaux:
@@ -124,11 +133,15 @@ CRITIC_CASES = [
 ]
 
 
-@pytest.mark.parametrize("dtype", ["float64", "float32"])
-@pytest.mark.parametrize("truncation", [False, True])
-@pytest.mark.parametrize("sizes", SIZES, ids=lambda s: f"D{s['obs_size']}A{s['action_size']}")
+RL_GRID = [(dtype, truncation, sizes, "critic=") for dtype in ("float64", "float32")
+           for truncation in (False, True) for sizes in SIZES]
+RL_GRID += [("float64", True, SIZES[1], "default")]   # the default critic (None): SF²'s, in both cores
+
+
+@pytest.mark.parametrize("dtype,truncation,sizes,via", RL_GRID, ids=[
+    f"{d}-trunc{int(t)}-D{s['obs_size']}A{s['action_size']}-{v}" for d, t, s, v in RL_GRID])
 @pytest.mark.parametrize("name,algo,groups,noise_key", CRITIC_CASES, ids=[c[0] for c in CRITIC_CASES])
-def test_rl_losses(tmp_path, dtype, truncation, sizes, name, algo, groups, noise_key):
+def test_rl_losses(tmp_path, dtype, truncation, sizes, via, name, algo, groups, noise_key):
     kw = small(**sizes)
     path = canonical_file(tmp_path, kw, algo, seed=3)
     jn, jp, tn = build_pair(path, kw, algo, dtype)
@@ -136,14 +149,17 @@ def test_rl_losses(tmp_path, dtype, truncation, sizes, name, algo, groups, noise
     jb, tb = jbatch(batch, dtype), tbatch(batch, dtype)
     extra_j = [] if noise_key is None else [jx(noise[noise_key], dtype)]
     extra_t = [] if noise_key is None else [th(noise[noise_key], dtype)]
+    jkw, tkw = {}, {}
+    if via == "critic=" and name != "sac_alpha_loss":   # the temperature loss reads no critic
+        jkw, tkw = dict(critic=sf2_jax.losses.sf2_critic(jn)), dict(critic=sf2_torch.losses.sf2_critic(tn))
     jfn, tfn = getattr(sf2_jax.losses, name), getattr(sf2_torch.losses, name)
     loss = compare_loss(
         name,
         dtype,
-        lambda p: jfn(jn, p, jb, *extra_j),
+        lambda p: jfn(jn, p, jb, *extra_j, **jkw),
         jp,
         groups,
-        lambda: tfn(tn, tb, *extra_t),
+        lambda: tfn(tn, tb, *extra_t, **tkw),
         tn,
     )
     assert np.isfinite(loss)

@@ -1,18 +1,20 @@
-"""Full-step equivalence of the agents: one SGD step of `sf2_torch.agents` (TorchRL loss modules, torch
-Adam, SoftUpdate targets) and of `sf2_jax.agents` (optax) from the same state leaves both identical.
+"""Full-step equivalence of the agents: consecutive SGD steps of `sf2_torch.agents` (the core losses on the
+representation's critic, `backward(inputs=...)`, torch Adam, one lerp per rate) and of `sf2_jax.agents`
+(the same losses, `jax.grad` over the trained groups, optax) leave both identical.
 
-From one canonical parameter file, fresh (then non-trivial) Adam states and the same batches and noise,
-TD3+SF² and SAC+SF² take consecutive SGD steps in both frameworks (the JAX agents' jitted `sgd_step`,
-the torch agents' eager `sgd_step`); after every step the test compares every parameter and target
-(canonical names), every Adam first and second moment, and the step's metrics.
+TD3 (policy delay 1 and 2) and SAC, each with SF² and vanilla (`none`: the same losses on the critic
+Q(s, a), whose noise is explicit too). Every group of the agent (the algorithm's `obs_norm`, `policy`,
+`target_policy` | `log_alpha` and the representation's) gets non-trivial values under its canonical name,
+loaded into both agents; fresh Adam states; the same batches. After every step the test compares every
+parameter and target (canonical names), every Adam first and second moment, and the step's metrics.
 
 Noise: `sf2_jax.agents.algorithms.Algorithm.step_noise(key, batch)` draws every random input of the JAX
-step (the step uses exactly that draw); the test hands the same arrays, under the same names (the torch
-agents' `noise_keys()`), to torch, whose step takes its noise as input.
+step; the test hands the same arrays, under the same names (`noise_keys()` of both agents), to both
+`sgd_step`s.
 
-Tolerances: the `cross_bridge` ones (float64 1e-10 relative; float32 the "grad" bound 2e-4, since Adam divides
-by √v̂ + ε and amplifies the rounding differences of the gradients). The largest differences per term are
-printed at the end of the cross run.
+Tolerances: tests/cross_bridge.py, docs/parity.md (float64 1e-10 relative; float32 the "grad" bound
+5e-4, since Adam divides by √v̂ + ε and amplifies the rounding differences of the gradients). The largest
+differences per term are printed at the end of the cross run.
 """
 
 from __future__ import annotations
@@ -24,65 +26,43 @@ import pytest
 import sf2_jax
 import sf2_torch
 import torch
-from cross_bridge import canonical_file, check, make_batch
+from cross_bridge import canonical_values, check, make_batch
 from sf2_jax import params as jparams
-
-pytest.importorskip("torchrl")
-jalgs = pytest.importorskip("sf2_jax.agents.algorithms")
-from sf2_jax.agents import representations as jreps  # noqa: E402
-from sf2_torch import params as tparams  # noqa: E402
-from sf2_torch.agents import algorithms as talgs  # noqa: E402
-from sf2_torch.agents import representations as treps  # noqa: E402
-from tensordict import TensorDict  # noqa: E402
+from sf2_jax.agents import algorithms as jalgs
+from sf2_jax.agents import representations as jreps
+from sf2_torch import params as tparams
+from sf2_torch.agents import algorithms as talgs
+from sf2_torch.agents import representations as treps
 
 KW = dict(obs_size=5, action_size=2, feature_size=16, hidden_sizes=(32, 32), q_hidden_size=32,
           zeta_hidden_sizes=(32, 32), embedding_size=8, denoising_steps=2)
 BATCH = 16
 
 
-def torch_td(batch: dict, noise: dict, dtype) -> TensorDict:
-    """The TorchRL transition tensordict of a `cross_bridge.make_batch` batch (done = 1 − discount)."""
-    def t(x):
-        return torch.as_tensor(np.array(x), dtype=dtype)
+def _unflatten(flat: dict, like, dtype):
+    """The nested JAX params of `like`'s structure holding the canonical `flat` values (as `dtype`)."""
+    def fill(tree, prefix):
+        if isinstance(tree, dict):
+            return {k: fill(v, f"{prefix}{k}.") for k, v in tree.items()}
+        return jnp.asarray(flat[prefix[:-1]], dtype)
 
-    done = torch.as_tensor(np.asarray(batch["discount"]) == 0).unsqueeze(-1)
-    trunc = torch.as_tensor(np.asarray(batch["truncation"]) > 0.5).unsqueeze(-1)
-    td = TensorDict({
-        "observation": t(batch["obs"]), "action": t(batch["action"]),
-        "next": {"observation": t(batch["next_obs"]), "reward": t(batch["reward"]).unsqueeze(-1),
-                 "done": done, "terminated": done & ~trunc, "truncated": trunc},
-    }, [len(batch["reward"])])
-    td.update({k: t(v) for k, v in noise.items()})
-    return td
-
-
-def _canonical_name(group: str, module: torch.nn.Module, name: str, p: torch.Tensor):
-    """(canonical name, array in canonical layout) of parameter `name` of `module` in `group`."""
-    mod_name, leaf = name.rsplit(".", 1)
-    sub = module.get_submodule(mod_name)
-    arr = p.detach().cpu().numpy()
-    if isinstance(sub, torch.nn.Linear) and leaf == "weight":
-        return f"{group}.{mod_name}.kernel", arr.T
-    if isinstance(sub, torch.nn.LayerNorm) and leaf == "weight":
-        return f"{group}.{mod_name}.scale", arr
-    return f"{group}.{mod_name}.{leaf}", arr
+    return fill(dict(like), "")
 
 
 def torch_moments(talg) -> dict[str, dict[str, np.ndarray]]:
-    """{"mu"|"nu": {canonical name: moment}} of every trained group of the torch agent."""
-    out = {"mu": {}, "nu": {}}
-    for group, opt in talg.optimizers.items():
-        if group == "log_alpha":
-            st = opt.state[talg.loss.log_alpha]
-            out["mu"]["log_alpha"] = st["exp_avg"].detach().numpy()
-            out["nu"]["log_alpha"] = st["exp_avg_sq"].detach().numpy()
-            continue
-        module = getattr(talg.nets, group)
-        for name, p in module.named_parameters():
-            st = opt.state[p]
-            for k, sk in (("mu", "exp_avg"), ("nu", "exp_avg_sq")):
-                cname, arr = _canonical_name(group, module, name, st[sk])
-                out[k][cname] = arr
+    """{"mu"|"nu": {canonical name: moment}} of every trained group of the torch agent: the Adam states
+    exported as if they were gradients (`to_canonical(..., grads=True)` lays them out canonically)."""
+    trained = {g: talg.groups[g] for g in talg.optimizers}
+    out = {}
+    for k, sk in (("mu", "exp_avg"), ("nu", "exp_avg_sq")):
+        saved = {}
+        for g, opt in talg.optimizers.items():
+            for p in talg._params((g,)):
+                saved[p] = p.grad
+                p.grad = opt.state[p][sk]
+        out[k] = tparams.to_canonical(trained, grads=True)
+        for p, g in saved.items():
+            p.grad = g
     return out
 
 
@@ -97,47 +77,55 @@ def jax_moments(jopt) -> dict[str, dict[str, np.ndarray]]:
     return out
 
 
+CASES = [("td3", "sf2", 1), ("td3", "sf2", 2), ("sac", "sf2", 1), ("td3", "none", 2), ("sac", "none", 1)]
+
+
 @pytest.mark.parametrize("dtype", ["float64", "float32"])
-@pytest.mark.parametrize("algo,policy_delay", [("td3", 1), ("td3", 2), ("sac", 1)])
-def test_full_sgd_step(tmp_path, dtype, algo, policy_delay):
+@pytest.mark.parametrize("algo,rep,policy_delay", CASES, ids=[f"{a}-{r}-delay{d}" for a, r, d in CASES])
+def test_full_sgd_step(dtype, algo, rep, policy_delay):
     kw = dict(KW, policy_delay=policy_delay)
-    path = canonical_file(tmp_path, kw, algo, seed=21)
     jdt, tdt = getattr(jnp, dtype), getattr(torch, dtype)
 
-    jalg = jalgs.make_algorithm(algo, sf2_jax.SF2Config(**kw), jreps.get("sf2"), dtype=jdt)
-    jp = jparams.from_canonical(jparams.load(path), jalg.nets, dtype=jdt)
+    jalg = jalgs.make_algorithm(algo, sf2_jax.SF2Config(**kw), jreps.get(rep), dtype=jdt)
+    structure, _ = jalg.init(jax.random.PRNGKey(0))
+    shapes = {name: np.shape(v) for name, v in jparams.to_canonical(structure).items()}
+    flat = canonical_values(shapes, seed=21)
+    jp = _unflatten(flat, structure, jdt)
     jopt = {g: jalg._tx(g).init(jp[g]) for g in jalg.trained_groups()}
     jstep = jax.jit(jalg.sgd_step)
 
     torch.manual_seed(0)
-    talg = talgs.make_algorithm(algo, sf2_torch.SF2Config(**kw), treps.get("sf2"), dtype=tdt)
-    tparams.from_canonical(tparams.load(path), talg.nets)  # after construction: SoftUpdate copies at init
-    assert set(talg.groups) == set(jalg.trained_groups())
+    talg = talgs.make_algorithm(algo, sf2_torch.SF2Config(**kw), treps.get(rep), dtype=tdt)
+    tparams.from_canonical(flat, talg.groups)  # validates: the same canonical names and shapes
+    assert set(talg.groups) == set(jp) and talg.trained_groups() == jalg.trained_groups()
+    assert talg.noise_keys() == jalg.noise_keys()
 
-    first = tparams.to_canonical(talg.nets)
+    first = tparams.to_canonical(talg.groups)
     for step in range(3):
         raw, _ = make_batch(kw, BATCH, seed=300 + step, truncation=step != 0)
         jb = sf2_jax.losses.Batch(**{k: jnp.asarray(v, dtype=jdt) for k, v in raw.items()})
-        key = jax.random.PRNGKey(step)
-        noise = {k: np.asarray(v) for k, v in jalg.step_noise(key, jb).items()}
-        assert list(noise) == list(talg.noise_keys())
-        jp, jopt, jm = jstep(jp, jopt, jb, key, step)
-        tm = talg.sgd_step(torch_td(raw, noise, tdt), step=step)
+        tb = sf2_torch.losses.Batch(**{k: torch.as_tensor(np.asarray(v), dtype=tdt) for k, v in raw.items()})
+        jnoise = jalg.step_noise(jax.random.PRNGKey(step), jb)
+        assert list(jnoise) == list(talg.noise_keys())
+        jp, jopt, jm = jstep(jp, jopt, jb, jnoise, step)
+        tm = talg.sgd_step(tb, {k: torch.as_tensor(np.asarray(v)) for k, v in jnoise.items()}, step)
 
-        jflat, tflat = jparams.to_canonical(jp), tparams.to_canonical(talg.nets)
+        jflat, tflat = jparams.to_canonical(jp), tparams.to_canonical(talg.groups)
         assert set(jflat) == set(tflat)
         for name in sorted(jflat):
-            check(f"agent step: {name.split('.')[0]}", jflat[name], tflat[name], dtype, kind="grad")
+            check(f"agent step {rep}: {name.split('.')[0]}", jflat[name], tflat[name], dtype, kind="grad")
         jmom, tmom = jax_moments(jopt), torch_moments(talg)
         for k in ("mu", "nu"):
             assert set(jmom[k]) == set(tmom[k])
             for name in sorted(jmom[k]):
-                check(f"agent step: adam {k}", jmom[k][name], tmom[k][name], dtype, kind="grad")
-        assert set(jm) == set(tm.keys()), (sorted(jm), sorted(tm.keys()))
+                check(f"agent step {rep}: adam {k}", jmom[k][name], tmom[k][name], dtype, kind="grad")
+        assert set(jm) == set(tm), (sorted(jm), sorted(tm))
         for name in jm:
-            check(f"agent step: metric {name}", np.asarray(jm[name]), tm[name].numpy(), dtype, kind="grad")
+            check(f"agent step {rep}: metric {name}", np.asarray(jm[name]), tm[name].numpy(), dtype,
+                  kind="grad")
 
-    # Everything trained moved, and the targets moved at their own rates.
-    last = tparams.to_canonical(talg.nets)
-    for group in ("psi", "zeta", "q", "policy", "target_psi", "target_zeta", "target_q"):
-        assert any(not np.array_equal(first[n], last[n]) for n in first if n.startswith(group + "."))
+    # Everything trained moved, and the targets moved (at their own rates, compared above).
+    last = tparams.to_canonical(talg.groups)
+    moving = {g for g in talg.groups if g != "obs_norm"}
+    for group in moving:
+        assert any(not np.array_equal(first[n], last[n]) for n in first if n.split(".")[0] == group), group
