@@ -114,32 +114,9 @@ def validate(flat: Mapping, nets_or_cfg, algo: str | None = None) -> None:
     Accepts `validate(flat, nets)` or `validate(flat, cfg, algo)`.
     """
     nets = _networks(nets_or_cfg, algo)
-    if not isinstance(flat, Mapping):
-        raise ParamsError(f"canonical parameters must be a mapping name → array, got {type(flat).__name__}")
-    expected = _expected(nets)
-    missing = [name for name in expected if name not in flat]
-    unexpected = sorted(name for name in flat if name not in expected)
-    misshaped = []
-    for name, shape in expected.items():
-        if name in flat:
-            found = tuple(np.shape(flat[name]))
-            if found != shape:
-                misshaped.append((name, shape, found))
-    if not (missing or unexpected or misshaped):
-        return
     cfg = nets.cfg
-    lines = [f"canonical parameters do not match the networks (algo {nets.algo!r}, obs_size {cfg.obs_size}, "
-             f"action_size {cfg.action_size}, feature_size {cfg.feature_size}):"]
-    if missing:
-        lines.append(f"  missing ({len(missing)}):")
-        lines += [f"    {name} (expected shape {expected[name]})" for name in missing]
-    if unexpected:
-        lines.append(f"  unexpected ({len(unexpected)}):")
-        lines += [f"    {name} (shape {tuple(np.shape(flat[name]))})" for name in unexpected]
-    if misshaped:
-        lines.append(f"  misshaped ({len(misshaped)}):")
-        lines += [f"    {name}: expected shape {shape}, found {found}" for name, shape, found in misshaped]
-    raise ParamsError("\n".join(lines))
+    paramfile.check_shapes(flat, _expected(nets), f"the networks (algo {nets.algo!r}, obs_size "
+                           f"{cfg.obs_size}, action_size {cfg.action_size}, feature_size {cfg.feature_size})")
 
 
 def from_canonical(flat: Mapping, nets: nw.Networks, dtype=None) -> dict:

@@ -15,6 +15,7 @@ from collections.abc import Mapping
 import jax
 import jax.numpy as jnp
 import numpy as np
+from sf2_common import paramfile
 from sf2_common.errors import ParamsError
 from sf2_jax.params import load, save, to_canonical
 
@@ -59,34 +60,9 @@ def expected_shapes(nets) -> dict[str, tuple[int, ...]]:
 
 def validate(flat: Mapping, nets) -> None:
     """Raise `ParamsError` naming every missing, unexpected and misshaped entry of `flat`."""
-    if not isinstance(flat, Mapping):
-        raise ParamsError(f"canonical parameters must be a mapping name → array, got {type(flat).__name__}")
-    expected = _expected(nets)
-    missing = [n for n in expected if n not in flat]
-    unexpected = sorted(n for n in flat if n not in expected)
-    misshaped = [
-        (n, s, tuple(np.shape(flat[n])))
-        for n, s in expected.items()
-        if n in flat and tuple(np.shape(flat[n])) != s
-    ]
-    if not (missing or unexpected or misshaped):
-        return
     cfg = nets.cfg
-    lines = [
-        f"canonical parameters do not match the {type(nets).__name__} (algo {nets.algo!r}, obs_size "
-        f"{cfg.obs_size}, action_size {cfg.action_size}, feature_size {cfg.feature_size}):"
-    ]
-    if missing:
-        lines += [f"  missing ({len(missing)}):"] + [
-            f"    {n} (expected shape {expected[n]})" for n in missing
-        ]
-    if unexpected:
-        lines += [f"  unexpected ({len(unexpected)}):"]
-        lines += [f"    {n} (shape {tuple(np.shape(flat[n]))})" for n in unexpected]
-    if misshaped:
-        lines += [f"  misshaped ({len(misshaped)}):"]
-        lines += [f"    {n}: expected shape {s}, found {f}" for n, s, f in misshaped]
-    raise ParamsError("\n".join(lines))
+    paramfile.check_shapes(flat, _expected(nets), f"the {type(nets).__name__} (algo {nets.algo!r}, obs_size "
+                           f"{cfg.obs_size}, action_size {cfg.action_size}, feature_size {cfg.feature_size})")
 
 
 def from_canonical(flat: Mapping, nets, dtype=None) -> dict:
