@@ -1,9 +1,9 @@
 """sf2_torch: PyTorch core of Successor Flow Features (SF², ICLR 2026).
 
-Modules (same names as `sf2_jax`; docs/core-contract.md): `networks` (ψ, ζ, twin Q, TD3 and SAC
+Modules (same names as the JAX core; docs/core-contract.md): `networks` (ψ, ζ, twin Q, TD3 and SAC
 policies, observation normalizer, flow-time embedding), `ode` (`integrate`), `losses` (pure losses with
 explicit noise, `ema_update`), `params` (canonical interchange). `SF2Config` and the errors are
-`sf2_common`'s, shared with `sf2_jax`.
+`sf2_common`'s, shared with the JAX core.
 """
 
 from sf2_common.config import SF2Config

@@ -16,7 +16,7 @@ config and the policy (π, π̄, SAC sampling).
 Gradient contract: the caller chooses the trained groups: `loss.backward(inputs=...)` with the trained
 groups' parameters. Targets are evaluated under `torch.no_grad()`, and the TD target y and SAC's α in
 the critic and actor losses are constants (detached) in every case, so no loss reaches a target; the
-actor losses also reach the critic's online parameters, which `inputs` leaves out. (sf2_jax: `jax.grad`
+actor losses also reach the critic's online parameters, which `inputs` leaves out. (The JAX core: `jax.grad`
 with respect to the trained groups only.)
 """
 

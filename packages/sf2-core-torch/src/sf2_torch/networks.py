@@ -13,7 +13,7 @@ Initialization: LeCun-uniform kernels U(±√(3/fan_in)), zero biases, LayerNorm
 `make_networks(cfg, algo)` builds a `Networks` module holding the online networks, their target
 copies (`requires_grad=False`) and, for SAC, the `log_alpha` parameter. The functional helpers at the
 bottom (`psi`, `zeta`, `velocity`, `contract`, `velocity_contracted`, `q_values`, `td3_action`,
-`sac_sample`, `normalize`, `update_normalizer`, `flow_time_embedding`) have `sf2_jax`'s signatures
+`sac_sample`, `normalize`, `update_normalizer`, `flow_time_embedding`) have the JAX core's signatures
 without its `params` argument; they check shapes and raise `ShapeError` before any torch op fails.
 """
 
@@ -423,7 +423,7 @@ def flow_time_embedding(k: torch.Tensor, size: int) -> torch.Tensor:
     """Sinusoidal embedding of flow time k (B,) → (B, size), interleaved sin/cos.
 
     For i = 0..size/2−1, ω_i = exp(−2i·ln(10⁴)/size): out[2i] = sin(10⁴·k·ω_i), out[2i+1] = cos(10⁴·k·ω_i).
-    The phase is reduced exactly before sin/cos, as in `sf2_jax` (docs/parity.md, "flow-time embedding"):
+    The phase is reduced exactly before sin/cos, as in the JAX core (docs/parity.md, "flow-time embedding"):
     with G_i = 10⁴·ω_i / 2π turns, k = k_hi + k_lo (k_hi = round(4096·k)/4096) and G = G_hi + G_lo (G_hi
     on 11 bits), t = (k_hi·G_hi − round(k_hi·G_hi)) + (k_hi·G_lo + k_lo·G), phase 2π·t; the float32
     phase is accurate to ~1e-6 rad instead of one ulp of a phase near 10⁴ (5e-4 rad).
@@ -540,7 +540,7 @@ def contract(
     """(M (B, D, H), c (B, D)) of the fast path (docs/core-contract.md "Networks", fast path).
 
     M[b, d, h] = Σ_f W[h, d·F + f] ψ[b, f] and c[b, d] = Σ_f b[d·F + f] ψ[b, f], with W ζ's last kernel
-    (H, F·D) in canonical layout and b its bias. Layout (as `sf2_jax.networks.contract`): the torch weight
+    (H, F·D) in canonical layout and b its bias. Layout (as the JAX core's `contract`): the torch weight
     (F·D, H), i.e. (D, F, H), is re-laid (D, H, F) once per contraction (an internal copy; the parameter
     keeps its layout), so one GEMM ψ·W_tᵀ emits M contiguous as (B, D·H) and every evaluation of
     `velocity_contracted` reduces over M's minor axis. Compute once per (ζ parameters, ψ) pair and reuse

@@ -46,7 +46,7 @@ def integrate(
         )
     # h = k_end·(1/steps): the form XLA compiles `k_end / steps` into (division by a constant becomes a
     # multiplication by its rounded reciprocal). Equal in exact arithmetic and within 1 ulp in float64;
-    # in float32 it keeps the flow times bit-identical to sf2_jax, which matters because the 10⁴-frequency
+    # in float32 it keeps the flow times bit-identical to the JAX core's, which matters as the 10⁴-frequency
     # flow-time embedding turns a 1-ulp change of k into ~10⁻³ in its argument.
     h = k_end * (1.0 / steps)
     h_col = h[..., None]

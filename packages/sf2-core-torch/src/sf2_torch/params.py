@@ -1,4 +1,4 @@
-"""Canonical parameter interchange: one flat mapping name → numpy array, shared with `sf2_jax`.
+"""Canonical parameter interchange: one flat mapping name → numpy array, shared with the JAX core.
 
 The scheme (docs/core-contract.md "Canonical parameters")
 --------------------------------------------------------
@@ -39,7 +39,7 @@ modules use the canonical layer names, so this one converter serves every repres
 - `save(path, flat)`: `.npz` (numpy only) or `.safetensors` (needs the `safetensors` package), chosen by
   the suffix (any other suffix is a `ParamsError`); written atomically (temporary file, then rename),
   arrays keep their dtype. `load(path)`: the flat dict back; a missing, unreadable or corrupt file
-  raises `ParamsError`. Files are interchangeable with `sf2_jax.params` (docs/params.md).
+  raises `ParamsError`. Files are interchangeable with the JAX core's `params` (docs/params.md).
 """
 
 from __future__ import annotations

@@ -8,6 +8,7 @@ import importlib.util
 
 import pytest
 from sf2_common import cli as _cli
+from sf2_common.agents import configs as common_configs
 from sf2_common.errors import ConfigError
 from sf2_common.testing import BAD_TRAIN_INPUTS, cli_error
 from sf2_torch import cli
@@ -105,7 +106,7 @@ def test_presets():
     assert quick.hidden_sizes == (64, 64) and quick.deterministic_eval is False
     configs.validate(quick, "0-3")
     sf2 = quick.sf2_config(5, 1)
-    for name in configs.SF2_FIELDS:
+    for name in common_configs.SF2_FIELDS:
         assert getattr(sf2, name) == getattr(quick, name)
 
 
@@ -125,16 +126,16 @@ def test_compile_and_device_resolution():
 
 def test_schedule_and_seeds():
     cfg = configs.make_config("quick", "CartpoleBalance")
-    s = configs.schedule(cfg)
+    s = common_configs.schedule(cfg)
     assert s.prefill_env_steps >= cfg.min_replay_size and s.total_env_steps >= cfg.num_timesteps
     assert s.total_env_steps - cfg.num_timesteps < s.num_epochs * s.env_steps_per_actor_step
     assert s.env_steps_after(s.num_epochs) == s.total_env_steps
     assert s.grad_steps_before(s.prefill_actor_steps + 3) == 3 and s.grad_steps_before(1) == 0
-    assert configs.parse_seeds("0-3") == (0, 1, 2, 3)
-    assert configs.parse_seeds("0-2,9") == (0, 1, 2, 9)
-    assert configs.parse_seeds(7) == (7,)
+    assert common_configs.parse_seeds("0-3") == (0, 1, 2, 3)
+    assert common_configs.parse_seeds("0-2,9") == (0, 1, 2, 9)
+    assert common_configs.parse_seeds(7) == (7,)
     with pytest.raises(ConfigError):
-        configs.parse_seeds("-1")
+        common_configs.parse_seeds("-1")
 
 
 def test_cli_tasks_lists_paper_tasks(capsys):
@@ -147,13 +148,12 @@ def test_cli_tasks_lists_paper_tasks(capsys):
 _JAX_AGENTS = importlib.util.find_spec("sf2_jax") is not None
 
 
-@pytest.mark.skipif(not _JAX_AGENTS, reason="sf2_jax is not installed")
 @pytest.mark.parametrize("preset", ["paper", "quick"])
 @pytest.mark.parametrize("task", ["CartpoleBalance", "PendulumSwingup", "CheetahRun"])
 def test_presets_equal_sf2_jax(preset, task):
-    """Switching framework changes nothing of a run's config (the torch-only fields aside)."""
-    jconfigs = pytest.importorskip("sf2_jax.agents.configs")
-    j = jconfigs.make_config(preset, task, "sac", "sf2").to_dict()
+    """Switching framework changes nothing of a run's config (the torch-only fields aside): the JAX agents
+    use sf2_common's TrainConfig as it is."""
+    j = common_configs.make_config(preset, task, "sac", "sf2").to_dict()
     t = configs.make_config(preset, task, "sac", "sf2").to_dict()
     assert set(t) - set(j) == set(configs.TORCH_FIELDS)
     assert {k: v for k, v in t.items() if k not in configs.TORCH_FIELDS} == j

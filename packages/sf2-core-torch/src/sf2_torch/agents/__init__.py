@@ -1,5 +1,5 @@
 """SF² agents on PyTorch (TorchRL for the env and the replay buffer): TD3 and SAC, vanilla or on SF²
-features, trained on MuJoCo Playground DM Control tasks. The torch mirror of `sf2_jax.agents`: same module
+features, trained on MuJoCo Playground DM Control tasks. The torch mirror of the JAX agents: same module
 names, config fields and presets (`paper`, `quick`), representation interface, run-folder layout and CLI
 (`sf2-torch` ↔ `sf2-jax`).
 
@@ -21,9 +21,12 @@ Names are imported lazily (`sf2_common.agents.lazy_getattr`), so importing a lig
 
 from __future__ import annotations
 
-from sf2_common.agents import EXPORTS as _EXPORTS
-from sf2_common.agents import lazy_getattr
+from sf2_common.agents import EXPORTS, lazy_getattr
+
+# TrainConfig, make_config, validate: this package's `configs` (the torch-only fields); parse_seeds:
+# sf2_common's
+_EXPORTS = {**EXPORTS, "parse_seeds": "sf2_common.agents.configs"}
 
 __all__ = sorted(_EXPORTS)
 
-__getattr__ = lazy_getattr(__name__)
+__getattr__ = lazy_getattr(__name__, _EXPORTS)

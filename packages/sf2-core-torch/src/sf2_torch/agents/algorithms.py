@@ -1,7 +1,7 @@
 """Base algorithms TD3 and SAC, written once against the representation interface.
 
 The losses are the core's (`sf2_torch.losses.td3_critic_loss`, ..., with `critic=` the representation's
-critic); this module only schedules them. The vocabulary is the same in sf2_jax.agents.algorithms
+critic); this module only schedules them. The vocabulary is the same in the JAX core's agents.algorithms
 (table: docs/core-contract.md "Agents: the plug-in vocabulary"); torch methods act on the modules the
 algorithm holds and update them in place, and take a `torch.Generator` where JAX takes a PRNG key.
 
@@ -79,7 +79,7 @@ class Algorithm:
         self.nets = networks.make_networks(cfg, self.name, dtype=dtype, device=self.device)
         self.rep = representation_cls(cfg, self.nets)
         check_aux_every(self.rep)
-        # {group: module | parameter}: the algorithm's groups, then the representation's (as sf2_jax's
+        # {group: module | parameter}: the algorithm's groups, then the representation's (as the JAX core's
         # `init` returns its params)
         core = ("obs_norm", "policy", "target_policy", "log_alpha")
         self.groups: dict[str, nn.Module | nn.Parameter] = {

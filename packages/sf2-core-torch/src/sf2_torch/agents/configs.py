@@ -1,11 +1,8 @@
-"""`TrainConfig`: everything one training run needs, the `paper` and `quick` presets, CLI overrides, and
-validation that fails before anything is built, with a message naming the field, the value and what is
-valid.
-
-The shared part is `sf2_common.agents.configs` (the same fields, defaults, presets, parsing and messages
-as `sf2_jax.agents.configs`); here `TrainConfig` subclasses it with the torch-only run fields `device`,
-`compile` and `cudagraphs` (at the end of the dataclass), and the functions are bound to that class and to
-the torch agents' representation registry.
+"""The torch agents' `TrainConfig`: `sf2_common.agents.configs.TrainConfig` (the same fields, defaults,
+presets, parsing and messages as the JAX agents') plus the torch-only run fields `device`, `compile` and
+`cudagraphs` (at the end of the dataclass); their validation and resolution; `make_config` and `validate`
+bound to this class and to the torch agents' representation registry. Everything else (parsing, seeds,
+the schedule) is `sf2_common.agents.configs`.
 """
 
 from __future__ import annotations
@@ -13,22 +10,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from sf2_common.agents import configs as _configs
-from sf2_common.agents.configs import (
-    ALGOS,
-    PRESETS,
-    SF2_FIELDS,
-    ConfigError,
-    Schedule,
-    bad_field,
-    parse_seeds,
-    schedule,
-)
+from sf2_common.agents.configs import bad_field
 
-__all__ = [
-    "TrainConfig", "PRESETS", "ALGOS", "SF2_FIELDS", "TORCH_FIELDS", "COMPILE_MODES", "resolve_device",
-    "resolve_compile", "resolve_cudagraphs", "make_config", "parse_overrides", "parse_value",
-    "parse_seeds", "validate", "Schedule", "schedule", "ConfigError",
-]
+__all__ = ["TrainConfig", "TORCH_FIELDS", "COMPILE_MODES", "make_config", "validate", "resolve_device",
+           "resolve_compile", "resolve_cudagraphs"]
 
 TORCH_FIELDS = ("device", "compile", "cudagraphs")
 # "auto": compile on CUDA, eager on the CPU. Measured (TD3+SF² step; bench/results/h200/6-torch-agents,
@@ -54,16 +39,6 @@ def make_config(preset: str, task: str, algo: str = "td3", representation: str =
     """The `preset` for `task` with `overrides` (field → value, already typed or strings) applied.
     Raises `ConfigError` for an unknown preset, task or field; call `validate` for the rest."""
     return _configs.make_config(preset, task, algo, representation, overrides, config_class=TrainConfig)
-
-
-def parse_value(name: str, text: str):
-    """Parse the string `text` for the field `name` by the field's type (int, float, bool, str, tuple)."""
-    return _configs.parse_value(name, text, TrainConfig)
-
-
-def parse_overrides(items) -> dict:
-    """['field=value', ...] → {field: typed value}."""
-    return _configs.parse_overrides(items, TrainConfig)
 
 
 def validate(cfg: TrainConfig, seeds=(0,)) -> TrainConfig:

@@ -1,6 +1,6 @@
 """Tasks and env creation. The task table (which MuJoCo Playground DM Control tasks exist, the paper's
-per-task budgets and action repeat) is `sf2_common.agents.tasks`, re-exported here (as by
-`sf2_jax.agents.envs`).
+per-task budgets and action repeat) is `sf2_common.agents.tasks`, re-exported here (as in the JAX
+agents).
 
 Environments: `PlaygroundEnv` is a TorchRL env (a subclass of TorchRL's `MujocoPlaygroundWrapper`) around
 the *same* JAX env the JAX trainer steps: Playground's task with the pure-JAX MJX backend

@@ -1,6 +1,6 @@
 """Replay buffer: TorchRL's `ReplayBuffer` on a `LazyTensorStorage` on the training device, uniform
 sampling with replacement (`RandomSampler`) from the filled part, round-robin writes over the oldest
-transitions: statistically the buffer of `sf2_jax.agents.replay` (a fixed-size ring, uniform over the last
+transitions: statistically the JAX agents' replay buffer (a fixed-size ring, uniform over the last
 `capacity` transitions). The sampling generator is an explicit argument, so all randomness of a seed flows
 from that seed's `torch.Generator`. Transitions use TorchRL's layout (`observation`, `action`,
 `("next", observation | reward | done | terminated | truncated)`); `to_batch` turns sampled transitions

@@ -1,7 +1,7 @@
 """Pluggable representations: what the critic sees, and the representation's own loss.
 
 A representation is the part of an agent between the raw (s, a) and the twin Q values. The vocabulary
-is the same in sf2_jax.agents.representations (table: docs/core-contract.md "Agents: the plug-in
+is the same in the JAX core's agents.representations (table: docs/core-contract.md "Agents: the plug-in
 vocabulary"); torch methods act on the modules the representation holds (and take a `torch.Generator`
 where JAX takes a PRNG key).
 

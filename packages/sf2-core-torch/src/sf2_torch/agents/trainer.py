@@ -1,5 +1,5 @@
 """The one off-policy training loop (Brax style, on TorchRL), for every algorithm × representation: the
-torch mirror of `sf2_jax.agents.trainer` (same schedule, order of operations, run folder, rows, NaN guard,
+torch mirror of the JAX agents' trainer (same schedule, order of operations, run folder, rows, NaN guard,
 checkpoint/resume semantics and progress output).
 
 A `Program` is what one `TrainConfig` needs in a process (the jitted Playground env functions are cached
@@ -22,7 +22,7 @@ the other; all seeds' envs step together in one Playground batch. Per seed s:
 - `evaluate`: one episode from each evaluation start state (deterministic or acting policy; the acting
   noise changes with every evaluation, the start states do not).
 
-The host loop between epochs (`sf2_common.agents.hostloop.run_epochs`, shared with sf2_jax): train →
+The host loop between epochs (`sf2_common.agents.hostloop.run_epochs`, shared with the JAX core): train →
 NaN guard → evaluate → append rows → checkpoint. A run killed at any moment resumes from its last
 checkpoint; rows of later epochs are dropped and produced again identically
 (`sf2_common.agents.runfolder`). TorchRL provides the env wrapper (envs.py) and the replay buffer
@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from sf2_common.agents import configs as common_configs
 from sf2_common.agents import hostloop
 from sf2_common.agents.hostloop import WALL_FIELDS, TrainingDiverged
 from sf2_common.agents.plotting import method_label
@@ -58,9 +59,9 @@ __all__ = ["Program", "SeedState", "TrainState", "get_program", "TrainingDiverge
            "evaluate_checkpoint", "env_reset_keys", "eval_key", "fresh_eval_start_keys", "EVAL_STREAM",
            "WALL_FIELDS"]
 
-EVAL_STREAM = 0x5EED  # eval keys: fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), epoch), as in sf2_jax
+EVAL_STREAM = 0x5EED  # eval keys: fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), epoch), as in the JAX core
 # WALL_FIELDS, TrainingDiverged and the host loop's framework-free helpers (rows, the NaN guard's
-# message, progress bar, curve) are sf2_common.agents.hostloop, shared with sf2_jax's trainer.
+# message, progress bar, curve) are sf2_common.agents.hostloop, shared with the JAX core's trainer.
 
 def env_reset_keys(seed: int, num_envs: int, num_eval_envs: int):
     """The JAX trainer's reset keys of `seed`: split(split(PRNGKey(seed), 3)[1], n + m); the first n reset
@@ -79,7 +80,7 @@ def eval_key(seed: int, epoch: int):
 
 
 def fresh_eval_start_keys(seed: int, epoch: int, n: int):
-    """Reset keys of `n` new evaluation start states (`sf2-torch eval --episodes n`), as sf2_jax."""
+    """Reset keys of `n` new evaluation start states (`sf2-torch eval --episodes n`), as the JAX core."""
     import jax
 
     return jax.random.split(jax.random.fold_in(eval_key(seed, epoch), 1), n)
@@ -115,7 +116,7 @@ class Program:
         self.spec = envs.env_spec(cfg.task, cfg.episode_length, cfg.action_repeat)
         self.sf2 = cfg.sf2_config(self.spec.obs_size, self.spec.action_size)
         self.rep_cls = representations.get(cfg.representation)
-        self.sched = configs.schedule(cfg)
+        self.sched = common_configs.schedule(cfg)
 
     # ------------------------------------------------------------------ setup
     def precision(self):
@@ -299,13 +300,13 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
           progress: bool = True, hook: Callable[[str, int], None] | None = None,
           stop_after_epoch: int | None = None, plot: bool = True) -> TrainResult:
     """Train `cfg` for every seed of `seeds` into the run folder `out` (the same contract as
-    `sf2_jax.agents.train`): resumes from the folder's last checkpoint when it holds the same run
+    the JAX agents' `train`): resumes from the folder's last checkpoint when it holds the same run
     (`resume`); `fresh` deletes the folder's previous contents first; `hook(event, epoch)` is called after
     "rows" are written and after the "checkpoint" is saved; `stop_after_epoch` ends the run early (after
     that epoch's checkpoint), as a kill would. Raises `ConfigError` for bad input before anything is built
     and `TrainingDiverged` on a NaN/inf loss.
     """
-    seeds = configs.parse_seeds(seeds)
+    seeds = common_configs.parse_seeds(seeds)
     configs.validate(cfg, seeds)
     if stop_after_epoch is not None and (not isinstance(stop_after_epoch, int) or stop_after_epoch < 0):
         raise ConfigError(f"stop_after_epoch = {stop_after_epoch!r} is invalid: must be an int >= 0")
@@ -317,7 +318,7 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
         raise RunFolderMismatch(f"run folder {run.path} holds a run of sf2-{_framework(conf)}; use another "
                                 f"--out (or --fresh to overwrite it)")
     existing = run.check_compatible(cfg.to_dict(), seeds)
-    sched = configs.schedule(cfg)
+    sched = common_configs.schedule(cfg)
     if not existing:  # checkpoints without the config that made them are not this run's
         shutil.rmtree(run.checkpoint_dir, ignore_errors=True)
     program = get_program(cfg)
