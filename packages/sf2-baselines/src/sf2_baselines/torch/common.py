@@ -10,11 +10,13 @@ take 2-D batches (B, ·), as the core's do. Mirror of `sf2_baselines.jax.common`
 from __future__ import annotations
 
 import torch
+from sf2_common.config import SF2Config
 from sf2_common.errors import ConfigError, ShapeError
+from sf2_torch import networks as core_nw
 from sf2_torch.losses import Batch
 from torch import nn
 
-__all__ = ["NORM_EPS", "l2_normalize", "frozen_copy", "share_core", "check_last", "check_batch",
+__all__ = ["NORM_EPS", "l2_normalize", "frozen_copy", "init_core", "share_core", "check_last", "check_batch",
            "check_noise"]
 
 NORM_EPS = 1e-8
@@ -30,6 +32,24 @@ def frozen_copy(module: nn.Module) -> nn.Module:
     import copy
 
     return copy.deepcopy(module).requires_grad_(False)
+
+
+def init_core(nets: nn.Module, cfg: SF2Config, algo: str, **kw) -> None:
+    """Give a baseline's networks `nets` the core agent's part: `cfg`, `algo` (both checked), `obs_norm`,
+    `policy` and `target_policy` (TD3) or the `log_alpha` parameter (SAC), built as the core's `Networks`
+    builds them (`kw`: dtype, device); `share_core` replaces them with an agent's own."""
+    if not isinstance(cfg, SF2Config):
+        raise ConfigError(f"cfg must be an SF2Config, found {type(cfg).__name__}")
+    if algo not in core_nw.ALGOS:
+        raise ConfigError(f"algo={algo!r} is invalid: must be one of {', '.join(map(repr, core_nw.ALGOS))}")
+    nets.cfg, nets.algo = cfg, algo
+    nets.obs_norm = core_nw.ObsNormalizer(cfg.obs_size, cfg.normalizer_std_min, cfg.normalizer_std_max, **kw)
+    nets.policy = core_nw.TD3Policy(cfg, **kw) if algo == "td3" else core_nw.SACPolicy(cfg, **kw)
+    if algo == "td3":
+        nets.target_policy = frozen_copy(nets.policy)
+    else:
+        dtype, device = kw.get("dtype") or torch.get_default_dtype(), kw.get("device")
+        nets.log_alpha = nn.Parameter(torch.full((), cfg.init_log_alpha, dtype=dtype, device=device))
 
 
 def share_core(nets: nn.Module, core: nn.Module | None) -> nn.Module:

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import torch
 from sf2_common.config import SF2Config
-from sf2_common.errors import ConfigError
 from sf2_torch import networks as core_nw
 from sf2_torch.losses import Batch
 from torch import nn
@@ -69,28 +68,14 @@ class SimNetworks(nn.Module):
 
     def __init__(self, cfg: SF2Config, algo: str = "td3", *, dtype=None, device=None) -> None:
         super().__init__()
-        if not isinstance(cfg, SF2Config):
-            raise ConfigError(f"cfg must be an SF2Config, found {type(cfg).__name__}")
-        if algo not in core_nw.ALGOS:
-            raise ConfigError(
-                f"algo={algo!r} is invalid: must be one of {', '.join(map(repr, core_nw.ALGOS))}"
-            )
-        self.cfg, self.algo = cfg, algo
         kw = dict(dtype=dtype, device=device)
+        common.init_core(self, cfg, algo, **kw)
         D, A, F = cfg.obs_size, cfg.action_size, cfg.feature_size
-        self.obs_norm = core_nw.ObsNormalizer(D, cfg.normalizer_std_min, cfg.normalizer_std_max, **kw)
-        self.policy = core_nw.TD3Policy(cfg, **kw) if algo == "td3" else core_nw.SACPolicy(cfg, **kw)
         self.phi = core_nw.MLP(D + A + F, cfg.hidden_sizes, F, cfg.layer_norm, **kw)
         self.q = SFHeads(F, cfg.q_hidden_size, **kw)
         self.task = Task(F, **kw)
         self.target_phi = common.frozen_copy(self.phi)
         self.target_q = common.frozen_copy(self.q)
-        if algo == "td3":
-            self.target_policy = common.frozen_copy(self.policy)
-        else:
-            self.log_alpha = nn.Parameter(
-                torch.full((), cfg.init_log_alpha, dtype=dtype or torch.get_default_dtype(), device=device)
-            )
 
     def extra_repr(self) -> str:
         return f"algo={self.algo!r}"

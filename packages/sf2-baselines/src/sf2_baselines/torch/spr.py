@@ -52,19 +52,12 @@ class SPRNetworks(nn.Module):
         device=None,
     ) -> None:
         super().__init__()
-        if not isinstance(cfg, SF2Config):
-            raise ConfigError(f"cfg must be an SF2Config, found {type(cfg).__name__}")
-        if algo not in core_nw.ALGOS:
-            raise ConfigError(
-                f"algo={algo!r} is invalid: must be one of {', '.join(map(repr, core_nw.ALGOS))}"
-            )
         if not (isinstance(augmentation_std, (int, float)) and augmentation_std >= 0):
             raise ConfigError(f"augmentation_std = {augmentation_std!r} is invalid: must be a number >= 0")
-        self.cfg, self.algo, self.augmentation_std = cfg, algo, float(augmentation_std)
         kw = dict(dtype=dtype, device=device)
+        common.init_core(self, cfg, algo, **kw)
+        self.augmentation_std = float(augmentation_std)
         D, A, F, P = cfg.obs_size, cfg.action_size, cfg.feature_size, cfg.q_hidden_size
-        self.obs_norm = core_nw.ObsNormalizer(D, cfg.normalizer_std_min, cfg.normalizer_std_max, **kw)
-        self.policy = core_nw.TD3Policy(cfg, **kw) if algo == "td3" else core_nw.SACPolicy(cfg, **kw)
         self.encoder = core_nw.MLP(D + A, cfg.hidden_sizes, F, cfg.layer_norm, **kw)
         self.q = core_nw.TwinQ(cfg, **kw)
         self.projection = core_nw.MLP(F, (), P, False, **kw)
@@ -72,12 +65,6 @@ class SPRNetworks(nn.Module):
         self.target_encoder = common.frozen_copy(self.encoder)
         self.target_q = common.frozen_copy(self.q)
         self.target_projection = common.frozen_copy(self.projection)
-        if algo == "td3":
-            self.target_policy = common.frozen_copy(self.policy)
-        else:
-            self.log_alpha = nn.Parameter(
-                torch.full((), cfg.init_log_alpha, dtype=dtype or torch.get_default_dtype(), device=device)
-            )
 
     def extra_repr(self) -> str:
         return f"algo={self.algo!r}, augmentation_std={self.augmentation_std}"
