@@ -45,6 +45,7 @@ SIZES: dict[str, dict] = {
 FRAMEWORKS = ("jax", "jax-scan", "torch", "torch-graphs", "torch-compile", "torch-cudagraphs")
 JAX = ("jax", "jax-scan")
 COMPILED = ("torch-compile", "torch-cudagraphs")
+CUDA_ONLY = ("torch-graphs", "torch-cudagraphs")   # CUDA graphs
 ALGOS = ("td3", "sac")
 INTEGRATORS = ("midpoint", "euler")
 DEFAULT_STEPS = (1, 2, 4, 8)

@@ -76,7 +76,7 @@ def test_update(benchmark, spec, task, pytestconfig):
     fw, algo, rep, T, integ = spec
     if fw in sizes.COMPILED and not pytestconfig.getoption("--bench-compile"):
         pytest.skip("torch.compile cases need --bench-compile")
-    if fw == "torch-cudagraphs" and not _cuda():
+    if fw in sizes.CUDA_ONLY and not _cuda():
         pytest.skip("CUDA graphs need a CUDA device")
     if fw in sizes.JAX:
         pytest.importorskip("jax")
