@@ -143,3 +143,31 @@ def test_cli_rejects_bad_gammas_and_models():
         parse_gammas("0.5,x")
     with pytest.raises(ConfigError, match="fm_explicit, fm_implicit, vae, gan"):
         parse_models("fm_explicit,flow")
+
+
+def _results(final_w1_by_model):
+    """Results at γ = 0.99 whose final W1 per seed are the given numbers (set directly: the verdict reads
+    only the W1 table and the samples' mass above 0)."""
+    from sf2_jax.experiments.two_gaussians.report import Results
+
+    n_seeds = len(next(iter(final_w1_by_model.values())))
+    samples = {m: np.full((1, n_seeds, 1, 10), -2.0) for m in final_w1_by_model}
+    res = Results((0.99,), tuple(range(n_seeds)), (1500,), samples, {m: 0.0 for m in samples})
+    res.w1 = {m: np.asarray(v, dtype=float)[None, :, None] for m, v in final_w1_by_model.items()}
+    return res
+
+
+def test_agreement_needs_every_claim_and_a_significant_paired_win():
+    from sf2_jax.experiments.two_gaussians.report import agreement
+
+    base = {"vae": [0.5] * 5, "gan": [0.6] * 5}
+    clear = _results({"fm_explicit": [0.30, 0.31, 0.32, 0.33, 0.34],
+                      "fm_implicit": [0.35, 0.36, 0.37, 0.38, 0.39], **base})
+    assert "So this run agrees with the paper" in agreement(clear)
+    # explicit lower on average but in only 4 of 5 seeds: sign test p = 0.1875, not resolved
+    tie = _results({"fm_explicit": [0.30, 0.31, 0.32, 0.33, 0.44],
+                    "fm_implicit": [0.35, 0.36, 0.37, 0.38, 0.39], **base})
+    text = agreement(tie)
+    assert "not resolved" in text and "p = 0.188" in text and "agrees in part" in text
+    flows_lose = _results({"fm_explicit": [0.8] * 5, "fm_implicit": [0.7] * 5, **base})
+    assert "does not agree" in agreement(flows_lose)

@@ -74,8 +74,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seeds", default="0-4", help="e.g. 0-4 or 0,2,5 (default 0-4)")
     p.add_argument("--gammas", default="0.5,0.9,0.99", help="weights of N(-2, 0.3^2) (default 0.5,0.9,0.99)")
     p.add_argument("--models", default=",".join(MODELS), help=f"subset of {','.join(MODELS)}")
-    p.add_argument("--hidden", default="256", help="hidden widths of every MLP (default 256: one layer)")
+    p.add_argument("--hidden", default=",".join(map(str, Settings.hidden)),
+                   help="hidden widths of every MLP, e.g. 256 (the default: one layer) or 256,256")
     p.add_argument("--steps", type=int, default=Settings.steps, help="training steps (default 1500)")
+    p.add_argument("--batch-size", type=int, default=Settings.batch_size,
+                   help="samples per step (the explicit objective: per component) (default 32)")
     return p
 
 
@@ -88,10 +91,12 @@ def main(argv=None) -> int:
         models, hidden = parse_models(args.models), parse_hidden(args.hidden)
         if args.steps < 1:
             raise ConfigError(f"steps = {args.steps} is invalid: must be >= 1")
+        if args.batch_size < 1:
+            raise ConfigError(f"batch size = {args.batch_size} is invalid: must be >= 1")
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    settings = Settings(steps=args.steps, hidden=hidden)
+    settings = Settings(steps=args.steps, batch_size=args.batch_size, hidden=hidden)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     host = machine()
