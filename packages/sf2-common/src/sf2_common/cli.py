@@ -108,6 +108,13 @@ def build_parser(fw: Framework) -> argparse.ArgumentParser:
     mode.add_argument("--deterministic", action="store_true", default=None, help="act without noise")
     mode.add_argument("--stochastic", action="store_true", default=None, help="act with the acting noise")
     e.add_argument("--json", action="store_true", help="print the returns as JSON")
+    e.add_argument("--obs-noise", default=None, metavar="STDS", help="Gaussian noise stds added to the "
+                   "observations the policy sees, e.g. 0,0.05,0.1,0.2 (paper App. C.2.2): each at the "
+                   "latest --checkpoints checkpoints")
+    e.add_argument("--checkpoints", type=int, default=1, help="with --obs-noise: how many of the latest "
+                   "checkpoints (default 1)")
+    e.add_argument("--save", action="store_true", help="with --obs-noise: write RUN/obs_noise.json (what "
+                   "`study report` reads)")
 
     p = sub.add_parser("plot", help="learning curves of several run folders (mean and 95%% CI per method)")
     p.add_argument("runs", nargs="+", help="run folders (folders holding run folders are expanded)")
@@ -186,7 +193,7 @@ def print_table(table, seconds=None) -> None:
     print(head)
     print("-" * len(head))
     for row in table:
-        ci = f"[{row['ci_low']:.1f}, {row['ci_high']:.1f}]" if row["seeds"] > 1 else ""
+        ci = f"[{row['ci_low']:.1f}, {row['ci_high']:.1f}]" if row["ci_low"] == row["ci_low"] else "n < 3"
         per_seed = ", ".join(f"{x:.1f}" for x in row["per_seed"])
         line = (f"{row['task']:22} {row['method']:12} {row['seeds']:>5} {row['env_steps']:>10} "
                 f"{row['final_return']:>18.1f} {ci:>17}  {per_seed}")
@@ -196,7 +203,8 @@ def print_table(table, seconds=None) -> None:
         print(line)
     if any(r["seeds"] > 1 for r in table):
         print("(final eval return: mean over seeds of each seed's mean over its evaluation episodes; 95% CI: "
-              "percentile bootstrap over seeds)")
+              "percentile bootstrap of that mean over seeds (rliable, 5000 resamples); none below 3 seeds, "
+              "where it would not be informative)")
 
 
 # ------------------------------------------------------------------------------------------- eval, plot
@@ -205,6 +213,10 @@ def _eval(fw: Framework, args) -> int:
 
     _setup_jax(fw.compile_cache())
     deterministic = True if args.deterministic else (False if args.stochastic else None)
+    if args.obs_noise is not None:
+        from sf2_common.studies import robustness
+
+        return robustness.eval_command(fw.evaluate_checkpoint, args, deterministic)
     res = fw.evaluate_checkpoint(args.run, epoch=args.epoch, num_eval_envs=args.episodes,
                               deterministic=deterministic)
     if args.json:

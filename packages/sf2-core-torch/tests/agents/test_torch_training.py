@@ -228,3 +228,30 @@ def test_a_jax_run_folder_is_refused(tiny_cfg, tmp_path, capsys):
         train(tiny_cfg, (0,), folder, progress=False)
     assert cli.main(["eval", str(folder)]) == 2
     assert "trained by sf2-jax" in capsys.readouterr().err
+
+
+def test_evaluation_under_observation_noise(reference, tmp_path, capsys, monkeypatch):
+    """Noise std 0 is the plain evaluation (the same returns and acting noise); a std > 0 changes what the
+    policy sees and so the returns; `eval --obs-noise` evaluates the latest checkpoints at each std and
+    saves obs_noise.json (paper App. C.2.2)."""
+    import shutil
+
+    from sf2_common.errors import ConfigError
+    from sf2_torch.agents.trainer import evaluate_checkpoint
+
+    monkeypatch.setenv("SF2_JAX_COMPILE_CACHE", "")
+    run = tmp_path / "run"
+    shutil.copytree(reference.run.path, run)
+    plain = evaluate_checkpoint(run)
+    assert plain["checkpoints"] == [2, 3] and plain["obs_noise"] == 0.0
+    assert evaluate_checkpoint(run, obs_noise=0.0)["returns"] == plain["returns"]
+    noisy = evaluate_checkpoint(run, obs_noise=1.0)
+    assert noisy["obs_noise"] == 1.0 and noisy["returns"] != plain["returns"]
+    assert evaluate_checkpoint(run, obs_noise=1.0)["returns"] == noisy["returns"]   # reproducible
+    with pytest.raises(ConfigError, match="obs_noise = -0.1 is invalid"):
+        evaluate_checkpoint(run, obs_noise=-0.1)
+    assert cli.main(["eval", str(run), "--obs-noise", "0,1", "--checkpoints", "2", "--save"]) == 0
+    saved = json.loads((run / "obs_noise.json").read_text())
+    assert [(r["noise"], r["epoch"]) for r in saved["results"]] == [(0.0, 2), (1.0, 2), (0.0, 3), (1.0, 3)]
+    assert saved["results"][3]["returns"] == {str(k): v for k, v in noisy["returns"].items()}
+    assert "noise std" in capsys.readouterr().out

@@ -1,10 +1,11 @@
 """Learning curves: one run folder (per-seed lines, mean and 95% CI band) and several run folders
 (one line and band per method and task). The band is the 95% percentile-bootstrap confidence interval of
-the mean over seeds (the interval rliable reports, Agarwal et al. 2021, for one task: resample the seeds
-with replacement, take the 2.5th and 97.5th percentiles of the resampled means; 5000 resamples from a
-fixed generator, so plots are reproducible). Unlike a Student-t interval it stays inside the range of
-the seeds' returns (with two seeds it is their range). No band with one seed. matplotlib is imported
-lazily (Agg).
+the mean over seeds, computed by rliable (Agarwal et al. 2021; `sf2_common.studies.stats.mean_interval`:
+`get_interval_estimates` over the seeds, 5000 resamples under a fixed seed, so plots are reproducible).
+Below `sf2_common.studies.stats.MIN_SEEDS` (3) seeds there is no band: such an interval is not
+informative (with two seeds it is their range, which covers the mean about half the time; stats.py says
+why), and the plots and tables say so. matplotlib is imported lazily (Agg); rliable only when there are
+enough seeds for an interval.
 
 The same for both cores (`method_label` takes the core's representation registry). A run folder's method
 is the `label` its trainer wrote into config.json, so plotting needs no framework."""
@@ -18,7 +19,8 @@ import numpy as np
 
 from .runfolder import RunFolder
 
-__all__ = ["method_label", "mean_ci", "curves", "plot_learning_curve", "plot_runs", "final_table"]
+__all__ = ["method_label", "mean_ci", "band_label", "curves", "plot_learning_curve", "plot_runs",
+           "final_table"]
 
 BOOTSTRAP_RESAMPLES = 5000
 
@@ -34,17 +36,23 @@ def method_label(algo: str, representation: str, registry=None) -> str:
 
 
 def mean_ci(values, resamples: int = BOOTSTRAP_RESAMPLES) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """values (n_seeds, n_points) → mean, lower, upper of the 95% percentile-bootstrap interval of the
-    mean over seeds (module docstring); lower = upper = mean with one seed."""
-    v = np.asarray(values, dtype=float)
-    mean = v.mean(axis=0)
-    n = v.shape[0]
-    if n < 2:
-        return mean, mean, mean
-    idx = np.random.default_rng(0).integers(0, n, size=(resamples, n))
-    means = v[idx].mean(axis=1)                                   # (resamples, n_points)
-    lo, hi = np.percentile(means, [2.5, 97.5], axis=0)
+    """values (n_seeds, n_points) → mean over seeds, lower, upper of the 95% percentile-bootstrap interval
+    of the mean (module docstring); lower = upper = NaN (no interval) below `stats.MIN_SEEDS` seeds."""
+    from sf2_common.studies import stats
+
+    mean, lo, hi = stats.mean_interval(values, resamples)
+    if lo is None:
+        lo = hi = np.full_like(mean, np.nan)
     return mean, lo, hi
+
+
+def band_label(n_seeds: int) -> str:
+    """What a band (or its absence) is, for legends and footnotes."""
+    from sf2_common.studies import stats
+
+    if stats.informative(n_seeds):
+        return f"95% bootstrap CI of the mean (n={n_seeds})"
+    return f"no CI: n={n_seeds} < {stats.MIN_SEEDS} seeds is not informative"
 
 
 def curves(rows: list[dict]) -> tuple[np.ndarray, dict[int, np.ndarray]]:
@@ -78,9 +86,12 @@ def plot_learning_curve(rows: list[dict], path, title: str) -> None:
     for seed, ret in per_seed.items():
         ax.plot(steps, ret, lw=0.8, alpha=0.4, label=f"seed {seed}")
     mean, lo, hi = mean_ci(np.stack(list(per_seed.values())))
-    ax.plot(steps, mean, color="k", lw=2, label="mean")
-    if len(per_seed) > 1:
-        ax.fill_between(steps, lo, hi, color="k", alpha=0.15, label=f"95% CI (t, n={len(per_seed)})")
+    n = len(per_seed)
+    ax.plot(steps, mean, color="k", lw=2, label=f"mean over {n} seed{'s' if n > 1 else ''}")
+    if not np.isnan(lo).all():
+        ax.fill_between(steps, lo, hi, color="k", alpha=0.15, label=band_label(n))
+    elif n > 1:
+        ax.plot([], [], " ", label=band_label(n))
     _limit_to_lines(ax, list(per_seed.values()))
     ax.set_xlabel("env steps")
     ax.set_ylabel("eval return")
@@ -148,7 +159,7 @@ def plot_runs(run_dirs, path) -> list[dict]:
             steps, mat = _pool(entries)
             mean, lo, hi = mean_ci(mat)
             line, = ax.plot(steps, mean, lw=2, label=f"{method} (n={mat.shape[0]})")
-            if mat.shape[0] > 1:
+            if not np.isnan(lo).all():
                 ax.fill_between(steps, lo, hi, color=line.get_color(), alpha=0.2)
         _limit_to_lines(ax, [_pool(e)[1].mean(axis=0) for (t, _), e in data.items() if t == task]
                         + [row for (t, _), e in data.items() if t == task for row in _pool(e)[1]])
@@ -157,6 +168,8 @@ def plot_runs(run_dirs, path) -> list[dict]:
         ax.set_ylabel("eval return")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
+    fig.suptitle("line: mean eval return over seeds; band: 95% bootstrap CI of the mean (rliable, 5000 "
+                 "resamples), drawn only with >= 3 seeds", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -165,7 +178,7 @@ def plot_runs(run_dirs, path) -> list[dict]:
 
 def final_table(run_dirs) -> list[dict]:
     """Per (task, method): seeds, final eval return (mean over seeds, its 95% bootstrap interval
-    `ci_low`/`ci_high`, and each seed's), env steps."""
+    `ci_low`/`ci_high` (NaN below 3 seeds), and each seed's), env steps."""
     table = []
     for (task, method), entries in sorted(_load(run_dirs).items()):
         steps, mat = _pool(entries)

@@ -95,9 +95,16 @@ def _run(backend, args, command: str) -> int:
         from .rayrun import _ray
 
         _ray()
-    # The runner process only checks configs; its JAX (Playground imports it) stays off the GPUs the runs use.
+    # The runner only checks configs: its JAX (Playground imports it) stays off the GPUs the runs use.
+    platforms = os.environ.get("JAX_PLATFORMS")
     os.environ["JAX_PLATFORMS"] = "cpu"
-    runs = spec.resolve(study, backend.make_config, backend.validate)
+    try:
+        runs = spec.resolve(study, backend.make_config, backend.validate)
+    finally:
+        if platforms is None:
+            os.environ.pop("JAX_PLATFORMS")
+        else:
+            os.environ["JAX_PLATFORMS"] = platforms
     selected = spec.select_runs(study, runs, _names(args.tasks), _names(args.methods))
     folder = StudyFolder(args.out)
     folder.check(study, backend.name)

@@ -18,7 +18,15 @@ from sf2_common.errors import ConfigError
 
 from .folder import OBS_NOISE, _atomic_write
 
-__all__ = ["parse_noise", "evaluate_obs_noise", "save"]
+__all__ = ["check_obs_noise", "parse_noise", "evaluate_obs_noise", "save", "eval_command"]
+
+
+def check_obs_noise(value) -> float:
+    """The observation-noise std of an evaluation as a float; `ConfigError` unless a finite number >= 0
+    (both trainers' `evaluate_checkpoint` call this)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < float("inf"):
+        raise ConfigError(f"obs_noise = {value!r} is invalid: a noise std >= 0")
+    return float(value)
 
 
 def parse_noise(text: str) -> tuple[float, ...]:
@@ -27,7 +35,7 @@ def parse_noise(text: str) -> tuple[float, ...]:
         values = tuple(float(x) for x in text.split(",") if x.strip())
     except ValueError:
         values = ()
-    if not values or any(not (v >= 0) or v == float("inf") for v in values):
+    if not values or any(not 0 <= v < float("inf") for v in values):
         raise ConfigError(f"--obs-noise {text!r} is invalid: comma-separated noise stds >= 0, e.g. "
                           f"0,0.05,0.1")
     return values
@@ -63,3 +71,30 @@ def save(run, result: dict) -> Path:
     path = Path(run) / OBS_NOISE
     _atomic_write(path, json.dumps(result, indent=1) + "\n")
     return path
+
+
+def eval_command(evaluate_checkpoint: Callable, args, deterministic: bool | None) -> int:
+    """`PROG eval RUN --obs-noise STDS [--checkpoints N] [--episodes E] [--save] [--json]`."""
+    import numpy as np
+
+    if args.epoch is not None:
+        raise ConfigError("--epoch and --obs-noise do not go together: --checkpoints N evaluates the "
+                          "latest N")
+    noises = parse_noise(args.obs_noise)
+    result = evaluate_obs_noise(evaluate_checkpoint, args.run, noises, args.checkpoints, args.episodes,
+                                deterministic, log=None if args.json else print)
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(f"{args.run}: mean return over seeds and episodes under observation noise")
+        print(f"{'noise std':>10} " + " ".join(f"{'epoch ' + str(e):>11}" for e in
+                                                 dict.fromkeys(r["epoch"] for r in result["results"])))
+        for noise in noises:
+            cells = [np.mean([np.mean(v) for v in r["returns"].values()])
+                     for r in result["results"] if r["noise"] == noise]
+            print(f"{noise:>10g} " + " ".join(f"{c:>11.1f}" for c in cells))
+    if args.save:
+        path = save(args.run, result)
+        if not args.json:
+            print(f"wrote {path}")
+    return 0

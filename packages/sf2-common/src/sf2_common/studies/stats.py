@@ -143,10 +143,12 @@ def aggregate_intervals(score_dict: dict, resamples: int = RESAMPLES, seed: int 
 
 
 def _per_column(values, fn_name: str, resamples: int, seed: int):
-    library, metrics = require_rliable()
     v = np.asarray(values, dtype=float)
     if v.ndim == 1:
         v = v[:, None]
+    if fn_name == "mean" and not informative(v.shape[0]):
+        return v.mean(axis=0), None, None     # no rliable needed (a trainer's plot of 1 or 2 seeds)
+    library, metrics = require_rliable()
     if fn_name == "mean":
         def fn(x):
             return np.mean(x, axis=0)

@@ -43,6 +43,7 @@ from sf2_common.agents.configs import TrainConfig
 from sf2_common.agents.hostloop import WALL_FIELDS, TrainingDiverged
 from sf2_common.agents.runfolder import RunFolder
 from sf2_common.errors import ConfigError
+from sf2_common.studies.robustness import check_obs_noise
 
 from sf2_jax import networks
 from sf2_jax.losses import Batch
@@ -95,6 +96,7 @@ class Program:
         self._init = jax.jit(jax.vmap(self._init_one))
         self._epoch = jax.jit(jax.vmap(self._epoch_one, in_axes=(0, None)), donate_argnums=0)
         self._evaluate = jax.jit(jax.vmap(self._eval_one))
+        self._noisy_evaluate = {}
         self._eval_starts = jax.jit(jax.vmap(self._eval_starts_one, in_axes=(0, None)), static_argnums=1)
 
     # ------------------------------------------------------------------ host entry points
@@ -128,10 +130,17 @@ class Program:
             warnings.filterwarnings("ignore", message=".*donated buffers were not usable.*")
             return self._epoch(state, first)
 
-    def evaluate(self, params, eval_start, seeds, epoch: int) -> jax.Array:
-        """Episode returns (n_seeds, n_eval_envs) from the start states `eval_start`."""
+    def evaluate(self, params, eval_start, seeds, epoch: int, obs_noise: float = 0.0) -> jax.Array:
+        """Episode returns (n_seeds, n_eval_envs) from the start states `eval_start`. `obs_noise` > 0 adds
+        Gaussian noise of that std to every observation the policy sees (paper App. C.2.2; one compiled
+        program per std; 0 is the training's own evaluation program)."""
         with self._precision():
-            return self._evaluate(params, eval_start, eval_keys(seeds, epoch))
+            if not obs_noise:
+                return self._evaluate(params, eval_start, eval_keys(seeds, epoch))
+            if obs_noise not in self._noisy_evaluate:
+                self._noisy_evaluate[obs_noise] = jax.jit(jax.vmap(
+                    functools.partial(self._eval_one, obs_noise=obs_noise)))
+            return self._noisy_evaluate[obs_noise](params, eval_start, eval_keys(seeds, epoch))
 
     def fresh_eval_starts(self, seeds, n: int, epoch: int):
         """`n` new evaluation start states per seed (for `sf2-jax eval --episodes`)."""
@@ -217,7 +226,7 @@ class Program:
         means["sgd_steps"] = jnp.sum(trained) * self.cfg.grad_updates_per_step
         return state, means, first_bad
 
-    def _eval_one(self, params, eval_start, key):
+    def _eval_one(self, params, eval_start, key, obs_noise: float = 0.0):
         cfg = self.cfg
         env = self.spec.eval_env
         n_envs = jax.tree_util.tree_leaves(eval_start)[0].shape[0]
@@ -225,7 +234,10 @@ class Program:
 
         def step(carry, k):
             env_state, ret, alive = carry
-            action = self.algo.act(params, env_state.obs, k, cfg.deterministic_eval)
+            obs = env_state.obs
+            if obs_noise:   # its own key: the acting noise stays that of the noise-free evaluation
+                obs = obs + obs_noise * jax.random.normal(jax.random.fold_in(k, 1), obs.shape, obs.dtype)
+            action = self.algo.act(params, obs, k, cfg.deterministic_eval)
             env_state = env.step(env_state, action)
             ret = ret + env_state.reward.astype(jnp.float32) * alive
             alive = alive * (1.0 - env_state.done.astype(jnp.float32))
@@ -352,9 +364,12 @@ def _versions() -> dict:
 
 
 def evaluate_checkpoint(out, epoch: int | None = None, num_eval_envs: int | None = None,
-                        deterministic: bool | None = None) -> dict:
-    """Evaluate the checkpoint `epoch` (default: the latest) of the run folder `out`:
-    {"epoch", "env_steps", "returns": {seed: [episode returns]}}."""
+                        deterministic: bool | None = None, obs_noise: float = 0.0) -> dict:
+    """Evaluate the checkpoint `epoch` (default: the latest) of the run folder `out`, with Gaussian noise
+    of std `obs_noise` added to the observations the policy sees (paper App. C.2.2):
+    {"epoch", "env_steps", "returns": {seed: [episode returns]}, "deterministic", "obs_noise",
+    "checkpoints": the epochs of the folder's checkpoints}."""
+    obs_noise = check_obs_noise(obs_noise)
     run = RunFolder(out)
     conf = run.read_config()
     if conf is None:
@@ -379,8 +394,8 @@ def evaluate_checkpoint(out, epoch: int | None = None, num_eval_envs: int | None
         if num_eval_envs < 1:
             raise ConfigError(f"episodes = {num_eval_envs} is invalid: must be >= 1")
         starts = program.fresh_eval_starts(seeds, num_eval_envs, 10_000 + epoch)
-    returns = np.asarray(program.evaluate(state.params, starts, seeds, 10_000 + epoch))
+    returns = np.asarray(program.evaluate(state.params, starts, seeds, 10_000 + epoch, obs_noise))
     return {"epoch": epoch, "env_steps": meta.get("env_steps"),
             "returns": {int(s): [float(x) for x in returns[i]] for i, s in enumerate(seeds)},
-            "deterministic": eval_cfg.deterministic_eval}
+            "deterministic": eval_cfg.deterministic_eval, "obs_noise": obs_noise, "checkpoints": available}
 

@@ -45,6 +45,7 @@ from sf2_common.agents.hostloop import WALL_FIELDS, TrainingDiverged
 from sf2_common.agents.plotting import method_label
 from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch
 from sf2_common.errors import ConfigError
+from sf2_common.studies.robustness import check_obs_noise
 from tensordict import TensorDict
 
 from sf2_torch import losses, networks, params
@@ -60,6 +61,7 @@ __all__ = ["Program", "SeedState", "TrainState", "get_program", "TrainingDiverge
            "WALL_FIELDS"]
 
 EVAL_STREAM = 0x5EED  # eval keys: fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), epoch), as in the JAX core
+OBS_NOISE_STREAM = 0x0B5  # the observation noise of `evaluate(..., obs_noise)`: its own generator per seed
 # WALL_FIELDS, TrainingDiverged and the host loop's framework-free helpers (rows, the NaN guard's
 # message, progress bar, curve) are sf2_common.agents.hostloop, shared with the JAX core's trainer.
 
@@ -217,9 +219,11 @@ class Program:
         return state, means, first_bad
 
     @torch.no_grad()
-    def evaluate(self, agents, start_keys, seeds, epoch: int, env=None) -> np.ndarray:
+    def evaluate(self, agents, start_keys, seeds, epoch: int, env=None, obs_noise: float = 0.0) -> np.ndarray:
         """Episode returns (n_seeds, n) of one episode from each start state, the envs reset from the JAX
-        keys `start_keys` (n_seeds · n, 2); the acting noise depends on (seed, epoch)."""
+        keys `start_keys` (n_seeds · n, 2); the acting noise depends on (seed, epoch). `obs_noise` > 0 adds
+        Gaussian noise of that std to every observation the policy sees (paper App. C.2.2), drawn from its
+        own generator per seed, so the acting noise is that of the noise-free evaluation."""
         cfg = self.cfg
         s = len(seeds)
         n = start_keys.shape[0] // s
@@ -227,10 +231,17 @@ class Program:
         obs = env.reset_from_keys(start_keys).get("observation").view(s, n, -1)
         gens = [torch.Generator(device=self.device).manual_seed(
             (int(seed) * 1_000_003 + EVAL_STREAM * 7919 + int(epoch)) % (2**63)) for seed in seeds]
+        noise_gens = [torch.Generator(device=self.device).manual_seed(
+            (int(seed) * 1_000_003 + OBS_NOISE_STREAM * 7919 + int(epoch)) % (2**63)) for seed in seeds]
         ret = torch.zeros(s, n, device=self.device)
         alive = torch.ones(s, n, device=self.device)
         for _ in range(-(-cfg.episode_length // cfg.action_repeat)):
-            actions = torch.stack([ag.algo.act(obs[i], gens[i], cfg.deterministic_eval)
+            seen = obs
+            if obs_noise:
+                seen = obs + obs_noise * torch.stack([torch.randn(obs[i].shape, generator=noise_gens[i],
+                                                                  device=self.device, dtype=obs.dtype)
+                                                      for i in range(s)])
+            actions = torch.stack([ag.algo.act(seen[i], gens[i], cfg.deterministic_eval)
                                    for i, ag in enumerate(agents)])
             td = TensorDict({"observation": obs.reshape(s * n, -1), "action": actions.reshape(s * n, -1)},
                             [s * n], device=self.device)
@@ -405,9 +416,12 @@ def _versions() -> dict:
 
 
 def evaluate_checkpoint(out, epoch: int | None = None, num_eval_envs: int | None = None,
-                        deterministic: bool | None = None) -> dict:
-    """Evaluate the checkpoint `epoch` (default: the latest) of the run folder `out`:
-    {"epoch", "env_steps", "returns": {seed: [episode returns]}, "deterministic"}."""
+                        deterministic: bool | None = None, obs_noise: float = 0.0) -> dict:
+    """Evaluate the checkpoint `epoch` (default: the latest) of the run folder `out`, with Gaussian noise
+    of std `obs_noise` added to the observations the policy sees (paper App. C.2.2):
+    {"epoch", "env_steps", "returns": {seed: [episode returns]}, "deterministic", "obs_noise",
+    "checkpoints": the epochs of the folder's checkpoints}."""
+    obs_noise = check_obs_noise(obs_noise)
     run = RunFolder(out)
     conf = run.read_config()
     if conf is None:
@@ -441,8 +455,8 @@ def evaluate_checkpoint(out, epoch: int | None = None, num_eval_envs: int | None
             ag.algo.load_state_dict(s["algo"])
     except (RuntimeError, KeyError) as err:
         raise CheckpointMismatch(f"checkpoint {epoch} does not fit this program: {err}") from err
-    returns = program.evaluate(agents, starts, seeds, 10_000 + epoch)
+    returns = program.evaluate(agents, starts, seeds, 10_000 + epoch, obs_noise=obs_noise)
     return {"epoch": epoch, "env_steps": meta.get("env_steps"),
             "returns": {int(s): [float(x) for x in returns[i]] for i, s in enumerate(seeds)},
-            "deterministic": eval_cfg.deterministic_eval}
+            "deterministic": eval_cfg.deterministic_eval, "obs_noise": obs_noise, "checkpoints": available}
 
