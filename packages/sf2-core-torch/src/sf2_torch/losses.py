@@ -200,6 +200,12 @@ def sf2_critic(nets: Networks) -> Critic:
     return critic
 
 
+def _q(critic: Critic, batch: Batch, obs: torch.Tensor, action: torch.Tensor, target: bool = False):
+    """critic(obs, action, target) in the batch's dtype: under a bf16 autocast (the trainers'
+    `learner_precision`) the critic's matmuls run in bf16 while every reduction of a loss stays fp32."""
+    return critic(obs, action, target=target).to(batch.obs.dtype)
+
+
 def _td_loss(cfg, batch: Batch, q: torch.Tensor, next_value: torch.Tensor):
     """The TD loss of both critics: y = rs·r + discount·γ·next_value (B,), loss = ½ mean_{b,j}(m_b(Q_j −
     sg(y)))² over the twin Q (B, 2). Returns (loss, {"q": mean Q, "target_q": mean y})."""
@@ -223,8 +229,8 @@ def td3_critic_loss(
     with torch.no_grad():
         noise = torch.clamp(cfg.smoothing_noise * smoothing, -cfg.noise_clip, cfg.noise_clip)
         next_action = torch.clamp(td3_action(nets, batch.next_obs, target=True) + noise, -1.0, 1.0)
-        next_value = critic(batch.next_obs, next_action, target=True).min(-1).values
-    return _td_loss(cfg, batch, critic(batch.obs, batch.action), next_value)
+        next_value = _q(critic, batch, batch.next_obs, next_action, target=True).min(-1).values
+    return _td_loss(cfg, batch, _q(critic, batch, batch.obs, batch.action), next_value)
 
 
 def td3_actor_loss(
@@ -236,7 +242,7 @@ def td3_actor_loss(
     critic = critic or sf2_critic(nets)
     _check_batch(nets, batch)
     action = td3_action(nets, batch.obs)
-    loss = -torch.mean(critic(batch.obs, action)[:, 0])
+    loss = -torch.mean(_q(critic, batch, batch.obs, action)[:, 0])
     return loss, {"q": -loss.detach()}
 
 
@@ -262,8 +268,10 @@ def sac_critic_loss(
     _check_action_noise(nets, "noise", noise, b)
     with torch.no_grad():
         next_action, next_log_prob = sac_sample(nets, batch.next_obs, noise)
-        next_value = critic(batch.next_obs, next_action, target=True).min(-1).values - alpha * next_log_prob
-    return _td_loss(cfg, batch, critic(batch.obs, batch.action), next_value)
+        next_log_prob = next_log_prob.to(batch.obs.dtype)
+        next_value = (_q(critic, batch, batch.next_obs, next_action, target=True).min(-1).values
+                      - alpha * next_log_prob)
+    return _td_loss(cfg, batch, _q(critic, batch, batch.obs, batch.action), next_value)
 
 
 def sac_actor_loss(
@@ -276,7 +284,8 @@ def sac_actor_loss(
     b = _check_batch(nets, batch)
     _check_action_noise(nets, "noise", noise, b)
     action, log_prob = sac_sample(nets, batch.obs, noise)
-    loss = torch.mean(alpha * log_prob - critic(batch.obs, action).min(-1).values)
+    log_prob = log_prob.to(batch.obs.dtype)
+    loss = torch.mean(alpha * log_prob - _q(critic, batch, batch.obs, action).min(-1).values)
     return loss, {"entropy": -log_prob.mean().detach()}
 
 
@@ -292,6 +301,7 @@ def sac_alpha_loss(
     _check_action_noise(nets, "noise", noise, b)
     with torch.no_grad():
         _, log_prob = sac_sample(nets, batch.obs, noise)
+        log_prob = log_prob.to(batch.obs.dtype)
     target_entropy = -cfg.target_entropy_scale * cfg.action_size
     alpha = torch.exp(nets.log_alpha)
     loss = torch.mean(alpha * (-log_prob - target_entropy))

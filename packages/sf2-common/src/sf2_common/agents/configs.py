@@ -33,11 +33,17 @@ from . import tasks
 
 __all__ = [
     "TrainConfig", "PRESETS", "ALGOS", "SF2_FIELDS", "make_config", "parse_overrides", "parse_value",
-    "parse_seeds", "validate", "Schedule", "schedule", "ConfigError", "bad_field",
+    "parse_seeds", "validate", "Schedule", "schedule", "ConfigError", "bad_field", "LEARNER_PRECISIONS",
 ]
 
 ALGOS = ("td3", "sac")
 PRESETS = ("paper", "quick")
+# `learner_precision` → what the learner's matmuls compute with (the physics stays fp32 `highest`: TF32
+# inside MJX breaks training, mujoco_playground issue 86). JAX: the `jax.default_matmul_precision` the
+# learner's code is traced under (BF16_BF16_F32: bf16 inputs, fp32 accumulation and output, so parameters,
+# optimizer states and loss reductions stay fp32); torch: TF32 matmuls, or bf16 autocast of the loss and
+# policy forwards. docs/core-contract.md "Precision".
+LEARNER_PRECISIONS = {"highest": "highest", "tensorfloat32": "tensorfloat32", "bfloat16": "BF16_BF16_F32"}
 _SF2_DEFAULTS = {f.name: f.default for f in fields(SF2Config)}
 SF2_FIELDS = tuple(name for name in _SF2_DEFAULTS if name not in ("obs_size", "action_size"))
 
@@ -94,7 +100,8 @@ class TrainConfig:
     # run management
     checkpoint_every: int = 1     # evaluations between checkpoints (the last one is always saved)
     keep_checkpoints: int = 2
-    matmul_precision: str = "highest"   # docs/parity.md "Precision": TF32 breaks training on these tasks
+    # the learner's matmuls (networks, losses, acting); the physics always runs at fp32 `highest`
+    learner_precision: str = "highest"  # highest | tensorfloat32 | bfloat16: see LEARNER_PRECISIONS
 
     def sf2_config(self, obs_size: int, action_size: int) -> SF2Config:
         """The core's `SF2Config` of this run for a task with these sizes (validated)."""
@@ -113,6 +120,13 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> TrainConfig:
+        d = dict(d)
+        if "matmul_precision" in d and "learner_precision" not in d:
+            # run folders written before the physics/learner split: their one precision was the learner's
+            # too (every committed run used `highest`)
+            legacy = d.pop("matmul_precision")
+            d["learner_precision"] = {"high": "tensorfloat32", "float32": "highest",
+                                      "default": "bfloat16"}.get(legacy, legacy)
         known = {f.name: f for f in fields(cls)}
         unknown = sorted(set(d) - set(known))
         if unknown:
@@ -338,8 +352,9 @@ def validate(cfg: TrainConfig, seeds, registry) -> TrainConfig:
     if cfg.min_replay_size > cfg.max_replay_size:
         bad_field("min_replay_size", cfg.min_replay_size,
                   f"must be <= max_replay_size ({cfg.max_replay_size})")
-    if cfg.matmul_precision not in ("highest", "high", "default", "float32", "bfloat16", "tensorfloat32"):
-        bad_field("matmul_precision", cfg.matmul_precision, "must be one of highest, high, default")
+    if cfg.learner_precision not in LEARNER_PRECISIONS:
+        bad_field("learner_precision", cfg.learner_precision,
+                  f"must be one of {', '.join(LEARNER_PRECISIONS)}")
     for name in ("reward_scaling", "exploration_noise", "smoothing_noise", "noise_clip"):
         v = getattr(cfg, name)
         if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v) or v < 0:

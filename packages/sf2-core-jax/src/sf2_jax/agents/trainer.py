@@ -101,7 +101,13 @@ class Program:
 
     # ------------------------------------------------------------------ host entry points
     def _precision(self):
-        return jax.default_matmul_precision(self.cfg.matmul_precision)
+        """Every program is traced at fp32 `highest` (the physics always runs at it); the learner's code
+        inside them (SGD steps, acting) is traced under `_learner_precision()`."""
+        return jax.default_matmul_precision("highest")
+
+    def _learner_precision(self):
+        """`cfg.learner_precision` as a trace-time matmul precision (`configs.LEARNER_PRECISIONS`)."""
+        return jax.default_matmul_precision(configs.LEARNER_PRECISIONS[self.cfg.learner_precision])
 
     def init(self, seeds) -> TrainState:
         with self._precision():
@@ -181,7 +187,8 @@ class Program:
             params, opt_state, step = carry
             batch, k = xs
             noise = self.algo.step_noise(k, batch)
-            params, opt_state, metrics = self.algo.sgd_step(params, opt_state, batch, noise, step)
+            with self._learner_precision():
+                params, opt_state, metrics = self.algo.sgd_step(params, opt_state, batch, noise, step)
             return (params, opt_state, step + 1), metrics
 
         (params, opt_state, grad_steps), metrics = jax.lax.scan(
@@ -195,10 +202,12 @@ class Program:
         prefill = actor_step < self.sched.prefill_actor_steps
         key, k_act, k_sgd = jax.random.split(state.key, 3)
         obs = state.env_state.obs
+        def explore():
+            with self._learner_precision():
+                return self.algo.explore(state.params, obs, k_act).astype(jnp.float32)
+
         action = jax.lax.cond(
-            prefill,
-            lambda: jax.random.uniform(k_act, (cfg.num_envs, A), jnp.float32, -1.0, 1.0),
-            lambda: self.algo.explore(state.params, obs, k_act).astype(jnp.float32))
+            prefill, lambda: jax.random.uniform(k_act, (cfg.num_envs, A), jnp.float32, -1.0, 1.0), explore)
         env_state, batch = self._env_step(state.env_state, action)
         params = state.params
         if cfg.normalize_observations:
@@ -237,7 +246,8 @@ class Program:
             obs = env_state.obs
             if obs_noise:   # its own key: the acting noise stays that of the noise-free evaluation
                 obs = obs + obs_noise * jax.random.normal(jax.random.fold_in(k, 1), obs.shape, obs.dtype)
-            action = self.algo.act(params, obs, k, cfg.deterministic_eval)
+            with self._learner_precision():
+                action = self.algo.act(params, obs, k, cfg.deterministic_eval)
             env_state = env.step(env_state, action)
             ret = ret + env_state.reward.astype(jnp.float32) * alive
             alive = alive * (1.0 - env_state.done.astype(jnp.float32))

@@ -84,9 +84,25 @@ def env_spec(task: str, episode_length: int, action_repeat: int) -> EnvSpec:
         raise ConfigError(f"task {task!r} has structured observations {obs_size}; only flat state "
                           f"observations are supported")
     wrapped = wrapper.wrap_for_brax_training(env, episode_length=episode_length, action_repeat=action_repeat)
-    return EnvSpec(task=task, jax_env=wrapped, reset=jax.jit(wrapped.reset), step=jax.jit(wrapped.step),
-                   obs_size=int(obs_size), action_size=int(env.action_size), episode_length=episode_length,
+    return EnvSpec(task=task, jax_env=wrapped, reset=jax.jit(_physics(wrapped.reset)),
+                   step=jax.jit(_physics(wrapped.step)), obs_size=int(obs_size),
+                   action_size=int(env.action_size), episode_length=episode_length,
                    action_repeat=action_repeat)
+
+
+def _physics(fn):
+    """`fn` (a JAX env's reset or step) traced at fp32 `highest` (TF32 inside MJX breaks training, and
+    JAX's default on a GPU is TF32; docs/core-contract.md "Precision"), its output state strongly typed:
+    several tasks' steps return weakly typed leaves (docs/physics.md), which would make the jitted step
+    compile a second time when it is called with its own output."""
+    import jax
+
+    def traced(*args):
+        with jax.default_matmul_precision("highest"):
+            out = fn(*args)
+        return jax.tree_util.tree_map(lambda x: x.astype(x.dtype), out)
+
+    return traced
 
 
 def make_env(task: str, episode_length: int, action_repeat: int, num_envs: int,

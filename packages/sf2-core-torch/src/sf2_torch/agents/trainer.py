@@ -122,8 +122,15 @@ class Program:
 
     # ------------------------------------------------------------------ setup
     def precision(self):
-        torch.backends.cuda.matmul.allow_tf32 = self.cfg.matmul_precision in ("high", "tensorfloat32")
+        """`cfg.learner_precision` (common_configs.LEARNER_PRECISIONS): TF32 matmuls when
+        "tensorfloat32" (torch's global flags; the physics is MJX, traced at fp32 `highest` by
+        `envs.env_spec`, whatever torch's flags say). Returns the context the learner's forwards run in:
+        bf16 autocast when "bfloat16" (bf16 matmul inputs; parameters, Adam states, gradients and the
+        losses' reductions stay fp32), else nothing."""
+        torch.backends.cuda.matmul.allow_tf32 = self.cfg.learner_precision == "tensorfloat32"
         torch.backends.cudnn.allow_tf32 = torch.backends.cuda.matmul.allow_tf32
+        if self.cfg.learner_precision == "bfloat16":
+            return torch.autocast(self.device.type, dtype=torch.bfloat16)
         return contextlib.nullcontext()
 
     def make_agent(self, seed: int) -> SeedState:
@@ -179,8 +186,9 @@ class Program:
                 * 2.0 - 1.0 for ag in state.agents])
             self._observe(state, self._env_step(state, actions))
             return
-        actions = torch.stack([ag.algo.explore(state.obs[i], ag.generator)
-                               for i, ag in enumerate(state.agents)])
+        with self.precision():
+            actions = torch.stack([ag.algo.explore(state.obs[i], ag.generator)
+                                   for i, ag in enumerate(state.agents)]).float()
         self._observe(state, self._env_step(state, actions))
         G, B = cfg.grad_updates_per_step, cfg.batch_size
         local = actor_step % self.sched.actor_steps_per_epoch
@@ -189,8 +197,9 @@ class Program:
             noise = ag.algo.step_noise(ag.generator, batches)
             for g in range(G):  # the step index drives the policy delay and `aux_every` schedules
                 batch = losses.Batch(*(x[g] for x in batches))
-                metrics[i].append(ag.algo.sgd_step(batch, {k: v[g] for k, v in noise.items()},
-                                                   step=state.grad_steps + g))
+                with self.precision():
+                    metrics[i].append(ag.algo.sgd_step(batch, {k: v[g] for k, v in noise.items()},
+                                                       step=state.grad_steps + g))
         sgd_index.extend(local * G + g for g in range(G))
         state.grad_steps += G
 
@@ -241,8 +250,9 @@ class Program:
                 seen = obs + obs_noise * torch.stack([torch.randn(obs[i].shape, generator=noise_gens[i],
                                                                   device=self.device, dtype=obs.dtype)
                                                       for i in range(s)])
-            actions = torch.stack([ag.algo.act(seen[i], gens[i], cfg.deterministic_eval)
-                                   for i, ag in enumerate(agents)])
+            with self.precision():
+                actions = torch.stack([ag.algo.act(seen[i], gens[i], cfg.deterministic_eval)
+                                       for i, ag in enumerate(agents)]).float()
             td = TensorDict({"observation": obs.reshape(s * n, -1), "action": actions.reshape(s * n, -1)},
                             [s * n], device=self.device)
             nxt = env.step(td).get("next")

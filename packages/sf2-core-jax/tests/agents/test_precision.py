@@ -1,0 +1,66 @@
+"""`learner_precision`: the learner's matmuls at the chosen precision, the physics always at fp32 `highest`.
+
+The trainer traces every program under `highest` and the learner's code (SGD steps, acting) under
+`configs.LEARNER_PRECISIONS[cfg.learner_precision]`. The test reads the precision of every dot_general in
+the lowered epoch program: the dots of the env step (counted by lowering the env step alone) stay
+HIGHEST, every other dot takes the learner's precision. Lowering only traces (nothing is compiled).
+"""
+
+from __future__ import annotations
+
+import collections
+import re
+
+import jax
+import jax.numpy as jnp
+import pytest
+
+pytest.importorskip("mujoco_playground", reason="the trainer needs the [train] extra (playground)")
+
+from sf2_jax.agents.trainer import get_program  # noqa: E402
+
+DOT = re.compile(r"stablehlo\.dot_general.*")
+
+
+def _precisions(text: str) -> collections.Counter:
+    """{"highest" | "tf32" | "bf16" | other: number of dot_generals} of StableHLO `text`."""
+    out = collections.Counter()
+    for line in DOT.findall(text):
+        if "lhs_precision_type = bf16" in line:
+            out["bf16"] += 1
+        elif "precision = [HIGHEST, HIGHEST]" in line:
+            out["highest"] += 1
+        elif "precision = [HIGH, HIGH]" in line:
+            out["tf32"] += 1
+        else:
+            out[line[:80]] += 1
+    return out
+
+
+def _epoch_dots(cfg) -> collections.Counter:
+    program = get_program(cfg)
+    state = program.abstract_state((0,))
+    with program._precision():
+        return _precisions(program._epoch.lower(state, jnp.int32(0)).as_text())
+
+
+def test_learner_precision_leaves_the_physics_at_highest(tiny_cfg):
+    program = get_program(tiny_cfg)
+    state = program.abstract_state((0,))
+    env_state = jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), state.env_state)
+    action = jax.ShapeDtypeStruct((tiny_cfg.num_envs, program.spec.action_size), jnp.float32)
+    with jax.default_matmul_precision("highest"):
+        physics = sum(_precisions(jax.jit(program.spec.train_env.step).lower(env_state, action).as_text())
+                      .values())
+    assert physics > 0, "the env step has no dot_general: the test could not tell physics from learner"
+
+    full = _epoch_dots(tiny_cfg)
+    assert tiny_cfg.learner_precision == "highest"
+    assert set(full) == {"highest"}, full
+    total = full["highest"]
+    assert total > physics
+
+    assert _epoch_dots(tiny_cfg.replace(learner_precision="bfloat16")) == {"highest": physics,
+                                                                          "bf16": total - physics}
+    assert _epoch_dots(tiny_cfg.replace(learner_precision="tensorfloat32")) == {"highest": physics,
+                                                                               "tf32": total - physics}
