@@ -211,10 +211,11 @@ class _FakeSession:
 def _loop(session, run, last, **kw):
     cfg = configs.TrainConfig(num_timesteps=96, num_envs=4, num_evals=4, min_replay_size=4,
                               checkpoint_every=2)
-    rows, walltime, start = hostloop.resume_point(run, last)
+    rows = run.truncate_rows(-1 if last is None else last)     # the rows a resume from `last` keeps
+    walltime = max((r.get("walltime", 0.0) for r in rows), default=0.0)
     return hostloop.run_epochs(session, cfg=cfg, sched=configs.schedule(cfg), seeds=(3, 4), run=run,
-                               title="t", rows=rows, start=start, last=last, walltime=walltime,
-                               progress=False, plot=False, **kw)
+                               title="t", rows=rows, start=0 if last is None else last + 1, last=last,
+                               walltime=walltime, progress=False, plot=False, **kw)
 
 
 def _strip(rows):
@@ -228,7 +229,10 @@ def test_run_epochs_order_resume_and_nan_guard(tmp_path):
     # 3 epochs of 8 actor steps (96 env steps / 4 envs over num_evals − 1 = 3 epochs); checkpoints at
     # 0, every 2nd epoch and the last
     assert full.log == ["start", "save 0", "train 1", "train 2", "save 2", "train 3", "save 3", "finish"]
-    assert events == ["rows 0", "checkpoint 0", "rows 1", "rows 2", "checkpoint 2", "rows 3", "checkpoint 3"]
+    assert events == ["evaluate 0", "rows 0", "save 0", "checkpoint 0",
+                      "train 1", "evaluate 1", "rows 1",
+                      "train 2", "evaluate 2", "rows 2", "save 2", "checkpoint 2",
+                      "train 3", "evaluate 3", "rows 3", "save 3", "checkpoint 3"]
     assert [(r["epoch"], r["seed"], r["env_steps"], r["eval_return"]) for r in rows] == [
         (e, s, 32 * e, 10.0 * e) for e in range(4) for s in (3, 4)]
     assert rows[2]["loss"] == 1.0 and rows[2]["sgd_steps"] == 4 and "loss" not in rows[0]
@@ -267,24 +271,3 @@ def test_bootstrap_interval_of_the_mean():
     assert (lo[0] + hi[0]) / 2 == pytest.approx(mean[0], abs=0.1 * half)
     one = plotting.mean_ci([[7.0, 8.0]])
     assert np.array_equal(one[0], [7.0, 8.0]) and np.isnan(one[1]).all() and np.isnan(one[2]).all()
-
-
-def test_checkpoint_to_resume(tmp_path):
-    """Latest checkpoint of the same run when resuming; None for a new run or a folder without
-    checkpoints; a folder with checkpoints and resume off is refused, not overwritten."""
-    from sf2_common.agents.hostloop import checkpoint_to_resume
-    from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch
-
-    class _Ckpt:
-        def __init__(self, latest):
-            self._latest = latest
-
-        def latest(self):
-            return self._latest
-
-    run = RunFolder(tmp_path / "run")
-    assert checkpoint_to_resume(run, _Ckpt(4), existing=True, resume=True) == 4
-    assert checkpoint_to_resume(run, _Ckpt(4), existing=False, resume=True) is None
-    assert checkpoint_to_resume(run, _Ckpt(None), existing=True, resume=False) is None
-    with pytest.raises(RunFolderMismatch, match="already holds checkpoints; pass --fresh"):
-        checkpoint_to_resume(run, _Ckpt(4), existing=True, resume=False)

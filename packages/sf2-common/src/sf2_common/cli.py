@@ -24,6 +24,7 @@ import argparse
 import dataclasses
 import json
 import os
+import re
 import sys
 import time
 from collections.abc import Callable
@@ -32,6 +33,7 @@ from pathlib import Path
 from sf2_common.agents import configs, plotting
 from sf2_common.agents.hostloop import TrainingDiverged
 from sf2_common.agents.registry import Registry
+from sf2_common.agents.runfolder import RunFolder
 from sf2_common.errors import ConfigError
 from sf2_common.studies import commands as study_commands
 
@@ -159,18 +161,25 @@ def _setup_jax(compile_cache: str):
 
 def _train(fw: Framework, args) -> int:
     cfgs, seeds = resolve_configs(fw, args)
-    _setup_jax(args.compile_cache)
     out = Path(args.out)
     several = len(cfgs) > 1
+    plan = [(cfg, out / f"{cfg.algo}-{cfg.representation}" if several else out) for cfg in cfgs]
+    RunFolder(out).check_usable()
+    for _, folder in plan:  # every run folder is checked before anything is compiled
+        if args.fresh:
+            RunFolder(folder).check_usable()
+        else:
+            RunFolder(folder).preflight()
+    _setup_jax(args.compile_cache)
     folders, seconds = [], {}
-    for cfg in cfgs:
-        folder = out / f"{cfg.algo}-{cfg.representation}" if several else out
+    for cfg, folder in plan:
         label = fw.method_label(cfg.algo, cfg.representation)
         print(f"== {label} on {cfg.task}, seeds {','.join(map(str, seeds))} → {folder}", file=sys.stderr)
         t0 = time.time()
-        fw.train(cfg, seeds, folder, resume=not args.no_resume, fresh=args.fresh,
-              progress=not args.no_progress, stop_after_epoch=args.stop_after_epoch)
-        seconds[label] = time.time() - t0
+        result = fw.train(cfg, seeds, folder, resume=not args.no_resume, fresh=args.fresh,
+                          progress=not args.no_progress, stop_after_epoch=args.stop_after_epoch)
+        # the training's own wall time (a rerun of a finished run takes seconds)
+        seconds[label] = max((r.get("walltime", 0.0) for r in result.rows), default=time.time() - t0)
         folders.append(folder)
     table = plotting.final_table(folders)
     if several:
@@ -271,17 +280,39 @@ def _tasks(fw: Framework, args) -> int:
 _HANDLERS = {"train": _train, "eval": _eval, "plot": _plot, "study": study_commands.main, "tasks": _tasks}
 
 
+_NEGATIVE = re.compile(r"-(\d|\.\d|inf$|nan$)", re.IGNORECASE)
+
+
+def join_negative_values(argv: list[str]) -> list[str]:
+    """`--flag -1e-3` → `--flag=-1e-3`: argparse takes a value starting with '-' for an option unless it
+    looks like a plain negative number (-0.001, not -1e-3 or -inf), so a negative value that is not reaches
+    the config's validation, which names the field and what is valid."""
+    out: list[str] = []
+    for tok in argv:
+        if out and _NEGATIVE.match(tok) and out[-1].startswith("--") and "=" not in out[-1]:
+            out[-1] = f"{out[-1]}={tok}"
+        else:
+            out.append(tok)
+    return out
+
+
 def main(fw: Framework, argv=None) -> int:
-    """Run one command; the exit status: 0 done, 2 bad input (a ConfigError, e.g. a run folder or a
-    checkpoint of another run), 3 training diverged, 130 interrupted."""
+    """Run one command; the exit status: 0 done, 2 bad input (a ConfigError, e.g. a run folder that
+    cannot be used or a checkpoint of another run; an OSError naming the path), 3 training diverged,
+    130 interrupted."""
     for name, value in fw.env_defaults:
         os.environ.setdefault(name, value)
+    argv = join_negative_values(list(sys.argv[1:] if argv is None else argv))
     args = build_parser(fw).parse_args(argv)
-    args.argv = list(sys.argv[1:] if argv is None else argv)
+    args.argv = argv
     try:
         return _HANDLERS[args.command](fw, args)
     except (ConfigError, FileNotFoundError) as err:
         print(f"{fw.prog} {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:  # a path that cannot be written or read: the message names it
+        where = f"{err.filename}: " if err.filename else ""
+        print(f"{fw.prog} {args.command}: error: {where}{err.strerror or err}", file=sys.stderr)
         return 2
     except TrainingDiverged as err:
         print(f"{fw.prog} {args.command}: {err}", file=sys.stderr)

@@ -1,10 +1,13 @@
 """Helpers for both cores' agent tests: the CLI's bad-input cases (the same flags and messages in
 `sf2-jax` and `sf2-torch`, since both are `sf2_common.cli`) and how a test runs one; the kill-and-resume
-protocol (both trainers run `sf2_common.agents.hostloop`, so a kill lands at the same points)."""
+protocol (both trainers run `sf2_common.agents.hostloop`, so a kill lands at the same points): in-process
+at the host loop's hook points, and a real `kill -9` of a CLI process (`kill9`), also in the middle of a
+checkpoint's save; the run-folder faults of docs/run-folders.md (`damage`, `folder_digest`)."""
 
 from __future__ import annotations
 
-__all__ = ["BAD_TRAIN_INPUTS", "cli_error", "KILL_POINTS", "Killed", "kill_and_resume"]
+__all__ = ["BAD_TRAIN_INPUTS", "cli_error", "KILL_POINTS", "Killed", "kill_and_resume", "kill9", "cli_args",
+           "FAULTS", "damage", "folder_digest"]
 
 # (arguments after `train --config quick --out ...`, texts the error message must contain)
 BAD_TRAIN_INPUTS = [
@@ -40,9 +43,12 @@ def cli_error(main, capsys, *args) -> str:
 
 
 # (event, epoch) a run is killed at, and the checkpoint its resume must start from: after an epoch's rows
-# but before its checkpoint (rows must not be duplicated), right after a checkpoint, and before the
-# first checkpoint (nothing to resume: a fresh start).
-KILL_POINTS = [(("rows", 2), 1), (("checkpoint", 1), 1), (("rows", 0), None)]
+# but before its checkpoint (rows must not be duplicated), during an epoch's training (after the previous
+# checkpoint), and during the first evaluation (nothing to resume: a fresh start). Nothing is written while
+# an epoch trains or evaluates, so a kill anywhere in one leaves the folder as at its start. A kill in the
+# middle of a save, `("mid-save", epoch)`, leaves the checkpoint's files written but not its manifest;
+# where the run resumes then depends on the framework's save (see the cores' fault tests).
+KILL_POINTS = [(("rows", 2), 1), (("train", 2), 1), (("evaluate", 0), None)]
 
 
 class Killed(Exception):
@@ -50,19 +56,125 @@ class Killed(Exception):
 
 
 def kill_and_resume(train, cfg, out, event: str, epoch: int, expected_resume):
-    """Train `cfg` (seed 0) into `out`, killed at `(event, epoch)` through the trainer's hook; tear the
-    last line of metrics.jsonl as a kill in the middle of a write would; train again. Checks where the
-    resumed run started and returns its result (the caller compares it with an uninterrupted run)."""
+    """Train `cfg` (seed 0) into `out`, killed at `(event, epoch)` through the trainer's hook (or, for
+    "mid-save", as the save's last step begins); tear the last line of metrics.jsonl as a kill in the
+    middle of a write would; train again. Checks where the resumed run started and returns its result (the
+    caller compares it with an uninterrupted run). The exception stands for SIGKILL: the folder is left as
+    it was at that point (`kill9` checks this with a real one)."""
     import pytest
+
+    from sf2_common.agents import checkpoints
 
     def hook(e, n):
         if (e, n) == (event, epoch):
             raise Killed(f"killed at {event} {epoch}")
 
-    with pytest.raises(Killed):
-        train(cfg, (0,), out, progress=False, hook=hook)
+    write_manifest = checkpoints.write_manifest
+
+    def write_or_die(folder):
+        hook("mid-save", int(str(folder).rstrip("/").split("/")[-1].lstrip(".").split(".")[0]))
+        write_manifest(folder)
+
+    checkpoints.write_manifest = write_or_die
+    try:
+        with pytest.raises(Killed):
+            train(cfg, (0,), out, progress=False, hook=hook)
+    finally:
+        checkpoints.write_manifest = write_manifest
     with open(out / "metrics.jsonl", "a") as f:
         f.write('{"epoch": 3, "seed": 0, "eval_ret')
     resumed = train(cfg, (0,), out, progress=False)
     assert resumed.resumed_from == expected_resume
     return resumed
+
+
+# ------------------------------------------------------------------------------------------- kill -9
+_KILL9_DRIVER = """
+import importlib, os, signal, sys
+from sf2_common.agents import checkpoints, hostloop
+event, epoch, module = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+
+def die():
+    os.kill(os.getpid(), signal.SIGKILL)
+
+if event == "mid-save":  # the checkpoint's files are written, its manifest (the save's last step) is not
+    write_manifest = checkpoints.write_manifest
+
+    def write_or_die(folder):
+        if int(os.path.basename(str(folder)).lstrip(".").split(".")[0]) == epoch:
+            die()
+        write_manifest(folder)
+
+    checkpoints.write_manifest = write_or_die
+else:
+    call_hook = hostloop.call_hook
+
+    def hook_or_die(hook, e, n):
+        if (e, n) == (event, epoch):
+            die()
+        call_hook(hook, e, n)
+
+    hostloop.call_hook = hook_or_die
+sys.exit(importlib.import_module(module).main(sys.argv[4:]))
+"""
+
+
+def kill9(cli_module: str, argv: list[str], at: tuple[str, int], env: dict | None = None,
+          timeout: float = 600):
+    """Run `python -m cli_module argv` in a new process that sends itself SIGKILL at `at`: a host-loop
+    hook point (`("train", 2)`: as epoch 2 starts training, ...) or `("mid-save", epoch)` (the checkpoint's
+    files written, the save not finished). Returns the `subprocess.CompletedProcess`; asserts the kill."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", _KILL9_DRIVER, at[0], str(at[1]), cli_module, *argv],
+                          capture_output=True, text=True, timeout=timeout, env={**os.environ, **(env or {})})
+    assert proc.returncode == -signal.SIGKILL, (proc.returncode, proc.stderr[-3000:])
+    return proc
+
+
+def cli_args(cfg, out, fields_skipped=("task", "algo", "representation")) -> list[str]:
+    """`train` arguments that make the CLI build exactly `cfg` (every field as its own flag)."""
+    args = ["train", "--task", cfg.task, "--algo", cfg.algo, "--repr", cfg.representation,
+            "--config", "quick", "--seeds", "0", "--out", str(out), "--no-progress"]
+    for name, value in cfg.to_dict().items():
+        if name not in fields_skipped:
+            args += [f"--{name.replace('_', '-')}",
+                     ",".join(map(str, value)) if isinstance(value, (list, tuple)) else str(value)]
+    return args
+
+
+# ------------------------------------------------------------------------------------------- file faults
+FAULTS = ("truncate", "garble", "delete")
+
+
+def damage(path, fault: str) -> None:
+    """Truncate `path` to half its size, flip 16 bytes a third of the way in, or delete it."""
+    from pathlib import Path
+
+    path = Path(path)
+    if fault == "delete":
+        path.unlink()
+        return
+    data = bytearray(path.read_bytes())
+    if fault == "truncate":
+        data = data[: len(data) // 2]
+    elif fault == "garble":
+        start = len(data) // 3
+        for i in range(start, min(len(data), start + 16)):
+            data[i] ^= 0x5A
+    else:
+        raise ValueError(f"fault {fault!r}: must be one of {', '.join(FAULTS)}")
+    path.write_bytes(bytes(data))
+
+
+def folder_digest(folder) -> dict[str, str]:
+    """{relative path: SHA-256} of every file under `folder` (a folder left unchanged has the same)."""
+    import hashlib
+    from pathlib import Path
+
+    folder = Path(folder)
+    return {p.relative_to(folder).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}

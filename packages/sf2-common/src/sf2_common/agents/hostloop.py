@@ -1,7 +1,7 @@
 """The training host loop of `sf2_jax.agents.trainer` and `sf2_torch.agents.trainer`, framework-free:
 `run_epochs` drives a framework's `Session` (train an epoch, evaluate, save a checkpoint) through the
 schedule, and writes metric rows, the NaN guard's message, the learning-curve PNG and the progress bar;
-`resume_point`, `run_title` and `versions` help the trainers set a run up.
+`run_title` and `versions` help the trainers set a run up (where it resumes: `sf2_common.agents.resume`).
 
 Both trainers thus run the same order per epoch (train → NaN guard → evaluate → append rows →
 checkpoint), so a run folder written by either has the same rows; only the programs that train and
@@ -17,8 +17,10 @@ from typing import Protocol
 
 import numpy as np
 
+from .runlog import library_log
+
 __all__ = [
-    "WALL_FIELDS", "TrainingDiverged", "Session", "run_epochs", "resume_point", "diverged_message",
+    "WALL_FIELDS", "TrainingDiverged", "Session", "run_epochs", "diverged_message",
     "row_metrics", "make_row", "write_curve", "call_hook", "versions", "progress_bar", "NoBar", "run_title",
 ]
 
@@ -140,80 +142,76 @@ def run_epochs(session: Session, *, cfg, sched, seeds, run, title: str, rows: li
     checkpoint 0 first) to the end of the schedule or `stop_after_epoch`. Per epoch: train → NaN guard
     (`TrainingDiverged` before anything of the epoch is written) → evaluate → append rows → `hook("rows")`
     → checkpoint (every `checkpoint_every` epochs, the last and `stop_after_epoch`) → `hook("checkpoint")`
-    → learning curve. `rows` (the folder's rows so far) and `last` (the latest checkpoint) come from a
-    resume; `walltime` is the wall time the run had already spent. Returns all rows."""
+    → learning curve. `hook("train"|"evaluate"|"save", epoch)` is called as each of those begins (a kill
+    there is a kill during it: nothing is written while an epoch trains or evaluates). `rows` (the
+    folder's rows so far) and `last` (the latest checkpoint) come from a resume; `walltime` is the wall
+    time the run had already spent. What libraries log goes to the run's train.log
+    (`sf2_common.agents.runlog`). Returns all rows."""
     bar = progress_bar(progress, sched.total_env_steps, sched.env_steps_after(max(start - 1, 0)), title)
     t_start = time.time() - walltime
-    try:
-        if start == 0:  # evaluate the initial policy, checkpoint 0
-            session.start()
-            t = time.time()
-            returns = session.evaluate(0)
-            new = [make_row(0, s, 0, returns[i], {}, None, time.time() - t, time.time() - t_start)
-                   for i, s in enumerate(seeds)]
-            run.append_rows(new)
-            rows += new
-            call_hook(hook, "rows", 0)
-            session.save(0, 0)
-            last = 0
-            call_hook(hook, "checkpoint", 0)
-            bar.set_postfix_str(f"eval {returns.mean():.1f}")
-            start = 1
-        for epoch in range(start, sched.num_epochs + 1):
-            t0 = time.time()
-            means, first_bad = session.train_epoch(epoch)
-            epoch_seconds = time.time() - t0
-            message = diverged_message(first_bad, sched, epoch, seeds, cfg, last, session.loss_order())
-            if message:
-                raise TrainingDiverged(message)
-            t1 = time.time()
-            returns = session.evaluate(epoch)
-            eval_seconds = time.time() - t1
-            sps = sched.env_steps_per_epoch / epoch_seconds
-            env_steps = sched.env_steps_after(epoch)
-            new = [make_row(epoch, s, env_steps, returns[i], row_metrics(means, i), sps, eval_seconds,
-                            time.time() - t_start, epoch_seconds) for i, s in enumerate(seeds)]
-            run.append_rows(new)
-            rows += new
-            call_hook(hook, "rows", epoch)
-            if epoch % cfg.checkpoint_every == 0 or epoch == sched.num_epochs or epoch == stop_after_epoch:
-                session.save(epoch, env_steps)
-                last = epoch
-                call_hook(hook, "checkpoint", epoch)
-            if plot:
-                write_curve(rows, run, title)
-            bar.update(sched.env_steps_per_epoch)
-            bar.set_postfix_str(f"{sps:,.0f} steps/s, eval {returns.mean():.1f}")
-            if stop_after_epoch is not None and epoch >= stop_after_epoch:
-                break
-        else:
-            session.finish()
-            if plot:
-                write_curve(rows, run, title)
-    finally:
-        bar.close()
+    with library_log(run):
+        try:
+            return _run_epochs(session, bar, t_start, cfg=cfg, sched=sched, seeds=seeds, run=run, title=title,
+                               rows=rows, start=start, last=last, hook=hook,
+                               stop_after_epoch=stop_after_epoch, plot=plot)
+        finally:
+            bar.close()
+
+
+def _run_epochs(session, bar, t_start, *, cfg, sched, seeds, run, title, rows, start, last, hook,
+                stop_after_epoch, plot) -> list[dict]:
+    """The body of `run_epochs` (its docstring)."""
+    if start == 0:  # evaluate the initial policy, checkpoint 0
+        session.start()
+        call_hook(hook, "evaluate", 0)
+        t = time.time()
+        returns = session.evaluate(0)
+        new = [make_row(0, s, 0, returns[i], {}, None, time.time() - t, time.time() - t_start)
+               for i, s in enumerate(seeds)]
+        run.append_rows(new)
+        rows += new
+        call_hook(hook, "rows", 0)
+        call_hook(hook, "save", 0)
+        session.save(0, 0)
+        last = 0
+        call_hook(hook, "checkpoint", 0)
+        bar.set_postfix_str(f"eval {returns.mean():.1f}")
+        start = 1
+    for epoch in range(start, sched.num_epochs + 1):
+        call_hook(hook, "train", epoch)
+        t0 = time.time()
+        means, first_bad = session.train_epoch(epoch)
+        epoch_seconds = time.time() - t0
+        message = diverged_message(first_bad, sched, epoch, seeds, cfg, last, session.loss_order())
+        if message:
+            raise TrainingDiverged(message)
+        call_hook(hook, "evaluate", epoch)
+        t1 = time.time()
+        returns = session.evaluate(epoch)
+        eval_seconds = time.time() - t1
+        sps = sched.env_steps_per_epoch / epoch_seconds
+        env_steps = sched.env_steps_after(epoch)
+        new = [make_row(epoch, s, env_steps, returns[i], row_metrics(means, i), sps, eval_seconds,
+                        time.time() - t_start, epoch_seconds) for i, s in enumerate(seeds)]
+        run.append_rows(new)
+        rows += new
+        call_hook(hook, "rows", epoch)
+        if epoch % cfg.checkpoint_every == 0 or epoch == sched.num_epochs or epoch == stop_after_epoch:
+            call_hook(hook, "save", epoch)
+            session.save(epoch, env_steps)
+            last = epoch
+            call_hook(hook, "checkpoint", epoch)
+        if plot:
+            write_curve(rows, run, title)
+        bar.update(sched.env_steps_per_epoch)
+        bar.set_postfix_str(f"{sps:,.0f} steps/s, eval {returns.mean():.1f}")
+        if stop_after_epoch is not None and epoch >= stop_after_epoch:
+            break
+    else:
+        session.finish()
+        if plot:
+            write_curve(rows, run, title)
     return rows
-
-
-def checkpoint_to_resume(run, ckpt, existing: bool, resume: bool) -> int | None:
-    """The checkpoint epoch a run folder resumes from: its latest when it holds this run (`existing`) and
-    resuming is allowed, else None. A folder holding checkpoints with `resume=False` is refused
-    (`RunFolderMismatch`), never silently overwritten."""
-    from .runfolder import RunFolderMismatch
-
-    if existing and not resume and ckpt.latest() is not None:
-        raise RunFolderMismatch(f"{run.path} already holds checkpoints; pass --fresh to start over")
-    return ckpt.latest() if (existing and resume) else None
-
-
-def resume_point(run, last: int | None) -> tuple[list[dict], float, int]:
-    """(rows, wall time spent, first epoch to run) of a run resuming from checkpoint `last` (None: from
-    scratch). Rows of epochs after `last` are dropped from metrics.jsonl: the run produces them again."""
-    if last is None:
-        run.truncate_rows(-1)
-        return [], 0.0, 0
-    rows = run.truncate_rows(last)
-    return rows, max((r.get("walltime", 0.0) for r in rows), default=0.0), last + 1
 
 
 class NoBar:

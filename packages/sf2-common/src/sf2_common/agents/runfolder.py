@@ -1,25 +1,41 @@
 """A run folder: `config.json` (resolved config, seeds, schedule, versions), `metrics.jsonl` (one row per
 evaluation and seed), `checkpoints/` (the framework's own format: Orbax for sf2_jax, torch files for
-sf2_torch), `learning_curve.png`, and `final/params_seed{S}.npz`. The same layout for both cores.
+sf2_torch, each with the file manifest of `sf2_common.agents.checkpoints`), `learning_curve.png`,
+`final/params_seed{S}.npz`, `train.log` (what the libraries log, and the run's own notices) and, only
+after a damaged checkpoint was found, `damaged/` (what was set aside). The same layout for both cores;
+docs/run-folders.md describes it with the recovery rules.
+
+Nothing a user made is deleted implicitly: `config.json` identifies the run, so a folder holding a run's
+files without a readable `config.json` is an error naming what is missing (`RunFolderError`), never a
+fresh start over its contents; only `clear()` (`--fresh`) discards, and it says what it discards.
 
 metrics.jsonl is append-safe: every row is one JSON line written with flush + fsync; a reader skips a
 torn last line (a kill mid-write) and keeps the first row of each (epoch, seed). When a run resumes from
 checkpoint e, rows of epochs after e are dropped (they will be produced again, identically), so no row is
-lost or duplicated whatever moment the run was killed at.
+lost or duplicated whatever moment the run was killed at (`sf2_common.agents.resume`).
 """
 
 from __future__ import annotations
 
 import json
 import os
+import shutil
+import sys
+import tempfile
+import time
 from pathlib import Path
 
 from sf2_common.errors import ConfigError
 
-__all__ = ["RunFolder", "RunFolderMismatch"]
+__all__ = ["RunFolder", "RunFolderError", "RunFolderMismatch"]
 
 
-class RunFolderMismatch(ConfigError):
+class RunFolderError(ConfigError):
+    """A run folder that cannot be used as it is: the message names the path and what is wrong with it,
+    and nothing in the folder was changed (the CLIs exit with status 2)."""
+
+
+class RunFolderMismatch(RunFolderError):
     """The folder holds a run with another config or other seeds."""
 
 
@@ -29,6 +45,10 @@ class RunFolder:
     CHECKPOINTS = "checkpoints"
     CURVE = "learning_curve.png"
     FINAL = "final"
+    LOG = "train.log"
+    DAMAGED = "damaged"
+    # what a run writes besides config.json: a folder holding any of these holds a run
+    RUN_FILES = (METRICS, CHECKPOINTS, FINAL, CURVE)
 
     def __init__(self, path):
         self.path = Path(path)
@@ -54,28 +74,121 @@ class RunFolder:
     def final_dir(self) -> Path:
         return self.path / self.FINAL
 
-    def clear(self) -> None:
-        """Delete what a run wrote here (config, metrics, curve, checkpoints, final parameters; `--fresh`);
-        other files in the folder stay."""
-        import shutil
+    @property
+    def log_path(self) -> Path:
+        return self.path / self.LOG
 
+    @property
+    def damaged_dir(self) -> Path:
+        return self.path / self.DAMAGED
+
+    # ------------------------------------------------------------------ the folder itself
+    def check_usable(self) -> None:
+        """Raise `RunFolderError` unless the folder exists and can be written, or can be created: the path
+        is a regular file, lies under one, or is on a read-only or forbidden location. Leaves nothing
+        behind (a probe folder is created and removed); the run folder itself is created later."""
+        path = self.path
+        if path.exists() and not path.is_dir():
+            raise RunFolderError(f"run folder {path} is a file, not a folder; pass a folder (a new one "
+                                 f"is created)")
+        probe_in = path
+        while not probe_in.exists():
+            if probe_in.parent == probe_in:
+                break
+            probe_in = probe_in.parent
+        if probe_in.exists() and not probe_in.is_dir():
+            raise RunFolderError(f"run folder {path} cannot be created: {probe_in} is a file, not a folder")
+        try:
+            os.rmdir(tempfile.mkdtemp(prefix=".sf2-probe-", dir=probe_in))
+        except OSError as err:
+            what = "written" if probe_in == path else f"created (in {probe_in})"
+            raise RunFolderError(f"run folder {path} cannot be {what}: {err.strerror or err}") from None
+
+    def run_files(self) -> list[str]:
+        """The names of `RUN_FILES` that exist in the folder."""
+        return [name for name in self.RUN_FILES if (self.path / name).exists()]
+
+    def clear(self, say=None) -> list[str]:
+        """Delete what a run wrote here (config, metrics, curve, log, checkpoints, final parameters and
+        set-aside damaged checkpoints: `--fresh`); other files in the folder stay. Says what it discards
+        (`say`, default: print to stderr) and returns the names."""
         if not self.path.exists():
-            return
-        for name in (self.CONFIG, self.METRICS, self.CURVE):
-            (self.path / name).unlink(missing_ok=True)
-        shutil.rmtree(self.checkpoint_dir, ignore_errors=True)
-        shutil.rmtree(self.final_dir, ignore_errors=True)
+            return []
+        self.check_usable()
+        gone = [name for name in (self.CONFIG, *self.RUN_FILES, self.LOG, self.DAMAGED)
+                if (self.path / name).exists()]
+        if not gone:
+            return []
+        detail = {self.CHECKPOINTS: _listing(self.checkpoint_dir),
+                  self.METRICS: _row_count(self.metrics_path)}
+        what = ", ".join(n + detail.get(n, "") for n in gone)
+        (say or _stderr)(f"--fresh: discarding {what} in {self.path}")
+        for name in gone:
+            p = self.path / name
+            if p.is_dir():
+                shutil.rmtree(p)
+            else:
+                p.unlink()
+        return gone
 
     # ------------------------------------------------------------------ config
     def read_config(self) -> dict | None:
-        if not self.config_path.exists():
+        """The parsed config.json, or None if there is none. `RunFolderError` if it cannot be read or is
+        not a run's config (truncated, garbled, not JSON)."""
+        path = self.config_path
+        if path.is_dir():
+            raise RunFolderError(f"{path} is a folder, not the run's config file")
+        try:
+            text = path.read_text()
+        except FileNotFoundError:
             return None
-        return json.loads(self.config_path.read_text())
+        except NotADirectoryError:
+            self.check_usable()  # names the file the folder's path runs through
+            raise
+        except (OSError, UnicodeDecodeError) as err:
+            raise RunFolderError(f"{path} cannot be read: {getattr(err, 'strerror', None) or err}") from None
+        fix = (f"it identifies the run in {self.path}: restore it, use another --out, or pass --fresh to "
+               f"discard the folder's run; nothing was changed")
+        if not text.strip():
+            raise RunFolderError(f"{path} is empty; {fix}")
+        try:
+            conf = json.loads(text)
+        except json.JSONDecodeError as err:
+            raise RunFolderError(f"{path} is not valid JSON ({err.msg}: line {err.lineno} column "
+                                 f"{err.colno}); {fix}") from None
+        if not (isinstance(conf, dict) and isinstance(conf.get("config"), dict)
+                and isinstance(conf.get("seeds"), list)):
+            raise RunFolderError(f"{path} is not a run's config (it needs a 'config' object and a 'seeds' "
+                                 f"list); {fix}")
+        return conf
+
+    def preflight(self) -> dict | None:
+        """Everything checkable about the folder without the run's config: raises `RunFolderError` if it
+        cannot be used (`check_usable`), if its config.json cannot be read, if it holds a run's files
+        without a config.json, if a line of metrics.jsonl other than a torn last one is not a row, or if
+        metrics.jsonl lacks rows that even the oldest checkpoint was written after. Returns the folder's
+        config (None: the folder holds no run). Changes nothing."""
+        self.check_usable()
+        old = self.read_config()
+        if old is None:
+            found = self.run_files()
+            if found:
+                raise RunFolderError(
+                    f"{self.path} holds a run's files ({', '.join(found)}) but no {self.CONFIG}, which "
+                    f"identifies the run; nothing was changed. Restore {self.CONFIG}, use another --out, or "
+                    f"pass --fresh to discard these files.")
+            return None
+        rows = self.read_rows(strict=True)
+        epochs = self.checkpoint_epochs()
+        if epochs:
+            self.check_rows(rows, epochs[0], old["seeds"])
+        return old
 
     def check_compatible(self, config: dict, seeds) -> bool:
-        """True if the folder already holds this run (resume), False if it is new or empty. Raises
-        `RunFolderMismatch` naming the differing fields if it holds another run."""
-        old = self.read_config()
+        """True if the folder already holds this run (resume), False if it is new or holds no run. Raises
+        what `preflight` raises, and `RunFolderMismatch` naming the differing fields if the folder holds
+        another run."""
+        old = self.preflight()
         if old is None:
             return False
         diffs = [f"{k}: {old['config'].get(k)!r} (folder) vs {v!r} (now)"
@@ -94,24 +207,59 @@ class RunFolder:
         _atomic_write(self.config_path, json.dumps(payload, indent=2, sort_keys=True) + "\n")
 
     # ------------------------------------------------------------------ metrics
-    def read_rows(self) -> list[dict]:
-        if not self.metrics_path.exists():
+    def read_rows(self, strict: bool = False) -> list[dict]:
+        """The rows of metrics.jsonl (none if it does not exist), the first of each (epoch, seed). A torn
+        last line (a kill mid-write) is skipped. Any other line that is not a row is skipped too, or, with
+        `strict`, a `RunFolderError` naming the file and the line."""
+        path = self.metrics_path
+        if not path.exists():
             return []
+        try:
+            lines = path.read_text().splitlines()
+        except (OSError, UnicodeDecodeError) as err:
+            if not strict:
+                return []
+            raise RunFolderError(f"{path} cannot be read ({getattr(err, 'strerror', None) or err}); "
+                                 f"nothing was changed") from None
         rows, seen = [], set()
-        for line in self.metrics_path.read_text().splitlines():
-            line = line.strip()
-            if not line:
+        last = max((i for i, line in enumerate(lines) if line.strip()), default=-1)
+        for i, line in enumerate(lines):
+            if not line.strip():
                 continue
             try:
                 row = json.loads(line)
-            except json.JSONDecodeError:
-                continue  # a torn line from a kill mid-write
-            key = (row.get("epoch"), row.get("seed"))
+                problem = None if isinstance(row, dict) and "epoch" in row and "seed" in row else \
+                    "a JSON value without 'epoch' and 'seed'"
+            except json.JSONDecodeError as err:
+                row, problem = None, f"not JSON: {err.msg}"
+                if i == last:
+                    continue  # a torn line from a kill mid-write
+            if problem:
+                if strict:
+                    raise RunFolderError(
+                        f"{path} line {i + 1} is not a metrics row ({problem}); the file was edited or "
+                        f"damaged. Nothing was changed: repair or delete that line, or pass --fresh to "
+                        f"train again from scratch.")
+                continue
+            key = (row["epoch"], row["seed"])
             if key in seen:
                 continue
             seen.add(key)
             rows.append(row)
         return rows
+
+    def check_rows(self, rows: list[dict], epoch: int, seeds) -> None:
+        """`RunFolderError` unless `rows` hold every seed's row of epochs 0..`epoch` (those that checkpoint
+        `epoch` was written after)."""
+        have = {(r["epoch"], r["seed"]) for r in rows}
+        missing = sorted({e for e in range(epoch + 1) for s in seeds if (e, s) not in have})
+        if not missing:
+            return
+        state = "is missing" if not self.metrics_path.exists() else \
+            f"lacks the rows of epoch{'s' if len(missing) > 1 else ''} {_ranges(missing)}"
+        raise RunFolderError(
+            f"{self.metrics_path} {state}, which checkpoint {epoch} was written after (truncated or "
+            f"deleted?). Nothing was changed; restore it, or pass --fresh to train again from scratch.")
 
     def truncate_rows(self, last_epoch: int) -> list[dict]:
         """Keep the (deduplicated, well-formed) rows of epochs ≤ `last_epoch`; rewrite atomically."""
@@ -126,6 +274,68 @@ class RunFolder:
             f.write(text)
             f.flush()
             os.fsync(f.fileno())
+
+    # ------------------------------------------------------------------ notices, set-aside
+    def say(self, message: str) -> None:
+        """Tell the user (stderr) and keep it in the run's log."""
+        _stderr(message)
+        self.log(message)
+
+    def log(self, message: str) -> None:
+        """Append a timestamped line to train.log (a failure to write it is ignored)."""
+        try:
+            with open(self.log_path, "a") as f:
+                f.write(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {message}\n")
+        except OSError:
+            pass
+
+    def checkpoint_epochs(self) -> list[int]:
+        """The epochs of the checkpoint folders (`checkpoints/<epoch>/`, both cores' layout)."""
+        if not self.checkpoint_dir.is_dir():
+            return []
+        return sorted(int(p.name) for p in self.checkpoint_dir.iterdir() if p.name.isdigit() and p.is_dir())
+
+    def set_aside_folder(self) -> Path:
+        """A new folder `damaged/<UTC time>[-n]/` for what a recovery sets aside."""
+        stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+        for n in range(1000):
+            dest = self.damaged_dir / (stamp if n == 0 else f"{stamp}-{n}")
+            try:
+                dest.mkdir(parents=True)
+                return dest
+            except FileExistsError:
+                continue
+        raise RunFolderError(f"cannot create a new folder in {self.damaged_dir}")
+
+
+def _stderr(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def _listing(folder: Path) -> str:
+    names = sorted((p.name for p in folder.iterdir()), key=lambda n: (not n.isdigit(), n.zfill(12))) \
+        if folder.is_dir() else []
+    return f" ({', '.join(names)})" if names else ""
+
+
+def _row_count(path: Path) -> str:
+    try:
+        n = sum(1 for line in path.read_text().splitlines() if line.strip())
+    except (OSError, UnicodeDecodeError):
+        return ""
+    return f" ({n} row{'s' if n != 1 else ''})"
+
+
+def _ranges(epochs: list[int]) -> str:
+    """[0, 1, 2, 5] -> "0-2, 5"."""
+    out, i = [], 0
+    while i < len(epochs):
+        j = i
+        while j + 1 < len(epochs) and epochs[j + 1] == epochs[j] + 1:
+            j += 1
+        out.append(str(epochs[i]) if i == j else f"{epochs[i]}-{epochs[j]}")
+        i = j + 1
+    return ", ".join(out)
 
 
 def _atomic_write(path: Path, text: str) -> None:

@@ -6,6 +6,12 @@ tree structure of a freshly initialised state of the same program; zero-size lea
 empty arrays) are not written (Orbax refuses them) and come from that template. Orbax writes each
 checkpoint into a temporary folder and renames it when complete, so a run killed mid-save leaves the
 previous checkpoint intact. A JSON `meta` item stores the epoch, env steps and the leaf count.
+
+Once Orbax has finished, the save writes the checkpoint's file manifest (`sf2_common.agents.checkpoints`);
+`restore` checks it first, so a truncated, garbled or missing file is one `CheckpointDamaged` naming the
+file (which the resume rule of `sf2_common.agents.resume` sets aside) instead of the errors of Orbax's
+asynchronous reader. Whatever Orbax still raises is turned into that error (a checkpoint without a
+manifest) or into `CheckpointMismatch` (intact files that do not fit the program).
 """
 
 from __future__ import annotations
@@ -16,18 +22,19 @@ from typing import Any
 
 import jax
 import numpy as np
-from sf2_common.errors import ConfigError
+from sf2_common.agents import checkpoints
+from sf2_common.agents.checkpoints import CheckpointDamaged, CheckpointMismatch
 
-__all__ = ["Checkpointer", "CheckpointMismatch"]
+__all__ = ["Checkpointer", "CheckpointMismatch", "CheckpointDamaged"]
 
 
 def _size(x) -> int:
     return math.prod(np.shape(x))
 
 
-class CheckpointMismatch(ConfigError):
-    """The checkpoint does not fit the program (a different config, seed count or code version): bad
-    input, like a run folder of another run (the CLIs exit with status 2)."""
+def _first_line(err: BaseException, limit: int = 300) -> str:
+    text = (str(err).strip().splitlines() or [type(err).__name__])[0]
+    return text if len(text) <= limit else text[:limit] + " ..."
 
 
 class Checkpointer:
@@ -40,16 +47,21 @@ class Checkpointer:
             self.directory, options=ocp.CheckpointManagerOptions(
                 max_to_keep=keep, create=True, cleanup_tmp_directories=True))
 
+    def path(self, epoch: int) -> Path:
+        """The folder of checkpoint `epoch`."""
+        return self.directory / str(int(epoch))
+
     def latest(self) -> int | None:
         self.manager.reload()
         return self.manager.latest_step()
 
     def all(self) -> list[int]:
+        """The epochs of the checkpoints on disk now."""
         self.manager.reload()
-        return list(self.manager.all_steps())
+        return sorted(self.manager.all_steps())
 
     def save(self, epoch: int, state: Any, meta: dict) -> None:
-        """Write `state` as checkpoint `epoch` and wait until it is complete on disk."""
+        """Write `state` as checkpoint `epoch` and wait until it is complete on disk, manifest included."""
         ocp = self._ocp
         leaves = jax.tree_util.tree_leaves(state)
         flat = {f"{i:05d}": x for i, x in enumerate(leaves) if _size(x)}
@@ -57,16 +69,25 @@ class Checkpointer:
         self.manager.save(int(epoch), args=ocp.args.Composite(
             state=ocp.args.StandardSave(flat), meta=ocp.args.JsonSave(meta)), force=True)
         self.manager.wait_until_finished()
+        checkpoints.write_manifest(self.path(epoch))
 
     def restore(self, epoch: int, template: Any) -> tuple[Any, dict]:
         """The state saved as `epoch`, with the structure, dtypes and shapes of `template` (arrays or
-        `jax.ShapeDtypeStruct`s, e.g. from `jax.eval_shape`)."""
+        `jax.ShapeDtypeStruct`s, e.g. from `jax.eval_shape`). Raises `CheckpointDamaged` if its files are
+        not what was written, `CheckpointMismatch` if they do not fit `template`."""
         ocp = self._ocp
+        folder = self.path(epoch)
+        intact = checkpoints.verify(folder, epoch)
         leaves, treedef = jax.tree_util.tree_flatten(template)
-        meta = self.manager.restore(int(epoch), args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
-        if meta.get("num_leaves") != len(leaves):
+        try:
+            args = ocp.args.Composite(meta=ocp.args.JsonRestore())
+            meta = self.manager.restore(int(epoch), args=args)["meta"]
+        except Exception as err:  # Orbax raises many types (FileNotFoundError, JSONDecodeError, ...)
+            reason = f"its metadata cannot be read: {_first_line(err)}"
+            raise CheckpointDamaged(epoch, folder, reason) from None
+        if not isinstance(meta, dict) or meta.get("num_leaves") != len(leaves):
             raise CheckpointMismatch(
-                f"checkpoint {epoch} in {self.directory} has {meta.get('num_leaves')} arrays, this program "
+                f"checkpoint {epoch} in {self.directory} has {_get(meta, 'num_leaves')} arrays, this program "
                 f"has {len(leaves)}: it was written by a different config, seed count or version")
         device = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
         flat = {f"{i:05d}": jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=device)
@@ -74,9 +95,11 @@ class Checkpointer:
         try:
             restored = self.manager.restore(int(epoch), args=ocp.args.Composite(
                 state=ocp.args.StandardRestore(flat)))["state"]
-        except (ValueError, KeyError) as err:
-            raise CheckpointMismatch(f"checkpoint {epoch} in {self.directory} does not fit this program: "
-                                     f"{err}") from err
+        except Exception as err:  # tensorstore's errors reach here as Exception or ValueError
+            if intact:
+                raise CheckpointMismatch(f"checkpoint {epoch} in {self.directory} does not fit this program: "
+                                         f"{_first_line(err)}") from None
+            raise CheckpointDamaged(epoch, folder, f"Orbax cannot read it: {_first_line(err)}") from None
         out = []
         for i, x in enumerate(leaves):
             key = f"{i:05d}"
@@ -94,3 +117,7 @@ class Checkpointer:
 
     def close(self) -> None:
         self.manager.close()
+
+
+def _get(meta, key):
+    return meta.get(key) if isinstance(meta, dict) else None

@@ -41,6 +41,7 @@ import numpy as np
 from sf2_common.agents import configs, hostloop, plotting
 from sf2_common.agents.configs import TrainConfig
 from sf2_common.agents.hostloop import WALL_FIELDS, TrainingDiverged
+from sf2_common.agents.resume import resume_run
 from sf2_common.agents.runfolder import RunFolder
 from sf2_common.errors import ConfigError
 from sf2_common.studies.robustness import check_obs_noise
@@ -289,14 +290,13 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
           stop_after_epoch: int | None = None, plot: bool = True) -> TrainResult:
     """Train `cfg` for every seed of `seeds` (vmapped) into the run folder `out`.
 
-    Resumes from the folder's last checkpoint when it holds the same run (`resume`); `fresh` deletes
-    the folder's previous contents first. `hook(event, epoch)` is called after "rows" are written and
-    after the "checkpoint" is saved (tests use it to simulate a kill). `stop_after_epoch` ends the run
-    early (after that epoch's checkpoint), as a kill would. Raises `ConfigError` for bad input before
-    anything is compiled and `TrainingDiverged` on a NaN/inf loss.
+    Resumes from the folder's newest checkpoint that restores completely when it holds the same run
+    (`resume`; `sf2_common.agents.resume` sets damaged ones aside); `fresh` deletes the folder's previous
+    contents first. `hook(event, epoch)` is called at the points of `hostloop.run_epochs` (tests use it
+    to simulate a kill). `stop_after_epoch` ends the run early (after that epoch's checkpoint), as a kill
+    would. Raises `ConfigError` for bad input before anything is compiled (a `RunFolderError` for a run
+    folder that cannot be used) and `TrainingDiverged` on a NaN/inf loss.
     """
-    import shutil
-
     seeds = configs.parse_seeds(seeds)
     configs.validate(cfg, seeds, representations.REGISTRY)
     run = RunFolder(out)
@@ -308,27 +308,20 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
         run.write_config({"config": cfg.to_dict(), "seeds": list(seeds),
                           "schedule": dataclasses.asdict(sched), "label": _label(cfg),
                           "versions": _versions()})
-
-    if not existing:  # checkpoints without the config that made them are not this run's
-        shutil.rmtree(run.checkpoint_dir, ignore_errors=True)
     program = get_program(cfg)
     ckpt = Checkpointer(run.checkpoint_dir, keep=cfg.keep_checkpoints)
-    last = resumed_from = hostloop.checkpoint_to_resume(run, ckpt, existing, resume)
     title = hostloop.run_title(_label(cfg), cfg.task, seeds)
-
-    state = None
-    if last is not None:
-        state, meta = ckpt.restore(last, program.abstract_state(seeds))
-        state = program.place(state)
-    rows, walltime, start = hostloop.resume_point(run, last)
-    session = _Session(program, ckpt, run, seeds, state)
     try:
+        res = resume_run(run, ckpt, lambda e: ckpt.restore(e, program.abstract_state(seeds)), seeds=seeds,
+                         sched=sched, existing=existing, resume=resume)
+        state = None if res.restored is None else program.place(res.restored[0])
+        session = _Session(program, ckpt, run, seeds, state)
         rows = hostloop.run_epochs(session, cfg=cfg, sched=sched, seeds=seeds, run=run, title=title,
-                                   rows=rows, start=start, last=last, walltime=walltime, progress=progress,
-                                   hook=hook, stop_after_epoch=stop_after_epoch, plot=plot)
+                                   rows=res.rows, start=res.start, last=res.epoch, walltime=res.walltime,
+                                   progress=progress, hook=hook, stop_after_epoch=stop_after_epoch, plot=plot)
     finally:
         ckpt.close()
-    return TrainResult(run=run, rows=rows, state=session.state, seeds=seeds, resumed_from=resumed_from)
+    return TrainResult(run=run, rows=rows, state=session.state, seeds=seeds, resumed_from=res.epoch)
 
 
 class _Session:

@@ -6,24 +6,32 @@ of a run): `checkpoints/<epoch>/state.pt` (`torch.save` of the torch state, load
 `weights_only=True`), `env.npz` (the JAX env state's arrays, in tree order) and `meta.json` (epoch, env
 steps, seeds, array count). Each checkpoint is written into a temporary folder and renamed when complete,
 so a run killed mid-save leaves the previous checkpoint intact; the `keep` newest are kept.
+
+The file manifest of `sf2_common.agents.checkpoints` is written into the temporary folder last; `restore`
+checks it first, so a truncated, garbled or missing file is one `CheckpointDamaged` naming the file (which
+the resume rule of `sf2_common.agents.resume` sets aside), and intact files that do not load are
+`CheckpointMismatch`.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import pickle
 import shutil
+import zipfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
+from sf2_common.agents import checkpoints
+from sf2_common.agents.checkpoints import CheckpointDamaged, CheckpointMismatch
 
-__all__ = ["Checkpointer", "CheckpointMismatch"]
+__all__ = ["Checkpointer", "CheckpointMismatch", "CheckpointDamaged"]
 
-
-class CheckpointMismatch(ValueError):
-    """The checkpoint does not fit the program (a different config, seed count or code version)."""
+_READ_ERRORS = (OSError, KeyError, ValueError, RuntimeError, EOFError, pickle.UnpicklingError,
+                zipfile.BadZipFile)
 
 
 class Checkpointer:
@@ -33,11 +41,15 @@ class Checkpointer:
         self.directory = Path(directory).absolute()
         self.keep = int(keep)
 
+    def path(self, epoch: int) -> Path:
+        """The folder of checkpoint `epoch`."""
+        return self.directory / str(int(epoch))
+
     def all(self) -> list[int]:
+        """The epochs of the checkpoint folders on disk now (complete or not: `restore` tells)."""
         if not self.directory.exists():
             return []
-        return sorted(int(p.name) for p in self.directory.iterdir()
-                      if p.is_dir() and p.name.isdigit() and (p / self.META).exists())
+        return sorted(int(p.name) for p in self.directory.iterdir() if p.is_dir() and p.name.isdigit())
 
     def latest(self) -> int | None:
         steps = self.all()
@@ -48,7 +60,8 @@ class Checkpointer:
         self.directory.mkdir(parents=True, exist_ok=True)
         final = self.directory / str(int(epoch))
         tmp = self.directory / f".{int(epoch)}.tmp-{os.getpid()}"
-        shutil.rmtree(tmp, ignore_errors=True)
+        for stale in self.directory.glob(".*.tmp-*"):  # this or a killed process's unfinished saves
+            shutil.rmtree(stale, ignore_errors=True)
         tmp.mkdir()
         torch.save(state, tmp / self.STATE)
         with open(tmp / self.ENV, "wb") as f:
@@ -58,6 +71,7 @@ class Checkpointer:
         for name in (self.STATE, self.ENV, self.META):
             with open(tmp / name, "rb") as f:
                 os.fsync(f.fileno())
+        checkpoints.write_manifest(tmp)
         if final.exists():
             shutil.rmtree(final)
         os.replace(tmp, final)
@@ -65,15 +79,21 @@ class Checkpointer:
             shutil.rmtree(self.directory / str(old), ignore_errors=True)
 
     def restore(self, epoch: int, map_location=None) -> tuple[dict, list[np.ndarray], dict]:
-        """(torch state, env arrays, meta) of checkpoint `epoch`."""
-        path = self.directory / str(int(epoch))
+        """(torch state, env arrays, meta) of checkpoint `epoch`. Raises `CheckpointDamaged` if its files
+        are not what was written, `CheckpointMismatch` if intact files do not load."""
+        path = self.path(epoch)
+        intact = checkpoints.verify(path, epoch)
         try:
             meta = json.loads((path / self.META).read_text())
             state = torch.load(path / self.STATE, map_location=map_location, weights_only=True)
             with np.load(path / self.ENV) as data:
                 leaves = [data[f"{i:05d}"] for i in range(meta["num_env_arrays"])]
-        except (OSError, KeyError, ValueError, RuntimeError) as err:
-            raise CheckpointMismatch(f"checkpoint {epoch} in {self.directory} cannot be read: {err}") from err
+        except _READ_ERRORS as err:
+            reason = f"{type(err).__name__}: {str(err).strip().splitlines()[0] if str(err).strip() else ''}"
+            if intact:
+                raise CheckpointMismatch(f"checkpoint {epoch} in {self.directory} cannot be loaded by this "
+                                         f"program: {reason}") from err
+            raise CheckpointDamaged(epoch, path, f"it cannot be read ({reason})") from None
         return state, leaves, meta
 
     def close(self) -> None:

@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import shutil
 from collections.abc import Callable
 from typing import Any
 
@@ -43,6 +42,7 @@ from sf2_common.agents import configs as common_configs
 from sf2_common.agents import hostloop
 from sf2_common.agents.hostloop import WALL_FIELDS, TrainingDiverged
 from sf2_common.agents.plotting import method_label
+from sf2_common.agents.resume import resume_run
 from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch
 from sf2_common.errors import ConfigError
 from sf2_common.studies.robustness import check_obs_noise
@@ -321,11 +321,12 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
           progress: bool = True, hook: Callable[[str, int], None] | None = None,
           stop_after_epoch: int | None = None, plot: bool = True) -> TrainResult:
     """Train `cfg` for every seed of `seeds` into the run folder `out` (the same contract as
-    the JAX agents' `train`): resumes from the folder's last checkpoint when it holds the same run
-    (`resume`); `fresh` deletes the folder's previous contents first; `hook(event, epoch)` is called after
-    "rows" are written and after the "checkpoint" is saved; `stop_after_epoch` ends the run early (after
-    that epoch's checkpoint), as a kill would. Raises `ConfigError` for bad input before anything is built
-    and `TrainingDiverged` on a NaN/inf loss.
+    the JAX agents' `train`): resumes from the folder's newest checkpoint that restores completely when it
+    holds the same run (`resume`; `sf2_common.agents.resume` sets damaged ones aside); `fresh` deletes the
+    folder's previous contents first; `hook(event, epoch)` is called at the points of
+    `hostloop.run_epochs`; `stop_after_epoch` ends the run early (after that epoch's checkpoint), as a kill
+    would. Raises `ConfigError` for bad input before anything is built (a `RunFolderError` for a run
+    folder that cannot be used) and `TrainingDiverged` on a NaN/inf loss.
     """
     seeds = common_configs.parse_seeds(seeds)
     configs.validate(cfg, seeds)
@@ -340,8 +341,6 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
                                 f"--out (or --fresh to overwrite it)")
     existing = run.check_compatible(cfg.to_dict(), seeds)
     sched = common_configs.schedule(cfg)
-    if not existing:  # checkpoints without the config that made them are not this run's
-        shutil.rmtree(run.checkpoint_dir, ignore_errors=True)
     program = get_program(cfg)
     if not existing:
         run.write_config({"config": cfg.to_dict(), "seeds": list(seeds),
@@ -350,21 +349,23 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
                           "device": str(program.device), "compile_mode": program.compile_mode,
                           "cudagraphs": program.cudagraphs})
     ckpt = Checkpointer(run.checkpoint_dir, keep=cfg.keep_checkpoints)
-    last = resumed_from = hostloop.checkpoint_to_resume(run, ckpt, existing, resume)
     title = hostloop.run_title(_label(cfg), cfg.task, seeds)
-
     state = program.init(seeds)
-    if last is not None:
-        saved, leaves, meta = ckpt.restore(last, map_location=program.device)
+
+    def restore(epoch: int) -> dict:
+        saved, leaves, meta = ckpt.restore(epoch, map_location=program.device)
         program.load_state_dict(state, saved, leaves)
-    rows, walltime, start = hostloop.resume_point(run, last)
+        return meta
+
     try:
+        res = resume_run(run, ckpt, restore, seeds=seeds, sched=sched, existing=existing, resume=resume)
         rows = hostloop.run_epochs(_Session(program, ckpt, run, state), cfg=cfg, sched=sched, seeds=seeds,
-                                   run=run, title=title, rows=rows, start=start, last=last, walltime=walltime,
-                                   progress=progress, hook=hook, stop_after_epoch=stop_after_epoch, plot=plot)
+                                   run=run, title=title, rows=res.rows, start=res.start, last=res.epoch,
+                                   walltime=res.walltime, progress=progress, hook=hook,
+                                   stop_after_epoch=stop_after_epoch, plot=plot)
     finally:
         ckpt.close()
-    return TrainResult(run=run, rows=rows, state=state, seeds=seeds, resumed_from=resumed_from)
+    return TrainResult(run=run, rows=rows, state=state, seeds=seeds, resumed_from=res.epoch)
 
 
 class _Session:

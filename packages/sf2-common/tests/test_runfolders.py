@@ -1,0 +1,285 @@
+"""Run folders that survive faults, without a framework (docs/run-folders.md): unusable paths and damaged
+files are errors naming the path with the folder unchanged; the resume rule (newest checkpoint that
+restores completely; damaged ones set aside with the rows they invalidate) on a stand-in checkpointer
+whose checkpoints are folders of files with the same manifest the cores write; library noise goes to
+train.log."""
+
+from __future__ import annotations
+
+import gc
+import json
+import logging
+import os
+import sys
+from pathlib import Path
+
+import pytest
+from sf2_common.agents import checkpoints
+from sf2_common.agents.checkpoints import CheckpointDamaged, CheckpointMismatch
+from sf2_common.agents.configs import TrainConfig, schedule
+from sf2_common.agents.resume import resume_run
+from sf2_common.agents.runfolder import RunFolder, RunFolderError, RunFolderMismatch
+from sf2_common.agents.runlog import library_log
+from sf2_common.testing import FAULTS, damage, folder_digest
+
+SEEDS = (0, 1)
+# 3 epochs (96 env steps / 4 envs over num_evals − 1 = 3 epochs)
+SCHED = schedule(TrainConfig(num_timesteps=96, num_envs=4, num_evals=4, min_replay_size=4))
+
+
+class _Checkpointer:
+    """Checkpoints as the cores lay them out: checkpoints/<epoch>/ holding files and the manifest."""
+
+    def __init__(self, directory):
+        self.directory = Path(directory)
+
+    def path(self, epoch):
+        return self.directory / str(epoch)
+
+    def all(self):
+        return RunFolder(self.directory.parent).checkpoint_epochs()
+
+    def save(self, epoch):
+        folder = self.path(epoch)
+        (folder / "state").mkdir(parents=True)
+        (folder / "state" / "data.bin").write_bytes(bytes(range(256)) * (epoch + 1))
+        (folder / "meta.json").write_text(json.dumps({"epoch": epoch}))
+        checkpoints.write_manifest(folder)
+
+    def restore(self, epoch):
+        checkpoints.verify(self.path(epoch), epoch)
+        return f"state of epoch {epoch}"
+
+
+def _rows(last_epoch):
+    return [{"epoch": e, "seed": s, "env_steps": 32 * e, "eval_return": float(e), "walltime": 10.0 * e}
+            for e in range(last_epoch + 1) for s in SEEDS]
+
+
+def _run_folder(path, epochs=(2, 3), rows=3) -> tuple[RunFolder, _Checkpointer]:
+    """A run folder as a run that wrote rows up to epoch `rows` and kept checkpoints `epochs` leaves it."""
+    run = RunFolder(path)
+    run.write_config({"config": {"a": 1}, "seeds": list(SEEDS)})
+    run.append_rows(_rows(rows))
+    ckpt = _Checkpointer(run.checkpoint_dir)
+    for e in epochs:
+        ckpt.save(e)
+    run.final_dir.mkdir()
+    return run, ckpt
+
+
+def _resume(run, ckpt, **kw):
+    return resume_run(run, ckpt, ckpt.restore, seeds=SEEDS, sched=SCHED, existing=True, **kw)
+
+
+# ------------------------------------------------------------------------------------------- --out
+def test_unusable_paths_are_errors_naming_the_path(tmp_path):
+    file = tmp_path / "file"
+    file.write_text("mine")
+    with pytest.raises(RunFolderError, match=f"run folder {file} is a file, not a folder"):
+        RunFolder(file).check_usable()
+    with pytest.raises(RunFolderError, match=f"run folder {file}/run cannot be created: {file} is a file"):
+        RunFolder(file / "run").check_usable()
+    assert file.read_text() == "mine" and sorted(os.listdir(tmp_path)) == ["file"]
+    RunFolder(tmp_path / "new" / "deeper").check_usable()  # creatable: nothing is created yet
+    assert sorted(os.listdir(tmp_path)) == ["file"]
+
+
+@pytest.mark.skipif(not Path("/sys/kernel").is_dir(), reason="needs Linux's /sys (unwritable, even by root)")
+def test_a_location_that_cannot_be_written_is_an_error():
+    with pytest.raises(RunFolderError, match="run folder /sys/sf2-run cannot be created \\(in /sys\\): "):
+        RunFolder("/sys/sf2-run").check_usable()
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders (the /sys case runs)")
+def test_a_read_only_folder_is_an_error(tmp_path):
+    ro = tmp_path / "ro"
+    ro.mkdir(mode=0o555)
+    with pytest.raises(RunFolderError, match="cannot be written: Permission denied"):
+        RunFolder(ro).check_usable()
+
+
+# ------------------------------------------------------------------------------------------- config, metrics
+@pytest.mark.parametrize("fault", FAULTS)
+def test_a_damaged_config_is_an_error_and_changes_nothing(tmp_path, fault):
+    run, _ = _run_folder(tmp_path / "run")
+    damage(run.config_path, fault)
+    before = folder_digest(run.path)
+    expected = {"truncate": f"{run.config_path} is not valid JSON",
+                "garble": f"{run.config_path} is not valid JSON",
+                "delete": f"{run.path} holds a run's files \\(metrics.jsonl, checkpoints, final\\) but no "
+                          f"config.json"}[fault]
+    with pytest.raises(RunFolderError, match=expected) as err:
+        run.check_compatible({"a": 1}, SEEDS)
+    assert "nothing was changed" in str(err.value) and "--fresh" in str(err.value)
+    assert folder_digest(run.path) == before
+
+
+@pytest.mark.parametrize("text,expected", [("", "is empty"), ("[1, 2]", "is not a run's config"),
+                                           ('{"config": {}}', "is not a run's config")])
+def test_a_config_that_is_not_a_runs_is_an_error(tmp_path, text, expected):
+    run = RunFolder(tmp_path)
+    run.config_path.write_text(text)
+    with pytest.raises(RunFolderError, match=expected):
+        run.read_config()
+
+
+@pytest.mark.parametrize("fault", FAULTS)
+def test_damaged_metrics_are_an_error_and_change_nothing(tmp_path, fault):
+    run, _ = _run_folder(tmp_path / "run")
+    damage(run.metrics_path, fault)
+    before = folder_digest(run.path)
+    # 8 rows of equal length: half keeps epochs 0-1 (the oldest checkpoint, 2, needs 0-2); the garbled
+    # bytes, a third of the way in, hit line 3
+    expected = {"truncate": "metrics.jsonl lacks the rows of epoch 2, which checkpoint 2 was written after",
+                "garble": "metrics.jsonl line 3 is not a metrics row",
+                "delete": "metrics.jsonl is missing, which checkpoint 2 was written after"}[fault]
+    with pytest.raises(RunFolderError, match=expected):
+        run.check_compatible({"a": 1}, SEEDS)
+    assert folder_digest(run.path) == before
+
+
+def test_a_torn_last_row_is_a_kill_not_damage(tmp_path):
+    run, _ = _run_folder(tmp_path / "run")
+    with open(run.metrics_path, "a") as f:
+        f.write('{"epoch": 4, "se')
+    assert run.check_compatible({"a": 1}, SEEDS) is True
+    assert run.read_rows(strict=True) == _rows(3)
+
+
+def test_fresh_says_what_it_discards_and_keeps_other_files(tmp_path, capsys):
+    run, _ = _run_folder(tmp_path / "run")
+    (run.path / "notes.txt").write_text("mine")
+    assert run.clear() == ["config.json", "metrics.jsonl", "checkpoints", "final"]
+    err = capsys.readouterr().err
+    assert "--fresh: discarding config.json, metrics.jsonl (8 rows), checkpoints (2, 3), final in" in err
+    assert sorted(os.listdir(run.path)) == ["notes.txt"]
+
+
+# ------------------------------------------------------------------------------------------- manifest
+@pytest.mark.parametrize("fault", FAULTS)
+@pytest.mark.parametrize("name", ["state/data.bin", "meta.json", checkpoints.MANIFEST])
+def test_the_manifest_names_the_damaged_file(tmp_path, name, fault):
+    ckpt = _Checkpointer(tmp_path / "checkpoints")
+    ckpt.save(3)
+    assert checkpoints.verify(ckpt.path(3), 3) is True
+    damage(ckpt.path(3) / name, fault)
+    if name == checkpoints.MANIFEST and fault == "delete":
+        assert checkpoints.verify(ckpt.path(3), 3) is False  # an older checkpoint: the framework decides
+        return
+    expected = (f"its file list {checkpoints.MANIFEST} is unreadable" if name == checkpoints.MANIFEST else
+                {"truncate": f"{name} has \\d+ bytes, \\d+ were written \\(truncated\\)",
+                 "garble": f"{name} does not hold the bytes that were written",
+                 "delete": f"{name} is missing"}[fault])
+    with pytest.raises(CheckpointDamaged, match=f"checkpoint 3 \\({ckpt.path(3)}\\) is damaged: {expected}"):
+        checkpoints.verify(ckpt.path(3), 3)
+
+
+# ------------------------------------------------------------------------------------------- resume rule
+def test_a_damaged_newest_checkpoint_is_set_aside_and_its_rows_dropped(tmp_path, capsys):
+    run, ckpt = _run_folder(tmp_path / "run")
+    damage(ckpt.path(3) / "state" / "data.bin", "truncate")
+    metrics_before = run.metrics_path.read_bytes()
+    damaged_files = folder_digest(ckpt.path(3))
+    res = _resume(run, ckpt)
+    assert (res.epoch, res.restored, res.start, res.walltime) == (2, "state of epoch 2", 3, 20.0)
+    assert res.rows == _rows(2) == run.read_rows()        # epoch 3's rows are written again by the run
+    assert ckpt.all() == [2]
+    assert folder_digest(res.set_aside / "checkpoints" / "3") == damaged_files   # moved, not deleted
+    assert (res.set_aside / "metrics.jsonl").read_bytes() == metrics_before
+    assert res.set_aside.parent == run.damaged_dir
+    reasons = (res.set_aside / "reasons.txt").read_text()
+    assert "checkpoint 3" in reasons and "state/data.bin has" in reasons
+    assert "resumed from checkpoint 2" in reasons
+    err = capsys.readouterr().err
+    # data.bin of checkpoint 3 holds 4 · 256 bytes, truncated to half
+    assert f"checkpoint 3 ({ckpt.path(3)}) is damaged: state/data.bin has 512 bytes, 1024 were written" in err
+    assert f"resuming {run.path} from checkpoint 2 (epoch 2 of 3, env step 64)" in err
+    assert "resuming" in run.log_path.read_text()
+
+
+def test_a_recovery_interrupted_midway_ends_the_same(tmp_path, monkeypatch):
+    """A kill between setting aside and rewriting metrics.jsonl: the next resume reaches the same end."""
+    run, ckpt = _run_folder(tmp_path / "run")
+    damage(ckpt.path(3) / "meta.json", "garble")
+
+    def killed(self, last_epoch):
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as m:
+        m.setattr(RunFolder, "truncate_rows", killed)
+        with pytest.raises(KeyboardInterrupt):
+            _resume(run, ckpt)
+    assert ckpt.all() == [2] and run.read_rows() == _rows(3)
+    res = _resume(run, ckpt)
+    assert res.epoch == 2 and run.read_rows() == _rows(2)
+
+
+def test_no_checkpoint_that_restores_is_an_error_and_changes_nothing(tmp_path):
+    run, ckpt = _run_folder(tmp_path / "run")
+    damage(ckpt.path(3) / "meta.json", "delete")
+    damage(ckpt.path(2) / "state" / "data.bin", "garble")
+    before = folder_digest(run.path)
+    with pytest.raises(RunFolderError, match="cannot be resumed: no checkpoint restores \\(checkpoint 3: "
+                       "meta.json is missing; checkpoint 2: state/data.bin does not hold.*rows of epochs up "
+                       "to 3. Nothing was changed; pass --fresh"):
+        _resume(run, ckpt)
+    assert folder_digest(run.path) == before
+    # checkpoints/ deleted by hand: the same refusal, never a silent start from scratch
+    run2, ckpt2 = _run_folder(tmp_path / "run2", epochs=())
+    with pytest.raises(RunFolderError, match="no checkpoint restores \\(.*checkpoints holds none\\)"):
+        _resume(run2, ckpt2)
+
+
+def test_rows_a_checkpoint_needs_are_checked_before_anything_changes(tmp_path):
+    run, ckpt = _run_folder(tmp_path / "run", rows=1)
+    damage(ckpt.path(3) / "meta.json", "truncate")
+    before = folder_digest(run.path)
+    with pytest.raises(RunFolderError, match="metrics.jsonl lacks the rows of epoch 2, which checkpoint 2"):
+        _resume(run, ckpt)
+    assert folder_digest(run.path) == before
+
+
+def test_a_mismatch_is_never_worked_around(tmp_path):
+    run, ckpt = _run_folder(tmp_path / "run")
+    before = folder_digest(run.path)
+
+    def restore(epoch):
+        raise CheckpointMismatch(f"checkpoint {epoch} has 7 arrays, this program has 9")
+
+    with pytest.raises(CheckpointMismatch, match="checkpoint 3 has 7 arrays"):
+        resume_run(run, ckpt, restore, seeds=SEEDS, sched=SCHED, existing=True)
+    assert folder_digest(run.path) == before
+
+
+def test_complete_runs_resume_nothing_and_kills_before_the_first_checkpoint_start_over(tmp_path, capsys):
+    run, ckpt = _run_folder(tmp_path / "done")
+    res = _resume(run, ckpt)
+    assert (res.epoch, res.start, res.set_aside) == (3, 4, None) and res.rows == _rows(3)
+    assert "the run is complete (epoch 3 of 3, 96 env steps, trained in 30 s); nothing to train" in \
+        capsys.readouterr().err
+    with pytest.raises(RunFolderMismatch, match="already holds checkpoints; pass --fresh"):
+        _resume(run, ckpt, resume=False)
+    early, ckpt0 = _run_folder(tmp_path / "early", epochs=(), rows=0)  # killed after rows 0, before save 0
+    res = _resume(early, ckpt0)
+    assert (res.epoch, res.start, res.rows) == (None, 0, []) and early.read_rows() == []
+
+
+# ------------------------------------------------------------------------------------------- train.log
+class _RaisesOnDel:
+    def __del__(self):
+        raise RuntimeError("Event loop is closed")
+
+
+def test_library_noise_goes_to_the_run_log(tmp_path, capfd):
+    run = RunFolder(tmp_path)
+    hook = sys.unraisablehook
+    with library_log(run):
+        logging.getLogger("absl").warning("Waiting for previous save to complete took 1.2 seconds.")
+        _RaisesOnDel()
+        gc.collect()
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""
+    log = run.log_path.read_text()
+    assert "absl WARNING: Waiting for previous save" in log and "RuntimeError: Event loop is closed" in log
+    assert sys.unraisablehook is hook and logging.getLogger("absl").propagate
