@@ -1,0 +1,103 @@
+"""The local runner's placement without a GPU or a framework: a stand-in CLI (a module written here) records
+the CUDA_VISIBLE_DEVICES each child gets and when it runs, so the test sees that runs spread over the
+visible GPUs, one GPU each, never two at once on one GPU; and that the optional extras name themselves
+when missing."""
+
+from __future__ import annotations
+
+import json
+import sys
+import textwrap
+
+import pytest
+from sf2_common.agents.configs import TrainConfig
+from sf2_common.studies import runner, spec
+from sf2_common.studies.folder import StudyFolder
+
+FAKE_CLI = textwrap.dedent('''
+    """Stands in for `python -m sf2_jax.cli train ... --out DIR`: records its GPU and its time span."""
+    import json, os, sys, time
+    out = sys.argv[sys.argv.index("--out") + 1]
+    t0 = time.time()
+    time.sleep(0.6)
+    os.makedirs(out, exist_ok=True)
+    with open(os.path.join(out, "child.json"), "w") as f:
+        json.dump({"gpu": os.environ.get("CUDA_VISIBLE_DEVICES"), "start": t0, "end": time.time(),
+                   "hashseed": os.environ.get("PYTHONHASHSEED")}, f)
+''')
+
+STUDY = """
+name = "placement"
+seeds = "0-1"
+tasks = ["A", "B", "C"]
+[[methods]]
+label = "TD3"
+algo = "td3"
+representation = "none"
+[[methods]]
+label = "SAC"
+algo = "sac"
+representation = "none"
+"""
+
+
+def _setup(tmp_path, monkeypatch):
+    (tmp_path / "fake_sf2_cli.py").write_text(FAKE_CLI)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    study = spec.loads(STUDY, tmp_path / "s.toml")
+    backend = runner.Backend("sf2-fake", "jax", "fake_sf2_cli", None, None)
+
+    def make(preset, task, algo, rep, overrides):
+        return TrainConfig(task=task, algo=algo, representation=rep, num_timesteps=1000, num_envs=4,
+                           min_replay_size=8, num_evals=3)
+
+    runs = _resolve_without_tasks(study, make)
+    folder = StudyFolder(tmp_path / "study")
+    folder.open(study, "jax", runs)
+    return study, backend, folder, runs
+
+
+def _resolve_without_tasks(study, make):
+    """spec.resolve checks task names against Playground; these runs need no task."""
+    out = []
+    for task, m in study.select():
+        cfg = make(study.preset, task, m.algo, m.representation, {})
+        out.append(spec.Run(task=task, folder=m.name, methods=(m,), config=cfg,
+                            argv=("--task", task, "--algo", m.algo)))
+    return out
+
+
+def test_runs_spread_over_visible_gpus_one_each(tmp_path, monkeypatch):
+    study, backend, folder, runs = _setup(tmp_path, monkeypatch)
+    jobs, done = runner.plan(study, folder, runs)
+    assert len(jobs) == 6 and not done
+    env = {"PATH": "/usr/bin:/bin", "PYTHONPATH": str(tmp_path) + ":" + ":".join(sys.path),
+           "CUDA_VISIBLE_DEVICES": "3,5"}
+    outcome = runner.run_local(study, folder, jobs, done, backend=backend, base_env=env, progress=False,
+                               poll=0.05)
+    assert outcome.ok and len(outcome.done) == 6
+    spans = [json.loads((j.path / "child.json").read_text()) for j in jobs]
+    assert {s["gpu"] for s in spans} == {"3", "5"}                    # both GPUs used, one id each
+    assert all(s["hashseed"] == "0" for s in spans)
+    for gpu in ("3", "5"):
+        mine = sorted((s["start"], s["end"]) for s in spans if s["gpu"] == gpu)
+        assert all(a_end <= b_start for (_, a_end), (b_start, _) in zip(mine, mine[1:]))   # never two at once
+    with pytest.raises(spec.StudyError, match="--workers 3: this host has 2 visible GPU"):
+        runner.run_local(study, folder, jobs, done, backend=backend, base_env=env, workers=3, progress=False)
+
+
+def test_visible_gpus():
+    assert runner.visible_gpus({"CUDA_VISIBLE_DEVICES": "0,2"}) == ["0", "2"]
+    assert runner.visible_gpus({"CUDA_VISIBLE_DEVICES": ""}) == []
+    assert runner.visible_gpus({"CUDA_VISIBLE_DEVICES": "-1"}) == []
+
+
+def test_missing_extras_are_named(monkeypatch):
+    from sf2_common.studies import rayrun, stats
+
+    monkeypatch.setitem(sys.modules, "ray", None)
+    with pytest.raises(ImportError, match=r'pip install "packages/sf2-common\[ray\]"'):
+        rayrun._ray()
+    monkeypatch.setitem(sys.modules, "rliable", None)
+    with pytest.raises(ImportError, match=r'pip install "packages/sf2-common\[studies\]"'):
+        stats.require_rliable()
