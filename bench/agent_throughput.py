@@ -1,7 +1,8 @@
-"""Training throughput of the JAX agents: env steps per second of whole training epochs.
+"""Training throughput of the agents: env steps per second of whole training epochs.
 
-    python -m bench.agent_throughput --task AcrobotSwingup --algos td3 --reps none,sf2 --seeds 1,8 \
-        --env-steps 600000 --epochs 3 --out bench/results/h200/5-agents
+    python -m bench.agent_throughput --tasks AcrobotSwingup --algos td3 --reps none,sf2 --seeds 1,8 \
+        --precisions highest,tensorfloat32,bfloat16 --env-steps 600000 --epochs 3 \
+        --out bench/results/h200/5-agents
 
 Issue #3's measurement and the paper's §4.4 comparison (659 s vs ~1300 s for 10M steps of TD3 vs
 TD3+SF² on an RTX 4090, i.e. about 15k and 7.7k env-steps/s). Each case is the `paper` preset of the
@@ -11,7 +12,10 @@ mixed into the rate). An epoch is the trainer's own jitted program (`sf2_jax.age
 `lax.scan` over actor steps, each with its env step, buffer insert and `grad_updates_per_step` SGD
 steps, all seeds vmapped); it is timed from dispatch to `block_until_ready` of its outputs, without
 evaluation, checkpointing or plotting. Reported: median over the timed epochs of env steps per second
-per seed, and the aggregate over the vmapped seeds (per seed × seeds).
+per seed, and the aggregate over the vmapped seeds (per seed × seeds). `--precisions` sets the learner's
+matmul precision (`learner_precision`; the physics always runs at fp32 `highest`). `--frameworks
+jax,torch` adds the torch trainer (its seeds take their steps one after the other; its epoch is the same
+schedule, timed the same way).
 """
 
 from __future__ import annotations
@@ -24,45 +28,69 @@ import sys
 import time
 from pathlib import Path
 
-COLUMNS = ["task", "algo", "rep", "seeds", "env_steps_per_epoch", "sgd_steps_per_epoch", "timed_epochs",
-           "first_epoch_s", "median_epoch_s", "sps_per_seed", "sps_total", "epoch_s"]
+import numpy as np
+
+COLUMNS = ["framework", "task", "algo", "rep", "seeds", "learner_precision", "env_steps_per_epoch",
+           "sgd_steps_per_epoch", "timed_epochs", "first_epoch_s", "median_epoch_s", "sps_per_seed",
+           "sps_total", "epoch_s"]
 
 
 def _names(s: str) -> tuple[str, ...]:
     return tuple(x for x in s.split(",") if x)
 
 
-def measure(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epochs: int,
-            overrides: dict, log=print) -> dict:
-    """Time `epochs` training epochs after a first (compile + prefill) epoch; one row of `COLUMNS`."""
-    import jax
-    from sf2_jax.agents import configs
-    from sf2_jax.agents.trainer import get_program
+def _block(framework: str, x):
+    if framework == "jax":
+        import jax
 
+        jax.block_until_ready(x)
+    else:
+        import torch
+
+        if torch.cuda.is_available():
+            torch.cuda.synchronize()
+
+
+def measure(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epochs: int,
+            overrides: dict, framework: str = "jax", log=print) -> dict:
+    """Time `epochs` training epochs after a first (compile + prefill) epoch; one row of `COLUMNS`."""
     values = {"num_timesteps": env_steps * (epochs + 1) // epochs, "num_evals": epochs + 2, **overrides}
-    cfg = configs.make_config("paper", task, algo, rep, values)
     seeds = tuple(range(n_seeds))
-    configs.validate(cfg, seeds)
+    if framework == "jax":
+        from sf2_common.agents import configs
+        from sf2_jax.agents import representations
+        from sf2_jax.agents.trainer import get_program
+
+        cfg = configs.make_config("paper", task, algo, rep, values)
+        configs.validate(cfg, seeds, representations.REGISTRY)
+    else:
+        from sf2_torch.agents import configs
+        from sf2_torch.agents.trainer import get_program
+
+        cfg = configs.make_config("paper", task, algo, rep, values)
+        configs.validate(cfg, seeds)
     program = get_program(cfg)
     sched = program.sched
     state = program.init(seeds)
     t = time.perf_counter()
     state, means, _ = program.epoch(state, 1)
-    jax.block_until_ready((state, means))
+    _block(framework, (state, means))
     first = time.perf_counter() - t
-    log(f"  {algo}+{rep} x{n_seeds}: first epoch (compile + prefill) {first:.1f} s")
+    tag = f"{framework} {task} {algo}+{rep} x{n_seeds} {cfg.learner_precision}"
+    log(f"  {tag}: first epoch (compile + prefill) {first:.1f} s")
     times = []
     for e in range(2, epochs + 2):
         t = time.perf_counter()
         state, means, _ = program.epoch(state, e)
-        jax.block_until_ready((state, means))
+        _block(framework, (state, means))
         times.append(time.perf_counter() - t)
-        log(f"  {algo}+{rep} x{n_seeds}: epoch {e} {times[-1]:.2f} s "
+        log(f"  {tag}: epoch {e} {times[-1]:.2f} s "
             f"({sched.env_steps_per_epoch / times[-1]:,.0f} env steps/s per seed)")
     med = statistics.median(times)
-    sgd = int(jax.device_get(means["sgd_steps"])[0])
+    sgd = int(np.asarray(means["sgd_steps"])[0])
     del state
-    return {"task": task, "algo": algo, "rep": rep, "seeds": n_seeds,
+    return {"framework": framework, "task": task, "algo": algo, "rep": rep, "seeds": n_seeds,
+            "learner_precision": cfg.learner_precision,
             "env_steps_per_epoch": sched.env_steps_per_epoch, "sgd_steps_per_epoch": sgd,
             "timed_epochs": epochs, "first_epoch_s": round(first, 2), "median_epoch_s": round(med, 4),
             "sps_per_seed": round(sched.env_steps_per_epoch / med, 1),
@@ -71,38 +99,49 @@ def measure(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epochs
 
 
 def markdown(rows: list[dict], info: dict) -> str:
-    lines = [f"# JAX agents: training throughput, `paper` preset, {rows[0]['task']}", "",
+    tasks = ", ".join(dict.fromkeys(r["task"] for r in rows))
+    lines = [f"# Agents: training throughput, `paper` preset, {tasks}", "",
              "Command:", "", "```", info["command"], "```", "",
              f"- machine: {info.get('cpu')}; GPU: {info.get('gpu')} ({info.get('nvidia_smi')})",
              f"- versions: {json.dumps(info.get('versions'))}; jax backend {info.get('jax_backend')}; "
-             f"matmul precision: the preset's `matmul_precision` (highest)",
+             f"physics at fp32 `highest`, the learner at the row's `learner_precision`",
              "",
-             "One epoch = the trainer's jitted program over `env_steps_per_epoch` env steps per seed (env "
-             "steps, buffer inserts, SGD steps; no evaluation). First epoch (compilation + random "
-             "prefill) reported apart; rates are medians over the timed epochs.", "",
-             "| algo | representation | seeds (vmapped) | env steps / epoch / seed | SGD steps / epoch | "
-             "first epoch s | median epoch s | env steps/s per seed | env steps/s, all seeds | "
-             "10M steps at this rate |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "One epoch = the trainer's program over `env_steps_per_epoch` env steps per seed (env steps, "
+             "buffer inserts, SGD steps; no evaluation). First epoch (compilation + random prefill) "
+             "reported apart; rates are medians over the timed epochs.", "",
+             "| framework | task | algo | representation | learner precision | seeds | env steps / epoch / "
+             "seed | SGD steps / epoch | first epoch s | median epoch s | env steps/s per seed | env "
+             "steps/s, all seeds | 1M steps per seed at this rate |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        ten_m = 10_000_000 / r["sps_per_seed"]
-        lines.append(f"| {r['algo']} | {r['rep']} | {r['seeds']} | {r['env_steps_per_epoch']:,} | "
+        one_m = 1_000_000 / r["sps_per_seed"]
+        lines.append(f"| {r['framework']} | {r['task']} | {r['algo']} | {r['rep']} | "
+                     f"{r['learner_precision']} | {r['seeds']} | {r['env_steps_per_epoch']:,} | "
                      f"{r['sgd_steps_per_epoch']:,} | {r['first_epoch_s']} | {r['median_epoch_s']} | "
-                     f"{r['sps_per_seed']:,.0f} | {r['sps_total']:,.0f} | {ten_m:,.0f} s |")
-    by = {(r["algo"], r["rep"], r["seeds"]): r for r in rows}
+                     f"{r['sps_per_seed']:,.0f} | {r['sps_total']:,.0f} | {one_m:,.0f} s |")
+    key = ("framework", "task", "algo", "rep", "learner_precision", "seeds")
+    by = {tuple(r[k] for k in key): r for r in rows}
     notes = []
-    for (algo, rep, n), r in by.items():
-        base = by.get((algo, "none", n))
+    for (fw, task, algo, rep, prec, n), r in by.items():
+        base = by.get((fw, task, algo, "none", prec, n))
         if rep != "none" and base:
-            notes.append(f"- {algo}+{rep} / {algo} ({n} seed{'s' * (n > 1)}): time per env step "
-                         f"{base['sps_per_seed'] / r['sps_per_seed']:.2f}×")
-        one = by.get((algo, rep, 1))
+            notes.append(f"- {fw} {task} {algo}+{rep} / {algo} ({prec}, {n} seed{'s' * (n > 1)}): time per "
+                         f"env step {base['sps_per_seed'] / r['sps_per_seed']:.2f}×")
+        one = by.get((fw, task, algo, rep, prec, 1))
         if n > 1 and one:
-            total, per = r["sps_total"] / one["sps_total"], r["sps_per_seed"] / one["sps_per_seed"]
-            notes.append(f"- {algo}+{rep}: {n} vmapped seeds give {total:.2f}× the env steps/s of 1 seed "
-                         f"(per seed {per:.2f}×)")
+            total = r["sps_total"] / one["sps_total"]
+            notes.append(f"- {fw} {task} {algo}+{rep} ({prec}): {n} vmapped seeds give {total:.2f}× the "
+                         f"env steps/s of 1 seed")
+        high = by.get((fw, task, algo, rep, "highest", n))
+        if prec != "highest" and high:
+            notes.append(f"- {fw} {task} {algo}+{rep} ({n} seed{'s' * (n > 1)}): {prec} gives "
+                         f"{r['sps_total'] / high['sps_total']:.2f}× the env steps/s of highest")
+        jx = by.get(("jax", task, algo, rep, prec, n))
+        if fw == "torch" and jx:
+            notes.append(f"- {task} {algo}+{rep} ({prec}, {n} seed{'s' * (n > 1)}): torch / JAX env "
+                         f"steps/s {r['sps_total'] / jx['sps_total']:.2f}×")
     if notes:
-        lines += ["", "Ratios:", ""] + notes
+        lines += ["", "Ratios (same run, same machine):", ""] + notes
     lines += ["", "Paper (§4.4, RTX 4090, 10M steps): TD3 659 s, TD3+SF² about 1300 s, i.e. about 15k and "
               "7.7k env steps/s for one seed."]
     return "\n".join(lines) + "\n"
@@ -110,17 +149,20 @@ def markdown(rows: list[dict], info: dict) -> str:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m bench.agent_throughput", description=__doc__.split("\n\n")[0])
-    p.add_argument("--task", default="AcrobotSwingup")
+    p.add_argument("--tasks", "--task", default="AcrobotSwingup", type=_names, help="comma list of tasks")
     p.add_argument("--algos", default="td3", type=_names)
     p.add_argument("--reps", default="none,sf2", type=_names)
     p.add_argument("--seeds", default="1,8", help="numbers of vmapped seeds to measure, e.g. 1,8")
+    p.add_argument("--precisions", default="highest", type=_names,
+                   help="learner_precision values (highest, tensorfloat32, bfloat16)")
+    p.add_argument("--frameworks", default="jax", type=_names, help="jax and/or torch")
     p.add_argument("--env-steps", type=int, default=600_000, help="timed env steps per seed (all epochs)")
     p.add_argument("--epochs", type=int, default=3, help="timed epochs (after the first)")
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="override a config field of the paper preset (repeatable)")
     p.add_argument("--out", required=True, help="folder for throughput.csv / throughput.md / machine.json")
     args = p.parse_args(argv)
-    from sf2_jax.agents import configs
+    from sf2_common.agents import configs
 
     from .machine import describe
 
@@ -129,18 +171,22 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     command = "python -m bench.agent_throughput " + " ".join(argv if argv is not None else sys.argv[1:])
     info = describe(str(Path(__file__).resolve().parents[1]), command)
-    rows = []
-    for n in (int(x) for x in args.seeds.split(",")):
-        for algo in args.algos:
-            for rep in args.reps:
-                rows.append(measure(args.task, algo, rep, n, args.env_steps, args.epochs, overrides))
-                with open(out / "throughput.csv", "w", newline="") as f:
-                    w = csv.DictWriter(f, fieldnames=COLUMNS)
-                    w.writeheader()
-                    w.writerows(rows)
     (out / "machine.json").write_text(json.dumps(info, indent=2))
+    rows = []
+    for task in args.tasks:
+        for n in (int(x) for x in args.seeds.split(",")):
+            for fw in args.frameworks:
+                for prec in args.precisions:
+                    for algo in args.algos:
+                        for rep in args.reps:
+                            rows.append(measure(task, algo, rep, n, args.env_steps, args.epochs,
+                                                {**overrides, "learner_precision": prec}, framework=fw))
+                            with open(out / "throughput.csv", "w", newline="") as f:
+                                w = csv.DictWriter(f, fieldnames=COLUMNS)
+                                w.writeheader()
+                                w.writerows(rows)
+                            (out / "throughput.md").write_text(markdown(rows, info))
     text = markdown(rows, info)
-    (out / "throughput.md").write_text(text)
     print(text)
     return 0
 
