@@ -198,3 +198,14 @@ def test_study_folder_of_another_file_is_kept(reference, tmp_path, capsys):
     err = capsys.readouterr().err
     assert str(reference / "study.toml") in err and str(other) in err and "differ in seeds" in err
     assert {p: p.stat().st_mtime_ns for p in reference.rglob("*")} == before
+
+
+def test_sf2_torch_study_dry_run(tmp_path, capsys):
+    """`sf2-torch study run` plans the same runs as children of `sf2-torch train`; nothing is written."""
+    torch_cli = pytest.importorskip("sf2_torch.cli", reason="needs sf2-core-torch[train] (tox -e agents)")
+    out = tmp_path / "study"
+    assert torch_cli.main(["study", "run", str(SMOKE), "--out", str(out), "--dry-run"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("smoke (") and "4 run(s) selected of 4" in lines[0]
+    assert all(" new " in x and "sf2-torch train --task" in x for x in lines[1:]) and len(lines) == 5
+    assert not out.exists()
