@@ -101,3 +101,41 @@ def test_missing_extras_are_named(monkeypatch):
     monkeypatch.setitem(sys.modules, "rliable", None)
     with pytest.raises(ImportError, match=r'pip install "packages/sf2-common\[studies\]"'):
         stats.require_rliable()
+
+
+FAKE_TRAIN = textwrap.dedent('''
+    """Stands in for `python -m sf2_jax.cli train ... --out DIR`: a finished run folder with checkpoints."""
+    import json, os, sys
+    out = sys.argv[sys.argv.index("--out") + 1]
+    os.makedirs(os.path.join(out, "checkpoints", "3"), exist_ok=True)
+    os.makedirs(os.path.join(out, "final"), exist_ok=True)
+    open(os.path.join(out, "config.json"), "w").write(json.dumps({"argv": sys.argv[1:]}))
+    open(os.path.join(out, "metrics.jsonl"), "w").write('{"epoch": 0, "seed": 0}\\n')
+    open(os.path.join(out, "final", "params_seed0.npz"), "wb").write(b"params")
+    open(os.path.join(out, "checkpoints", "3", "state"), "wb").write(b"big")
+''')
+
+
+def test_ray_task_on_a_host_without_the_study_folder(tmp_path, monkeypatch):
+    """A Ray task whose node does not see the study folder (no study.json with the driver's id there)
+    trains in its scratch folder and returns the run folder's files but its checkpoints; the driver
+    writes them into the study folder (rayrun.remote_job and rayrun.land, without Ray itself)."""
+    from sf2_common.studies import rayrun
+
+    (tmp_path / "fake_sf2_train.py").write_text(FAKE_TRAIN)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("PYTHONPATH", str(tmp_path))
+    monkeypatch.setenv("SF2_STUDY_SCRATCH", str(tmp_path / "scratch"))
+    rel = "runs/A/td3"
+    result = rayrun.remote_job("fake_sf2_train", [["train", "--task", "A", "--out", "{out}"]],
+                               str(tmp_path / "driver-study"), "id123", rel)
+    assert result["rc"] == 0 and result["shared"] is False
+    scratch = tmp_path / "scratch" / "id123" / rel
+    assert (scratch / "checkpoints" / "3" / "state").exists()          # stays on the node
+    assert sorted(result["files"]) == ["config.json", "final/params_seed0.npz", "metrics.jsonl", "train.log"]
+    assert json.loads(result["files"]["config.json"])["argv"][-1] == str(scratch)
+    path = tmp_path / "driver-study" / rel
+    (path / "checkpoints" / "1").mkdir(parents=True)                      # a partial run's, from before
+    rayrun.land(path, result)
+    assert (path / "final" / "params_seed0.npz").read_bytes() == b"params"
+    assert (path / "metrics.jsonl").exists() and not (path / "checkpoints").exists()

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 from pathlib import Path
 
 from .folder import LOG, StudyFolder, write_bytes
@@ -23,7 +24,7 @@ from .progress import Progress
 from .runner import LOCK, Backend, Job, Outcome, child_env, lock, run_commands
 from .spec import Study
 
-__all__ = ["run_ray", "remote_job", "RAY_EXTRA", "RETURNED"]
+__all__ = ["run_ray", "remote_job", "land", "RAY_EXTRA", "RETURNED", "BUSY"]
 
 RAY_EXTRA = 'pip install "packages/sf2-common[ray]"'
 BUSY = 75   # EX_TEMPFAIL: the run folder is locked by another runner
@@ -73,13 +74,23 @@ def remote_job(cli_module: str, commands: list[list[str]], study_dir: str, study
     return {"rc": rc, "shared": shared_fs, "files": files}
 
 
+def land(path: Path, result: dict) -> None:
+    """Write what a task on a host without the study folder sent back (`remote_job`) into the run folder
+    `path`; its old checkpoints (of a partial run trained here before) no longer belong to it."""
+    if result["shared"]:
+        return
+    if result["rc"] == 0:
+        shutil.rmtree(path / "checkpoints", ignore_errors=True)
+    for name, data in result["files"].items():
+        write_bytes(path / name, data)
+
+
 def run_ray(study: Study, folder: StudyFolder, jobs: list[Job], done: list[Job], *, backend: Backend,
             address: str, num_gpus: float = 1, num_cpus: float = 1, progress: bool = True,
             shared_fs: bool | None = None, poll: float = 2.0, stream=None) -> Outcome:
     """Dispatch `jobs` as Ray tasks (module docstring). `address` "local" starts a Ray instance on this
     host (ray.init()); anything else is given to ray.init(address=...). `shared_fs` None: each task
     decides (module docstring); True/False forces it (tests)."""
-    import shutil
     import sys
 
     ray = _ray()
@@ -109,11 +120,7 @@ def run_ray(study: Study, folder: StudyFolder, jobs: list[Job], done: list[Job],
             for ref in ready:
                 job = refs[ref]
                 result = ray.get(ref)
-                if not result["shared"]:
-                    if result["rc"] == 0:
-                        shutil.rmtree(job.path / "checkpoints", ignore_errors=True)  # not this run's now
-                    for name, data in result["files"].items():
-                        write_bytes(job.path / name, data)
+                land(job.path, result)
                 steps[job.name] = folder.run_state(job.run, study).env_steps
                 if result["rc"] == BUSY:
                     outcome.busy.append(job.name)
