@@ -32,6 +32,9 @@ BAD_TRAIN_INPUTS = [
     (["--task", "CartpoleBalance", "--seeds", "3-1"], ["seeds '3-1' are invalid"]),
     (["--task", "CartpoleBalance", "--seeds", "0,0"], ["duplicates"]),
     (["--task", "CartpoleBalance", "--repr", "sf2,sf2"], ["repeats"]),
+    # negative values reach the validation whatever their spelling (argparse alone refuses -1e-3)
+    (["--task", "CartpoleBalance", "--learning-rate", "-1e-3"], ["learning_rate = -0.001 is invalid", "> 0"]),
+    (["--task", "CartpoleBalance", "--learning-rate", "-0.001"], ["learning_rate = -0.001 is invalid"]),
 ]
 
 

@@ -1,0 +1,157 @@
+"""Run-folder faults on real sf2-jax runs (docs/run-folders.md, the fault matrix): each kind of file a
+run folder holds truncated, garbled or deleted, and kills in the middle of a save, the in-process one and
+a real `kill -9` of the CLI. Each case ends in the documented recovery (rows and state equal to the
+uninterrupted run's) or in an error naming the path with the folder unchanged. The resume rule itself is
+framework-free and tested once in packages/sf2-common/tests/test_runfolders.py; here: that Orbax's files
+map onto it."""
+
+from __future__ import annotations
+
+import re
+import shutil
+
+import jax
+import numpy as np
+import pytest
+from sf2_common.agents.checkpoints import CheckpointDamaged
+from sf2_common.agents.runfolder import RunFolder, RunFolderError
+from sf2_common.testing import FAULTS, cli_args, damage, folder_digest, kill9, kill_and_resume
+from sf2_jax import cli
+from sf2_jax.agents.checkpoint import Checkpointer
+from sf2_jax.agents.trainer import WALL_FIELDS, get_program, train
+
+
+def _strip(rows):
+    return [{k: v for k, v in r.items() if k not in WALL_FIELDS} for r in rows]
+
+
+def _assert_same_state(a, b):
+    for x, y in zip(jax.tree_util.tree_leaves(a.state), jax.tree_util.tree_leaves(b.state), strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
+@pytest.fixture(scope="module")
+def reference(tiny_cfg, tmp_path_factory):
+    """An uninterrupted single-seed run: rows 0-3, checkpoints 2 and 3 (keep_checkpoints = 2)."""
+    return train(tiny_cfg, (0,), tmp_path_factory.mktemp("ref"), progress=False)
+
+
+def _copy(reference, tmp_path):
+    return shutil.copytree(reference.run.path, tmp_path / "run")
+
+
+def _checkpoint_file(folder, kind):
+    """The data (the largest file of Orbax's array store) or our JSON metadata item of checkpoint 3."""
+    if kind == "data":
+        return max((folder / "checkpoints" / "3" / "state" / "d").iterdir(), key=lambda p: p.stat().st_size)
+    return folder / "checkpoints" / "3" / "meta" / "metadata"
+
+
+@pytest.mark.parametrize("fault", FAULTS)
+@pytest.mark.parametrize("kind", ["data", "metadata"])
+def test_each_damaged_checkpoint_file_is_named(reference, tiny_cfg, tmp_path, kind, fault):
+    """Every file fault is one `CheckpointDamaged` naming the file (no Orbax reader errors), which the
+    resume rule sets aside (test_a_damaged_newest_checkpoint_falls_back_to_the_last_good_one)."""
+    shutil.copytree(reference.run.checkpoint_dir, tmp_path / "checkpoints")
+    path = _checkpoint_file(tmp_path, kind)
+    damage(path, fault)
+    ckpt = Checkpointer(tmp_path / "checkpoints")
+    try:
+        with pytest.raises(CheckpointDamaged) as err:
+            ckpt.restore(3, get_program(tiny_cfg).abstract_state((0,)))
+    finally:
+        ckpt.close()
+    name = path.relative_to(tmp_path / "checkpoints" / "3").as_posix()
+    assert err.value.epoch == 3 and err.value.reason.startswith(name), err.value
+
+
+def test_a_damaged_newest_checkpoint_falls_back_to_the_last_good_one(reference, tiny_cfg, tmp_path, capfd):
+    out = _copy(reference, tmp_path)
+    data = _checkpoint_file(out, "data")
+    damage(data, "truncate")
+    damaged = folder_digest(out / "checkpoints" / "3")
+    resumed = train(tiny_cfg, (0,), out, progress=False, plot=False)
+    assert resumed.resumed_from == 2
+    assert _strip(resumed.run.read_rows()) == _strip(reference.rows)
+    _assert_same_state(resumed, reference)
+    (aside,) = (out / "damaged").iterdir()
+    assert folder_digest(aside / "checkpoints" / "3") == damaged          # set aside, not deleted
+    assert (aside / "metrics.jsonl").read_text() == (reference.run.metrics_path).read_text()
+    err = capfd.readouterr().err
+    assert f"checkpoint 3 ({out / 'checkpoints' / '3'}) is damaged: state/d/{data.name} has" in err
+    assert f"resuming {out} from checkpoint 2 (epoch 2 of 3, env step 96)" in err
+    assert "absl" not in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("fault", FAULTS)
+@pytest.mark.parametrize("name", ["config.json", "metrics.jsonl"])
+def test_a_damaged_config_or_metrics_file_is_an_error_and_changes_nothing(reference, tiny_cfg, tmp_path,
+                                                                         name, fault):
+    out = _copy(reference, tmp_path)
+    damage(out / name, fault)
+    before = folder_digest(out)
+    misses = get_program.cache_info().misses
+    with pytest.raises(RunFolderError, match=re.escape(str(out / name) if name == "metrics.jsonl" or
+                                                       fault != "delete" else str(out))) as err:
+        train(tiny_cfg.replace(hidden_sizes=(8,)), (0,), out, progress=False)  # a config not compiled yet
+    assert "Nothing was changed" in str(err.value) or "nothing was changed" in str(err.value)
+    assert folder_digest(out) == before
+    assert get_program.cache_info().misses == misses                      # refused before compiling
+
+
+def test_killed_in_the_middle_of_a_save(reference, tiny_cfg, tmp_path):
+    """Orbax had finished checkpoint 2 when the kill came, only its manifest is missing: checkpoint 2
+    restores completely (the reader checks it without the manifest), so the run resumes from it."""
+    resumed = kill_and_resume(train, tiny_cfg, tmp_path / "killed", "mid-save", 2, 2)
+    assert _strip(resumed.run.read_rows()) == _strip(reference.rows)
+    _assert_same_state(resumed, reference)
+
+
+def test_cli_kill9_during_a_save_then_the_same_command_resumes(reference, tiny_cfg, tmp_path, capfd,
+                                                               request):
+    """A real SIGKILL of `sf2-jax train` while it saves checkpoint 0; the same command then resumes from
+    it, says so without library noise, and a third run says the run is complete and shows the training's
+    own wall time."""
+    out = tmp_path / "cli"
+    cache = getattr(request.config, "cache", None)  # JAX's persistent cache: faster on a second run
+    cache = str(cache.mkdir("sf2-jax-compile-cache")) if cache is not None else ""
+    args = cli_args(tiny_cfg, out) + ["--compile-cache", cache]
+    kill9("sf2_jax.cli", args, ("mid-save", 0))
+    capfd.readouterr()
+    assert cli.main(args) == 0
+    err = capfd.readouterr().err
+    assert f"resuming {out} from checkpoint 0 (epoch 0 of 3, env step 0)" in err, err
+    assert "absl" not in err and "Waiting for previous save" not in err
+    rows = RunFolder(out).read_rows()
+    assert _strip(rows) == _strip(reference.rows)
+    assert cli.main(args) == 0
+    captured = capfd.readouterr()
+    walltime = max(r["walltime"] for r in rows)
+    assert f"{out}: the run is complete (epoch 3 of 3, 144 env steps, trained in {walltime:.0f} s)" in \
+        captured.err
+    assert re.search(rf"\| {walltime:.0f} s\n", captured.out), captured.out
+
+
+@pytest.mark.parametrize("where,expected", [
+    ("file", "run folder {file} is a file, not a folder"),
+    ("under-file", "run folder {file}/run cannot be created: {file} is a file, not a folder"),
+    ("sys", "run folder /sys/sf2-run cannot be created (in /sys): "),
+])
+def test_cli_unusable_out_is_an_error_before_compiling(tiny_cfg, tmp_path, capsys, where, expected):
+    file = tmp_path / "file"
+    file.write_text("mine")
+    out = {"file": file, "under-file": file / "run", "sys": "/sys/sf2-run"}[where]
+    misses = get_program.cache_info().misses
+    assert cli.main(cli_args(tiny_cfg.replace(hidden_sizes=(8,)), out)) == 2
+    assert expected.format(file=file) in capsys.readouterr().err
+    assert file.read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+    assert get_program.cache_info().misses == misses
+
+
+def test_cli_eval_of_a_damaged_checkpoint_names_the_file(reference, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("SF2_JAX_COMPILE_CACHE", "")  # no persistent cache from inside the tests
+    out = _copy(reference, tmp_path)
+    damage(out / "checkpoints" / "3" / "meta" / "metadata", "garble")
+    assert cli.main(["eval", str(out)]) == 2
+    assert f"checkpoint 3 ({out / 'checkpoints' / '3'}) is damaged: meta/metadata does not hold the bytes" \
+        in capsys.readouterr().err
