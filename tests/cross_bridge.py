@@ -73,6 +73,8 @@ def canonical_values(shapes: dict, seed: int = 0) -> dict[str, np.ndarray]:
             v = rng.uniform(0.5, 1.5, shape)
         elif name == "log_alpha":
             v = np.asarray(rng.normal(-1.0, 0.3))
+        elif name == "task.w":  # Sim's task vector, N(0, 1) at init
+            v = rng.normal(0.0, 1.0, shape)
         else:
             v = rng.normal(0.0, 0.1, shape)
         out[name] = v

@@ -18,7 +18,7 @@ import numpy as np
 import optax
 import pytest
 import torch
-from cross_bridge import check, jbatch, jx, make_batch, np_, tbatch, th
+from cross_bridge import canonical_values, check, jbatch, jx, make_batch, np_, tbatch, th
 
 pytest.importorskip("sf2_baselines")
 import sf2_baselines.jax as bj  # noqa: E402
@@ -48,31 +48,11 @@ METHOD = {"sim": (bj.sim, bt.sim), "simlap": (bj.simlap, bt.simlap), "spr": (bj.
 
 
 def canonical_file(tmp_path, method, cfg_kwargs, algo, seed=0):
-    """A canonical file of `method`'s networks with every entry non-trivial (as cross_bridge.canonical_file):
-    names and shapes from `expected_shapes`, values drawn with numpy so that LayerNorm, the normalizer
-    and the targets all differ from their defaults and from the online networks."""
+    """A canonical file of `method`'s networks (names and shapes from `expected_shapes`) with every entry
+    non-trivial (`cross_bridge.canonical_values`)."""
     jmod = METHOD[method][0]
     shapes = bj.params.expected_shapes(jmod.make_networks(sf2_jax.SF2Config(**cfg_kwargs), algo))
-    rng = np.random.default_rng(seed)
-    out = {}
-    for name, shape in shapes.items():
-        if name.endswith(".kernel"):  # LeCun-uniform scale, like the initializers
-            v = rng.uniform(-1.0, 1.0, shape) * np.sqrt(3.0 / shape[0])
-        elif name.endswith("obs_norm.std"):
-            v = rng.uniform(0.5, 2.0, shape)
-        elif name.endswith("obs_norm.count"):
-            v = np.asarray(100.0)
-        elif name.endswith("obs_norm.summed_var"):
-            v = rng.uniform(50.0, 400.0, shape)
-        elif name.endswith(".scale"):
-            v = rng.uniform(0.5, 1.5, shape)
-        elif name == "log_alpha":
-            v = np.asarray(rng.normal(-1.0, 0.3))
-        elif name == "task.w":
-            v = rng.normal(0.0, 1.0, shape)
-        else:
-            v = rng.normal(0.0, 0.1, shape)
-        out[name] = v
+    out = canonical_values(shapes, seed)
     path = tmp_path / f"{method}-{algo}-{seed}.npz"
     bj.params.save(path, out)
     return path
