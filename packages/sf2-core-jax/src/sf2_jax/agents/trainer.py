@@ -94,10 +94,7 @@ class Program:
         self.sched = configs.schedule(cfg)
         # the order an SGD step computes its losses in (names the first NaN when several appear at once)
         self.loss_order = ("critic_loss", self.algo.rep.aux_loss_name, "alpha_loss", "actor_loss")
-        self._init = jax.jit(jax.vmap(self._init_one))
-        self._epoch = jax.jit(jax.vmap(self._epoch_one, in_axes=(0, None)), donate_argnums=0)
-        self._evaluate = jax.jit(jax.vmap(self._eval_one))
-        self._noisy_evaluate = {}
+        self._programs: dict[tuple, Callable] = {}   # (name, obs noise, seeds spread) -> jitted program
         self._eval_starts = jax.jit(jax.vmap(self._eval_starts_one, in_axes=(0, None)), static_argnums=1)
 
     # ------------------------------------------------------------------ host entry points
@@ -112,42 +109,63 @@ class Program:
 
     def init(self, seeds) -> TrainState:
         with self._precision():
-            return self.place(self._init(seed_keys(seeds)))
+            return self._program("init", len(seeds))(seed_keys(seeds))
 
     def abstract_state(self, seeds) -> TrainState:
         with self._precision():
-            return jax.eval_shape(self._init, seed_keys(seeds))
+            return jax.eval_shape(jax.vmap(self._init_one), seed_keys(seeds))
+
+    @staticmethod
+    def mesh(n_seeds: int) -> jax.sharding.Mesh | None:
+        """The local devices as a one-axis mesh ("seed") when there are several and they divide `n_seeds`
+        evenly, else None (everything on the default device)."""
+        devices = jax.local_devices()
+        if len(devices) < 2 or n_seeds % len(devices):
+            return None
+        return jax.sharding.Mesh(np.array(devices), ("seed",))
 
     def place(self, state):
-        """Spread the seeds over the local devices when their number divides evenly (docs/core-contract.md
-        "Agents": no cross-device traffic inside an epoch); the jitted functions then run each device's
-        seeds where they live. One device: unchanged."""
-        devices = jax.local_devices()
-        n = jax.tree_util.tree_leaves(state)[0].shape[0]
-        if len(devices) < 2 or n % len(devices):
+        """Put a state (e.g. a restored checkpoint) where the programs keep it: its seeds spread over the
+        local devices (`mesh`), or unchanged on one device."""
+        mesh = self.mesh(jax.tree_util.tree_leaves(state)[0].shape[0])
+        if mesh is None:
             return state
-        mesh = jax.sharding.Mesh(np.array(devices), ("seed",))
-        sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("seed"))
-        return jax.device_put(state, sharding)
+        return jax.device_put(state, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("seed")))
+
+    def _program(self, name: str, n_seeds: int, obs_noise: float = 0.0):
+        """The jitted, seed-vmapped program `name` ("init", "epoch", "evaluate"). With several local
+        devices that divide the seeds evenly it is a `shard_map` over the "seed" axis: every device runs
+        the vmapped program on its own seeds, so nothing crosses devices inside an epoch (docs/core-
+        contract.md "Agents"; the seeds' numbers are those of one device up to float rounding)."""
+        mesh = self.mesh(n_seeds)
+        key = (name, obs_noise, mesh is not None)
+        if key not in self._programs:
+            fn, in_axes = {"init": (self._init_one, (0,)), "epoch": (self._epoch_one, (0, None)),
+                           "evaluate": (functools.partial(self._eval_one, obs_noise=obs_noise), (0, 0, 0))
+                           }[name]
+            fn = jax.vmap(fn, in_axes=in_axes)
+            if mesh is not None:
+                seed, whole = jax.sharding.PartitionSpec("seed"), jax.sharding.PartitionSpec()
+                fn = jax.shard_map(fn, mesh=mesh, in_specs=tuple(seed if a == 0 else whole for a in in_axes),
+                                   out_specs=seed, check_vma=False)
+            self._programs[key] = jax.jit(fn, donate_argnums=(0,) if name == "epoch" else ())
+        return self._programs[key]
 
     def epoch(self, state: TrainState, epoch: int) -> tuple[TrainState, dict, dict]:
         """Run epoch `epoch` (1-based). Returns (state, metric means, first non-finite index)."""
         first = jnp.asarray((epoch - 1) * self.sched.actor_steps_per_epoch, jnp.int32)
+        n_seeds = state.key.shape[0]
         with self._precision(), warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=".*donated buffers were not usable.*")
-            return self._epoch(state, first)
+            return self._program("epoch", n_seeds)(state, first)
 
     def evaluate(self, params, eval_start, seeds, epoch: int, obs_noise: float = 0.0) -> jax.Array:
         """Episode returns (n_seeds, n_eval_envs) from the start states `eval_start`. `obs_noise` > 0 adds
         Gaussian noise of that std to every observation the policy sees (paper App. C.2.2; one compiled
         program per std; 0 is the training's own evaluation program)."""
         with self._precision():
-            if not obs_noise:
-                return self._evaluate(params, eval_start, eval_keys(seeds, epoch))
-            if obs_noise not in self._noisy_evaluate:
-                self._noisy_evaluate[obs_noise] = jax.jit(jax.vmap(
-                    functools.partial(self._eval_one, obs_noise=obs_noise)))
-            return self._noisy_evaluate[obs_noise](params, eval_start, eval_keys(seeds, epoch))
+            return self._program("evaluate", len(seeds), float(obs_noise))(params, eval_start,
+                                                                            eval_keys(seeds, epoch))
 
     def fresh_eval_starts(self, seeds, n: int, epoch: int):
         """`n` new evaluation start states per seed (for `sf2-jax eval --episodes`)."""
