@@ -1,6 +1,6 @@
 """`sf2-jax study run` end to end on the CPU with the shipped smoke study (studies/smoke.toml: 2 tasks × 2
-methods × 2 seeds, tiny budget): the local runner, a run killed with the runner (kill -9) and resumed, a
-study folder that merges runs trained elsewhere, the Ray runner on a local CPU-only instance, the report,
+methods × 2 seeds, tiny budget): the local runner, a study folder that merges runs trained elsewhere, a run
+killed with its runner (kill -9) and resumed by the Ray runner on a local CPU-only instance, the report,
 and bad study files refused before anything is compiled. Needs sf2-core-jax[train] and the [studies] and
 [ray] extras of sf2-common: tox -e agents."""
 
@@ -96,11 +96,16 @@ def test_smoke_study_runs_and_reports(reference, capsys):
         assert (out / f"{name}.png").stat().st_size > 1000 and (out / f"{name}.svg").exists()
 
 
-def test_killed_runner_resumes_to_the_same_results(reference, tmp_path, capsys):
-    """Three runs finished elsewhere are merged into a new study folder (copied run folders); the runner
-    trains the fourth and is killed (kill -9) in the middle of it; its child dies with it; the same
-    command then resumes the run from its last checkpoint. Every run's rows equal the uninterrupted
-    study's, none missing, none duplicated."""
+def test_killed_runner_resumes_through_ray_to_the_same_results(reference, tmp_path):
+    """Three runs finished elsewhere are merged into a new study folder (copied run folders); the local
+    runner trains the fourth and is killed (kill -9) in the middle of it; its child dies with it. The
+    study then resumes as Ray tasks on a local CPU-only instance (the node sees the study folder, so the
+    task resumes the run in place from its last checkpoint). Every run's rows equal the uninterrupted
+    study's, none missing, none duplicated. (A node without the study folder: test_study_runner.py.)"""
+    pytest.importorskip("ray", reason="needs sf2-common[ray] (tox -e agents)")
+    from sf2_common.studies import commands
+    from sf2_common.studies.rayrun import run_ray
+
     out = tmp_path / "study"
     ref = StudyFolder(reference)
     folder = StudyFolder(out)
@@ -130,37 +135,20 @@ def test_killed_runner_resumes_to_the_same_results(reference, tmp_path, capsys):
     else:
         pytest.fail("the trainer outlived its runner")
     os.close(fd)
-    killed_at = max(r["epoch"] for r in _lines(last))
-    assert killed_at < EPOCHS
-    _, err = _main(capsys, "run", SMOKE, "--out", out, "--no-progress")
-    assert "1 run(s) to do, 3 done" in err
-    for task, method in RUNS:
-        assert _lines(folder.run_path(task, method)) == _lines(ref.run_path(task, method)), (task, method)
+    assert max(r["epoch"] for r in _lines(last)) < EPOCHS
 
-
-def test_ray_local_cpu_instance(reference, tmp_path, monkeypatch):
-    """One run as a Ray task on a local CPU-only instance, in the mode of hosts without a shared file
-    system: it trains in the node's scratch folder and the driver writes the returned files."""
-    pytest.importorskip("ray", reason="needs sf2-common[ray] (tox -e agents)")
-    from sf2_common.studies import commands
-    from sf2_common.studies.rayrun import run_ray
-
-    monkeypatch.setenv("SF2_STUDY_SCRATCH", str(tmp_path / "scratch"))
     study = spec.load(SMOKE)
     backend = commands.backend(cli.FRAMEWORK)
     runs = spec.resolve(study, backend.make_config, backend.validate)
-    selected = spec.select_runs(study, runs, ["CartpoleBalance"], ["td3-sf2"])
-    folder = StudyFolder(tmp_path / "study")
     folder.open(study, "jax", runs, command="test")
-    jobs, done = plan(study, folder, selected)
-    assert [j.name for j in jobs] == ["CartpoleBalance/td3-sf2"] and not done
-    outcome = run_ray(study, folder, jobs, done, backend=backend, address="local", num_gpus=0,
-                      progress=False, shared_fs=False)
-    assert outcome.ok and outcome.done == ["CartpoleBalance/td3-sf2"]
-    run = folder.run_path("CartpoleBalance", "td3-sf2")
-    assert _lines(run) == _lines(StudyFolder(reference).run_path("CartpoleBalance", "td3-sf2"))
-    assert (run / "final" / "params_seed1.npz").exists() and not (run / "checkpoints").exists()
-    assert folder.run_state(selected[0], study).status == "done"
+    jobs, done = plan(study, folder, runs)
+    assert [j.name for j in jobs] == ["CartpoleSwingup/td3-sf2"] and len(done) == 3
+    outcome = run_ray(study, folder, jobs, done, backend=backend, address="local", num_gpus=0, progress=False)
+    assert outcome.ok and len(outcome.done) == 4
+    assert (last / "checkpoints").exists()              # trained in place
+    for task, method in RUNS:
+        assert _lines(folder.run_path(task, method)) == _lines(ref.run_path(task, method)), (task, method)
+    assert folder.run_state(jobs[0].run, study).status == "done"
 
 
 def _bad(tmp_path, capsys, text: str, *more) -> str:
