@@ -103,7 +103,7 @@ def main(argv=None) -> int:
                   "config.json": "config.json", "metrics.jsonl": "metrics.jsonl"})
     for label, rel in files.items():
         for fault in FAULTS:
-            out = case_folder(f"{re.sub(r'[^a-z0-9]+', '-', label)}-{fault}")
+            out = case_folder(f"{re.sub(r'[^a-z0-9]+', '-', label.lower())}-{fault}")
             if rel.startswith("largest:"):
                 path = max((out / rel.split(":", 1)[1]).iterdir(), key=lambda p: p.stat().st_size)
             else:
