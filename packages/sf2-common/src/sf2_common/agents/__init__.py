@@ -2,8 +2,9 @@
 
 Modules: `configs` (TrainConfig, presets, parsing, validation), `tasks` (the DM Control task table),
 `registry` (representations by name, entry points), `runfolder`, `plotting`, `hostloop` (the training
-loop's framework-free helpers). `EXPORTS` and `lazy_getattr` give both cores' `agents` packages the same
-lazily imported top-level names.
+loop's framework-free helpers), `resume` (where a run folder resumes), `checkpoints` (damaged vs
+mismatched checkpoints, the file manifest), `runlog` (library noise into train.log). `EXPORTS` and
+`lazy_getattr` give both cores' `agents` packages the same lazily imported top-level names.
 """
 
 from __future__ import annotations
