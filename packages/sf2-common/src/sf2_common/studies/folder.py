@@ -135,9 +135,10 @@ class StudyFolder:
         for r in rows:
             last[r["seed"]] = max(last.get(r["seed"], 0), int(r.get("env_steps", 0)))
         steps = sum(last.values())
-        trained = (all(any(r["seed"] == s and r["epoch"] == sched.num_epochs for r in rows)
-                       for s in study.seeds)
-                   and all((path / RunFolder.FINAL / f"params_seed{s}.npz").exists() for s in study.seeds))
+        # every seed's last evaluation row is the run's result; the final parameters are not needed
+        # (a run brought back from another machine holds its metrics and config only)
+        trained = all(any(r["seed"] == s and r["epoch"] == sched.num_epochs for r in rows)
+                      for s in study.seeds)
         if not trained:
             return RunState("partial" if rows else "new", steps, total)
         if study.evaluation is not None and not evaluation_done(path, study):
