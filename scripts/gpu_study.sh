@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Runs part of a study on the lent GPU host (see README "Studies") and brings back what a study folder
+# keeps: every run's config.json, metrics.jsonl, train.log (and eval results), never checkpoints or
+# parameters. One command there is at most 10 minutes and the host keeps its disk only while it stays
+# held, so the study folder lives at /tmp/study-<name> on the host: a run cut by the time limit resumes
+# from its last checkpoint in the next command on the same (still warm) host.
+#
+#   bash scripts/gpu_study.sh STUDY.toml SECONDS [study run options: --tasks ... --methods ... --seeds ...]
+#
+# Wheels: .whl-jax (git-excluded) = the output of ../shared/device/wheels.sh without TorchRL, plus
+# pandas 2.3 (the host's pandas 3 breaks arch, rliable's dependency) and its pytz/tzdata/dateutil/six.
+# The archive $OUT/<name>.tar.gz unpacks into a study folder; merge it with
+#   tar xzf <name>.tar.gz -C results/<name>   then   sf2-jax study report results/<name>
+set -uo pipefail
+study=$1; limit=$2; shift 2
+name=$(basename "$study" .toml)
+folder=/tmp/study-$name
+if [ ! -f /tmp/site/.done ]; then
+  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site \
+    .whl-jax/*.whl || exit 1
+  touch /tmp/site/.done
+fi
+export PYTHONPATH=/tmp/site:$PWD/packages/sf2-common/src:$PWD/packages/sf2-core-jax/src:$PWD/packages/sf2-baselines/src
+nvidia-smi --query-gpu=name,memory.total --format=csv,noheader
+start=$(date +%s)
+timeout --signal=TERM "$limit" python3 -m sf2_jax.cli study run "$study" --out "$folder" --no-progress "$@"
+rc=$?
+echo "study run exit status $rc after $(( $(date +%s) - start )) s"
+python3 -m sf2_jax.cli study run "$study" --out "$folder" --dry-run "$@" || true
+mkdir -p "$OUT"
+tar czf "$OUT/$name.tar.gz" -C "$folder" --exclude='checkpoints' --exclude='final' --exclude='damaged' \
+  --exclude='*.npz' --exclude='.study-lock' .
+exit $rc
