@@ -63,7 +63,7 @@ def _resolve_without_tasks(study, make):
     for task, m in study.select():
         cfg = make(study.preset, task, m.algo, m.representation, {})
         out.append(spec.Run(task=task, folder=m.name, methods=(m,), config=cfg,
-                            argv=("--task", task, "--algo", m.algo)))
+                            argv=("--task", task, "--algo", m.algo), seeds=study.seeds))
     return out
 
 

@@ -1,7 +1,8 @@
 """The `study` subcommand of `sf2-jax` and `sf2-torch` (sf2_common.cli adds it with `add_parser` and calls
 `main`):
 
-    PROG study run FILE --out DIR [--tasks A,B] [--methods m1,m2] [--workers N] [--ray ADDRESS] [--dry-run]
+    PROG study run FILE --out DIR [--tasks A,B] [--methods m1,m2] [--seeds 0-4] [--workers N] [--ray ADDRESS]
+                   [--dry-run]
     PROG study report DIR [--out REPORT_DIR]
 
 `run` checks the study file and every run's config before anything is compiled (bad input: exit status
@@ -34,6 +35,9 @@ def add_parser(sub, prog: str) -> None:
     r.add_argument("--out", required=True, help="study folder (created, or continued if it holds this study)")
     r.add_argument("--tasks", default=None, help="only these tasks (comma-separated)")
     r.add_argument("--methods", default=None, help="only these methods (names or labels, comma-separated)")
+    r.add_argument("--seeds", default=None,
+                   help="only the seed groups wholly inside these seeds (e.g. 0-4; the study file's "
+                   "seeds_per_run makes the groups)")
     r.add_argument("--workers", type=int, default=None,
                    help="runs at a time on this host (default: one per visible GPU, else 1)")
     r.add_argument("--ray", metavar="ADDRESS", default=None,
@@ -105,12 +109,15 @@ def _run(backend, args, command: str) -> int:
             os.environ.pop("JAX_PLATFORMS")
         else:
             os.environ["JAX_PLATFORMS"] = platforms
-    selected = spec.select_runs(study, runs, _names(args.tasks), _names(args.methods))
+    selected = spec.select_runs(study, runs, _names(args.tasks), _names(args.methods), args.seeds)
     folder = StudyFolder(args.out)
     folder.check(study, backend.name)
     jobs, done = runner.plan(study, folder, selected)
     if args.dry_run:
-        print(f"{study.name} ({study.path}) → {folder.path}: {len(selected)} run(s) selected of {len(runs)}")
+        groups = study.select_groups(args.seeds)
+        print(f"{study.name} ({study.path}) → {folder.path}: {len(selected)} run(s) selected of {len(runs)}"
+              + (f"; seed groups {', '.join(spec.seeds_text(g) for g in groups)}"
+                 if study.seeds_per_run else ""))
         for job in done:
             print(f"  done     {job.name}")
         for job in jobs:

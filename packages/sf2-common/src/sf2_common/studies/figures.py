@@ -104,7 +104,9 @@ def aggregate(table: dict, stem: Path, study) -> dict[str, Path]:
                 ax.set_xlabel("normalized AUC" if metric != "Optimality Gap" else "1 − mean normalized AUC")
     ns = [n for v in table.values() for _, n, _, _ in v]
     fig.suptitle(f"{study.name}: aggregate normalized AUC over {len(study.tasks)} task(s), "
-                 f"{max(ns)} seeds per task\nbar: {_CI}, stratified over tasks; tick: point estimate"
+                 + (f"{max(ns)} seeds per task" if min(ns) == max(ns) else
+                    f"{min(ns)}–{max(ns)} seeds per task (unequal: see summary.md)")
+                 + f"\nbar: {_CI}, stratified over tasks; tick: point estimate"
                  + _seed_note(ns), fontsize=10)
     fig.tight_layout()
     return _save(fig, stem)

@@ -1,14 +1,18 @@
 """A study folder: the study file it was made from, its state, and one run folder per training program.
 
     DIR/study.toml              a copy of the study file (a different file → `StudyError`, nothing written)
-    DIR/study.json              name, framework, id, the run folder of every (task, method), the commands
+    DIR/study.json              name, framework, id, the run folder of every (task, method) and seed
+                                group, the commands
     DIR/runs/<task>/<method>/   a run folder of the framework's trainer (sf2_common.agents.runfolder):
                                 config.json, metrics.jsonl, checkpoints/, final/, train.log,
                                 obs_noise.json (the study's [evaluation], when it has one)
+    DIR/runs/<task>/<method>/seeds-0-4/   the same, one per seed group, when the study file sets
+                                `seeds_per_run` (spec.py); runs/<task>/<method>/ then holds only these
     DIR/report/                 `study report`: results.csv, summary.md, figures
 
 Runs are independent folders, so a study folder merges runs that finished elsewhere: copy
-`runs/<task>/<method>/` from the other machine (its study folder was made from the same file).
+`runs/<task>/<method>/` (or one seed group's `runs/<task>/<method>/seeds-0-4/`) from the other machine (its
+study folder was made from the same file).
 """
 
 from __future__ import annotations
@@ -93,8 +97,8 @@ class StudyFolder:
         state = self.read_state()
         state.setdefault("id", uuid.uuid4().hex)
         state.update(name=study.name, framework=framework)
-        state["runs"] = [{"task": r.task, "folder": r.folder, "methods": [m.name for m in r.methods]}
-                         for r in runs]
+        state["runs"] = [{"task": r.task, "folder": r.rel, "methods": [m.name for m in r.methods],
+                          "seeds": list(r.seeds)} for r in runs]
         if command is not None:
             state.setdefault("commands", []).append({"command": command, "host": socket.gethostname(),
                                                      "time": time.strftime("%Y-%m-%d %H:%M:%S")})
@@ -103,31 +107,43 @@ class StudyFolder:
 
     # ------------------------------------------------------------------ runs
     def run_path(self, task: str, folder: str) -> Path:
+        """runs/<task>/<folder>; `folder` is a `Run.rel` ('<method>' or '<method>/seeds-0-4')."""
         return self.path / self.RUNS / task / folder
 
-    def method_folders(self, study: Study) -> dict[tuple[str, str], Path]:
-        """{(task, method name): run folder}: study.json's map (methods sharing a config share a run),
-        else each method's own folder."""
-        out = {(t, m.name): self.run_path(t, m.name) for t in study.tasks for m in study.methods}
+    def path_of(self, run: Run) -> Path:
+        return self.run_path(run.task, run.rel)
+
+    def method_runs(self, study: Study) -> dict[tuple[str, str], dict[tuple[int, ...], Path]]:
+        """{(task, method name): {seed group: run folder}}: study.json's map (methods sharing a config
+        share its runs), else each method's own folders."""
+        out = {}
+        for t in study.tasks:
+            for m in study.methods:
+                out[(t, m.name)] = {
+                    g: self.run_path(t, "/".join(filter(None, (m.name, study.group_folder(g)))))
+                    for g in study.seed_groups()}
         for r in self.read_state().get("runs", []):
+            seeds = tuple(r.get("seeds", study.seeds))   # study.json before seed groups: all seeds
             for name in r["methods"]:
-                out[(r["task"], name)] = self.run_path(r["task"], r["folder"])
+                groups = out.get((r["task"], name))
+                if groups is not None and seeds in groups:
+                    groups[seeds] = self.run_path(r["task"], r["folder"])
         return out
 
-    def check_run(self, run: Run, seeds) -> None:
+    def check_run(self, run: Run) -> None:
         """Raise `StudyError` if the run's folder holds another config or other seeds (the trainer would
         refuse it too, after compiling)."""
         try:
-            RunFolder(self.run_path(run.task, run.folder)).check_compatible(run.config.to_dict(), seeds)
+            RunFolder(self.path_of(run)).check_compatible(run.config.to_dict(), run.seeds)
         except RunFolderMismatch as err:
             raise StudyError(f"{err} (the study folder's runs must come from its study file)") from None
 
     def run_state(self, run: Run, study: Study) -> RunState:
         from sf2_common.agents.configs import schedule
 
-        path = self.run_path(run.task, run.folder)
+        path = self.path_of(run)
         sched = schedule(run.config)
-        total = sched.total_env_steps * len(study.seeds)
+        total = sched.total_env_steps * len(run.seeds)
         rows = RunFolder(path).read_rows()
         if not (path / RunFolder.CONFIG).exists():
             return RunState("new", 0, total)
@@ -138,7 +154,7 @@ class StudyFolder:
         # every seed's last evaluation row is the run's result; the final parameters are not needed
         # (a run brought back from another machine holds its metrics and config only)
         trained = all(any(r["seed"] == s and r["epoch"] == sched.num_epochs for r in rows)
-                      for s in study.seeds)
+                      for s in run.seeds)
         if not trained:
             return RunState("partial" if rows else "new", steps, total)
         if study.evaluation is not None and not evaluation_done(path, study):

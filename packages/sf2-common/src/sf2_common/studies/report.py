@@ -1,12 +1,15 @@
 """`study report DIR`: a study folder's numbers (paper §4.2, Appendix C) as DIR/report/results.csv,
 summary.md and figures (`figures.py`). Framework-free: it reads the study file's copy, study.json and the
 run folders' config.json, metrics.jsonl and obs_noise.json. Only finished runs (every seed evaluated after
-the last epoch) enter the numbers; the others are listed as incomplete.
+the last epoch) enter the numbers; the others are listed as incomplete. With seed groups (`seeds_per_run`,
+spec.py) a (task, method) joins the seeds of its finished groups: it is reported with the seeds it has,
+summary.md says which are missing, and flags methods compared at unequal seed counts.
 
 Per run and seed (results.csv): AUC of the evaluation-return curve (`stats.auc`: return units), AUC
 normalized per task by the min and max over every finished run and seed of the study on that task, the
 final evaluation return, the mean return over the final `final_window` env steps, env steps, wall time
-(the run's: its seeds train in one program). Per family (TD3, SAC) and method: median, IQM, mean and
+(the run's: its seeds train in one program; with seed groups the seed's group's). Per family (TD3, SAC)
+and method: median, IQM, mean and
 optimality gap of the normalized AUCs with 95% stratified-bootstrap intervals (`stats.aggregate_intervals`).
 """
 
@@ -24,7 +27,7 @@ from sf2_common.agents.runfolder import RunFolder
 
 from . import stats
 from .folder import OBS_NOISE, StudyFolder
-from .spec import Method, Study
+from .spec import Method, Study, seeds_text
 
 __all__ = ["RunData", "collect", "report", "results_rows", "CSV_FIELDS"]
 
@@ -33,45 +36,108 @@ CSV_FIELDS = ("task", "method", "family", "seed", "auc", "normalized_auc", "fina
 
 
 @dataclasses.dataclass
-class RunData:
-    task: str
-    method: Method
+class GroupData:
+    """One run folder of a (task, method): a seed group, or all seeds without `seeds_per_run`."""
+
+    seeds: tuple[int, ...]
     path: Path
     finished: bool
     progress: str                     # "epoch 3 of 5" for an incomplete run
+
+
+@dataclasses.dataclass
+class RunData:
+    """A (task, method): the seeds of its finished run folders joined."""
+
+    task: str
+    method: Method
+    path: Path                        # the method's run folder (the groups' parent with seed groups)
+    finished: bool                    # some seeds finished (every seed, without seed groups)
+    progress: str                     # "epoch 3 of 5" for an incomplete run (its first unfinished group)
     steps: np.ndarray                 # env steps of the evaluations every seed has
-    returns: dict[int, np.ndarray]    # seed → eval returns at `steps`
-    wall_time: float
-    obs_noise: list[dict] | None      # obs_noise.json's results
+    returns: dict[int, np.ndarray]    # seed → eval returns at `steps` (finished groups only)
+    wall_time: float                  # summed over the finished groups
+    obs_noise: list[dict] | None      # obs_noise.json's results (the groups' joined)
+    groups: list[GroupData] = dataclasses.field(default_factory=list)
+    wall_times: dict[int, float] = dataclasses.field(default_factory=dict)   # seed → its run's wall time
+    expected: tuple[int, ...] = ()    # the study's seeds
 
     def seeds(self) -> list[int]:
         return sorted(self.returns)
+
+    def missing(self) -> list[int]:
+        """The study's seeds without a finished run."""
+        return [s for s in self.expected if s not in self.returns]
 
     def matrix(self) -> np.ndarray:
         """(n_seeds, n_evaluations) eval returns."""
         return np.stack([self.returns[s] for s in self.seeds()])
 
 
+def _group(seeds, path: Path):
+    """(GroupData, steps, {seed: returns}, wall time, obs-noise results) of one run folder."""
+    run = RunFolder(path)
+    conf = run.read_config() or {}
+    rows = run.read_rows()
+    epochs = (conf.get("schedule") or {}).get("num_epochs")
+    steps, per_seed = curves([r for r in rows if r["seed"] in seeds])
+    last = {s: max((r["epoch"] for r in rows if r["seed"] == s), default=-1) for s in seeds}
+    finished = bool(conf) and epochs is not None and all(e == epochs for e in last.values())
+    progress = "not started" if not conf else f"epoch {min(last.values())} of {epochs}"
+    noise = None
+    if (path / OBS_NOISE).exists():
+        noise = json.loads((path / OBS_NOISE).read_text()).get("results")
+    wall = max((r.get("walltime", 0.0) for r in rows), default=0.0)
+    return GroupData(tuple(seeds), path, finished, progress), steps, per_seed, wall, noise
+
+
+def _join_noise(parts: list[list[dict]]) -> list[dict] | None:
+    """The obs-noise results of several seed groups as one list: per (noise, epoch) the seeds' returns
+    joined."""
+    if not parts:
+        return None
+    joined: dict[tuple, dict] = {}
+    for results in parts:
+        for r in results:
+            key = (r["noise"], r["epoch"])
+            if key not in joined:
+                joined[key] = {**r, "returns": dict(r["returns"])}
+            else:
+                joined[key]["returns"].update(r["returns"])
+    return list(joined.values())
+
+
 def collect(study: Study, folder: StudyFolder) -> list[RunData]:
-    """Every (task, method) of the study with what its run folder holds (task-major, file order)."""
-    paths = folder.method_folders(study)
+    """Every (task, method) of the study with what its run folders hold (task-major, file order)."""
+    paths = folder.method_runs(study)
     out = []
     for task in study.tasks:
         for m in study.methods:
-            path = paths[(task, m.name)]
-            run = RunFolder(path)
-            conf = run.read_config() or {}
-            rows = run.read_rows()
-            epochs = (conf.get("schedule") or {}).get("num_epochs")
-            steps, per_seed = curves(rows)
-            last = {s: max((r["epoch"] for r in rows if r["seed"] == s), default=-1) for s in study.seeds}
-            finished = bool(conf) and epochs is not None and all(e == epochs for e in last.values())
-            progress = "not started" if not conf else f"epoch {min(last.values())} of {epochs}"
-            noise = None
-            if (path / OBS_NOISE).exists():
-                noise = json.loads((path / OBS_NOISE).read_text()).get("results")
-            out.append(RunData(task, m, path, finished, progress, steps, per_seed,
-                               max((r.get("walltime", 0.0) for r in rows), default=0.0), noise))
+            groups, steps, returns, walls, noises = [], None, {}, {}, []
+            for seeds, path in paths[(task, m.name)].items():
+                g, g_steps, g_returns, wall, noise = _group(seeds, path)
+                groups.append(g)
+                if noise is not None:
+                    noises.append(noise)
+                if not g.finished:
+                    continue
+                if steps is not None and not np.array_equal(steps, g_steps):   # evaluations all groups have
+                    common = np.intersect1d(steps, g_steps)
+                    returns = {s: r[np.isin(steps, common)] for s, r in returns.items()}
+                    g_returns = {s: r[np.isin(g_steps, common)] for s, r in g_returns.items()}
+                    g_steps = common
+                steps = g_steps
+                returns.update(g_returns)
+                walls.update({s: wall for s in g_returns})
+            first_open = next((g for g in groups if not g.finished), None)
+            grouped = study.seeds_per_run is not None
+            out.append(RunData(
+                task, m, groups[0].path.parent if grouped else groups[0].path,
+                finished=bool(returns) and (grouped or first_open is None),
+                progress=first_open.progress if first_open else "finished",
+                steps=steps if steps is not None else np.zeros(0), returns=dict(sorted(returns.items())),
+                wall_time=sum(walls[g.seeds[0]] for g in groups if g.finished), obs_noise=_join_noise(noises),
+                groups=groups, wall_times=walls, expected=study.seeds))
     return out
 
 
@@ -95,7 +161,8 @@ def results_rows(study: Study, data: list[RunData]) -> list[dict]:
                          "normalized_auc": float(norm[d.task][d.method.name][i]),
                          "final_return": float(ret[-1]),
                          "final_window_return": stats.final_window_mean(d.steps, ret, window),
-                         "env_steps": int(d.steps[-1]), "wall_time_s": round(d.wall_time, 1)})
+                         "env_steps": int(d.steps[-1]),
+                         "wall_time_s": round(d.wall_times.get(s, d.wall_time), 1)})
     return rows
 
 
@@ -114,19 +181,24 @@ def _families(study: Study) -> list[str]:
     return list(dict.fromkeys(m.family for m in study.methods))
 
 
-def aggregate_table(study: Study, rows: list[dict]):
+def aggregate_table(study: Study, rows: list[dict], dropped: list | None = None):
     """{family: [(method label, n_seeds, points (4,), intervals (2, 4) or None)]}, and the labels left out
-    because a task is missing. Methods need a finished run on every task of the study."""
+    because a task is missing. Methods need a finished run on every task of the study; a method whose
+    tasks have different seeds (seed groups finished on some tasks only) enters with the seeds every task
+    has, and (label, those seeds, the seeds left out) is appended to `dropped`."""
     out, missing = {}, []
     for family in _families(study):
         scores = {}
         for m in (m for m in study.methods if m.family == family):
-            by_task = [[r["normalized_auc"] for r in rows if r["method"] == m.label and r["task"] == t]
-                       for t in study.tasks]
-            if any(not x for x in by_task):
+            by_task = [{r["seed"]: r["normalized_auc"] for r in rows if r["method"] == m.label
+                        and r["task"] == t} for t in study.tasks]
+            common = sorted(set.intersection(*(set(x) for x in by_task)))
+            if not common:
                 missing.append(m.label)
                 continue
-            scores[m.label] = np.array(by_task).T      # (n_seeds, n_tasks)
+            if dropped is not None and any(len(x) != len(common) for x in by_task):
+                dropped.append((m.label, common, sorted(set().union(*by_task) - set(common))))
+            scores[m.label] = np.array([[x[s] for x in by_task] for s in common])   # (n_seeds, n_tasks)
         if not scores:
             continue
         points, intervals = stats.aggregate_intervals(scores)
@@ -144,7 +216,8 @@ def _md_per_task(study: Study, data: list[RunData], rows: list[dict]) -> list[st
         auc = stats.mean_interval([r["auc"] for r in mine])
         fin = stats.mean_interval([r["final_return"] for r in mine])
         norm = np.mean([r["normalized_auc"] for r in mine])
-        lines.append(f"| {d.task} | {d.method.label} | {len(mine)} | {_with_ci(auc[0][0], *_lohi(auc))} | "
+        seeds = f"{len(mine)}" + (f" of {len(study.seeds)}" if d.missing() else "")
+        lines.append(f"| {d.task} | {d.method.label} | {seeds} | {_with_ci(auc[0][0], *_lohi(auc))} | "
                      f"{norm:.3f} | {_with_ci(fin[0][0], *_lohi(fin))} | {int(d.steps[-1]):,} | "
                      f"{_duration(d.wall_time)} |")
     return lines
@@ -196,7 +269,8 @@ def obs_noise_points(study: Study, data: list[RunData]):
             continue
         for noise in sorted({r["noise"] for r in d.obs_noise}):
             at = sorted((r for r in d.obs_noise if r["noise"] == noise), key=lambda r: r["env_steps"])
-            seeds = sorted(at[0]["returns"], key=int)
+            # the seeds evaluated at every checkpoint
+            seeds = sorted(set.intersection(*(set(r["returns"]) for r in at)), key=int)
             aucs = [stats.auc([r["env_steps"] for r in at], [np.mean(r["returns"][s]) for r in at])
                     for s in seeds]
             iqm, lo, hi = stats.iqm_interval(aucs)
@@ -232,17 +306,36 @@ def report(path, out=None, command: str | None = None) -> dict[str, Path]:
     if study.description:
         md += [study.description, ""]
     md += _md_commands(folder, command)
-    md += [f"Runs: {sum(d.finished for d in data)} of {len(data)} (task, method) pairs finished; seeds "
-           f"{', '.join(map(str, study.seeds))}; preset `{study.preset}`.", ""]
+    complete = sum(d.finished and not d.missing() for d in data)
+    partial = sum(d.finished and bool(d.missing()) for d in data)
+    groups = study.seed_groups()
+    md += [f"Runs: {complete} of {len(data)} (task, method) pairs finished"
+           + (f", {partial} with some of their seeds" if partial else "") + f"; seeds "
+           f"{', '.join(map(str, study.seeds))}"
+           + (f" in seed groups of {study.seeds_per_run} ({', '.join(seeds_text(g) for g in groups)}), "
+              f"one run each" if study.seeds_per_run else "") + f"; preset `{study.preset}`.", ""]
     md += _md_definitions(study)
+    md += _md_seed_counts(study, data)
 
     figs = study.report.figures
     if "aggregate" in figs:
-        table, missing = aggregate_table(study, rows)
+        dropped = []
+        table, missing = aggregate_table(study, rows, dropped)
         md += ["## Aggregate normalized AUC per family (paper Fig. 1 / 7)", ""]
         md += _md_aggregate(table, len(study.tasks))
         if missing:
             md += [f"Not in the aggregate (a task without a finished run): {', '.join(missing)}.", ""]
+        for label, common, left in dropped:
+            md += [f"{label}: the aggregate uses seeds {seeds_text(common)}, those finished on every task; "
+                   f"seeds {seeds_text(left)} (finished on some tasks only) are left out of it.", ""]
+        for family, entries in table.items():
+            counts = {label: n for label, n, _, _ in entries}
+            if len(set(counts.values())) > 1:
+                md += [f"**Unequal seed counts ({family})**: "
+                       + ", ".join(f"{label} {n}" for label, n in counts.items())
+                       + " seeds per task. Intervals of fewer seeds are wider for that reason alone, and the "
+                       "methods' scores are not compared on the same seeds; compare them at equal counts "
+                       "(finish the missing seed groups: `study run --seeds ...`).", ""]
         if table:
             written.update(figures.aggregate(table, out / "aggregate", study))
             md += ["![aggregate](aggregate.png)", ""]
@@ -278,14 +371,47 @@ def report(path, out=None, command: str | None = None) -> dict[str, Path]:
         if points:
             written.update(figures.obs_noise(study, points, out / "obs_noise"))
             md += ["![observation noise](obs_noise.png)", ""]
-    incomplete = [d for d in data if not d.finished]
+    incomplete = [(d, g) for d in data for g in d.groups if not g.finished]
     if incomplete:
         md += ["## Incomplete runs (not in the numbers above)", ""]
-        md += [f"- {d.task} / {d.method.label}: {d.progress} (`{d.path}`)" for d in incomplete]
+        md += [f"- {d.task} / {d.method.label}"
+               + (f", seeds {seeds_text(g.seeds)}" if study.seeds_per_run else "")
+               + f": {g.progress} (`{g.path}`)" for d, g in incomplete]
         md.append("")
     (out / "summary.md").write_text("\n".join(md))
     written["summary.md"] = out / "summary.md"
     return written
+
+
+def _md_seed_counts(study: Study, data: list[RunData]) -> list[str]:
+    """Seeds finished per (task, method) of the study's seeds, the missing ones named; a flag where
+    methods of a family have unequal seed counts on a task."""
+    tasks = list(study.tasks)
+    lines = ["## Seeds finished per (task, method)", "",
+             f"Of the study's {len(study.seeds)} seeds ({seeds_text(study.seeds)}); a run's seeds count "
+             "once every one of them has its last evaluation.", "",
+             "| method | " + " | ".join(tasks) + " |", "|---|" + "---|" * len(tasks)]
+    by = {(d.task, d.method.label): d for d in data}
+    for m in study.methods:
+        cells = []
+        for t in tasks:
+            d = by[(t, m.label)]
+            n, miss = len(d.returns), d.missing()
+            cells.append(f"{n}" if not miss else f"{n} (missing {seeds_text(miss)})")
+        lines.append(f"| {m.label} | " + " | ".join(cells) + " |")
+    lines.append("")
+    unequal = []
+    for family in _families(study):
+        for t in tasks:
+            counts = {m.label: len(by[(t, m.label)].returns) for m in study.methods
+                      if m.family == family and by[(t, m.label)].returns}
+            if len(set(counts.values())) > 1:
+                unequal.append(f"{t} ({family}: " + ", ".join(f"{k} {v}" for k, v in counts.items()) + ")")
+    if unequal:
+        lines += ["**Unequal seed counts**: methods are compared at different numbers of seeds on "
+                  + "; ".join(unequal) + ". Their intervals and means rest on different seeds; finish the "
+                  "missing seed groups before comparing them.", ""]
+    return lines
 
 
 def _md_aggregate(table, n_tasks: int) -> list[str]:

@@ -1,6 +1,7 @@
-"""Running a study's runs on this host. Each run (a task and a method, all seeds in one program: the JAX
-trainer vmaps them) is a child process of the framework's own CLI, `python -m sf2_jax.cli train ...
---out DIR/runs/<task>/<method> --no-progress` (then `eval ... --obs-noise` when the study has an
+"""Running a study's runs on this host. Each run (a task, a method and a seed group: all the study's seeds,
+or `seeds_per_run` of them, in one program: the JAX trainer vmaps them) is a child process of the
+framework's own CLI, `python -m sf2_jax.cli train ... --out DIR/runs/<task>/<method>[/seeds-0-4]
+--no-progress` (then `eval ... --obs-noise` when the study has an
 [evaluation]), so resuming, `kill -9` and the no-duplicate-row guarantee are the trainer's
 (sf2_common.agents.runfolder): a finished run is skipped, a partial one resumes from its last checkpoint.
 
@@ -59,7 +60,7 @@ class Job:
 
     @property
     def name(self) -> str:
-        return f"{self.run.task}/{self.run.folder}"
+        return f"{self.run.task}/{self.run.rel}"
 
 
 @dataclasses.dataclass
@@ -89,9 +90,9 @@ def plan(study: Study, folder: StudyFolder, runs: list[Run]) -> tuple[list[Job],
     """(jobs to run, runs already done) of `runs`; raises `StudyError` if a run folder holds another run."""
     todo, done = [], []
     for run in runs:
-        folder.check_run(run, study.seeds)
+        folder.check_run(run)
         state = folder.run_state(run, study)
-        path = folder.run_path(run.task, run.folder)
+        path = folder.path_of(run)
         commands = []
         if state.status in ("new", "partial"):
             commands.append(["train", *run.argv, "--out", str(path), "--no-progress"])

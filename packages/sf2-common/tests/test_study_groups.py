@@ -1,0 +1,227 @@
+"""Seed groups (`seeds_per_run` in a study file, sf2_common.studies.spec): the groups and their folders, bad
+values refused, one run per (task, method, group) resolved, selected by `--seeds`, planned and listed by
+`study run --dry-run` on their own; the report joins the groups' seeds per (task, method), names the
+missing ones and flags methods compared at unequal seed counts. No framework: configs are
+sf2_common's `TrainConfig`, run folders are fabricated, every expected number is derived by hand."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+
+import pytest
+from sf2_common.agents import tasks as task_table
+from sf2_common.agents.configs import TrainConfig, schedule
+from sf2_common.studies import commands, runner, spec
+from sf2_common.studies.folder import StudyFolder
+from sf2_common.studies.spec import StudyError
+
+STUDY = """
+name = "groups"
+seeds = "0-14"
+seeds_per_run = 5
+tasks = ["A", "B"]
+[[methods]]
+label = "TD3"
+algo = "td3"
+representation = "none"
+[[methods]]
+label = "TD3+SF²"
+algo = "td3"
+representation = "sf2"
+"""
+
+
+def _load(tmp_path, text=STUDY):
+    path = tmp_path / "s.toml"
+    path.write_text(text)
+    return spec.load(path)
+
+
+def _make(preset, task, algo, rep, overrides):
+    return TrainConfig(task=task, algo=algo, representation=rep, num_timesteps=1000, num_envs=4,
+                       min_replay_size=8, num_evals=3)
+
+
+def _resolve(study, monkeypatch):
+    monkeypatch.setattr(task_table, "validate_task", lambda task: task)   # tasks "A", "B": no Playground
+    return spec.resolve(study, _make, lambda cfg, seeds: cfg)
+
+
+def test_groups_and_their_folders(tmp_path):
+    study = _load(tmp_path)
+    assert study.seed_groups() == (tuple(range(5)), tuple(range(5, 10)), tuple(range(10, 15)))
+    assert [study.group_folder(g) for g in study.seed_groups()] == ["seeds-0-4", "seeds-5-9", "seeds-10-14"]
+    # 12 seeds by 5: the last group is shorter; non-consecutive seeds keep their file order
+    short = _load(tmp_path, STUDY.replace('"0-14"', '"0-11"'))
+    assert short.seed_groups() == (tuple(range(5)), tuple(range(5, 10)), (10, 11))
+    odd = _load(tmp_path, STUDY.replace('"0-14"', "[0, 2, 4, 6]").replace("= 5", "= 3"))
+    assert odd.seed_groups() == ((0, 2, 4), (6,)) and odd.group_folder((0, 2, 4)) == "seeds-0_2_4"
+    # without seeds_per_run: one group of every seed, the method's own folder (today's layout)
+    plain = _load(tmp_path, STUDY.replace("seeds_per_run = 5\n", ""))
+    assert plain.seed_groups() == (tuple(range(15)),) and plain.group_folder(tuple(range(15))) is None
+
+
+@pytest.mark.parametrize("value", ["0", "16", "true", '"5"', "2.5"])
+def test_bad_seeds_per_run(tmp_path, value):
+    with pytest.raises(StudyError) as info:
+        _load(tmp_path, STUDY.replace("seeds_per_run = 5", f"seeds_per_run = {value}"))
+    msg = str(info.value)
+    assert str(tmp_path / "s.toml") in msg and "seeds_per_run" in msg and "an int from 1 to 15" in msg
+
+
+def test_runs_per_group_selected_by_seeds(tmp_path, monkeypatch):
+    study = _load(tmp_path)
+    runs = _resolve(study, monkeypatch)
+    assert [(r.task, r.rel) for r in runs] == [(t, f"{m}/seeds-{g}") for t in "AB" for m in ("td3", "td3-sf2")
+                                               for g in ("0-4", "5-9", "10-14")]
+    for r in runs:
+        i = r.argv.index("--seeds")
+        assert r.argv[i + 1] == spec.seeds_text(r.seeds) and r.argv.count("--seeds") == 1
+    first = spec.select_runs(study, runs, seeds="0-4")
+    assert [(r.task, r.rel) for r in first] == [("A", "td3/seeds-0-4"), ("A", "td3-sf2/seeds-0-4"),
+                                                ("B", "td3/seeds-0-4"), ("B", "td3-sf2/seeds-0-4")]
+    # only groups wholly inside: 0-7 holds 0-4 but not 5-9; filters combine
+    assert spec.select_runs(study, runs, seeds="0-7") == first
+    assert [(r.task, r.rel) for r in spec.select_runs(study, runs, ["B"], ["TD3+SF²"], "5-14")] == [
+        ("B", "td3-sf2/seeds-5-9"), ("B", "td3-sf2/seeds-10-14")]
+    assert len(spec.select_runs(study, runs)) == 12
+    for bad in ("1-3", "20-24"):
+        with pytest.raises(StudyError, match=rf"--seeds {bad}: no seed group .*groups: 0-4, 5-9, 10-14"):
+            spec.select_runs(study, runs, seeds=bad)
+    # without seeds_per_run the only group is every seed: today's runs and folders
+    plain = _load(tmp_path, STUDY.replace("seeds_per_run = 5\n", ""))
+    runs = _resolve(plain, monkeypatch)
+    assert [r.rel for r in runs] == ["td3", "td3-sf2"] * 2 and all(r.seeds == plain.seeds for r in runs)
+    with pytest.raises(StudyError, match="no seeds_per_run: all seeds are one run.*groups: 0-14"):
+        spec.select_runs(plain, runs, seeds="0-4")
+
+
+def _fabricate(path, run, seeds, last_epoch, walltime=10.0):
+    """A run folder as the trainer leaves it: config.json and one row per (epoch <= last_epoch, seed)."""
+    path.mkdir(parents=True, exist_ok=True)
+    (path / "config.json").write_text(json.dumps({"config": run.config.to_dict(), "seeds": list(seeds),
+                                                  "schedule": {"num_epochs": 2}}))
+    sched = schedule(run.config)
+    rows = [{"epoch": e, "seed": s, "env_steps": e * sched.env_steps_per_epoch, "eval_return": float(e),
+             "walltime": walltime * e / 2} for e in range(last_epoch + 1) for s in seeds]
+    (path / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+
+
+def test_plan_and_dry_run_per_group(tmp_path, monkeypatch, capsys):
+    """One group finished, one partial, one new per (task, method): plan and `--dry-run` see three runs,
+    the progress totals count each group's own seeds."""
+    study = _load(tmp_path)
+    runs = _resolve(study, monkeypatch)
+    folder = StudyFolder(tmp_path / "study")
+    folder.open(study, "jax", runs)
+    assert schedule(runs[0].config).num_epochs == 2
+    for run in runs:
+        if run.seeds[0] == 0:
+            _fabricate(folder.path_of(run), run, run.seeds, last_epoch=2)
+        elif run.seeds[0] == 5:
+            _fabricate(folder.path_of(run), run, run.seeds, last_epoch=1)
+    todo, done = runner.plan(study, folder, runs)
+    assert [j.name for j in done] == [f"{t}/{m}/seeds-0-4" for t in "AB" for m in ("td3", "td3-sf2")]
+    assert len(todo) == 8
+    per_seed = schedule(runs[0].config).total_env_steps
+    for job in todo + done:
+        assert job.total_steps == 5 * per_seed
+        assert job.path == tmp_path / "study" / "runs" / job.name
+    for job in todo:
+        assert job.commands[0][job.commands[0].index("--seeds") + 1] == spec.seeds_text(job.run.seeds)
+        assert job.commands[0][job.commands[0].index("--out") + 1] == str(job.path)
+    # a group folder holding other seeds is refused by name
+    bad = runs[2]
+    _fabricate(folder.path_of(bad), bad, (10, 11), last_epoch=0)
+    with pytest.raises(StudyError, match="seeds: \\[10, 11\\] \\(folder\\) vs \\[10, 11, 12, 13, 14\\]"):
+        runner.plan(study, folder, [bad])
+    (folder.path_of(bad) / "config.json").unlink()
+    (folder.path_of(bad) / "metrics.jsonl").unlink()
+
+    backend = runner.Backend("sf2-fake", "jax", "fake", _make, lambda cfg, seeds: cfg)
+    args = argparse.Namespace(file=str(study.path), out=str(folder.path), tasks="A", methods=None,
+                              seeds="0-9", workers=None, ray=None, dry_run=True, no_progress=True)
+    assert commands._run(backend, args, "cmd") == 0
+    out = capsys.readouterr().out.splitlines()
+    assert "4 run(s) selected of 12; seed groups 0-4, 5-9" in out[0]
+    assert out[1:] == ["  done     A/td3/seeds-0-4", "  done     A/td3-sf2/seeds-0-4",
+                       *[f"  partial  A/{m}/seeds-5-9: sf2-fake train --task A --algo td3 --repr "
+                         f"{r} --config quick --seeds 5-9 --out {folder.path}/runs/A/{m}/seeds-5-9 "
+                         f"--no-progress" for m, r in (("td3", "none"), ("td3-sf2", "sf2"))]]
+    with pytest.raises(StudyError, match="--seeds 20: no seed group"):
+        commands._run(backend, argparse.Namespace(**{**vars(args), "seeds": "20"}), "cmd")
+
+
+REPORT = """
+name = "joined"
+seeds = "0-3"
+seeds_per_run = 2
+tasks = ["A", "B"]
+[report]
+figures = ["aggregate"]
+[[methods]]
+label = "TD3"
+name = "td3"
+algo = "td3"
+representation = "none"
+[[methods]]
+label = "TD3+SF²"
+name = "td3-sf2"
+algo = "td3"
+representation = "sf2"
+"""
+
+
+def test_report_joins_groups_and_flags_unequal_seeds(tmp_path):
+    """Groups 0-1 and 2-3. Seed s of method m on task t has the curve [0, v, v] at env steps 0, 100, 200
+    with v = k · (1 + s), k = 1 for TD3 and 3 for TD3+SF²: AUC 3v/4. Both of TD3's groups finish on both
+    tasks; TD3+SF²'s group 2-3 finishes on A only (on B it stops at epoch 1). On A v runs from 1 (TD3, seed
+    0) to 12 (TD3+SF², seed 3): normalized (v − 1) / 11. On B TD3 has v = 1..4 and TD3+SF² (seeds 0-1)
+    v = 3, 6: normalized (v − 1) / 5. TD3+SF² enters the aggregate with seeds 0-1 (no interval: n < 3)."""
+    pytest.importorskip("rliable", reason="the studies extra: pip install packages/sf2-common[studies]")
+    from sf2_common.studies.report import report
+
+    study = spec.loads(REPORT, tmp_path / "s.toml")
+    folder = StudyFolder(tmp_path / "study")
+    folder.open(study, "jax", [])
+    for task in "AB":
+        for name, k in (("td3", 1), ("td3-sf2", 3)):
+            for group, wall in (((0, 1), 10.0), ((2, 3), 20.0)):
+                path = folder.run_path(task, f"{name}/{study.group_folder(group)}")
+                path.mkdir(parents=True)
+                last = 1 if (task, name, group[0]) == ("B", "td3-sf2", 2) else 2
+                (path / "config.json").write_text(json.dumps({"config": {}, "seeds": list(group),
+                                                              "schedule": {"num_epochs": 2}}))
+                rows = [{"epoch": e, "seed": s, "env_steps": 100 * e, "walltime": wall * e / 2,
+                         "eval_return": [0.0, k * (1 + s), k * (1 + s)][e]}
+                        for e in range(last + 1) for s in group]
+                (path / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    written = report(folder.path)
+    rows = list(csv.DictReader(open(written["results.csv"])))
+    assert len(rows) == 4 + 4 + 4 + 2
+    for r in rows:
+        k = 3 if r["method"] == "TD3+SF²" else 1
+        v = k * (1 + int(r["seed"]))
+        assert float(r["auc"]) == pytest.approx(0.75 * v)
+        assert float(r["normalized_auc"]) == pytest.approx((v - 1) / (11 if r["task"] == "A" else 5))
+        assert float(r["wall_time_s"]) == (10.0 if int(r["seed"]) < 2 else 20.0)   # the seed's own run
+    assert sorted(int(r["seed"]) for r in rows if r["task"] == "B" and r["method"] == "TD3+SF²") == [0, 1]
+    summary = written["summary.md"].read_text()
+    assert "Runs: 3 of 4 (task, method) pairs finished, 1 with some of their seeds" in summary
+    assert "in seed groups of 2 (0-1, 2-3), one run each" in summary
+    assert "| TD3 | 4 | 4 |" in summary and "| TD3+SF² | 4 | 2 (missing 2-3) |" in summary
+    assert "**Unequal seed counts**: methods are compared at different numbers of seeds on B (TD3: TD3 4, " \
+           "TD3+SF² 2)" in summary
+    # per-task table: seeds present of the study's; wall time summed over the groups (10 s + 20 s)
+    assert "| B | TD3+SF² | 2 of 4 |" in summary and "| A | TD3+SF² | 4 | " in summary
+    assert "| 30s |" in summary
+    # the aggregate: TD3+SF² with the seeds it has on every task, 0-1; flagged against TD3's 4. Its
+    # scores (v − 1)/11 on A and (v − 1)/5 on B for v = 3, 6: per-task means 3.5/11 and 3.5/5, median =
+    # mean of the two: (3.5/11 + 3.5/5)/2
+    line = next(x for x in summary.splitlines() if x.startswith("| TD3+SF² | 2 × 2 |"))
+    assert f"{(3.5 / 11 + 3.5 / 5) / 2:.3f} (n < 3: no CI)" in line and "| TD3 | 4 × 2 |" in summary
+    assert "TD3+SF²: the aggregate uses seeds 0-1, those finished on every task; seeds 2-3" in summary
+    assert "**Unequal seed counts (TD3)**: TD3 4, TD3+SF² 2 seeds per task." in summary
+    assert f"- B / TD3+SF², seeds 2-3: epoch 1 of 2 (`{folder.path}/runs/B/td3-sf2/seeds-2-3`)" in summary
