@@ -120,3 +120,32 @@ def test_task_vector_schedule(algo, every, name):
         for g in {*agent.rep.aux_groups, *agent.rep.critic_groups} - {"task"}:
             assert int(new_o[g][0].count) > int(o[g][0].count), f"step {i}: {g} did not step"
         p, o = new_p, new_o
+
+
+@pytest.mark.parametrize("sigma", [0.0, 0.05])
+def test_spr_augmentation_std_reaches_the_augmentation(sigma):
+    """The config field `spr_augmentation_std` (TrainConfig → SF2Config → the SPR representation) is σ of
+    the augmentation s̃ = s̄ + σξ (paper App. B.1, Fig. 5): at σ = 0 every draw of ξ gives the clean view
+    and the same SPR loss; at σ = 0.05 (the default, the paper's choice) two draws differ."""
+    from baselines_helpers import A, D
+    from sf2_common.agents.configs import TrainConfig
+
+    assert TrainConfig().spr_augmentation_std == bj.spr.AUGMENTATION_STD == 0.05
+    small = {k: v for k, v in small_kwargs().items() if k not in ("obs_size", "action_size")}
+    cfg = TrainConfig(representation="spr", spr_augmentation_std=sigma, **small).sf2_config(D, A)
+    agent = make_algorithm("td3", cfg, reps.get("spr"), dtype=jnp.float64)
+    params, _ = agent.init(jax.random.PRNGKey(0))
+    nets = agent.rep.baseline_nets
+    assert nets.augmentation_std == sigma
+    b = _batch()
+    clean = np.asarray(bj.spr.features(nets, params, b.obs, b.action))
+    draws = [agent.rep.aux_noise(jax.random.PRNGKey(k), b) for k in (1, 2)]
+    views = [np.asarray(bj.spr.features(nets, params, b.obs, b.action, obs_noise=n["spr_obs_noise"]))
+             for n in draws]
+    spr_losses = [float(agent.rep.aux_loss(params, b, b.action, n)[0]) for n in draws]
+    if sigma == 0.0:
+        np.testing.assert_array_equal(views[0], clean)
+        np.testing.assert_array_equal(views[1], clean)
+        assert spr_losses[0] == spr_losses[1]
+    else:
+        assert not np.allclose(views[0], views[1]) and spr_losses[0] != spr_losses[1]

@@ -151,3 +151,32 @@ def test_compiled_schedule_equals_eager(device):
         np.testing.assert_allclose(compiled[k], eager[k], rtol=1e-3, atol=1e-5, err_msg=k)
     for a in agents:
         assert int(a.optimizers["task"].state[a.rep.baseline_nets.task.w]["step"]) == 3
+
+
+@pytest.mark.parametrize("sigma", [0.0, 0.05])
+def test_spr_augmentation_std_reaches_the_augmentation(sigma):
+    """The config field `spr_augmentation_std` (TrainConfig → SF2Config → the SPR representation) is σ of
+    the augmentation s̃ = s̄ + σξ (paper App. B.1, Fig. 5): at σ = 0 every draw of ξ gives the clean view
+    and the same SPR loss; at σ = 0.05 (the default, the paper's choice) two draws differ."""
+    from baselines_helpers import A, D
+    from sf2_torch.agents.configs import TrainConfig
+
+    assert TrainConfig().spr_augmentation_std == bt.spr.AUGMENTATION_STD == 0.05
+    small = {k: v for k, v in small_kwargs().items() if k not in ("obs_size", "action_size")}
+    cfg = TrainConfig(representation="spr", spr_augmentation_std=sigma, **small).sf2_config(D, A)
+    torch.manual_seed(0)
+    agent = make_algorithm("td3", cfg, reps.get("spr"), dtype=torch.float64)
+    nets = agent.rep.baseline_nets
+    assert nets.augmentation_std == sigma
+    b = _batch()
+    draws = [agent.rep.aux_noise(torch.Generator().manual_seed(k), b) for k in (1, 2)]
+    with torch.no_grad():
+        clean = bt.spr.features(nets, b.obs, b.action)
+        views = [bt.spr.features(nets, b.obs, b.action, obs_noise=n["spr_obs_noise"]) for n in draws]
+        spr_losses = [float(agent.rep.aux_loss(b, b.action, n)[0]) for n in draws]
+    if sigma == 0.0:
+        torch.testing.assert_close(views[0], clean, rtol=0, atol=0)
+        torch.testing.assert_close(views[1], clean, rtol=0, atol=0)
+        assert spr_losses[0] == spr_losses[1]
+    else:
+        assert not torch.allclose(views[0], views[1]) and spr_losses[0] != spr_losses[1]

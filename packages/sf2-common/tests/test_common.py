@@ -77,6 +77,23 @@ def test_validate_checks_the_representation_against_the_registry(reg, known_task
         configs.make_config("quick", "Cartpole")
 
 
+def test_spr_augmentation_std_is_checked_and_older_run_folders_keep_resuming(tmp_path, reg, known_tasks):
+    """`spr_augmentation_std` (σ of SPR's augmentation, paper App. B.1) must be a finite number >= 0; a run
+    folder written before the field existed trained with its default (then a module constant), so it
+    holds the same run as a config at that default, and a different run than one at another σ."""
+    cfg = configs.make_config("quick", "CartpoleBalance", algo="sac", representation="fake")
+    for bad in (-0.05, float("nan"), True):
+        with pytest.raises(ConfigError, match=f"spr_augmentation_std = {bad!r} is invalid"):
+            configs.validate(cfg.replace(spr_augmentation_std=bad), (0,), reg)
+    run = RunFolder(tmp_path / "old")
+    old = {k: v for k, v in cfg.to_dict().items() if k != "spr_augmentation_std"}
+    run.write_config({"config": old, "seeds": [0]})
+    assert configs.ADDED_FIELDS == {"spr_augmentation_std": 0.05} and cfg.spr_augmentation_std == 0.05
+    assert run.check_compatible(cfg.to_dict(), (0,)) is True
+    with pytest.raises(RunFolderMismatch, match="spr_augmentation_std: 0.05 \\(folder\\) vs 0.1 \\(now\\)"):
+        run.check_compatible(cfg.replace(spr_augmentation_std=0.1).to_dict(), (0,))
+
+
 def test_parsing_follows_the_field_types():
     assert configs.parse_overrides(["batch_size=1_024", "hidden_sizes=(32, 16)", "layer_norm=off",
                                     "tau=0.5", "integrator= euler"]) == dict(

@@ -57,6 +57,10 @@ def test_paper_studies_declare_the_protocol():
     fig9 = spec.load(STUDIES / "fig9-obs-noise.toml")
     assert fig9.seeds == tuple(range(6)) and fig9.evaluation.obs_noise == (0.0, 0.05, 0.1, 0.2)
     assert {m.family for m in fig9.methods} == {"TD3", "SAC"}
+    fig5 = spec.load(STUDIES / "fig5-spr-noise.toml")   # SPR over its augmentation std; 0.05 is the paper's
+    assert fig5.tasks == ("AcrobotSwingup",) and {m.representation for m in fig5.methods} == {"spr"}
+    assert {m.sweep[:2] for m in fig5.methods} >= {("spr_augmentation_std", "0.0"), ("spr_augmentation_std",
+                                                                                       "0.05")}
 
 
 def test_sweeps_expand_into_methods(tmp_path):

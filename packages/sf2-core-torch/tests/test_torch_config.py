@@ -33,6 +33,7 @@ TABLE = dict(
     init_log_alpha=0.0,
     normalizer_std_min=1e-6,
     normalizer_std_max=1e6,
+    spr_augmentation_std=0.05,
 )
 
 

@@ -71,6 +71,9 @@ class SF2Config:
     init_log_alpha: float = 0.0  # SAC
     normalizer_std_min: float = 1e-6  # running-statistics std clip (Brax)
     normalizer_std_max: float = 1e6
+    # the SPR baseline's (not SF²'s): σ of the Gaussian noise s̃ = s̄ + σξ that stands in for SPR's image
+    # augmentations on state inputs (paper App. B.1; 0.05 is the value its Figure 5 sweep chose)
+    spr_augmentation_std: float = 0.05
 
     def __post_init__(self) -> None:
         for name in ("obs_size", "action_size", "feature_size", "q_hidden_size", "embedding_size"):
@@ -109,6 +112,8 @@ class SF2Config:
         for name in ("layer_norm", "contract_zeta"):
             if not isinstance(getattr(self, name), bool):
                 _fail(name, getattr(self, name), "must be a bool")
+        if not _is_real(self.spr_augmentation_std) or self.spr_augmentation_std < 0:
+            _fail("spr_augmentation_std", self.spr_augmentation_std, "must be a finite number >= 0")
 
     @classmethod
     def small(cls, obs_size: int, action_size: int, **overrides: Any) -> SF2Config:

@@ -35,6 +35,8 @@ BAD_TRAIN_INPUTS = [
     # negative values reach the validation whatever their spelling (argparse alone refuses -1e-3)
     (["--task", "CartpoleBalance", "--learning-rate", "-1e-3"], ["learning_rate = -0.001 is invalid", "> 0"]),
     (["--task", "CartpoleBalance", "--learning-rate", "-0.001"], ["learning_rate = -0.001 is invalid"]),
+    (["--task", "CartpoleBalance", "--set", "spr_augmentation_std=-0.05"],
+     ["spr_augmentation_std = -0.05 is invalid", ">= 0"]),
 ]
 
 

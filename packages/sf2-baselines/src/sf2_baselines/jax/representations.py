@@ -100,7 +100,8 @@ class SimLapAuthorsRepresentation(SimLapRepresentation):
 @reps.register
 class SPRRepresentation(reps.Representation):
     """`spr`: TD3+SPR / SAC+SPR (Appendix B.1): the critic on the encoder z = f(s, a), trained by the TD
-    loss; the SPR step trains f, g and h on the K = 1 self-prediction loss with Gaussian augmentation."""
+    loss; the SPR step trains f, g and h on the K = 1 self-prediction loss with Gaussian augmentation of
+    std `cfg.spr_augmentation_std` (the config field; paper Figure 5 sweeps it)."""
 
     name = "spr"
     label = "SPR"
@@ -111,7 +112,7 @@ class SPRRepresentation(reps.Representation):
 
     def __init__(self, cfg, nets):
         super().__init__(cfg, nets)
-        self.baseline_nets = spr.make_networks(cfg, nets.algo)
+        self.baseline_nets = spr.make_networks(cfg, nets.algo, augmentation_std=cfg.spr_augmentation_std)
 
     def init(self, key, core_params):
         dtype = core_params["obs_norm"]["mean"].dtype

@@ -1,6 +1,7 @@
 """SPR (JAX): self-predictive representations (Schwarzer et al., 2021) adapted to state inputs as in
-the SF² paper's Appendix B.1: K = 1 prediction step, Gaussian-noise augmentation (std 0.05), added to
-TD3 and SAC (TD3+SPR, SAC+SPR). README.md "SPR".
+the SF² paper's Appendix B.1: K = 1 prediction step, Gaussian-noise augmentation (std σ: the config field
+`spr_augmentation_std`, 0.05 by default, the paper's choice from its Figure 5 sweep), added to TD3 and SAC
+(TD3+SPR, SAC+SPR). README.md "SPR".
 
 Networks (parameter groups):
 - ``encoder`` / ``target_encoder``: z = f(s̃, a) = MLP(hidden_sizes → F) on concat[s̃, a], s̃ the
@@ -51,8 +52,9 @@ sg = jax.lax.stop_gradient
 Params = dict[str, Any]
 
 GROUPS = ("encoder", "q", "projection", "prediction", "target_encoder", "target_q", "target_projection")
-# Appendix B.1 / Figure 5: the Gaussian augmentation std chosen on AcrobotSwingup and used everywhere.
-AUGMENTATION_STD = 0.05
+# Appendix B.1 / Figure 5: the Gaussian augmentation std chosen on AcrobotSwingup and used everywhere; the
+# default of the config field `spr_augmentation_std` (sf2_common.config.SF2Config), which sets it per run.
+AUGMENTATION_STD = SF2Config.spr_augmentation_std
 
 
 @struct.dataclass
@@ -68,10 +70,13 @@ class SPRNetworks:
     augmentation_std: float = struct.field(pytree_node=False, default=AUGMENTATION_STD)
 
 
-def make_networks(cfg: SF2Config, algo: str, augmentation_std: float = AUGMENTATION_STD) -> SPRNetworks:
+def make_networks(cfg: SF2Config, algo: str, augmentation_std: float | None = None) -> SPRNetworks:
     """f: MLP(hidden_sizes → F) on D + A inputs; g: Dense(F → q_hidden_size); h: Dense(q_hidden_size →
-    q_hidden_size); the core's policy and twin Q heads."""
+    q_hidden_size); the core's policy and twin Q heads. σ = `augmentation_std`, by default the config's
+    `spr_augmentation_std`."""
     core = core_nw.make_networks(cfg, algo)
+    if augmentation_std is None:
+        augmentation_std = cfg.spr_augmentation_std
     if not (isinstance(augmentation_std, (int, float)) and augmentation_std >= 0):
         raise ConfigError(f"augmentation_std = {augmentation_std!r} is invalid: must be a number >= 0")
     P = cfg.q_hidden_size

@@ -110,7 +110,8 @@ class SimLapAuthorsRepresentation(SimLapRepresentation):
 @reps.register
 class SPRRepresentation(reps.Representation):
     """`spr`: TD3+SPR / SAC+SPR (Appendix B.1): the critic on the encoder z = f(s, a), trained by the TD
-    loss; the SPR step trains f, g and h on the K = 1 self-prediction loss with Gaussian augmentation."""
+    loss; the SPR step trains f, g and h on the K = 1 self-prediction loss with Gaussian augmentation of
+    std `cfg.spr_augmentation_std` (the config field; paper Figure 5 sweeps it)."""
 
     name = "spr"
     label = "SPR"
@@ -120,7 +121,8 @@ class SPRRepresentation(reps.Representation):
     noise_keys = ("spr_obs_noise", "spr_next_obs_noise")
 
     def init(self, core):
-        self.baseline_nets = spr.make_networks(self.cfg, core.algo, **_kw(core))
+        self.baseline_nets = spr.make_networks(
+            self.cfg, core.algo, augmentation_std=self.cfg.spr_augmentation_std, **_kw(core))
         return _groups(self.baseline_nets, spr.GROUPS)
 
     def critic(self, obs, action, target=False):

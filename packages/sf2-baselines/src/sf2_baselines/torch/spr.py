@@ -1,5 +1,6 @@
 """SPR (PyTorch): self-predictive representations (Schwarzer et al., 2021) adapted to state inputs as in
-the SF² paper's Appendix B.1 (K = 1, Gaussian-noise augmentation with std 0.05). Mirror of
+the SF² paper's Appendix B.1 (K = 1, Gaussian-noise augmentation of std σ: the config field
+`spr_augmentation_std`, 0.05 by default, the paper's choice from its Figure 5 sweep). Mirror of
 `sf2_baselines.jax.spr`; README.md "SPR".
 
 `SPRNetworks` holds `obs_norm`, `policy`, `target_policy` | `log_alpha` (the core's), `encoder` f
@@ -36,22 +37,26 @@ __all__ = [
 ]
 
 GROUPS = ("encoder", "q", "projection", "prediction", "target_encoder", "target_q", "target_projection")
-AUGMENTATION_STD = 0.05
+# Appendix B.1 / Figure 5: the default of the config field `spr_augmentation_std` (sf2_common.config)
+AUGMENTATION_STD = SF2Config.spr_augmentation_std
 
 
 class SPRNetworks(nn.Module):
-    """All modules of an SPR agent (module docstring). `cfg`, `algo`, `augmentation_std` are attributes."""
+    """All modules of an SPR agent (module docstring). `cfg`, `algo`, `augmentation_std` are attributes;
+    σ = `augmentation_std`, by default the config's `spr_augmentation_std`."""
 
     def __init__(
         self,
         cfg: SF2Config,
         algo: str = "td3",
-        augmentation_std: float = AUGMENTATION_STD,
+        augmentation_std: float | None = None,
         *,
         dtype=None,
         device=None,
     ) -> None:
         super().__init__()
+        if augmentation_std is None:
+            augmentation_std = cfg.spr_augmentation_std
         if not (isinstance(augmentation_std, (int, float)) and augmentation_std >= 0):
             raise ConfigError(f"augmentation_std = {augmentation_std!r} is invalid: must be a number >= 0")
         kw = dict(dtype=dtype, device=device)
@@ -73,7 +78,7 @@ class SPRNetworks(nn.Module):
 def make_networks(
     cfg: SF2Config,
     algo: str = "td3",
-    augmentation_std: float = AUGMENTATION_STD,
+    augmentation_std: float | None = None,
     *,
     dtype=None,
     device=None,

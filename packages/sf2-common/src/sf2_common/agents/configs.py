@@ -34,6 +34,7 @@ from . import tasks
 __all__ = [
     "TrainConfig", "PRESETS", "ALGOS", "SF2_FIELDS", "make_config", "parse_overrides", "parse_value",
     "parse_seeds", "validate", "Schedule", "schedule", "ConfigError", "bad_field", "LEARNER_PRECISIONS",
+    "ADDED_FIELDS",
 ]
 
 ALGOS = ("td3", "sac")
@@ -45,6 +46,10 @@ PRESETS = ("paper", "quick")
 # policy forwards. docs/core-contract.md "Precision".
 LEARNER_PRECISIONS = {"highest": "highest", "tensorfloat32": "tensorfloat32", "bfloat16": "BF16_BF16_F32"}
 _SF2_DEFAULTS = {f.name: f.default for f in fields(SF2Config)}
+# Fields added after run folders were written, with the value every older run trained with (then a module
+# constant): a folder whose config.json lacks one holds the same run as a config with that value
+# (`RunFolder.check_compatible`), so it resumes and joins a study as before.
+ADDED_FIELDS = {"spr_augmentation_std": _SF2_DEFAULTS["spr_augmentation_std"]}
 SF2_FIELDS = tuple(name for name in _SF2_DEFAULTS if name not in ("obs_size", "action_size"))
 
 
@@ -97,6 +102,7 @@ class TrainConfig:
     init_log_alpha: float = _SF2_DEFAULTS["init_log_alpha"]
     normalizer_std_min: float = _SF2_DEFAULTS["normalizer_std_min"]
     normalizer_std_max: float = _SF2_DEFAULTS["normalizer_std_max"]
+    spr_augmentation_std: float = _SF2_DEFAULTS["spr_augmentation_std"]   # σ of SPR's augmentation (App. B.1)
     # run management
     checkpoint_every: int = 1     # evaluations between checkpoints (the last one is always saved)
     keep_checkpoints: int = 2
@@ -355,7 +361,8 @@ def validate(cfg: TrainConfig, seeds, registry) -> TrainConfig:
     if cfg.learner_precision not in LEARNER_PRECISIONS:
         bad_field("learner_precision", cfg.learner_precision,
                   f"must be one of {', '.join(LEARNER_PRECISIONS)}")
-    for name in ("reward_scaling", "exploration_noise", "smoothing_noise", "noise_clip"):
+    for name in ("reward_scaling", "exploration_noise", "smoothing_noise", "noise_clip",
+                 "spr_augmentation_std"):
         v = getattr(cfg, name)
         if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v) or v < 0:
             bad_field(name, v, "must be a finite number >= 0")

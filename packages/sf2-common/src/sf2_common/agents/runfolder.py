@@ -27,6 +27,8 @@ from pathlib import Path
 
 from sf2_common.errors import ConfigError
 
+from .configs import ADDED_FIELDS
+
 __all__ = ["RunFolder", "RunFolderError", "RunFolderMismatch"]
 
 
@@ -191,8 +193,10 @@ class RunFolder:
         old = self.preflight()
         if old is None:
             return False
-        diffs = [f"{k}: {old['config'].get(k)!r} (folder) vs {v!r} (now)"
-                 for k, v in config.items() if old["config"].get(k) != v]
+        # a field the folder's config predates has the value that run trained with (configs.ADDED_FIELDS)
+        known = {**{k: v for k, v in ADDED_FIELDS.items() if k in config}, **old["config"]}
+        diffs = [f"{k}: {known.get(k)!r} (folder) vs {v!r} (now)"
+                 for k, v in config.items() if known.get(k) != v]
         diffs += [f"{k}: missing now" for k in old["config"] if k not in config]
         if list(old.get("seeds", [])) != list(seeds):
             diffs.append(f"seeds: {old.get('seeds')} (folder) vs {list(seeds)} (now)")
