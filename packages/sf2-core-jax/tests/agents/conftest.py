@@ -25,6 +25,20 @@ def pytest_configure(config):
                             "deselect with -m 'not slow'")
 
 
+@pytest.fixture(scope="session", autouse=True)
+def compile_cache(request):
+    """JAX's persistent compilation cache in pytest's cache folder, the one the CLI children of the tests
+    get (`--compile-cache`): a child (test_faults.py's `kill -9` of `sf2-jax train`) loads the programs
+    this process compiled for the same config instead of compiling them again (~1 min on 2 cores). Keys
+    hold the program and the compile options; PYTHONHASHSEED=0 (tox) keeps them equal across processes."""
+    import jax
+
+    cache = getattr(request.config, "cache", None)
+    if cache is not None:
+        jax.config.update("jax_compilation_cache_dir", str(cache.mkdir("sf2-jax-compile-cache")))
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+
+
 @pytest.fixture(scope="module", autouse=True)
 def float32_jax():
     """The unit tests' conftest turns on x64 for the whole session; the trainer runs in float32."""
