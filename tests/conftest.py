@@ -22,7 +22,22 @@ import torch  # noqa: E402
 torch.backends.cuda.matmul.allow_tf32 = False
 torch.set_num_threads(1)
 
+import pytest  # noqa: E402
 from cross_bridge import RECORD  # noqa: E402
+
+
+def pytest_sessionfinish(session):
+    """Under pytest-xdist (`-n 2` in tox), each worker hands its records to the controller."""
+    if hasattr(session.config, "workeroutput"):
+        session.config.workeroutput["parity_record"] = [[*key, *value] for key, value in RECORD.items()]
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error):
+    """The controller merges a worker's records: the largest difference and the count of checks."""
+    for dtype, term, worst, tol, n in getattr(node, "workeroutput", {}).get("parity_record", []):
+        old_worst, _, old_n = RECORD.get((dtype, term), (0.0, tol, 0))
+        RECORD[(dtype, term)] = [max(old_worst, worst), tol, old_n + n]
 
 
 def pytest_terminal_summary(terminalreporter):
