@@ -8,7 +8,6 @@ from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
-
 from sf2_common.studies.stats import mean_interval
 
 rows = list(csv.DictReader(open(Path(__file__).parent / "report" / "results.csv")))
