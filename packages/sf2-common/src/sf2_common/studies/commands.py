@@ -4,11 +4,14 @@
     PROG study run FILE --out DIR [--tasks A,B] [--methods m1,m2] [--seeds 0-4] [--workers N] [--ray ADDRESS]
                    [--dry-run]
     PROG study report DIR [--out REPORT_DIR]
+    PROG study merge SOURCE... --into DIR [--partial]
 
 `run` checks the study file and every run's config before anything is compiled (bad input: exit status
 2, nothing written), then trains what is not done yet (runner.py, rayrun.py); exit status 0 when every
 selected run is done, 1 if one failed or was held by another runner. `report` writes results.csv,
-summary.md and the figures (report.py). FILE may also be the name of a file in ./studies/ (`smoke`).
+summary.md and the figures (report.py). `merge` joins study folders or their .tar.gz archives (runs
+that came back from other commands, machines or sessions) into one study folder (merge.py).
+FILE may also be the name of a file in ./studies/ (`smoke`).
 """
 
 from __future__ import annotations
@@ -50,6 +53,18 @@ def add_parser(sub, prog: str) -> None:
     p = ssub.add_parser("report", help="results.csv, summary.md and figures of a study folder")
     p.add_argument("dir", help="study folder")
     p.add_argument("--out", default=None, help="report folder (default: DIR/report)")
+    g = ssub.add_parser("merge", help="join the runs of study folders or their .tar.gz archives into one "
+                        "study folder", description="Copy the finished runs of each SOURCE (a study folder "
+                        "or a .tar.gz archive of one, e.g. from scripts/gpu_study.sh) into the study folder "
+                        "DIR: config.json, metrics.jsonl, train.log and evaluation results only. Refuses "
+                        "(nothing written) another study, a run whose config is not the study's, or a "
+                        "finished run DIR holds with other metrics; skips identical ones.")
+    g.add_argument("sources", nargs="+", metavar="SOURCE", help="study folder or .tar.gz archive of one")
+    g.add_argument("--into", required=True, metavar="DIR",
+                   help="the study folder to merge into (created if it does not exist)")
+    g.add_argument("--partial", action="store_true",
+                   help="also merge unfinished runs (where DIR has none or less of it); without checkpoints "
+                   "they cannot resume: `study run` then needs the run folder removed to train it again")
 
 
 def _study_file(text: str) -> Path:
@@ -79,6 +94,8 @@ def main(fw, args) -> int:
     try:
         if args.study_command == "report":
             return _report(args, command)
+        if args.study_command == "merge":
+            return _merge(backend(fw), args)
         return _run(backend(fw), args, command)
     except ImportError as err:   # an extra that is not installed: the message names it
         raise StudyError(str(err)) from None
@@ -99,16 +116,7 @@ def _run(backend, args, command: str) -> int:
         from .rayrun import _ray
 
         _ray()
-    # The runner only checks configs: its JAX (Playground imports it) stays off the GPUs the runs use.
-    platforms = os.environ.get("JAX_PLATFORMS")
-    os.environ["JAX_PLATFORMS"] = "cpu"
-    try:
-        runs = spec.resolve(study, backend.make_config, backend.validate)
-    finally:
-        if platforms is None:
-            os.environ.pop("JAX_PLATFORMS")
-        else:
-            os.environ["JAX_PLATFORMS"] = platforms
+    runs = _resolve(backend, study)
     selected = spec.select_runs(study, runs, _names(args.tasks), _names(args.methods), args.seeds)
     folder = StudyFolder(args.out)
     folder.check(study, backend.name)
@@ -141,6 +149,30 @@ def _run(backend, args, command: str) -> int:
         print(f"  FAILED {name} (exit status {rc}): see {log}", file=sys.stderr)
     print(f"report: {backend.prog} study report {folder.path}")
     return 0 if outcome.ok else 1
+
+
+def _resolve(backend, study):
+    """The study's runs (`spec.resolve`). The runner only checks configs: its JAX (Playground imports it)
+    stays off the GPUs the runs use."""
+    from . import spec
+
+    platforms = os.environ.get("JAX_PLATFORMS")
+    os.environ["JAX_PLATFORMS"] = "cpu"
+    try:
+        return spec.resolve(study, backend.make_config, backend.validate)
+    finally:
+        if platforms is None:
+            os.environ.pop("JAX_PLATFORMS")
+        else:
+            os.environ["JAX_PLATFORMS"] = platforms
+
+
+def _merge(backend, args) -> int:
+    from .merge import merge
+
+    merge(args.sources, args.into, functools.partial(_resolve, backend), framework=backend.name,
+          partial=args.partial)
+    return 0
 
 
 def _report(args, command: str) -> int:

@@ -1,0 +1,435 @@
+"""`study merge SOURCE... --into DEST`: the runs of study folders that ran elsewhere (other commands,
+machines, sessions) joined into one study folder (folder.py), e.g. the archives scripts/gpu_study.sh
+brings back merged into results/<study>/.
+
+A SOURCE is a study folder or a .tar.gz archive of one. Every SOURCE must hold the study DEST holds (the
+same study file: `Study.data` equal), or DEST does not exist yet and is created with SOURCE's study.toml.
+Per run folder of the study (a task, a method, a seed group) the merge copies only what a study folder
+keeps in git (`KEPT`: config.json, metrics.jsonl, train.log and, with an [evaluation], obs_noise.json;
+never checkpoints/, final/, damaged/, parameters or learning_curve.png):
+
+    SOURCE's run        DEST's run          what happens
+    finished            none / unfinished   copied (an unfinished DEST run is replaced)
+    finished            finished, equal     skipped (identical metrics)
+    finished            finished, differs   refused: the whole merge stops, nothing written
+    unfinished          any                 skipped; with `partial` copied where DEST has none or less
+    not started         any                 nothing to merge
+
+A run is finished when every seed has its last epoch's row (and its obs_noise.json, with an
+[evaluation]): `StudyFolder.run_state`. Each run's config.json is checked against the config the study
+file gives that run (`StudyFolder.check_run`, i.e. `RunFolder.check_compatible`). Every check of every
+SOURCE comes before the first write; then each run folder is written into a temporary sibling and renamed
+into place (a replaced DEST folder is renamed away first and removed only after, or set aside if it held
+more than `KEPT`, e.g. checkpoints), and study.json last: the union of the runs entries, the commands of
+DEST and every SOURCE in time order without duplicates (DEST keeps its id).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import fcntl
+import json
+import os
+import shutil
+import tarfile
+import tempfile
+import time
+import zlib
+from collections.abc import Callable
+from pathlib import Path, PurePosixPath
+
+from sf2_common.agents.runfolder import RunFolder, RunFolderError, RunFolderMismatch
+
+from .folder import OBS_NOISE, StudyFolder
+from .spec import Run, Study, StudyError, loads, seeds_text
+
+__all__ = ["KEPT", "Outcome", "merge"]
+
+KEPT = (RunFolder.CONFIG, RunFolder.METRICS, RunFolder.LOG, OBS_NOISE)
+_NEVER = {RunFolder.CHECKPOINTS, RunFolder.FINAL, RunFolder.DAMAGED}   # folders never read from a source
+_LOCK = ".study-lock"   # runner.LOCK (not imported: runner pulls in the process machinery)
+
+
+@dataclasses.dataclass
+class _Side:
+    """One run folder as the merge sees it."""
+
+    path: Path
+    status: str          # "new", "partial", "trained", "done" (`StudyFolder.run_state`)
+    steps: int           # env steps done, summed over seeds
+    rows: list[dict]
+    noise: object        # obs_noise.json's results, or None
+    where: str           # the source's name for messages ("DEST" for the destination)
+
+    @property
+    def finished(self) -> bool:
+        return self.status == "done"
+
+    def same_metrics(self, other: _Side) -> bool:
+        return _key_rows(self.rows) == _key_rows(other.rows) and self.noise == other.noise
+
+    def progress(self, total: int) -> str:
+        return {"new": "not started", "done": "finished"}.get(
+            self.status, f"unfinished, {self.steps:,} of {total:,} env steps"
+            + (" (evaluation missing)" if self.status == "trained" else ""))
+
+
+@dataclasses.dataclass
+class Outcome:
+    merged: list[str] = dataclasses.field(default_factory=list)
+    replaced: list[str] = dataclasses.field(default_factory=list)
+    skipped: list[str] = dataclasses.field(default_factory=list)
+    commands_added: int = 0
+    created: bool = False
+
+
+def merge(sources, into, runs_of: Callable[[Study], list[Run]], *, framework: str, partial: bool = False,
+          say: Callable[[str], None] = print) -> Outcome:
+    """Merge the study folders or archives `sources` into the study folder `into` (module docstring).
+    `runs_of(study)`: the study's runs resolved against the framework's configs (`spec.resolve`);
+    `framework`: its name ("jax"). Raises `StudyError` (nothing written) for a source that is not a study
+    folder or archive of one, another study, another framework, a run whose config is not the study's, or
+    a finished run that DEST holds with other metrics."""
+    if not sources:
+        raise StudyError("study merge: name at least one SOURCE (a study folder or a .tar.gz archive of one)")
+    dest = StudyFolder(into)
+    with contextlib.ExitStack() as stack:
+        opened = [_open_source(str(s), stack) for s in sources]
+        study = _check_studies(opened, dest, framework)
+        runs = runs_of(study)
+        expected = {f"{r.task}/{r.rel}": r for r in runs}
+        outcome = Outcome(created=not dest.study_path.exists())
+        # ---- every check before the first write
+        current = {name: _look(dest, run, study, "DEST") for name, run in expected.items()}
+        chosen: dict[str, _Side] = {}
+        conflicts, lines = [], []
+        for name_src, src in opened:
+            for extra in _stray_runs(src, expected):
+                lines.append(f"  ignored   {extra} in {name_src}: not a run folder of study {study.name!r}")
+            for name, run in expected.items():
+                new = _look(src, run, study, name_src)
+                if new.status == "new":
+                    continue
+                old = current[name]
+                total = _total(run, study)
+                if old.finished and new.finished:
+                    if old.same_metrics(new):
+                        outcome.skipped.append(name)
+                        lines.append(f"  skipped   {name}: identical to {old.where}'s")
+                    else:
+                        conflicts.append(f"{name}: {old.where} and {name_src} both hold it finished with "
+                                         f"different metrics ({_difference(old, new)})")
+                    continue
+                if old.finished:
+                    outcome.skipped.append(name)
+                    lines.append(f"  kept      {name}: {old.where}'s is finished ({name_src}'s: "
+                                 f"{new.progress(total)})")
+                    continue
+                if not new.finished and not partial:
+                    outcome.skipped.append(name)
+                    lines.append(f"  skipped   {name} in {name_src}: {new.progress(total)} (--partial "
+                                 f"merges unfinished runs)")
+                    continue
+                if not new.finished and old.status != "new" and new.steps <= old.steps:
+                    outcome.skipped.append(name)
+                    lines.append(f"  kept      {name}: {old.where}'s is as far ({old.progress(total)})")
+                    continue
+                current[name] = chosen[name] = new
+                lines.append(f"  {'replaced' if old.status != 'new' else 'merged':9} {name} from {name_src}: "
+                             f"{new.progress(total)}, seeds {seeds_text(run.seeds)}"
+                             + (f" ({old.where}'s was {old.progress(total)})" if old.status != "new" else ""))
+        if conflicts:
+            raise StudyError(
+                f"study merge into {dest.path} refused; nothing was written:\n  " + "\n  ".join(conflicts)
+                + "\nA finished run is never overwritten: remove DEST's run folder first if the source's "
+                "should win, or leave that source out.")
+        for name in chosen:
+            _check_not_running(dest.run_path(expected[name].task, expected[name].rel))
+        # ---- writes
+        for line in lines:
+            say(line)
+        if outcome.created:
+            dest.path.mkdir(parents=True, exist_ok=True)
+            _write_text(dest.study_path, opened[0][1].study_path.read_text(encoding="utf-8"))
+        for name, side in chosen.items():
+            target = dest.run_path(expected[name].task, expected[name].rel)
+            existed = target.exists() and any(target.iterdir())
+            aside = _install(side.path, target)
+            (outcome.replaced if existed else outcome.merged).append(name)
+            if aside is not None:
+                say(f"  set aside {name}: DEST's run folder held more than {', '.join(KEPT)}; it is now "
+                    f"{aside}")
+        outcome.commands_added = _merge_state(dest, [src for _, src in opened], study, framework,
+                                              [expected[n] for n in chosen])
+    say(f"{study.name} → {dest.path}{' (new)' if outcome.created else ''}: {len(outcome.merged)} run(s) "
+        f"merged, {len(outcome.replaced)} replaced, {len(outcome.skipped)} skipped; "
+        f"{outcome.commands_added} command(s) added to study.json")
+    return outcome
+
+
+# ------------------------------------------------------------------------------------------- sources
+def _open_source(text: str, stack: contextlib.ExitStack) -> tuple[str, StudyFolder]:
+    """(the name messages use, the study folder) of a SOURCE argument; an archive is unpacked (only the
+    files a merge reads) into a temporary folder that lives as long as `stack`."""
+    path = Path(text)
+    if not path.exists():
+        raise StudyError(f"merge source {path} does not exist (a study folder or a .tar.gz archive of one)")
+    root = path if path.is_dir() else _unpack(path, Path(stack.enter_context(
+        tempfile.TemporaryDirectory(prefix="sf2-merge-"))))
+    if not (root / StudyFolder.STUDY).is_file():
+        inner = [d for d in root.iterdir() if d.is_dir() and (d / StudyFolder.STUDY).is_file()]
+        if len(inner) != 1:
+            what = "study folder archive" if root != path else "study folder"
+            raise StudyError(f"merge source {path} is not a {what}: it holds no {StudyFolder.STUDY} "
+                             f"(`study run FILE --out DIR` makes one; scripts/gpu_study.sh archives one)")
+        root = inner[0]
+    return text, StudyFolder(root)
+
+
+def _unpack(path: Path, into: Path) -> Path:
+    """The study files of the archive `path` (study.toml, study.json, runs/**/`KEPT`) written under `into`;
+    members with absolute paths or '..' are ignored. `StudyError` if it cannot be read."""
+    try:
+        with tarfile.open(path, "r:gz" if path.name.endswith(("gz", ".tgz")) else "r:*") as archive:
+            for member in archive:
+                parts = [p for p in PurePosixPath(member.name).parts if p != "."]
+                if (not member.isfile() or not parts or member.name.startswith("/") or ".." in parts
+                        or _NEVER.intersection(parts)):
+                    continue
+                wanted = (parts[-1] in (StudyFolder.STUDY, StudyFolder.STATE) and len(parts) <= 2) or (
+                    "runs" in parts and parts[-1] in KEPT)
+                if wanted:
+                    out = into.joinpath(*parts)
+                    out.parent.mkdir(parents=True, exist_ok=True)
+                    out.write_bytes(archive.extractfile(member).read())
+    except (tarfile.TarError, EOFError, zlib.error, OSError) as err:
+        why = str(err).splitlines()[0] if str(err) else type(err).__name__
+        if "empty file" in str(err):
+            why = "an empty archive"
+        raise StudyError(f"merge source {path} is not a readable .tar.gz archive of a study folder ({why}); "
+                         f"nothing was merged") from None
+    return into
+
+
+def _state(folder: StudyFolder, name: str) -> dict:
+    try:
+        state = folder.read_state()
+    except (json.JSONDecodeError, UnicodeDecodeError, OSError) as err:
+        raise StudyError(f"{name}: {folder.path / StudyFolder.STATE} cannot be read ({err}); nothing was "
+                         f"merged") from None
+    if not isinstance(state, dict):
+        raise StudyError(f"{name}: {folder.path / StudyFolder.STATE} is not a study's state; nothing was "
+                         f"merged")
+    return state
+
+
+def _check_studies(opened, dest: StudyFolder, framework: str) -> Study:
+    """The study every source and DEST hold; `StudyError` naming the first that differs."""
+    studies = []
+    for name, src in opened:
+        try:
+            study = loads(src.study_path.read_text(encoding="utf-8"), src.study_path)
+        except (OSError, UnicodeDecodeError) as err:
+            raise StudyError(f"merge source {name}: {src.study_path} cannot be read ({err})") from None
+        except StudyError as err:
+            raise StudyError(f"merge source {name}: {err}") from None
+        studies.append((name, study))
+        got = _state(src, name).get("framework") or study.framework
+        if got is not None and got != framework:
+            raise StudyError(f"merge source {name} holds runs of sf2-{got}; merge it with `sf2-{got} study "
+                             f"merge` (runs of two frameworks do not mix)")
+    if dest.path.exists() and not dest.path.is_dir():
+        raise StudyError(f"--into {dest.path} is a file, not a study folder")
+    if dest.study_path.exists():
+        studies.insert(0, (f"--into {dest.path}", dest.load_study()))
+        got = _state(dest, str(dest.path)).get("framework")
+        if got is not None and got != framework:
+            raise StudyError(f"--into {dest.path} holds runs of sf2-{got}; merge with `sf2-{got} study "
+                             f"merge`")
+    elif dest.path.exists() and any(dest.path.iterdir()):
+        raise StudyError(f"--into {dest.path} is not empty and holds no study ({StudyFolder.STUDY}); "
+                         f"choose a study folder of the same study, or a new folder")
+    first_name, first = studies[0]
+    for name, study in studies[1:]:
+        if study.data != first.data:
+            keys = sorted(k for k in set(first.data) | set(study.data)
+                          if first.data.get(k) != study.data.get(k))
+            raise StudyError(f"{name} holds study {study.name!r}, not the study of {first_name} "
+                             f"({first.name!r}): their study.toml differ in {', '.join(keys)}; nothing was "
+                             f"merged")
+    return first
+
+
+def _stray_runs(src: StudyFolder, expected) -> list[str]:
+    """Run folders (a config.json) under the source's runs/ that are not runs of the study."""
+    base = src.path / StudyFolder.RUNS
+    if not base.is_dir():
+        return []
+    found = []
+    for cfg in base.rglob(RunFolder.CONFIG):
+        rel = cfg.parent.relative_to(base)
+        if not _NEVER.intersection(rel.parts) and rel.as_posix() not in expected:
+            found.append(rel.as_posix())
+    return sorted(found)
+
+
+# ------------------------------------------------------------------------------------------- runs
+def _look(folder: StudyFolder, run: Run, study: Study, where: str) -> _Side:
+    path = folder.path_of(run)
+    try:
+        _Reading(path).check_compatible(run.config.to_dict(), run.seeds)
+        state = folder.run_state(run, study)
+        rows = RunFolder(path).read_rows(strict=True)
+    except RunFolderMismatch as err:
+        why = str(err).replace(" Use another --out, or --fresh to overwrite it.", "")
+        raise StudyError(f"{where}: {why} (a study folder's runs must come from its study file); nothing "
+                         f"was merged") from None
+    except RunFolderError as err:
+        raise StudyError(f"{where}: {err}; nothing was merged") from None
+    noise = None
+    if (path / OBS_NOISE).is_file():
+        try:
+            noise = json.loads((path / OBS_NOISE).read_text()).get("results")
+        except (json.JSONDecodeError, AttributeError):
+            noise = "unreadable"
+    return _Side(path, state.status, state.env_steps, rows, noise, where)
+
+
+class _Reading(RunFolder):
+    """`RunFolder.check_compatible` for a merge: without the writability probe (a source may be read-only;
+    the checks write nothing) and without the checkpoints (a merge never copies them)."""
+
+    def check_usable(self) -> None:
+        if self.path.exists() and not self.path.is_dir():
+            raise RunFolderError(f"run folder {self.path} is a file, not a folder")
+
+    def checkpoint_epochs(self) -> list[int]:
+        return []
+
+
+def _total(run: Run, study: Study) -> int:
+    from sf2_common.agents.configs import schedule
+
+    return schedule(run.config).total_env_steps * len(run.seeds)
+
+
+def _key_rows(rows: list[dict]) -> list[str]:
+    return sorted(json.dumps(r, sort_keys=True) for r in rows)
+
+
+def _difference(a: _Side, b: _Side) -> str:
+    ra = {(r["epoch"], r["seed"]): r for r in a.rows}
+    rb = {(r["epoch"], r["seed"]): r for r in b.rows}
+    for key in sorted(set(ra) | set(rb), key=str):
+        x, y = ra.get(key), rb.get(key)
+        if x != y:
+            if x is None or y is None:
+                return f"epoch {key[0]} seed {key[1]}: a row in one only"
+            field = next(k for k in sorted(set(x) | set(y)) if x.get(k) != y.get(k))
+            return f"epoch {key[0]} seed {key[1]}: {field} {x.get(field)!r} vs {y.get(field)!r}"
+    return "their obs_noise.json results differ"
+
+
+def _check_not_running(target: Path) -> None:
+    lock = target / _LOCK
+    if not lock.exists():
+        return
+    fd = os.open(lock, os.O_RDWR)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        raise StudyError(f"{target} is being trained by a study runner now ({lock} is held); merge after it "
+                         f"stops; nothing was merged") from None
+    finally:
+        os.close(fd)
+
+
+def _install(source: Path, target: Path) -> Path | None:
+    """Copy `KEPT` of `source` into a temporary sibling of `target`, then rename it into place. A run folder
+    that was at `target` is renamed away first; it is removed if it held only `KEPT` (the lock file
+    aside), else it stays next to `target` and its path is returned."""
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.merge-", dir=target.parent))
+    old = None
+    try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o777 & ~umask)
+        for name in KEPT:
+            if (source / name).is_file():
+                _copy(source / name, tmp / name)
+        if target.exists():
+            old = target.with_name(f".{target.name}.replaced-{os.getpid()}")
+            os.rename(target, old)
+        os.rename(tmp, target)
+    except BaseException:
+        if old is not None and not target.exists():
+            os.rename(old, target)
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    if old is None:
+        return None
+    if {p.name for p in old.iterdir()} <= {*KEPT, _LOCK}:
+        shutil.rmtree(old)
+        return None
+    aside = target.with_name(f"{target.name}.before-merge-{time.strftime('%Y%m%d-%H%M%S')}")
+    os.rename(old, aside)
+    return aside
+
+
+def _copy(src: Path, dst: Path) -> None:
+    """Content only (a source may be read-only; DEST's runs stay writable for the trainer), synced."""
+    with open(src, "rb") as f, open(dst, "wb") as g:
+        shutil.copyfileobj(f, g)
+        g.flush()
+        os.fsync(g.fileno())
+
+
+def _write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "w", encoding="utf-8") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+# ------------------------------------------------------------------------------------------- study.json
+def _merge_state(dest: StudyFolder, sources: list[StudyFolder], study: Study, framework: str,
+                 merged: list[Run]) -> int:
+    """DEST's study.json with every source's runs entries and commands joined in (module docstring);
+    written only if it changed. Returns the number of commands added."""
+    old = dest.read_state()
+    state = json.loads(json.dumps(old))
+    states = [s.read_state() for s in sources]
+    if not state:
+        first = next((s for s in states if s), {})
+        state = {"id": first.get("id") or os.urandom(16).hex(), "name": study.name, "framework": framework}
+    state.setdefault("name", study.name)
+    state.setdefault("framework", framework)
+    runs = state.setdefault("runs", [])
+    have = {(r.get("task"), r.get("folder")) for r in runs}
+    for entry in (e for s in states for e in s.get("runs", [])):
+        if (entry.get("task"), entry.get("folder")) not in have:
+            have.add((entry.get("task"), entry.get("folder")))
+            runs.append(entry)
+    for run in merged:   # a source whose study.json lacks the entry (hand-made): the run's own
+        if (run.task, run.rel) not in have:
+            have.add((run.task, run.rel))
+            runs.append({"task": run.task, "folder": run.rel, "methods": [m.name for m in run.methods],
+                         "seeds": list(run.seeds)})
+    commands = list(state.get("commands", []))
+    seen = {json.dumps(c, sort_keys=True) for c in commands}
+    for c in (c for s in states for c in s.get("commands", [])):
+        key = json.dumps(c, sort_keys=True)
+        if key not in seen:
+            seen.add(key)
+            commands.append(c)
+    added = len(commands) - len(state.get("commands", []))
+    if commands:
+        state["commands"] = sorted(commands, key=lambda c: str(c.get("time", "")))
+    if state != old:
+        dest.path.mkdir(parents=True, exist_ok=True)
+        _write_text(dest.path / StudyFolder.STATE, json.dumps(state, indent=2, ensure_ascii=False) + "\n")
+    return added

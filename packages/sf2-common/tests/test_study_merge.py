@@ -1,0 +1,214 @@
+"""`study merge` (sf2_common.studies.merge): runs of study folders and their .tar.gz archives joined into one
+study folder. No framework: configs are sf2_common's `TrainConfig`, run folders are fabricated as the
+trainer leaves them (config.json, metrics.jsonl, train.log, plus what a merge must never copy:
+checkpoints/, final/*.npz, learning_curve.png)."""
+
+from __future__ import annotations
+
+import json
+import tarfile
+
+import pytest
+from sf2_common.agents import tasks as task_table
+from sf2_common.agents.configs import TrainConfig, schedule
+from sf2_common.studies import merge as merging
+from sf2_common.studies import spec
+from sf2_common.studies.folder import StudyFolder
+from sf2_common.studies.spec import StudyError
+from sf2_common.testing import folder_digest
+
+STUDY = """
+name = "merging"
+seeds = "0-3"
+seeds_per_run = 2
+tasks = ["A", "B"]
+[[methods]]
+label = "TD3"
+algo = "td3"
+representation = "none"
+[[methods]]
+label = "TD3+SF²"
+algo = "td3"
+representation = "sf2"
+"""
+
+
+def _make(preset, task, algo, rep, overrides):
+    return TrainConfig(task=task, algo=algo, representation=rep, num_timesteps=1000, num_envs=4,
+                       min_replay_size=8, num_evals=3)
+
+
+@pytest.fixture
+def runs_of(monkeypatch):
+    monkeypatch.setattr(task_table, "validate_task", lambda task: task)   # tasks "A", "B": no Playground
+    return lambda study: spec.resolve(study, _make, lambda cfg, seeds: cfg)
+
+
+def _source(tmp_path, name, runs_of, finished=(), partial=(), commands=(), text=STUDY, ret=0.0):
+    """A study folder as `study run` leaves it: study.toml, study.json with `commands` (times), and the
+    run folders named in `finished` / `partial` ('A/td3/seeds-0-1')."""
+    study = spec.loads(text, tmp_path / f"{name}.toml")
+    runs = {f"{r.task}/{r.rel}": r for r in runs_of(study)}
+    folder = StudyFolder(tmp_path / name)
+    folder.open(study, "jax", list(runs.values()))
+    state = folder.read_state()
+    state["commands"] = [{"command": f"sf2-jax study run {c}", "host": name, "time": c} for c in commands]
+    (folder.path / "study.json").write_text(json.dumps(state, indent=2))
+    sched = schedule(next(iter(runs.values())).config)
+    assert sched.num_epochs == 2
+    for rel, last in [(r, 2) for r in finished] + [(r, 1) for r in partial]:
+        run = runs[rel]
+        path = folder.path_of(run)
+        path.mkdir(parents=True)
+        conf = {"config": run.config.to_dict(), "seeds": list(run.seeds), "schedule": {"num_epochs": 2}}
+        (path / "config.json").write_text(json.dumps(conf))
+        rows = [{"epoch": e, "seed": s, "env_steps": e * sched.env_steps_per_epoch,
+                 "eval_return": ret + e + s} for e in range(last + 1) for s in run.seeds]
+        (path / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+        (path / "train.log").write_text(f"trained on {name}\n")
+        (path / "learning_curve.png").write_bytes(b"png")
+        (path / "checkpoints" / str(last)).mkdir(parents=True)
+        (path / "checkpoints" / str(last) / "state").write_bytes(b"big")
+        (path / "final").mkdir()
+        (path / "final" / "params_seed0.npz").write_bytes(b"params")
+    return folder.path
+
+
+def _merge(sources, dest, runs_of, **kw):
+    lines = []
+    out = merging.merge(sources, dest, runs_of, framework="jax", say=lines.append, **kw)
+    return out, "\n".join(lines)
+
+
+def test_merge_into_a_new_folder_copies_finished_runs_only_their_kept_files(tmp_path, runs_of):
+    src = _source(tmp_path, "gpu", runs_of, finished=["A/td3/seeds-0-1", "B/td3-sf2/seeds-2-3"],
+                  partial=["A/td3-sf2/seeds-0-1"], commands=["2026-01-01 10:00:00"])
+    dest = tmp_path / "results"
+    out, said = _merge([src], dest, runs_of)
+    assert out.created and sorted(out.merged) == ["A/td3/seeds-0-1", "B/td3-sf2/seeds-2-3"]
+    assert "A/td3-sf2/seeds-0-1 in " in said and "--partial merges unfinished runs" in said
+    have = folder_digest(dest)
+    mine = folder_digest(src)
+    assert (dest / "study.toml").read_text() == (src / "study.toml").read_text()
+    assert json.loads((dest / "study.json").read_text()) == json.loads((src / "study.json").read_text())
+    # exactly config.json, metrics.jsonl, train.log of the finished runs, byte for byte
+    expected = {f"runs/{r}/{f}" for r in ("A/td3/seeds-0-1", "B/td3-sf2/seeds-2-3")
+                for f in ("config.json", "metrics.jsonl", "train.log")} | {"study.toml", "study.json"}
+    assert set(have) == expected
+    assert all(have[k] == mine[k] for k in expected - {"study.json"})   # study.json: equal as JSON above
+    # --partial: the unfinished run too (DEST has none of it)
+    out, _ = _merge([src], dest, runs_of, partial=True)
+    assert out.merged == ["A/td3-sf2/seeds-0-1"]
+    assert (dest / "runs/A/td3-sf2/seeds-0-1/metrics.jsonl").exists()
+
+
+def test_two_sources_with_disjoint_runs_and_their_commands_in_time_order(tmp_path, runs_of):
+    one = _source(tmp_path, "one", runs_of, finished=["A/td3/seeds-0-1"],
+                  commands=["2026-01-01 10:00:00", "2026-01-03 10:00:00"])
+    two = _source(tmp_path, "two", runs_of, finished=["B/td3/seeds-2-3"], commands=["2026-01-02 10:00:00"])
+    dest = tmp_path / "results"
+    out, _ = _merge([one, two], dest, runs_of)
+    assert out.merged == ["A/td3/seeds-0-1", "B/td3/seeds-2-3"] and out.commands_added == 3
+    state = json.loads((dest / "study.json").read_text())
+    assert [c["time"] for c in state["commands"]] == ["2026-01-01 10:00:00", "2026-01-02 10:00:00",
+                                                      "2026-01-03 10:00:00"]
+    assert state["id"] == json.loads((one / "study.json").read_text())["id"]
+    assert len(state["runs"]) == 8     # 2 tasks × 2 methods × 2 seed groups, once each
+    assert {(r["task"], r["folder"]) for r in state["runs"]} == {
+        (t, f"{m}/seeds-{g}") for t in "AB" for m in ("td3", "td3-sf2") for g in ("0-1", "2-3")}
+    # a later source replaces DEST's unfinished run with its finished one; DEST keeps its id
+    three = _source(tmp_path, "three", runs_of, partial=["A/td3-sf2/seeds-0-1"])
+    four = _source(tmp_path, "four", runs_of, finished=["A/td3-sf2/seeds-0-1"],
+                   commands=["2026-01-02 10:00:00"])
+    _merge([three], dest, runs_of, partial=True)
+    assert len((dest / "runs/A/td3-sf2/seeds-0-1/metrics.jsonl").read_text().splitlines()) == 2 * 2
+    out, said = _merge([four], dest, runs_of)
+    # DEST's: 2 seeds at epoch 1 of 2
+    sched = schedule(_make("quick", "A", "td3", "sf2", {}))
+    assert out.replaced == ["A/td3-sf2/seeds-0-1"] and (
+        f"DEST's was unfinished, {2 * sched.env_steps_per_epoch:,} of {2 * sched.total_env_steps:,} env steps"
+        in said)
+    assert len((dest / "runs/A/td3-sf2/seeds-0-1/metrics.jsonl").read_text().splitlines()) == 3 * 2
+    assert json.loads((dest / "study.json").read_text())["id"] == state["id"]
+    # four's command has two's time but another host: another command
+    assert len(json.loads((dest / "study.json").read_text())["commands"]) == 4
+    # a finished DEST run stays when a source brings it unfinished
+    out, said = _merge([three], dest, runs_of, partial=True)
+    assert out.skipped == ["A/td3-sf2/seeds-0-1"] and "DEST's is finished" in said
+
+
+def test_identical_merge_again_changes_nothing(tmp_path, runs_of):
+    src = _source(tmp_path, "gpu", runs_of, finished=["A/td3/seeds-0-1"], commands=["2026-01-01 10:00:00"])
+    dest = tmp_path / "results"
+    _merge([src], dest, runs_of)
+    before = folder_digest(dest)
+    out, said = _merge([src, src], dest, runs_of)
+    assert not out.merged and not out.replaced and out.commands_added == 0
+    assert "identical to DEST's" in said and folder_digest(dest) == before
+
+
+def test_conflicting_finished_run_is_refused_and_nothing_written(tmp_path, runs_of):
+    ours = _source(tmp_path, "ours", runs_of, finished=["A/td3/seeds-0-1"], commands=["2026-01-01 10:00:00"])
+    theirs = _source(tmp_path, "theirs", runs_of, finished=["A/td3/seeds-0-1", "B/td3/seeds-0-1"],
+                     commands=["2026-01-02 10:00:00"], ret=0.5)
+    dest = tmp_path / "results"
+    _merge([ours], dest, runs_of)
+    before = folder_digest(dest)
+    with pytest.raises(StudyError) as info:
+        _merge([theirs], dest, runs_of)
+    msg = str(info.value)
+    # the first differing row: epoch 0 seed 0, eval_return 0 + 0 + 0 (DEST) vs 0.5 + 0 + 0 (source)
+    assert "A/td3/seeds-0-1: DEST and " in msg and "epoch 0 seed 0: eval_return 0.0 vs 0.5" in msg
+    assert "nothing was written" in msg
+    assert folder_digest(dest) == before and not (dest / "runs/B").exists()   # B's run not merged either
+
+
+def test_archive_source_as_gpu_study_writes_it(tmp_path, runs_of):
+    src = _source(tmp_path, "gpu", runs_of, finished=["A/td3/seeds-0-1"], partial=["B/td3/seeds-2-3"],
+                  commands=["2026-01-01 10:00:00"])
+    archive = tmp_path / "merging.tar.gz"
+    with tarfile.open(archive, "w:gz") as tar:   # what scripts/gpu_study.sh packs: ./ of the study folder
+        tar.add(src, arcname=".", filter=lambda m: None if m.name.endswith(("checkpoints", "final")) else m)
+    by_folder, by_archive = tmp_path / "by-folder", tmp_path / "by-archive"
+    _merge([src], by_folder, runs_of)
+    out, _ = _merge([str(archive)], by_archive, runs_of)
+    assert out.merged == ["A/td3/seeds-0-1"] and folder_digest(by_archive) == folder_digest(by_folder)
+    # a truncated archive, an empty one (scripts/gpu_study.sh after a failed command), a file that is none
+    data = archive.read_bytes()
+    (tmp_path / "cut.tar.gz").write_bytes(data[: len(data) // 2])
+    with tarfile.open(tmp_path / "empty.tar.gz", "w:gz"):
+        pass
+    (tmp_path / "notes.txt").write_text("hello")
+    for bad, why in (("cut.tar.gz", "not a readable .tar.gz archive"),
+                     ("empty.tar.gz", "not a study folder archive: it holds no study.toml"),
+                     ("notes.txt", "not a readable .tar.gz archive")):
+        with pytest.raises(StudyError, match=why):
+            _merge([str(tmp_path / bad)], tmp_path / "never", runs_of)
+    assert not (tmp_path / "never").exists()
+
+
+def test_wrong_source_is_refused_with_dest_unchanged(tmp_path, runs_of):
+    src = _source(tmp_path, "gpu", runs_of, finished=["A/td3/seeds-0-1"])
+    dest = tmp_path / "results"
+    _merge([src], dest, runs_of)
+    before = folder_digest(dest)
+    other = _source(tmp_path, "other", runs_of, finished=["A/td3/seeds-0-1"],
+                    text=STUDY.replace('"merging"', '"other"'))
+    with pytest.raises(StudyError, match="holds study 'other', not the study of --into .*differ in name"):
+        _merge([other], dest, runs_of)
+    with pytest.raises(StudyError, match="is not a study folder: it holds no study.toml"):
+        _merge([tmp_path / "gpu" / "runs"], dest, runs_of)
+    with pytest.raises(StudyError, match="does not exist"):
+        _merge([tmp_path / "nowhere"], dest, runs_of)
+    # a run folder whose config.json is not the study's config for that run
+    bad = _source(tmp_path, "bad", runs_of, finished=["B/td3/seeds-0-1"])
+    conf = bad / "runs/B/td3/seeds-0-1/config.json"
+    conf.write_text(conf.read_text().replace('"num_envs": 4', '"num_envs": 8'))
+    with pytest.raises(StudyError, match=r"num_envs: 8 \(folder\) vs 4 \(now\)"):
+        _merge([bad], dest, runs_of)
+    # runs of the other framework
+    state = json.loads((src / "study.json").read_text())
+    (src / "study.json").write_text(json.dumps({**state, "framework": "torch"}))
+    with pytest.raises(StudyError, match="holds runs of sf2-torch; merge it with `sf2-torch study merge`"):
+        _merge([src], dest, runs_of)
+    assert folder_digest(dest) == before
