@@ -110,11 +110,74 @@ def test_report_numbers_by_hand_and_by_rliable(tmp_path):
     for k in range(4):
         p = fn(td3)[k]
         assert f"{p:.3f} [{ci['TD3'][0][k]:.3f}, {ci['TD3'][1][k]:.3f}]" in line, line
-    assert "Not in the aggregate (a task without a finished run): SAC." in summary
-    assert "B / SAC: epoch 1 of 2" in summary
+    assert "**TD3**: over all 2 tasks, seeds 0-3 (4 of 4)." in summary
+    # SAC alone in its family, finished on A only: an interim aggregate over A, its scores (5 + s)/13 for
+    # s = 0..3: median = IQM (6, 7 of 5..8) = mean = 6.5/13 = 0.5, optimality gap 0.5
+    assert ("**SAC: interim aggregate** over 1 of the study's 2 tasks (A), seeds 0-3 (4 of 4): not the "
+            "study's 2-task aggregate. No finished run yet: B.") in summary
+    line = next(x for x in summary.splitlines() if x.startswith("| SAC | 4 × 1 |"))
+    assert line.count("0.500 [") == 4, line
+    assert "| B | SAC | 0-3: partial (epoch 1 of 2) |" in summary
     assert "sf2-jax study run s.toml --out study" in summary and "sf2-jax study report study" in summary
     for name in ("aggregate.png", "aggregate.svg", "curves.png", "curves.svg"):
         assert name in written and written[name].stat().st_size > 1000
+
+
+INTERIM = FAMILY.replace('tasks = ["A", "B"]', 'tasks = ["A", "B", "C"]')
+
+
+def test_interim_aggregate_covers_the_tasks_and_seeds_every_method_has(tmp_path):
+    """TD3 has seeds 0-2 on A and 0-1 on B; TD3+SF² seeds 1-3 on A and 0 on C; SAC nothing. The TD3 family
+    is aggregated on A alone (B lacks TD3+SF², C lacks TD3) over the seeds both have there, 1-2: TD3 scores
+    0.1 s → 0.1, 0.2; TD3+SF² 0.2 + 0.1 s → 0.3, 0.4. Two seeds: no interval; median = mean = IQM (nothing
+    trimmed of 2) = the pair's mean, optimality gap 1 − mean. SAC: no aggregate."""
+    from sf2_common.studies.report import _md_coverage, aggregate_table
+
+    study = loads(INTERIM, tmp_path / "s.toml")
+    rows = ([{"task": "A", "method": "TD3", "seed": s, "normalized_auc": 0.1 * s} for s in (0, 1, 2)]
+            + [{"task": "B", "method": "TD3", "seed": s, "normalized_auc": 0.5} for s in (0, 1)]
+            + [{"task": "A", "method": "TD3+SF²", "seed": s, "normalized_auc": 0.2 + 0.1 * s}
+               for s in (1, 2, 3)]
+            + [{"task": "C", "method": "TD3+SF²", "seed": 0, "normalized_auc": 0.9}])
+    table, covers = aggregate_table(study, rows)
+    assert list(table) == ["TD3"]
+    td3 = covers["TD3"]
+    assert (td3.tasks, td3.seeds, td3.extra_seeds) == (["A"], [1, 2], [0, 3])
+    assert td3.left_out == {"B": ["TD3"], "C": ["TD3+SF²"]}
+    assert [e[0] for e in table["TD3"]] == ["TD3", "TD3+SF²"]
+    for (_, n, points, ci), mean in zip(table["TD3"], (0.15, 0.35)):
+        assert n == 2 and ci is None
+        np.testing.assert_allclose(points, [mean, mean, mean, 1 - mean])
+    text = _md_coverage(study, td3)[0]
+    assert text == ("**TD3: interim aggregate** over 1 of the study's 3 tasks (A), seeds 1-2 (2 of 4): "
+                    "not the study's 3-task aggregate. Left out: B (finished by TD3 only); C (finished by "
+                    "TD3+SF² only). Seeds 0,3 are finished on these tasks by some methods only and left out, "
+                    "so that every method is scored on the same seeds.")
+    assert _md_coverage(study, covers["SAC"])[0] == (
+        "**SAC**: not aggregated yet (no task on which every method has finished seeds; the aggregate scores "
+        "every method of the family on the same tasks and seeds).")
+
+
+def test_incomplete_runs_compact(tmp_path):
+    """One line for the tasks no method has started, one row per (task, method) elsewhere with its
+    unfinished seed groups and their state."""
+    text = INTERIM.replace('seeds = "0-3"', 'seeds = "0-3"\nseeds_per_run = 2')
+    folder = _study(tmp_path, text)
+    for m in ("td3", "td3-sf2", "sac"):
+        _write_run(folder.run_path("A", f"{m}/seeds-0-1"), [0, 1], {0: [0, 1, 1], 1: [0, 2, 2]})
+    _write_run(folder.run_path("A", "td3/seeds-2-3"), [2, 3], {2: [0, 1, 1], 3: [0, 2, 2]}, last_epoch=1)
+    _write_run(folder.run_path("B", "sac/seeds-2-3"), [2, 3], {2: [0, 1, 1], 3: [0, 2, 2]})
+    summary = report(folder.path)["summary.md"].read_text()
+    part = summary[summary.index("## Incomplete runs"):]
+    assert part.splitlines()[2:] == [
+        "Not started by any method: C (1 of 3 tasks, every seed group).", "",
+        "| task | method | seeds not finished: state |", "|---|---|---|",
+        "| A | TD3 | 2-3: partial (epoch 1 of 2) |",
+        "| A | TD3+SF² | 2-3: not started |",
+        "| A | SAC | 2-3: not started |",
+        "| B | TD3 | 0-1, 2-3: not started |",
+        "| B | TD3+SF² | 0-1, 2-3: not started |",
+        "| B | SAC | 0-1: not started |"]
 
 
 SWEEP = """

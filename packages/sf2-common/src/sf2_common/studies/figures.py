@@ -70,9 +70,10 @@ def _seed_note(ns) -> str:
 
 
 # ------------------------------------------------------------------------------------------- Fig. 1 / 7
-def aggregate(table: dict, stem: Path, study) -> dict[str, Path]:
+def aggregate(table: dict, stem: Path, study, covers: dict | None = None) -> dict[str, Path]:
     """table: {family: [(label, n_seeds, points (4,), intervals (2, 4) or None)]} → one row of four panels
-    (median, IQM, mean, optimality gap) per family."""
+    (median, IQM, mean, optimality gap) per family; `covers` ({family: report.Coverage}): the tasks each
+    family's aggregate covers (default: every task of the study)."""
     plt = _plt()
     colors = _Colors()
     families = list(table)
@@ -103,7 +104,11 @@ def aggregate(table: dict, stem: Path, study) -> dict[str, Path]:
             if r == len(families) - 1:
                 ax.set_xlabel("normalized AUC" if metric != "Optimality Gap" else "1 − mean normalized AUC")
     ns = [n for v in table.values() for _, n, _, _ in v]
-    fig.suptitle(f"{study.name}: aggregate normalized AUC over {len(study.tasks)} task(s), "
+    counts = {len(covers[f].tasks) for f in table} if covers else {len(study.tasks)}
+    over = (f"{counts.pop()}" if len(counts) == 1 else "–".join(map(str, (min(counts), max(counts)))))
+    over += (" task(s)" if over == str(len(study.tasks)) else
+             f" of {len(study.tasks)} tasks (interim: summary.md says which)")
+    fig.suptitle(f"{study.name}: aggregate normalized AUC over {over}, "
                  + (f"{max(ns)} seeds per task" if min(ns) == max(ns) else
                     f"{min(ns)}–{max(ns)} seeds per task (unequal: see summary.md)")
                  + f"\nbar: {_CI}, stratified over tasks; tick: point estimate"

@@ -9,8 +9,10 @@ Per run and seed (results.csv): AUC of the evaluation-return curve (`stats.auc`:
 normalized per task by the min and max over every finished run and seed of the study on that task, the
 final evaluation return, the mean return over the final `final_window` env steps, env steps, wall time
 (the run's: its seeds train in one program; with seed groups the seed's group's). Per family (TD3, SAC)
-and method: median, IQM, mean and
-optimality gap of the normalized AUCs with 95% stratified-bootstrap intervals (`stats.aggregate_intervals`).
+and method: median, IQM, mean and optimality gap of the normalized AUCs with 95% stratified-bootstrap
+intervals (`stats.aggregate_intervals`), every method of the family on the same tasks and seeds: those
+on which all of them have finished seeds (`aggregate_table`); summary.md says which, so an interim study
+shows an interim aggregate, named as such. Unfinished runs are listed compactly (`_md_incomplete`).
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ class GroupData:
     seeds: tuple[int, ...]
     path: Path
     finished: bool
-    progress: str                     # "epoch 3 of 5" for an incomplete run
+    progress: str                     # "partial (epoch 3 of 5)" or "not started" for an incomplete run
 
 
 @dataclasses.dataclass
@@ -53,7 +55,7 @@ class RunData:
     method: Method
     path: Path                        # the method's run folder (the groups' parent with seed groups)
     finished: bool                    # some seeds finished (every seed, without seed groups)
-    progress: str                     # "epoch 3 of 5" for an incomplete run (its first unfinished group)
+    progress: str                     # its first unfinished group's (`GroupData.progress`)
     steps: np.ndarray                 # env steps of the evaluations every seed has
     returns: dict[int, np.ndarray]    # seed → eval returns at `steps` (finished groups only)
     wall_time: float                  # summed over the finished groups
@@ -83,7 +85,9 @@ def _group(seeds, path: Path):
     steps, per_seed = curves([r for r in rows if r["seed"] in seeds])
     last = {s: max((r["epoch"] for r in rows if r["seed"] == s), default=-1) for s in seeds}
     finished = bool(conf) and epochs is not None and all(e == epochs for e in last.values())
-    progress = "not started" if not conf else f"epoch {min(last.values())} of {epochs}"
+    first = min(last.values())
+    progress = ("not started" if not conf else f"partial (epoch {first} of {epochs})" if first >= 0 else
+                "partial (no evaluation yet)")
     noise = None
     if (path / OBS_NOISE).exists():
         noise = json.loads((path / OBS_NOISE).read_text()).get("results")
@@ -181,29 +185,71 @@ def _families(study: Study) -> list[str]:
     return list(dict.fromkeys(m.family for m in study.methods))
 
 
-def aggregate_table(study: Study, rows: list[dict], dropped: list | None = None):
-    """{family: [(method label, n_seeds, points (4,), intervals (2, 4) or None)]}, and the labels left out
-    because a task is missing. Methods need a finished run on every task of the study; a method whose
-    tasks have different seeds (seed groups finished on some tasks only) enters with the seeds every task
-    has, and (label, those seeds, the seeds left out) is appended to `dropped`."""
-    out, missing = {}, []
+@dataclasses.dataclass
+class Coverage:
+    """What a family's aggregate covers: the tasks on which every method of the family has finished seeds,
+    and the seeds every one of those methods finished on every one of those tasks."""
+
+    family: str
+    tasks: list[str]                  # in the aggregate (study order)
+    seeds: list[int]                  # in the aggregate
+    left_out: dict[str, list[str]]    # task not in it → the family's methods with finished seeds there
+    extra_seeds: list[int]            # finished on the covered tasks by some methods only: left out
+
+    def complete(self, study: Study) -> bool:
+        return len(self.tasks) == len(study.tasks) and list(self.seeds) == sorted(study.seeds)
+
+
+def aggregate_table(study: Study, rows: list[dict]):
+    """({family: [(method label, n_seeds, points (4,), intervals (2, 4) or None)]}, {family: `Coverage`}).
+    Every method of a family is scored on the same tasks and seeds: the tasks on which each of them has
+    finished seeds, and the seeds common to all of them there (an interim study aggregates what it has;
+    summary.md states the coverage). A family without such a task or seed is left out of the table."""
+    out, covers = {}, {}
     for family in _families(study):
-        scores = {}
-        for m in (m for m in study.methods if m.family == family):
-            by_task = [{r["seed"]: r["normalized_auc"] for r in rows if r["method"] == m.label
-                        and r["task"] == t} for t in study.tasks]
-            common = sorted(set.intersection(*(set(x) for x in by_task)))
-            if not common:
-                missing.append(m.label)
-                continue
-            if dropped is not None and any(len(x) != len(common) for x in by_task):
-                dropped.append((m.label, common, sorted(set().union(*by_task) - set(common))))
-            scores[m.label] = np.array([[x[s] for x in by_task] for s in common])   # (n_seeds, n_tasks)
-        if not scores:
+        methods = [m for m in study.methods if m.family == family]
+        got = {(t, m.label): {r["seed"]: r["normalized_auc"] for r in rows
+                              if r["method"] == m.label and r["task"] == t}
+               for t in study.tasks for m in methods}
+        tasks = [t for t in study.tasks if all(got[(t, m.label)] for m in methods)]
+        sets = [set(got[(t, m.label)]) for t in tasks for m in methods]
+        seeds = sorted(set.intersection(*sets)) if sets else []
+        left = {t: [m.label for m in methods if got[(t, m.label)]] for t in study.tasks if t not in tasks}
+        extra = sorted(set().union(*sets) - set(seeds)) if sets else []
+        covers[family] = Coverage(family, tasks, seeds, left, extra)
+        if not seeds:
             continue
-        points, intervals = stats.aggregate_intervals(scores)
-        out[family] = [(label, scores[label].shape[0], points[label], intervals[label]) for label in scores]
-    return out, missing
+        scores = {m.label: np.array([[got[(t, m.label)][s] for t in tasks] for s in seeds]) for m in methods}
+        points, intervals = stats.aggregate_intervals(scores)   # (n_seeds, n_tasks) each
+        out[family] = [(label, len(seeds), points[label], intervals[label]) for label in scores]
+    return out, covers
+
+
+def _md_coverage(study: Study, cover: Coverage) -> list[str]:
+    """One plain sentence: which tasks and seeds a family's aggregate covers, and what it leaves out."""
+    n = len(study.tasks)
+    if not cover.seeds:
+        why = ("no task on which every method has finished seeds" if not cover.tasks else
+               f"no seed finished by every method on every one of {', '.join(cover.tasks)}")
+        return [f"**{cover.family}**: not aggregated yet ({why}; the aggregate scores every method of the "
+                f"family on the same tasks and seeds).", ""]
+    seeds = f"seeds {seeds_text(cover.seeds)} ({len(cover.seeds)} of {len(study.seeds)})"
+    if cover.complete(study):
+        return [f"**{cover.family}**: over all {n} tasks, {seeds}.", ""]
+    tasks = "all the" if len(cover.tasks) == n else f"{len(cover.tasks)} of the"
+    text = (f"**{cover.family}: interim aggregate** over {tasks} study's {n} tasks "
+            f"({', '.join(cover.tasks)}), {seeds}"
+            + (f": not the study's {n}-task aggregate" if len(cover.tasks) < n else "") + ".")
+    partly = [f"{t} (finished by {', '.join(have)} only)" for t, have in cover.left_out.items() if have]
+    idle = [t for t, have in cover.left_out.items() if not have]
+    if partly:
+        text += " Left out: " + "; ".join(partly) + "."
+    if idle:
+        text += f" No finished run yet: {', '.join(idle)}."
+    if cover.extra_seeds:
+        text += (f" Seeds {seeds_text(cover.extra_seeds)} are finished on these tasks by some methods only "
+                 f"and left out, so that every method is scored on the same seeds.")
+    return [text, ""]
 
 
 def _md_per_task(study: Study, data: list[RunData], rows: list[dict]) -> list[str]:
@@ -319,25 +365,13 @@ def report(path, out=None, command: str | None = None) -> dict[str, Path]:
 
     figs = study.report.figures
     if "aggregate" in figs:
-        dropped = []
-        table, missing = aggregate_table(study, rows, dropped)
+        table, covers = aggregate_table(study, rows)
         md += ["## Aggregate normalized AUC per family (paper Fig. 1 / 7)", ""]
-        md += _md_aggregate(table, len(study.tasks))
-        if missing:
-            md += [f"Not in the aggregate (a task without a finished run): {', '.join(missing)}.", ""]
-        for label, common, left in dropped:
-            md += [f"{label}: the aggregate uses seeds {seeds_text(common)}, those finished on every task; "
-                   f"seeds {seeds_text(left)} (finished on some tasks only) are left out of it.", ""]
-        for family, entries in table.items():
-            counts = {label: n for label, n, _, _ in entries}
-            if len(set(counts.values())) > 1:
-                md += [f"**Unequal seed counts ({family})**: "
-                       + ", ".join(f"{label} {n}" for label, n in counts.items())
-                       + " seeds per task. Intervals of fewer seeds are wider for that reason alone, and the "
-                       "methods' scores are not compared on the same seeds; compare them at equal counts "
-                       "(finish the missing seed groups: `study run --seeds ...`).", ""]
+        for cover in covers.values():
+            md += _md_coverage(study, cover)
+        md += _md_aggregate(table, {f: len(c.tasks) for f, c in covers.items()})
         if table:
-            written.update(figures.aggregate(table, out / "aggregate", study))
+            written.update(figures.aggregate(table, out / "aggregate", study, covers))
             md += ["![aggregate](aggregate.png)", ""]
     md += ["## Per task", ""] + _md_per_task(study, data, rows) + [""]
     if "curves" in figs and finished:
@@ -371,13 +405,7 @@ def report(path, out=None, command: str | None = None) -> dict[str, Path]:
         if points:
             written.update(figures.obs_noise(study, points, out / "obs_noise"))
             md += ["![observation noise](obs_noise.png)", ""]
-    incomplete = [(d, g) for d in data for g in d.groups if not g.finished]
-    if incomplete:
-        md += ["## Incomplete runs (not in the numbers above)", ""]
-        md += [f"- {d.task} / {d.method.label}"
-               + (f", seeds {seeds_text(g.seeds)}" if study.seeds_per_run else "")
-               + f": {g.progress} (`{g.path}`)" for d, g in incomplete]
-        md.append("")
+    md += _md_incomplete(study, data)
     (out / "summary.md").write_text("\n".join(md))
     written["summary.md"] = out / "summary.md"
     return written
@@ -414,7 +442,7 @@ def _md_seed_counts(study: Study, data: list[RunData]) -> list[str]:
     return lines
 
 
-def _md_aggregate(table, n_tasks: int) -> list[str]:
+def _md_aggregate(table, n_tasks: dict) -> list[str]:
     lines = []
     for family, entries in table.items():
         lines += [f"### {family}", "", "| method | seeds × tasks | " + " | ".join(stats.METRICS) + " |",
@@ -422,7 +450,33 @@ def _md_aggregate(table, n_tasks: int) -> list[str]:
         for label, n, p, ci in entries:
             cells = [_with_ci(p[k], None if ci is None else ci[0][k], None if ci is None else ci[1][k])
                      for k in range(len(stats.METRICS))]
-            lines.append(f"| {label} | {n} × {n_tasks} | " + " | ".join(cells) + " |")
+            lines.append(f"| {label} | {n} × {n_tasks[family]} | " + " | ".join(cells) + " |")
+        lines.append("")
+    return lines
+
+
+def _md_incomplete(study: Study, data: list[RunData]) -> list[str]:
+    """The run folders not in the numbers, compact: a line naming the tasks no method has started, then
+    one row per (task, method) with its unfinished seed groups and their state."""
+    open_ = [(d, [g for g in d.groups if not g.finished]) for d in data]
+    open_ = [(d, gs) for d, gs in open_ if gs]
+    if not open_:
+        return []
+    idle = [t for t in study.tasks
+            if all(g.progress == "not started" for d in data if d.task == t for g in d.groups)]
+    lines = ["## Incomplete runs (not in the numbers above)", ""]
+    if idle:
+        lines += [f"Not started by any method: {', '.join(idle)} ({len(idle)} of {len(study.tasks)} tasks"
+                  + (", every seed group" if study.seeds_per_run else "") + ").", ""]
+    rows = [(d, gs) for d, gs in open_ if d.task not in idle]
+    if rows:
+        lines += ["| task | method | seeds not finished: state |", "|---|---|---|"]
+        for d, gs in rows:
+            new = [seeds_text(g.seeds) for g in gs if g.progress == "not started"]
+            parts = [f"{seeds_text(g.seeds)}: {g.progress}" for g in gs if g.progress != "not started"]
+            if new:
+                parts.append(f"{', '.join(new)}: not started")
+            lines.append(f"| {d.task} | {d.method.label} | {'; '.join(parts)} |")
         lines.append("")
     return lines
 
