@@ -10,9 +10,8 @@
                                 `seeds_per_run` (spec.py); runs/<task>/<method>/ then holds only these
     DIR/report/                 `study report`: results.csv, summary.md, figures
 
-Runs are independent folders, so a study folder merges runs that finished elsewhere: copy
-`runs/<task>/<method>/` (or one seed group's `runs/<task>/<method>/seeds-0-4/`) from the other machine (its
-study folder was made from the same file).
+Runs are independent folders, so a study folder merges runs that finished elsewhere (its study folder was
+made from the same file): `study merge SOURCE... --into DIR` (merge.py) copies them with their checks.
 """
 
 from __future__ import annotations
