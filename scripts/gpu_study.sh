@@ -9,8 +9,8 @@
 #
 # Wheels: .whl-jax (git-excluded) = the output of ../shared/device/wheels.sh without TorchRL, plus
 # pandas 2.3 (the host's pandas 3 breaks arch, rliable's dependency) and its pytz/tzdata/dateutil/six.
-# The archive $OUT/<name>.tar.gz unpacks into a study folder; merge it with
-#   tar xzf <name>.tar.gz -C results/<name>   then   sf2-jax study report results/<name>
+# The archive $OUT/<name>.tar.gz is a study folder (no checkpoints); merge it here with
+#   sf2-jax study merge <name>.tar.gz --into results/<name>   then   sf2-jax study report results/<name>
 set -uo pipefail
 study=$1; limit=$2; shift 2
 name=$(basename "$study" .toml)
