@@ -12,6 +12,7 @@ is the `label` its trainer wrote into config.json, so plotting needs no framewor
 
 from __future__ import annotations
 
+import textwrap
 from collections import defaultdict
 from pathlib import Path
 
@@ -168,8 +169,10 @@ def plot_runs(run_dirs, path) -> list[dict]:
         ax.set_ylabel("eval return")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    fig.suptitle("line: mean eval return over seeds; band: 95% bootstrap CI of the mean (rliable, 5000 "
-                 "resamples), drawn only with >= 3 seeds", fontsize=9)
+    caption = ("line: mean eval return over seeds; band: 95% bootstrap CI of the mean (rliable, 5000 "
+               "resamples), drawn only with >= 3 seeds")
+    # wrapped to the figure's width (about 12 characters of 9-point text per inch), so one panel keeps it
+    fig.suptitle(textwrap.fill(caption, width=int(12 * fig.get_figwidth())), fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
