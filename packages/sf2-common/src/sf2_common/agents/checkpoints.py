@@ -17,10 +17,10 @@ before manifests existed) is read by the framework alone.
 from __future__ import annotations
 
 import json
-import os
 import zlib
 from pathlib import Path
 
+from ..fileio import atomic_write
 from .runfolder import RunFolderError
 
 __all__ = ["CheckpointDamaged", "CheckpointMismatch", "MANIFEST", "write_manifest", "verify"]
@@ -57,12 +57,7 @@ def write_manifest(folder) -> None:
     for p in sorted(folder.rglob("*")):
         if p.is_file() and p.name != MANIFEST:
             files[p.relative_to(folder).as_posix()] = {"size": p.stat().st_size, "crc32": _crc32(p)}
-    tmp = folder / (MANIFEST + ".tmp")
-    with open(tmp, "w") as f:
-        json.dump({"version": 1, "files": files}, f, indent=1, sort_keys=True)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, folder / MANIFEST)
+    atomic_write(folder / MANIFEST, json.dumps({"version": 1, "files": files}, indent=1, sort_keys=True))
 
 
 def verify(folder, epoch: int) -> bool:

@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 from sf2_common.errors import ConfigError
+from sf2_common.fileio import atomic_write
 
 from .configs import ADDED_FIELDS
 
@@ -208,7 +209,7 @@ class RunFolder:
 
     def write_config(self, payload: dict) -> None:
         self.path.mkdir(parents=True, exist_ok=True)
-        _atomic_write(self.config_path, json.dumps(payload, indent=2, sort_keys=True) + "\n")
+        atomic_write(self.config_path, json.dumps(payload, indent=2, sort_keys=True) + "\n")
 
     # ------------------------------------------------------------------ metrics
     def read_rows(self, strict: bool = False) -> list[dict]:
@@ -269,7 +270,7 @@ class RunFolder:
         """Keep the (deduplicated, well-formed) rows of epochs ≤ `last_epoch`; rewrite atomically."""
         rows = [r for r in self.read_rows() if r.get("epoch", 1 << 62) <= last_epoch]
         self.path.mkdir(parents=True, exist_ok=True)
-        _atomic_write(self.metrics_path, "".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
+        atomic_write(self.metrics_path, "".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
         return rows
 
     def append_rows(self, rows: list[dict]) -> None:
@@ -341,11 +342,3 @@ def _ranges(epochs: list[int]) -> str:
         i = j + 1
     return ", ".join(out)
 
-
-def _atomic_write(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)

@@ -18,18 +18,18 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import socket
 import time
 import uuid
 from pathlib import Path
 
 from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch
+from sf2_common.fileio import atomic_write
 
 from .spec import Run, Study, StudyError, loads
 
 __all__ = ["StudyFolder", "RunState", "OBS_NOISE", "LOG", "evaluation_settings", "evaluation_done",
-           "write_bytes", "command_line"]
+           "command_line"]
 
 OBS_NOISE = "obs_noise.json"
 LOG = "train.log"
@@ -92,7 +92,7 @@ class StudyFolder:
         self.check(study, framework)
         self.path.mkdir(parents=True, exist_ok=True)
         if not self.study_path.exists():
-            _atomic_write(self.study_path, study.text)
+            atomic_write(self.study_path, study.text)
         state = self.read_state()
         state.setdefault("id", uuid.uuid4().hex)
         state.update(name=study.name, framework=framework)
@@ -101,7 +101,7 @@ class StudyFolder:
         if command is not None:
             state.setdefault("commands", []).append({"command": command, "host": socket.gethostname(),
                                                      "time": time.strftime("%Y-%m-%d %H:%M:%S")})
-        _atomic_write(self.path / self.STATE, json.dumps(state, indent=2, ensure_ascii=False) + "\n")
+        atomic_write(self.path / self.STATE, json.dumps(state, indent=2, ensure_ascii=False) + "\n")
         return state
 
     # ------------------------------------------------------------------ runs
@@ -175,26 +175,6 @@ def evaluation_done(run_dir: Path, study: Study) -> bool:
         return json.loads(p.read_text()).get("settings") == evaluation_settings(study)
     except json.JSONDecodeError:
         return False
-
-
-def _atomic_write(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
-def write_bytes(path: Path, data: bytes) -> None:
-    """Atomic write of a file that came back from another host (`study run --ray`)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
 
 
 def command_line(prog: str, argv) -> str:

@@ -40,6 +40,7 @@ from collections.abc import Callable
 from pathlib import Path, PurePosixPath
 
 from sf2_common.agents.runfolder import RunFolder, RunFolderError, RunFolderMismatch
+from sf2_common.fileio import atomic_write
 
 from .folder import OBS_NOISE, StudyFolder
 from .spec import Run, Study, StudyError, loads, seeds_text
@@ -151,7 +152,7 @@ def merge(sources, into, runs_of: Callable[[Study], list[Run]], *, framework: st
             say(line)
         if outcome.created:
             dest.path.mkdir(parents=True, exist_ok=True)
-            _write_text(dest.study_path, opened[0][1].study_path.read_text(encoding="utf-8"))
+            atomic_write(dest.study_path, opened[0][1].study_path.read_text(encoding="utf-8"))
         for name, side in chosen.items():
             target = dest.run_path(expected[name].task, expected[name].rel)
             existed = target.exists() and any(target.iterdir())
@@ -386,15 +387,6 @@ def _copy(src: Path, dst: Path) -> None:
         os.fsync(g.fileno())
 
 
-def _write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
 # ------------------------------------------------------------------------------------------- study.json
 def _merge_state(dest: StudyFolder, sources: list[StudyFolder], study: Study, framework: str,
                  merged: list[Run]) -> int:
@@ -431,5 +423,5 @@ def _merge_state(dest: StudyFolder, sources: list[StudyFolder], study: Study, fr
         state["commands"] = sorted(commands, key=lambda c: str(c.get("time", "")))
     if state != old:
         dest.path.mkdir(parents=True, exist_ok=True)
-        _write_text(dest.path / StudyFolder.STATE, json.dumps(state, indent=2, ensure_ascii=False) + "\n")
+        atomic_write(dest.path / StudyFolder.STATE, json.dumps(state, indent=2, ensure_ascii=False) + "\n")
     return added

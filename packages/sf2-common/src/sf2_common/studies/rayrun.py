@@ -19,7 +19,8 @@ import os
 import shutil
 from pathlib import Path
 
-from .folder import LOG, StudyFolder, write_bytes
+from ..fileio import atomic_write
+from .folder import LOG, StudyFolder
 from .progress import Progress
 from .runner import LOCK, Backend, Job, Outcome, child_env, lock, run_commands
 from .spec import Study
@@ -82,7 +83,7 @@ def land(path: Path, result: dict) -> None:
     if result["rc"] == 0:
         shutil.rmtree(path / "checkpoints", ignore_errors=True)
     for name, data in result["files"].items():
-        write_bytes(path / name, data)
+        atomic_write(path / name, data)
 
 
 def run_ray(study: Study, folder: StudyFolder, jobs: list[Job], done: list[Job], *, backend: Backend,

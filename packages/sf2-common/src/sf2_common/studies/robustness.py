@@ -16,7 +16,8 @@ from pathlib import Path
 
 from sf2_common.errors import ConfigError
 
-from .folder import OBS_NOISE, _atomic_write
+from ..fileio import atomic_write
+from .folder import OBS_NOISE
 
 __all__ = ["check_obs_noise", "parse_noise", "evaluate_obs_noise", "save", "eval_command"]
 
@@ -69,7 +70,7 @@ def evaluate_obs_noise(evaluate_checkpoint: Callable, run, noises, checkpoints: 
 
 def save(run, result: dict) -> Path:
     path = Path(run) / OBS_NOISE
-    _atomic_write(path, json.dumps(result, indent=1) + "\n")
+    atomic_write(path, json.dumps(result, indent=1) + "\n")
     return path
 
 
