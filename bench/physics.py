@@ -53,11 +53,9 @@ def measure(task: str, num_envs: int, steps: int, repeats: int, log=print) -> di
     """Time `repeats` calls of the scan of `steps` vmapped env steps, after warm-up; one row of COLUMNS."""
     import jax
     from mujoco_playground import registry
+    from sf2_jax.agents.envs import strong_types as strong  # the carry's types cannot change
 
     env = registry.load(task, config_overrides={"impl": "jax"})
-
-    def strong(tree):  # every leaf strongly typed: the carry's types cannot change between calls
-        return jax.tree_util.tree_map(lambda x: x.astype(x.dtype), tree)
 
     @jax.jit
     def rollout(state, key):

@@ -28,7 +28,7 @@ from sf2_common.errors import ConfigError
 
 __all__ = [
     "PAPER_TASKS", "PAPER_BUDGETS", "PAPER_ACTION_REPEAT", "valid_tasks", "validate_task",
-    "paper_budget", "paper_action_repeat", "EnvSpec", "make_envs", "StrongTypes",
+    "paper_budget", "paper_action_repeat", "EnvSpec", "make_envs", "StrongTypes", "strong_types",
 ]
 
 
@@ -80,16 +80,18 @@ class StrongTypes:
         self.env = env
 
     def reset(self, rng):
-        return _strong(self.env.reset(rng))
+        return strong_types(self.env.reset(rng))
 
     def step(self, state, action):
-        return _strong(self.env.step(state, action))
+        return strong_types(self.env.step(state, action))
 
     def __getattr__(self, name):          # observation_size, action_size, unwrapped, ...
         return getattr(self.env, name)
 
 
-def _strong(tree):
+def strong_types(tree):
+    """`tree` with every leaf strongly typed, values unchanged (a weak leaf's program input type would
+    differ from the same leaf after `lax.scan` or `jit`, which compiles the program again)."""
     import jax
 
     return jax.tree_util.tree_map(lambda x: x.astype(x.dtype), tree)
