@@ -15,24 +15,10 @@ set -uo pipefail
 study=$1; limit=$2; shift 2
 name=$(basename "$study" .toml)
 folder=/tmp/study-$name
-if [ ! -f /tmp/site/.done ]; then
-  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site \
-    .whl-jax/*.whl || exit 1
-  touch /tmp/site/.done
-fi
-export PYTHONPATH=/tmp/site:$PWD/packages/sf2-common/src:$PWD/packages/sf2-core-jax/src:$PWD/packages/sf2-baselines/src
-# The baselines register their representations as entry points: on PYTHONPATH alone they would not be
-# found, so a dist-info folder carries sf2-baselines' entry points (from its pyproject.toml).
-python3 - <<'PY' || exit 1
-import pathlib, tomllib
-project = tomllib.load(open("packages/sf2-baselines/pyproject.toml", "rb"))["project"]
-info = pathlib.Path("/tmp/site/sf2_baselines-0+src.dist-info")
-info.mkdir(parents=True, exist_ok=True)
-(info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: sf2-baselines\nVersion: 0+src\n")
-(info / "entry_points.txt").write_text("".join(
-    f"[{group}]\n" + "".join(f"{k} = {v}\n" for k, v in eps.items()) + "\n"
-    for group, eps in project["entry-points"].items()))
-PY
+source scripts/gpu_env.sh || exit 1
+# A new host starts from the runs this repository already holds (results/<name>), so finished runs are
+# not run again; the merge of the archive back into results/<name> skips them as identical.
+if [ ! -d "$folder" ] && [ -d "results/$name/runs" ]; then cp -r "results/$name" "$folder"; fi
 nvidia-smi --query-gpu=name,memory.total --format=csv,noheader
 start=$(date +%s)
 timeout --signal=TERM "$limit" python3 -m sf2_jax.cli study run "$study" --out "$folder" --no-progress "$@"

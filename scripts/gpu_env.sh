@@ -1,0 +1,22 @@
+# Sourced by the scripts that run on the lent GPU host (scripts/gpu_study.sh, scripts/gpu_scaling.sh):
+# installs the carried wheels (.whl-jax, git-excluded: ../shared/device/wheels.sh without TorchRL, plus
+# pandas 2.3 and its pytz/tzdata/dateutil/six) once per host into /tmp/site and puts the packages' src/
+# folders on PYTHONPATH.
+if [ ! -f /tmp/site/.done ]; then
+  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site \
+    .whl-jax/*.whl || return 1
+  touch /tmp/site/.done
+fi
+export PYTHONPATH=/tmp/site:$PWD/packages/sf2-common/src:$PWD/packages/sf2-core-jax/src:$PWD/packages/sf2-baselines/src
+# The baselines register their representations as entry points: on PYTHONPATH alone they would not be
+# found, so a dist-info folder carries sf2-baselines' entry points (from its pyproject.toml).
+python3 - <<'PY' || return 1
+import pathlib, tomllib
+project = tomllib.load(open("packages/sf2-baselines/pyproject.toml", "rb"))["project"]
+info = pathlib.Path("/tmp/site/sf2_baselines-0+src.dist-info")
+info.mkdir(parents=True, exist_ok=True)
+(info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: sf2-baselines\nVersion: 0+src\n")
+(info / "entry_points.txt").write_text("".join(
+    f"[{group}]\n" + "".join(f"{k} = {v}\n" for k, v in eps.items()) + "\n"
+    for group, eps in project["entry-points"].items()))
+PY
