@@ -161,6 +161,22 @@ def test_conflicting_finished_run_is_refused_and_nothing_written(tmp_path, runs_
     assert "A/td3/seeds-0-1: DEST and " in msg and "epoch 0 seed 0: eval_return 0.0 vs 0.5" in msg
     assert "nothing was written" in msg
     assert folder_digest(dest) == before and not (dest / "runs/B").exists()   # B's run not merged either
+    # two hosts' runs differ in their timing fields on every row: the message names the first learned value
+    # that differs (epoch 1 seed 0 here), and says so when only the timing differs
+    timed = _source(tmp_path, "timed", runs_of, finished=["A/td3/seeds-0-1"], commands=["2026-01-03 10:00:00"])
+    metrics = timed / "runs/A/td3/seeds-0-1/metrics.jsonl"
+    rows = [json.loads(line) for line in metrics.read_text().splitlines()]
+    for r in rows:
+        r["walltime"] = r["eval_seconds"] = 100.0 + r["epoch"]
+    metrics.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    with pytest.raises(StudyError, match=r"equal learned values, only timing differs; first epoch 0 seed 0: "
+                                         r"eval_seconds None vs 100.0"):
+        _merge([timed], dest, runs_of)
+    rows[2]["eval_return"] = 7.0   # rows: (epoch 0, seeds 0 1), then (epoch 1, seed 0)
+    metrics.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    with pytest.raises(StudyError, match=r"epoch 1 seed 0: eval_return 1.0 vs 7.0"):
+        _merge([timed], dest, runs_of)
+    assert folder_digest(dest) == before
 
 
 def test_archive_source_as_gpu_study_writes_it(tmp_path, runs_of):

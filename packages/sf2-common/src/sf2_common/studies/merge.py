@@ -319,16 +319,30 @@ def _key_rows(rows: list[dict]) -> list[str]:
     return sorted(json.dumps(r, sort_keys=True) for r in rows)
 
 
+def _is_timing(field: str) -> bool:
+    """A metrics field that times the run (wall time, rates) rather than says what it learned."""
+    return field in ("walltime", "sps") or field.endswith("_seconds")
+
+
 def _difference(a: _Side, b: _Side) -> str:
+    """The first row where two finished runs' metrics differ, naming a learning value (return, loss) before
+    a timing field: two hosts' runs of one config differ in timing always, and on GPUs in their values
+    too (the compiled program's algorithm choices differ between hosts: results/fig7-td3/README.md)."""
     ra = {(r["epoch"], r["seed"]): r for r in a.rows}
     rb = {(r["epoch"], r["seed"]): r for r in b.rows}
-    for key in sorted(set(ra) | set(rb), key=str):
+    timing = None
+    for key in sorted(set(ra) | set(rb)):
         x, y = ra.get(key), rb.get(key)
-        if x != y:
-            if x is None or y is None:
-                return f"epoch {key[0]} seed {key[1]}: a row in one only"
-            field = next(k for k in sorted(set(x) | set(y)) if x.get(k) != y.get(k))
-            return f"epoch {key[0]} seed {key[1]}: {field} {x.get(field)!r} vs {y.get(field)!r}"
+        if x is None or y is None:
+            return f"epoch {key[0]} seed {key[1]}: a row in one only"
+        fields = [k for k in sorted(set(x) | set(y)) if x.get(k) != y.get(k)]
+        learned = [k for k in fields if not _is_timing(k)]
+        if learned:
+            return f"epoch {key[0]} seed {key[1]}: {learned[0]} {x.get(learned[0])!r} vs {y.get(learned[0])!r}"
+        if fields and timing is None:
+            timing = f"epoch {key[0]} seed {key[1]}: {fields[0]} {x.get(fields[0])!r} vs {y.get(fields[0])!r}"
+    if timing is not None:
+        return f"equal learned values, only timing differs; first {timing}"
     return "their obs_noise.json results differ"
 
 
