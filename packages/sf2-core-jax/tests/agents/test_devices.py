@@ -1,7 +1,9 @@
-"""Seeds spread over several local devices (`Program.mesh`, a `shard_map` over the "seed" axis).
+"""Seeds spread over several local devices (`Program.mesh`, a `shard_map` over the "seed" axis; opt-in with
+`SF2_SHARD_SEEDS=1`).
 
 A subprocess with two host CPU devices (`--xla_force_host_platform_device_count=2`; XLA reads the flag
 once, before the backend starts) trains seeds (0, 1), one per device, for three epochs; the test checks that
+- without `SF2_SHARD_SEEDS=1` two devices give no mesh (the run stays on one device),
 - every array of the final state is split over both devices (one seed each),
 - the compiled epoch program holds no cross-device collective (nothing crosses devices inside an epoch),
 - each seed's epoch metrics and parameters equal that seed trained alone on one device (here, in this
@@ -26,7 +28,7 @@ pytest.importorskip("mujoco_playground", reason="the trainer needs the [train] e
 EPOCHS = (1, 2, 3)
 
 SCRIPT = textwrap.dedent('''
-    import json, re, sys, tempfile
+    import json, os, re, sys, tempfile
     import jax, jax.numpy as jnp, numpy as np
     jax.config.update("jax_compilation_cache_dir", tempfile.mkdtemp())   # the HLO check's compile: a hit
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
@@ -35,6 +37,10 @@ SCRIPT = textwrap.dedent('''
 
     program = get_program(TrainConfig.from_dict(json.loads(sys.argv[1])))
     assert len(jax.local_devices()) == 2, jax.local_devices()
+    os.environ.pop("SF2_SHARD_SEEDS")
+    assert program.mesh(2) is None          # opt-in only
+    os.environ["SF2_SHARD_SEEDS"] = "1"
+    assert program.mesh(2) is not None and program.mesh(3) is None   # 3 seeds do not divide over 2
     state, arrays = program.init((0, 1)), {}
     for epoch in EPOCHS:
         state, m, _ = program.epoch(state, epoch)
@@ -68,7 +74,7 @@ def test_seeds_spread_over_two_devices_without_collectives(tiny_cfg, tmp_path):
 
     assert len(jax.local_devices()) == 1, jax.local_devices()
     env = {**os.environ, "XLA_FLAGS": os.environ.get("XLA_FLAGS", "") +
-           " --xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
+           " --xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu", "SF2_SHARD_SEEDS": "1"}
     proc = subprocess.run([sys.executable, "-c", SCRIPT, tiny_cfg.to_json(), str(tmp_path / "both.npz")],
                           env=env, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stderr[-4000:]

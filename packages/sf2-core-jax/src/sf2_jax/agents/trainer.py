@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import os
 import warnings
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -82,6 +83,9 @@ def eval_keys(seeds, epoch: int) -> jax.Array:
                       for s in seeds])
 
 
+SHARD_SEEDS = "SF2_SHARD_SEEDS"   # "1": spread a run's seeds over the local devices (Program.mesh)
+
+
 class Program:
     """The compiled pieces of one config (see the module docstring). Build with `get_program(cfg)`."""
 
@@ -117,10 +121,15 @@ class Program:
 
     @staticmethod
     def mesh(n_seeds: int) -> jax.sharding.Mesh | None:
-        """The local devices as a one-axis mesh ("seed") when there are several and they divide `n_seeds`
-        evenly, else None (everything on the default device)."""
+        """The local devices as a one-axis mesh ("seed") when `SF2_SHARD_SEEDS=1` is set, there are several
+        devices and they divide `n_seeds` evenly; else None (everything on the default device).
+
+        Opt-in: on a host with two H200s the sharded program's process died without a message before its
+        first epoch (2026-11-23, bench/results/h200x2/15-two-gpus), while two processes with one GPU each
+        reached 2.00x the rate of one. Several GPUs are used by whole runs, one per GPU
+        (`study run`); the sharded program is tested on two CPU devices (tests/agents/test_devices.py)."""
         devices = jax.local_devices()
-        if len(devices) < 2 or n_seeds % len(devices):
+        if os.environ.get(SHARD_SEEDS) != "1" or len(devices) < 2 or n_seeds % len(devices):
             return None
         return jax.sharding.Mesh(np.array(devices), ("seed",))
 
@@ -327,6 +336,11 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
                           "schedule": dataclasses.asdict(sched), "label": _label(cfg),
                           "versions": _versions()})
     program = get_program(cfg)
+    devices = jax.local_devices()
+    if len(devices) > 1 and program.mesh(len(seeds)) is None:
+        run.say(f"note: this host has {len(devices)} {devices[0].platform.upper()} devices and this run "
+                f"uses one; run one run per device with `study run` (README, Studies), or set "
+                f"{SHARD_SEEDS}=1 to spread the seeds over them (experimental: Program.mesh)")
     ckpt = Checkpointer(run.checkpoint_dir, keep=cfg.keep_checkpoints)
     title = hostloop.run_title(_label(cfg), cfg.task, seeds)
     try:
