@@ -163,7 +163,8 @@ def test_conflicting_finished_run_is_refused_and_nothing_written(tmp_path, runs_
     assert folder_digest(dest) == before and not (dest / "runs/B").exists()   # B's run not merged either
     # two hosts' runs differ in their timing fields on every row: the message names the first learned value
     # that differs (epoch 1 seed 0 here), and says so when only the timing differs
-    timed = _source(tmp_path, "timed", runs_of, finished=["A/td3/seeds-0-1"], commands=["2026-01-03 10:00:00"])
+    timed = _source(tmp_path, "timed", runs_of, finished=["A/td3/seeds-0-1"],
+                    commands=["2026-01-03 10:00:00"])
     metrics = timed / "runs/A/td3/seeds-0-1/metrics.jsonl"
     rows = [json.loads(line) for line in metrics.read_text().splitlines()]
     for r in rows:

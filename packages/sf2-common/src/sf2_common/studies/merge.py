@@ -39,6 +39,7 @@ import zlib
 from collections.abc import Callable
 from pathlib import Path, PurePosixPath
 
+from sf2_common.agents.hostloop import WALL_FIELDS
 from sf2_common.agents.runfolder import RunFolder, RunFolderError, RunFolderMismatch
 from sf2_common.fileio import atomic_write
 
@@ -319,11 +320,6 @@ def _key_rows(rows: list[dict]) -> list[str]:
     return sorted(json.dumps(r, sort_keys=True) for r in rows)
 
 
-def _is_timing(field: str) -> bool:
-    """A metrics field that times the run (wall time, rates) rather than says what it learned."""
-    return field in ("walltime", "sps") or field.endswith("_seconds")
-
-
 def _difference(a: _Side, b: _Side) -> str:
     """The first row where two finished runs' metrics differ, naming a learning value (return, loss) before
     a timing field: two hosts' runs of one config differ in timing always, and on GPUs in their values
@@ -336,11 +332,12 @@ def _difference(a: _Side, b: _Side) -> str:
         if x is None or y is None:
             return f"epoch {key[0]} seed {key[1]}: a row in one only"
         fields = [k for k in sorted(set(x) | set(y)) if x.get(k) != y.get(k)]
-        learned = [k for k in fields if not _is_timing(k)]
+        learned = [k for k in fields if k not in WALL_FIELDS]
+        where = f"epoch {key[0]} seed {key[1]}"
         if learned:
-            return f"epoch {key[0]} seed {key[1]}: {learned[0]} {x.get(learned[0])!r} vs {y.get(learned[0])!r}"
+            return f"{where}: {learned[0]} {x.get(learned[0])!r} vs {y.get(learned[0])!r}"
         if fields and timing is None:
-            timing = f"epoch {key[0]} seed {key[1]}: {fields[0]} {x.get(fields[0])!r} vs {y.get(fields[0])!r}"
+            timing = f"{where}: {fields[0]} {x.get(fields[0])!r} vs {y.get(fields[0])!r}"
     if timing is not None:
         return f"equal learned values, only timing differs; first {timing}"
     return "their obs_noise.json results differ"
