@@ -1,6 +1,7 @@
 """A study folder: the study file it was made from, its state, and one run folder per training program.
 
-    DIR/study.toml              a copy of the study file (a different file → `StudyError`, nothing written)
+    DIR/study.toml              a copy of the study file (a different file → `StudyError`, nothing written;
+                                one that differs only in description, report or claims replaces it)
     DIR/study.json              name, framework, id, the run folder of every (task, method) and seed
                                 group, the commands
     DIR/runs/<task>/<method>/   a run folder of the framework's trainer (sf2_common.agents.runfolder):
@@ -75,8 +76,9 @@ class StudyFolder:
                                  f"an empty or new folder")
             return
         old = self.load_study()
-        if old.data != study.data:
-            keys = sorted(k for k in set(old.data) | set(study.data) if old.data.get(k) != study.data.get(k))
+        if old.runs_data() != study.runs_data():
+            mine, theirs = old.runs_data(), study.runs_data()
+            keys = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
             raise StudyError(
                 f"study folder {self.path} was made from another study file: its copy {self.study_path} "
                 f"(study {old.name!r}) and {study.path} (study {study.name!r}) differ in {', '.join(keys)}. "
@@ -91,7 +93,9 @@ class StudyFolder:
         folder of every method, the command appended). Returns the state."""
         self.check(study, framework)
         self.path.mkdir(parents=True, exist_ok=True)
-        if not self.study_path.exists():
+        if not self.study_path.exists() or self.load_study().data != study.data:
+            # new, or a file that differs from the copy only in what no run depends on (spec.RUN_NEUTRAL:
+            # description, report, claims): the copy follows the file
             atomic_write(self.study_path, study.text)
         state = self.read_state()
         state.setdefault("id", uuid.uuid4().hex)

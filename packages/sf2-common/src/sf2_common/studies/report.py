@@ -12,7 +12,8 @@ final evaluation return, the mean return over the final `final_window` env steps
 and method: median, IQM, mean and optimality gap of the normalized AUCs with 95% stratified-bootstrap
 intervals (`stats.aggregate_intervals`), every method of the family on the same tasks and seeds: those
 on which all of them have finished seeds (`aggregate_table`); summary.md says which, so an interim study
-shows an interim aggregate, named as such. Unfinished runs are listed compactly (`_md_incomplete`).
+shows an interim aggregate, named as such. The study file's `[[claims]]` get a verdict each (claims.py;
+summary.md and claims.csv). Unfinished runs are listed compactly (`_md_incomplete`).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import numpy as np
 from sf2_common.agents.plotting import curves
 from sf2_common.agents.runfolder import RunFolder
 
-from . import stats
+from . import claims, stats
 from .folder import OBS_NOISE, StudyFolder
 from .spec import Method, Study, seeds_text
 
@@ -373,6 +374,13 @@ def report(path, out=None, command: str | None = None) -> dict[str, Path]:
         if table:
             written.update(figures.aggregate(table, out / "aggregate", study, covers))
             md += ["![aggregate](aggregate.png)", ""]
+    if study.claims:
+        md += claims.markdown(study, rows)
+        with open(out / "claims.csv", "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=claims.CSV_FIELDS)
+            w.writeheader()
+            w.writerows(claims.csv_rows(study, rows))
+        written["claims.csv"] = out / "claims.csv"
     md += ["## Per task", ""] + _md_per_task(study, data, rows) + [""]
     if "curves" in figs and finished:
         written.update(figures.learning_curves(study, finished, out / "curves"))

@@ -28,7 +28,7 @@ import numpy as np
 __all__ = [
     "MIN_SEEDS", "RESAMPLES", "CONFIDENCE", "SEED", "METRICS", "auc", "final_window_mean",
     "normalize_by_task", "aggregate", "aggregate_intervals", "mean_interval", "iqm_interval",
-    "informative", "require_rliable",
+    "informative", "require_rliable", "STATISTICS", "difference_interval", "probability_of_improvement",
 ]
 
 MIN_SEEDS = 3          # fewer seeds (per task): no interval (module docstring)
@@ -36,6 +36,7 @@ RESAMPLES = 5000       # paper §4.2: "95th percentiles confidence intervals com
 CONFIDENCE = 0.95
 SEED = 0
 METRICS = ("Median", "IQM", "Mean", "Optimality Gap")
+STATISTICS = {"IQM": "aggregate_iqm", "Median": "aggregate_median", "Mean": "aggregate_mean"}  # of a claim
 STUDIES_EXTRA = 'pip install "packages/sf2-common[studies]"'
 
 
@@ -176,3 +177,33 @@ def iqm_interval(values, resamples: int = RESAMPLES, seed: int = SEED):
     """Like `mean_interval` for the interquartile mean over seeds (rliable's aggregate_iqm: the 25%
     trimmed mean)."""
     return _per_column(values, "iqm", resamples, seed)
+
+
+# ------------------------------------------------------------------------------------------- two methods
+def difference_interval(x, y, statistic: str = "IQM", resamples: int = RESAMPLES, seed: int = SEED):
+    """Normalized scores x (n_x, n_tasks) and y (n_y, n_tasks) of two methods on the same tasks → (point,
+    lower, upper) of statistic(x) − statistic(y) (`STATISTICS`: rliable's aggregate IQM, median or mean)
+    with its 95% percentile bootstrap interval: rliable's `get_interval_estimates` on the pair, i.e. its
+    `StratifiedIndependentBootstrap` (each method's seeds resampled independently within each task).
+    lower = upper = None when either method has fewer than `MIN_SEEDS` seeds."""
+    library, metrics = require_rliable()
+    agg = getattr(metrics, STATISTICS[statistic])
+
+    def fn(a, b):
+        return np.array([agg(a) - agg(b)])
+
+    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    point = float(fn(x, y)[0])
+    if not (informative(x.shape[0]) and informative(y.shape[0])):
+        return point, None, None
+    with _global_seed(seed):
+        _, i = library.get_interval_estimates({"d": (x, y)}, fn, reps=resamples,
+                                              confidence_interval_size=CONFIDENCE)
+    return point, float(i["d"][0][0]), float(i["d"][1][0])
+
+
+def probability_of_improvement(x, y) -> float:
+    """rliable's average probability of improvement P(X > Y) of scores x over y (n_runs, n_tasks): per task
+    the Mann–Whitney U statistic / (n_x · n_y), averaged over tasks (Agarwal et al., 2021)."""
+    _, metrics = require_rliable()
+    return float(metrics.probability_of_improvement(np.asarray(x, dtype=float), np.asarray(y, dtype=float)))

@@ -1,0 +1,230 @@
+"""The paper's claims checked against a study's runs: a study file's `[[claims]]` entries (parsed here into
+`Study.claims`) and their verdicts in `study report` (summary.md "The paper's claims", claims.csv).
+
+    [[claims]]
+    text = "App. C.2.1, Fig. 7: at 1M env steps SF² surpasses vanilla and SF-based baselines"
+    method = "td3-sf2"                  # a method's name or label
+    above = ["td3-none", "td3-sim"]     # the methods it is claimed to beat
+    tasks = "all"                       # or a list of the study's tasks (default "all")
+    statistic = "IQM"                   # of the normalized AUC: IQM (default), Median or Mean
+    per_task = false                    # true: a verdict on each task alone (paper Fig. 8)
+
+Each comparison (`method` against one of `above`, on the claim's tasks, or on one task with `per_task`)
+uses the seeds both methods finished on every task of the comparison: the difference statistic(method) −
+statistic(other) of the normalized AUC with its 95% bootstrap interval (`stats.difference_interval`:
+rliable, each method's seeds resampled independently within each task), and rliable's probability of
+improvement P(method > other). Its verdict:
+
+    supported       the interval lies above 0
+    contradicted    the interval lies below 0
+    not resolved    the interval holds 0
+    cannot decide   a task of the comparison has no finished seeds of one of the two methods (the numbers
+                    shown are then over the tasks that have them: interim), or fewer than `MIN_SEEDS`
+                    common seeds (no interval)
+
+A claim is contradicted when a comparison is, else cannot be decided when a comparison cannot be, else
+supported when every comparison is, else not resolved. A 95% bootstrap interval of 5 seeds covers the true
+difference less often than 95% (stats.py); summary.md says so beside the table.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from . import stats
+from .spec import StudyError, seeds_text
+
+__all__ = ["Claim", "Comparison", "parse", "evaluate", "markdown", "csv_rows", "VERDICTS", "CSV_FIELDS"]
+
+VERDICTS = ("supported", "contradicted", "not resolved", "cannot decide")
+CSV_FIELDS = ("claim", "scope", "method", "other", "statistic", "tasks", "missing_tasks", "seeds",
+              "difference", "lower", "upper", "p_improvement", "verdict")
+_KEYS = ("text", "method", "above", "tasks", "statistic", "per_task")
+
+
+@dataclasses.dataclass(frozen=True)
+class Claim:
+    text: str
+    method: str                  # method name (folder name)
+    above: tuple[str, ...]       # method names
+    tasks: tuple[str, ...]
+    statistic: str               # a key of stats.STATISTICS
+    per_task: bool
+
+
+@dataclasses.dataclass(frozen=True)
+class Comparison:
+    scope: str                   # "all 7 tasks" or the task of a per-task claim
+    method: str                  # labels
+    other: str
+    tasks: tuple[str, ...]       # the tasks the numbers are over
+    missing: tuple[str, ...]     # the comparison's tasks without finished seeds of both methods
+    seeds: tuple[int, ...]
+    difference: float | None
+    lower: float | None
+    upper: float | None
+    p_improvement: float | None
+    verdict: str
+
+
+# ------------------------------------------------------------------------------------------- parsing
+def parse(entries, where: str, methods, tasks) -> tuple[Claim, ...]:
+    """The study file's `claims` (a list of tables) → `Claim`s; `StudyError` naming the entry and the
+    valid choices for anything else. `methods`: the study's `Method`s; `tasks`: its tasks."""
+    if entries is None:
+        return ()
+    if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
+        raise StudyError(f"{where}: claims: write each claim as a [[claims]] table")
+    names = {}
+    for m in methods:
+        names[m.name] = names[m.label] = m.name
+    valid = ", ".join(m.name for m in methods)
+    out = []
+    for i, e in enumerate(entries):
+        entry = f"claims[{i}]"
+
+        def fail(problem: str, entry=entry):
+            raise StudyError(f"{where}: {entry}: {problem}")
+
+        unknown = sorted(set(e) - set(_KEYS))
+        if unknown:
+            fail(f"unknown key(s) {', '.join(unknown)}; valid: {', '.join(_KEYS)}")
+        text = e.get("text")
+        if not isinstance(text, str) or not text.strip():
+            fail("text: the claim in words, with where the paper makes it, is required")
+        method = e.get("method")
+        if method not in names:
+            fail(f"method = {method!r} is not a method of the study; valid: {valid}")
+        above = e.get("above")
+        if isinstance(above, str):
+            above = [above]
+        if not isinstance(above, list) or not above:
+            fail("above: the methods the claim says it beats, e.g. above = [\"td3-none\"]")
+        for a in above:
+            if a not in names:
+                fail(f"above names {a!r}, not a method of the study; valid: {valid}")
+            if names[a] == names[method]:
+                fail(f"above names the claim's own method {a!r}")
+        claim_tasks = e.get("tasks", "all")
+        if claim_tasks == "all":
+            claim_tasks = list(tasks)
+        if (not isinstance(claim_tasks, list) or not claim_tasks
+                or any(t not in tasks for t in claim_tasks)):
+            fail(f"tasks = {claim_tasks!r} is invalid: \"all\" or a list of the study's tasks "
+                 f"({', '.join(tasks)})")
+        statistic = e.get("statistic", "IQM")
+        if statistic not in stats.STATISTICS:
+            fail(f"statistic = {statistic!r} is not one of {', '.join(stats.STATISTICS)}")
+        per_task = e.get("per_task", False)
+        if not isinstance(per_task, bool):
+            fail(f"per_task = {per_task!r} is invalid: true or false")
+        out.append(Claim(text.strip(), names[method], tuple(dict.fromkeys(names[a] for a in above)),
+                         tuple(t for t in tasks if t in claim_tasks), statistic, per_task))
+    return tuple(out)
+
+
+# ------------------------------------------------------------------------------------------- verdicts
+def _compare(scope: str, method: str, other: str, tasks, rows, statistic: str) -> Comparison:
+    def scores(label):
+        return {t: {r["seed"]: r["normalized_auc"] for r in rows if r["method"] == label and r["task"] == t}
+                for t in tasks}
+
+    mine, theirs = scores(method), scores(other)
+    have = [t for t in tasks if mine[t] and theirs[t]]
+    missing = tuple(t for t in tasks if t not in have)
+    sets = [set(mine[t]) & set(theirs[t]) for t in have]
+    seeds = tuple(sorted(set.intersection(*sets))) if sets else ()
+    if not seeds:
+        return Comparison(scope, method, other, tuple(have), missing, (), None, None, None, None,
+                          "cannot decide")
+    x = [[mine[t][s] for t in have] for s in seeds]
+    y = [[theirs[t][s] for t in have] for s in seeds]
+    point, lo, hi = stats.difference_interval(x, y, statistic)
+    p = stats.probability_of_improvement(x, y)
+    if missing or lo is None:
+        verdict = "cannot decide"
+    elif lo > 0:
+        verdict = "supported"
+    elif hi < 0:
+        verdict = "contradicted"
+    else:
+        verdict = "not resolved"
+    return Comparison(scope, method, other, tuple(have), missing, seeds, point, lo, hi, p, verdict)
+
+
+def overall(comparisons) -> str:
+    """A claim's verdict from its comparisons' (module docstring)."""
+    verdicts = [c.verdict for c in comparisons]
+    for v in ("contradicted", "cannot decide"):
+        if v in verdicts:
+            return v
+    return "supported" if all(v == "supported" for v in verdicts) else "not resolved"
+
+
+def evaluate(claim: Claim, study, rows: list[dict]) -> tuple[str, list[Comparison]]:
+    """(verdict, comparisons) of one claim on the report's rows (report.results_rows: task, method label,
+    seed, normalized_auc)."""
+    label = {m.name: m.label for m in study.methods}
+    n = len(study.tasks)
+    scopes = ([(t, (t,)) for t in claim.tasks] if claim.per_task else
+              [(f"all {n} tasks" if len(claim.tasks) == n else f"{len(claim.tasks)} tasks", claim.tasks)])
+    comparisons = [_compare(scope, label[claim.method], label[other], tasks, rows, claim.statistic)
+                   for scope, tasks in scopes for other in claim.above]
+    return overall(comparisons), comparisons
+
+
+# ------------------------------------------------------------------------------------------- output
+def _num(x) -> str:
+    return "—" if x is None else f"{x:+.3f}"
+
+
+def markdown(study, rows: list[dict]) -> list[str]:
+    """summary.md's section: per claim its verdict and a table of its comparisons."""
+    lines = ["## The paper's claims (the study file's [[claims]])", "",
+             "Each comparison: the difference of the statistic of the normalized AUC (claimed method − "
+             "other) over the seeds both finished on every task, its 95% bootstrap interval (rliable, "
+             f"{stats.RESAMPLES} resamples, each method's seeds resampled within each task), and rliable's "
+             "probability of improvement P(claimed > other). **supported**: the interval lies above 0; "
+             "**contradicted**: below 0; **not resolved**: it holds 0; **cannot decide**: a task lacks "
+             f"finished seeds of one of the two (numbers then over the tasks that have them), or fewer than "
+             f"{stats.MIN_SEEDS} seeds. With 5 seeds a nominal 95% interval covers the truth only about 84% "
+             "of the time (sf2_common/studies/stats.py).", ""]
+    for i, claim in enumerate(study.claims, 1):
+        verdict, comps = evaluate(claim, study, rows)
+        counts = ", ".join(f"{v} {n}" for v in VERDICTS if (n := sum(c.verdict == v for c in comps)))
+        plural = "s" * (len(comps) > 1)
+        lines += [f"**Claim {i}** — {claim.text}", "",
+                  f"Verdict: **{verdict}** ({counts} of {len(comps)} comparison{plural}).", ""]
+        shown = [c for c in comps if c.seeds]
+        if shown:
+            lines += [f"| scope | comparison | tasks with both | seeds | Δ {claim.statistic} [95% CI] | "
+                      f"P(claimed > other) | verdict |", "|---|---|---|---|---|---|---|"]
+        for c in shown:
+            tasks = f"{len(c.tasks)} of {len(c.tasks) + len(c.missing)} ({', '.join(c.tasks)})" if c.missing \
+                else "all"
+            ci = "" if c.lower is None else f" [{_num(c.lower)}, {_num(c.upper)}]"
+            p = "—" if c.p_improvement is None else f"{c.p_improvement:.2f}"
+            lines.append(f"| {c.scope} | {c.method} − {c.other} | {tasks} | {seeds_text(c.seeds)} | "
+                         f"{_num(c.difference)}{ci} | {p} | {c.verdict} |")
+        empty = [c for c in comps if not c.seeds]
+        if empty:
+            whole = [s for s in dict.fromkeys(c.scope for c in comps)
+                     if all(not c.seeds for c in comps if c.scope == s)]
+            some = [f"{c.scope}: {c.method} − {c.other}" for c in empty if c.scope not in whole]
+            lines += ["", "No seeds finished by both methods yet (cannot decide): "
+                      + "; ".join(whole + some) + "."]
+        lines.append("")
+    return lines
+
+
+def csv_rows(study, rows: list[dict]) -> list[dict]:
+    """One row per comparison of every claim (`CSV_FIELDS`)."""
+    out = []
+    for i, claim in enumerate(study.claims, 1):
+        for c in evaluate(claim, study, rows)[1]:
+            out.append({"claim": i, "scope": c.scope, "method": c.method, "other": c.other,
+                        "statistic": claim.statistic, "tasks": ";".join(c.tasks),
+                        "missing_tasks": ";".join(c.missing), "seeds": seeds_text(c.seeds) if c.seeds else "",
+                        "difference": c.difference, "lower": c.lower, "upper": c.upper,
+                        "p_improvement": c.p_improvement, "verdict": c.verdict})
+    return out

@@ -1,0 +1,175 @@
+"""A study file's `[[claims]]` (sf2_common.studies.claims): parsed with errors that name the valid choices,
+checked with verdicts on scores whose outcome is derived by hand, the difference interval and probability
+of improvement against rliable's own functions, and a study folder that takes claims added later."""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rliable", reason="the studies extra: pip install packages/sf2-common[studies]")
+
+from rliable import library, metrics  # noqa: E402
+from sf2_common.studies import claims, stats  # noqa: E402
+from sf2_common.studies.folder import StudyFolder  # noqa: E402
+from sf2_common.studies.spec import StudyError, loads  # noqa: E402
+
+STUDY = """
+name = "claimed"
+seeds = "0-4"
+tasks = ["T1", "T2"]
+[[methods]]
+label = "TD3"
+name = "td3"
+algo = "td3"
+representation = "none"
+[[methods]]
+label = "TD3+SF²"
+name = "td3-sf2"
+algo = "td3"
+representation = "sf2"
+"""
+CLAIM = """
+[[claims]]
+text = "SF² above TD3"
+method = "TD3+SF²"
+above = ["td3"]
+"""
+
+
+def _rows(scores: dict) -> list[dict]:
+    """{(task, method label): {seed: normalized AUC}} → report rows."""
+    return [{"task": t, "method": m, "seed": s, "normalized_auc": v}
+            for (t, m), by in scores.items() for s, v in by.items()]
+
+
+def test_claims_parse_and_bad_entries_name_the_choices(tmp_path):
+    second = CLAIM.replace('above = ["td3"]',
+                           'above = "TD3"\nper_task = true\nstatistic = "Mean"\ntasks = ["T2"]')
+    study = loads(STUDY + CLAIM + second, tmp_path / "s.toml")
+    one, two = study.claims
+    assert (one.method, one.above, one.tasks, one.statistic, one.per_task) == (
+        "td3-sf2", ("td3",), ("T1", "T2"), "IQM", False)            # label → name, tasks "all", defaults
+    assert (two.above, two.tasks, two.statistic, two.per_task) == (("td3",), ("T2",), "Mean", True)
+    bad = {
+        'method = "TD3+SF²"': ('method = "sac"', "method = 'sac' is not a method of the study; valid: td3, "
+                                                  "td3-sf2"),
+        'above = ["td3"]': ('above = ["td3-sf2"]', "above names the claim's own method 'td3-sf2'"),
+        'text = "SF² above TD3"': ('text = ""', "text: the claim in words"),
+    }
+    for old, (new, message) in bad.items():
+        with pytest.raises(StudyError, match=message.replace("(", r"\(").replace(")", r"\)")):
+            loads(STUDY + CLAIM.replace(old, new), tmp_path / "s.toml")
+    for extra, message in (('statistic = "Max"', "statistic = 'Max' is not one of IQM, Median, Mean"),
+                           ('tasks = ["T3"]',
+                            r"tasks = \['T3'\] is invalid: \"all\" or a list of the study's "
+                            r"tasks \(T1, T2\)"),
+                           ("per_task = 1", "per_task = 1 is invalid: true or false"),
+                           ("against = 1", "unknown key\\(s\\) against; valid: text, method, above")):
+        with pytest.raises(StudyError, match=r"claims\[0\]: " + message):
+            loads(STUDY + CLAIM + extra + "\n", tmp_path / "s.toml")
+
+
+def test_difference_interval_and_probability_are_rliables():
+    """SF²'s scores are TD3's plus 0.5 on every seed and task: the IQM difference is 0.5 exactly, the
+    bootstrap interval is rliable's own on the pair under the same seed, and P(SF² > TD3) = 1 (every
+    SF² score above every TD3 score: U = n_x · n_y)."""
+    rng = np.random.default_rng(1)
+    td3 = rng.random((5, 2)) * 0.4
+    sf2 = td3 + 0.5
+    point, lo, hi = stats.difference_interval(sf2, td3, "IQM", resamples=800)
+    assert point == pytest.approx(0.5)
+
+    def fn(a, b):
+        return np.array([metrics.aggregate_iqm(a) - metrics.aggregate_iqm(b)])
+
+    state = np.random.get_state()
+    np.random.seed(stats.SEED)
+    _, want = library.get_interval_estimates({"d": (sf2, td3)}, fn, reps=800)
+    np.random.set_state(state)
+    assert (lo, hi) == (float(want["d"][0][0]), float(want["d"][1][0]))
+    assert lo < 0.5 < hi
+    assert stats.probability_of_improvement(sf2, td3) == 1.0
+    assert stats.probability_of_improvement(td3, td3) == 0.5      # rliable: equal columns count 1/2
+    # fewer than MIN_SEEDS seeds: the point, no interval
+    assert stats.difference_interval(sf2[:2], td3[:2])[1:] == (None, None)
+
+
+def test_verdicts_from_scores_derived_by_hand(tmp_path):
+    study = loads(STUDY + CLAIM, tmp_path / "s.toml")
+    claim = study.claims[0]
+    seeds = range(5)
+
+    def verdict(sf2, td3, tasks=("T1", "T2")):
+        scores = {}
+        for t in tasks:
+            scores[(t, "TD3+SF²")] = {s: sf2(s) for s in seeds}
+            scores[(t, "TD3")] = {s: td3(s) for s in seeds}
+        return claims.evaluate(claim, study, _rows(scores))
+
+    # SF² 0.8–0.84 against TD3 0.1–0.14 on both tasks: any resample's IQM difference is in [0.66, 0.74]
+    v, (c,) = verdict(lambda s: 0.8 + 0.01 * s, lambda s: 0.1 + 0.01 * s)
+    assert v == "supported" and c.verdict == "supported" and c.difference == pytest.approx(0.7)
+    assert 0.66 <= c.lower <= c.upper <= 0.74 and c.p_improvement == 1.0
+    assert (c.tasks, c.missing, c.seeds, c.scope) == (("T1", "T2"), (), (0, 1, 2, 3, 4), "all 2 tasks")
+    v, (c,) = verdict(lambda s: 0.1 + 0.01 * s, lambda s: 0.8 + 0.01 * s)
+    assert v == "contradicted" and c.upper < 0
+    # the same scores: difference 0, an interval around it
+    v, (c,) = verdict(lambda s: 0.1 * s, lambda s: 0.1 * s)
+    assert v == "not resolved" and c.difference == 0.0 and c.lower < 0 < c.upper
+    # TD3 missing on T2: numbers over T1 only, and no verdict on the two-task claim
+    v, (c,) = verdict(lambda s: 0.8, lambda s: 0.1, tasks=("T1",))
+    assert v == "cannot decide" and (c.tasks, c.missing) == (("T1",), ("T2",))
+    assert c.difference == pytest.approx(0.7) and c.lower is not None
+    # two seeds: no interval, cannot decide
+    seeds = range(2)
+    v, (c,) = verdict(lambda s: 0.8, lambda s: 0.1)
+    assert v == "cannot decide" and c.lower is None and c.difference == pytest.approx(0.7)
+    # a claim's verdict from its comparisons'
+    def comps(*verdicts):
+        return [claims.Comparison("s", "a", "b", (), (), (), None, None, None, None, v) for v in verdicts]
+
+    assert claims.overall(comps("supported", "supported")) == "supported"
+    assert claims.overall(comps("supported", "not resolved")) == "not resolved"
+    assert claims.overall(comps("supported", "cannot decide", "not resolved")) == "cannot decide"
+    assert claims.overall(comps("cannot decide", "contradicted")) == "contradicted"
+
+
+def test_report_and_a_study_folder_that_takes_claims_later(tmp_path):
+    """A folder made from the study file without claims accepts the file with claims added (no run depends
+    on them) and its copy follows the file; the report then writes the claims' section and claims.csv. A
+    file that changes a run (its seeds) is still refused, the copy unchanged."""
+    import json
+
+    from sf2_common.studies.report import report
+
+    folder = StudyFolder(tmp_path / "study")
+    folder.open(loads(STUDY, tmp_path / "s.toml"), "jax", [])
+    with_claims = loads(STUDY.replace('name = "claimed"', 'name = "claimed"\ndescription = "now with words"')
+                        + CLAIM, tmp_path / "s.toml")
+    folder.open(with_claims, "jax", [])
+    assert folder.load_study().claims == with_claims.claims
+    with pytest.raises(StudyError, match="differ in seeds"):
+        folder.open(loads(STUDY.replace('"0-4"', '"0-5"') + CLAIM, tmp_path / "s.toml"), "jax", [])
+    assert folder.load_study().claims == with_claims.claims
+    # runs: curves [0, v, v] at env steps 0, 100, 200 (AUC 3v/4); TD3 v = s, SF² v = 10 + s on both tasks
+    for task in ("T1", "T2"):
+        for name, base in (("td3", 0.0), ("td3-sf2", 10.0)):
+            path = folder.run_path(task, name)
+            path.mkdir(parents=True)
+            (path / "config.json").write_text(json.dumps({"config": {}, "seeds": list(range(5)),
+                                                          "schedule": {"num_epochs": 2}}))
+            rows = [{"epoch": e, "seed": s, "env_steps": 100 * e, "eval_return": 0.0 if e == 0 else base + s}
+                    for e in range(3) for s in range(5)]
+            (path / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    written = report(folder.path)
+    summary = written["summary.md"].read_text()
+    # normalized AUC: (base + s) / 14 on both tasks, so SF² − TD3 is 10/14 on every seed
+    assert "**Claim 1** — SF² above TD3" in summary
+    assert "Verdict: **supported** (supported 1 of 1 comparison)." in summary
+    line = next(x for x in summary.splitlines() if x.startswith("| all 2 tasks | TD3+SF² − TD3 |"))
+    assert f"| all | 0-4 | {10 / 14:+.3f} [" in line and line.endswith("| 1.00 | supported |")
+    (row,) = list(csv.DictReader(open(written["claims.csv"])))
+    assert row["verdict"] == "supported" and float(row["difference"]) == pytest.approx(10 / 14)
