@@ -93,3 +93,21 @@ def test_seeds_spread_over_two_devices_without_collectives(tiny_cfg, tmp_path):
                 np.testing.assert_allclose(x, y[0], rtol=1e-4, atol=1e-6, err_msg=k)
             else:
                 np.testing.assert_allclose(x, y[0], rtol=1e-4, atol=1e-5, err_msg=k)
+
+
+def test_a_run_stays_on_one_device_unless_opted_in(monkeypatch):
+    """Two local devices (the one CPU device listed twice): without `SF2_SHARD_SEEDS=1` no mesh, and `train`
+    says how to use both; with it, seeds that do not divide over the devices still stay on one."""
+    import jax
+    from sf2_jax.agents import trainer
+
+    device = jax.local_devices()[0]
+    assert trainer.device_note(4) is None                      # one device: nothing to say
+    monkeypatch.setattr(trainer.jax, "local_devices", lambda: [device, device])
+    monkeypatch.delenv(trainer.SHARD_SEEDS, raising=False)
+    assert trainer.Program.mesh(4) is None
+    note = trainer.device_note(4)
+    assert note.startswith("note: this host has 2 CPU devices and this run uses one; run one run per device "
+                           "with `study run`") and "SF2_SHARD_SEEDS=1" in note
+    monkeypatch.setenv(trainer.SHARD_SEEDS, "1")
+    assert trainer.Program.mesh(3) is None and trainer.device_note(3) == note

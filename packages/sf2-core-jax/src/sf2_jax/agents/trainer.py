@@ -312,6 +312,17 @@ def flatten_params(params: dict, seed_index: int | None = None) -> dict[str, np.
     return out
 
 
+def device_note(n_seeds: int) -> str | None:
+    """What `train` tells the user when the host has several devices and the run uses one of them
+    (`Program.mesh` is None: `SF2_SHARD_SEEDS` unset, or the devices do not divide the seeds)."""
+    devices = jax.local_devices()
+    if len(devices) < 2 or Program.mesh(n_seeds) is not None:
+        return None
+    return (f"note: this host has {len(devices)} {devices[0].platform.upper()} devices and this run uses "
+            f"one; run one run per device with `study run` (README, Studies), or set {SHARD_SEEDS}=1 to "
+            f"spread the seeds over them (experimental: Program.mesh)")
+
+
 def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = False,
           progress: bool = True, hook: Callable[[str, int], None] | None = None,
           stop_after_epoch: int | None = None, plot: bool = True) -> TrainResult:
@@ -336,11 +347,9 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
                           "schedule": dataclasses.asdict(sched), "label": _label(cfg),
                           "versions": _versions()})
     program = get_program(cfg)
-    devices = jax.local_devices()
-    if len(devices) > 1 and program.mesh(len(seeds)) is None:
-        run.say(f"note: this host has {len(devices)} {devices[0].platform.upper()} devices and this run "
-                f"uses one; run one run per device with `study run` (README, Studies), or set "
-                f"{SHARD_SEEDS}=1 to spread the seeds over them (experimental: Program.mesh)")
+    note = device_note(len(seeds))
+    if note:
+        run.say(note)
     ckpt = Checkpointer(run.checkpoint_dir, keep=cfg.keep_checkpoints)
     title = hostloop.run_title(_label(cfg), cfg.task, seeds)
     try:
