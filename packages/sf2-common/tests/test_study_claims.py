@@ -173,3 +173,26 @@ def test_report_and_a_study_folder_that_takes_claims_later(tmp_path):
     assert f"| all | 0-4 | {10 / 14:+.3f} [" in line and line.endswith("| 1.00 | supported |")
     (row,) = list(csv.DictReader(open(written["claims.csv"])))
     assert row["verdict"] == "supported" and float(row["difference"]) == pytest.approx(10 / 14)
+
+
+def test_observation_noise_claims_compare_each_level(tmp_path):
+    """Fig. 9 right: `score = "obs_noise"` compares the AUC over the noisy checkpoints at each [evaluation]
+    level. SF² 100–104 against TD3 10–14 without noise; under noise 0.2 both 50–54: supported at 0, not
+    resolved at 0.2 (equal scores), so the claim is not resolved."""
+    text = (STUDY.replace('tasks = ["T1", "T2"]', 'tasks = ["T1"]') + "[evaluation]\nobs_noise = [0.0, 0.2]\n"
+            + CLAIM + 'score = "obs_noise"\n')
+    study = loads(text, tmp_path / "s.toml")
+    noise_rows = [{"task": "T1", "method": m, "seed": s, "noise": level, "auc": base + s}
+                  for s in range(5) for level, bases in ((0.0, {"TD3+SF²": 100, "TD3": 10}),
+                                                         (0.2, {"TD3+SF²": 50, "TD3": 50}))
+                  for m, base in bases.items()]
+    verdict, (clean, noisy) = claims.evaluate(study.claims[0], study, [], noise_rows)
+    assert (clean.scope, noisy.scope) == ("noise 0", "noise 0.2")
+    assert clean.verdict == "supported" and clean.difference == pytest.approx(90.0)
+    assert noisy.verdict == "not resolved" and noisy.difference == 0.0 and verdict == "not resolved"
+    # no [evaluation], or raw AUCs of several tasks pooled: refused
+    with pytest.raises(StudyError, match=r"score = \"obs_noise\" needs the study's \[evaluation\] table"):
+        loads(STUDY + CLAIM + 'score = "obs_noise"\n', tmp_path / "s.toml")
+    with pytest.raises(StudyError, match="over several tasks needs per_task = true"):
+        loads(STUDY + "[evaluation]\nobs_noise = [0.0]\n" + CLAIM + 'score = "obs_noise"\n',
+              tmp_path / "s.toml")

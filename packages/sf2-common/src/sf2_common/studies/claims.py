@@ -8,6 +8,9 @@
     tasks = "all"                       # or a list of the study's tasks (default "all")
     statistic = "IQM"                   # of the normalized AUC: IQM (default), Median or Mean
     per_task = false                    # true: a verdict on each task alone (paper Fig. 8)
+    score = "normalized_auc"            # or "obs_noise": each seed's AUC over the checkpoints evaluated
+                                        # under observation noise ([evaluation]), one comparison per level
+                                        # (paper Fig. 9 right); several tasks need per_task = true
 
 Each comparison (`method` against one of `above`, on the claim's tasks, or on one task with `per_task`)
 uses the seeds both methods finished on every task of the comparison: the difference statistic(method) −
@@ -37,9 +40,10 @@ from .spec import StudyError, seeds_text
 __all__ = ["Claim", "Comparison", "parse", "evaluate", "markdown", "csv_rows", "VERDICTS", "CSV_FIELDS"]
 
 VERDICTS = ("supported", "contradicted", "not resolved", "cannot decide")
-CSV_FIELDS = ("claim", "scope", "method", "other", "statistic", "tasks", "missing_tasks", "seeds",
+CSV_FIELDS = ("claim", "scope", "method", "other", "score", "statistic", "tasks", "missing_tasks", "seeds",
               "difference", "lower", "upper", "p_improvement", "verdict")
-_KEYS = ("text", "method", "above", "tasks", "statistic", "per_task")
+_KEYS = ("text", "method", "above", "tasks", "statistic", "per_task", "score")
+SCORES = ("normalized_auc", "obs_noise")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,6 +54,11 @@ class Claim:
     tasks: tuple[str, ...]
     statistic: str               # a key of stats.STATISTICS
     per_task: bool
+    score: str = "normalized_auc"   # or "obs_noise" (SCORES)
+
+    def scores_what(self) -> str:
+        return ("normalized AUC" if self.score == "normalized_auc" else
+                "AUC over the checkpoints evaluated under observation noise")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,9 +77,10 @@ class Comparison:
 
 
 # ------------------------------------------------------------------------------------------- parsing
-def parse(entries, where: str, methods, tasks) -> tuple[Claim, ...]:
+def parse(entries, where: str, methods, tasks, evaluation=None) -> tuple[Claim, ...]:
     """The study file's `claims` (a list of tables) → `Claim`s; `StudyError` naming the entry and the
-    valid choices for anything else. `methods`: the study's `Method`s; `tasks`: its tasks."""
+    valid choices for anything else. `methods`: the study's `Method`s; `tasks`: its tasks; `evaluation`:
+    its [evaluation] (spec.Evaluation or None)."""
     if entries is None:
         return ()
     if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
@@ -118,15 +128,23 @@ def parse(entries, where: str, methods, tasks) -> tuple[Claim, ...]:
         per_task = e.get("per_task", False)
         if not isinstance(per_task, bool):
             fail(f"per_task = {per_task!r} is invalid: true or false")
+        score = e.get("score", "normalized_auc")
+        if score not in SCORES:
+            fail(f"score = {score!r} is not one of {', '.join(SCORES)}")
+        if score == "obs_noise" and evaluation is None:
+            fail("score = \"obs_noise\" needs the study's [evaluation] table (its obs_noise levels)")
+        if score == "obs_noise" and len(claim_tasks) > 1 and not per_task:
+            fail("score = \"obs_noise\" over several tasks needs per_task = true (the AUC over checkpoints "
+                 "is in each task's return units)")
         out.append(Claim(text.strip(), names[method], tuple(dict.fromkeys(names[a] for a in above)),
-                         tuple(t for t in tasks if t in claim_tasks), statistic, per_task))
+                         tuple(t for t in tasks if t in claim_tasks), statistic, per_task, score))
     return tuple(out)
 
 
 # ------------------------------------------------------------------------------------------- verdicts
 def _compare(scope: str, method: str, other: str, tasks, rows, statistic: str) -> Comparison:
     def scores(label):
-        return {t: {r["seed"]: r["normalized_auc"] for r in rows if r["method"] == label and r["task"] == t}
+        return {t: {r["seed"]: r["score"] for r in rows if r["method"] == label and r["task"] == t}
                 for t in tasks}
 
     mine, theirs = scores(method), scores(other)
@@ -161,15 +179,25 @@ def overall(comparisons) -> str:
     return "supported" if all(v == "supported" for v in verdicts) else "not resolved"
 
 
-def evaluate(claim: Claim, study, rows: list[dict]) -> tuple[str, list[Comparison]]:
-    """(verdict, comparisons) of one claim on the report's rows (report.results_rows: task, method label,
-    seed, normalized_auc)."""
+def evaluate(claim: Claim, study, rows: list[dict], noise_rows=()) -> tuple[str, list[Comparison]]:
+    """(verdict, comparisons) of one claim on the report's rows: `rows` (report.results_rows: task, method
+    label, seed, normalized_auc) or, for `score = "obs_noise"`, `noise_rows` (report.obs_noise_rows:
+    task, method, seed, noise, auc)."""
     label = {m.name: m.label for m in study.methods}
     n = len(study.tasks)
-    scopes = ([(t, (t,)) for t in claim.tasks] if claim.per_task else
-              [(f"all {n} tasks" if len(claim.tasks) == n else f"{len(claim.tasks)} tasks", claim.tasks)])
-    comparisons = [_compare(scope, label[claim.method], label[other], tasks, rows, claim.statistic)
-                   for scope, tasks in scopes for other in claim.above]
+    whole = f"all {n} tasks" if len(claim.tasks) == n else f"{len(claim.tasks)} tasks"
+    if claim.score == "normalized_auc":
+        scored = [{**r, "score": r["normalized_auc"]} for r in rows]
+        scopes = ([(t, (t,), scored) for t in claim.tasks] if claim.per_task else
+                  [(whole, claim.tasks, scored)])
+    else:
+        scopes = []
+        for level in study.evaluation.obs_noise:
+            at = [{**r, "score": r["auc"]} for r in noise_rows if r["noise"] == level]
+            scopes += ([(f"{t} · noise {level:g}", (t,), at) for t in claim.tasks] if claim.per_task else
+                       [(f"noise {level:g}", claim.tasks, at)])
+    comparisons = [_compare(scope, label[claim.method], label[other], tasks, scored, claim.statistic)
+                   for scope, tasks, scored in scopes for other in claim.above]
     return overall(comparisons), comparisons
 
 
@@ -178,26 +206,28 @@ def _num(x) -> str:
     return "—" if x is None else f"{x:+.3f}"
 
 
-def markdown(study, rows: list[dict]) -> list[str]:
+def markdown(study, rows: list[dict], noise_rows=()) -> list[str]:
     """summary.md's section: per claim its verdict and a table of its comparisons."""
     lines = ["## The paper's claims (the study file's [[claims]])", "",
-             "Each comparison: the difference of the statistic of the normalized AUC (claimed method − "
-             "other) over the seeds both finished on every task, its 95% bootstrap interval (rliable, "
-             f"{stats.RESAMPLES} resamples, each method's seeds resampled within each task), and rliable's "
+             "Each comparison: the difference of the statistic of the scores (claimed method − other; "
+             "the normalized AUC unless a claim says otherwise) over the seeds both finished on every task, "
+             f"its 95% bootstrap interval (rliable, {stats.RESAMPLES} resamples, each method's seeds "
+             "resampled within each task), and rliable's "
              "probability of improvement P(claimed > other). **supported**: the interval lies above 0; "
              "**contradicted**: below 0; **not resolved**: it holds 0; **cannot decide**: a task lacks "
              f"finished seeds of one of the two (numbers then over the tasks that have them), or fewer than "
              f"{stats.MIN_SEEDS} seeds. With 5 seeds a nominal 95% interval covers the truth only about 84% "
              "of the time (sf2_common/studies/stats.py).", ""]
     for i, claim in enumerate(study.claims, 1):
-        verdict, comps = evaluate(claim, study, rows)
+        verdict, comps = evaluate(claim, study, rows, noise_rows)
         counts = ", ".join(f"{v} {n}" for v in VERDICTS if (n := sum(c.verdict == v for c in comps)))
         plural = "s" * (len(comps) > 1)
         lines += [f"**Claim {i}** — {claim.text}", "",
                   f"Verdict: **{verdict}** ({counts} of {len(comps)} comparison{plural}).", ""]
         shown = [c for c in comps if c.seeds]
         if shown:
-            lines += [f"| scope | comparison | tasks with both | seeds | Δ {claim.statistic} [95% CI] | "
+            lines += [f"Scores: {claim.scores_what()}.", "",
+                      f"| scope | comparison | tasks with both | seeds | Δ {claim.statistic} [95% CI] | "
                       f"P(claimed > other) | verdict |", "|---|---|---|---|---|---|---|"]
         for c in shown:
             tasks = f"{len(c.tasks)} of {len(c.tasks) + len(c.missing)} ({', '.join(c.tasks)})" if c.missing \
@@ -217,13 +247,13 @@ def markdown(study, rows: list[dict]) -> list[str]:
     return lines
 
 
-def csv_rows(study, rows: list[dict]) -> list[dict]:
+def csv_rows(study, rows: list[dict], noise_rows=()) -> list[dict]:
     """One row per comparison of every claim (`CSV_FIELDS`)."""
     out = []
     for i, claim in enumerate(study.claims, 1):
-        for c in evaluate(claim, study, rows)[1]:
+        for c in evaluate(claim, study, rows, noise_rows)[1]:
             out.append({"claim": i, "scope": c.scope, "method": c.method, "other": c.other,
-                        "statistic": claim.statistic, "tasks": ";".join(c.tasks),
+                        "score": claim.score, "statistic": claim.statistic, "tasks": ";".join(c.tasks),
                         "missing_tasks": ";".join(c.missing), "seeds": seeds_text(c.seeds) if c.seeds else "",
                         "difference": c.difference, "lower": c.lower, "upper": c.upper,
                         "p_improvement": c.p_improvement, "verdict": c.verdict})

@@ -306,25 +306,39 @@ def _number(text: str):
         return text
 
 
-def obs_noise_points(study: Study, data: list[RunData]):
-    """{family: {method label: [(noise, seeds, IQM, lo, hi)]}}: per seed the AUC of the return over the
-    evaluated checkpoints (`stats.auc` over their env steps) at each noise level, then the IQM over seeds
-    with its 95% bootstrap interval (paper App. C.2.2, Fig. 9 right)."""
-    out = {}
+def obs_noise_rows(data: list[RunData]) -> list[dict]:
+    """One row per (task, method, noise level, seed) evaluated under observation noise: the seed's AUC of
+    the return over the evaluated checkpoints (`stats.auc` over their env steps; each checkpoint's return
+    the mean over its episodes), for the seeds evaluated at every checkpoint of that level."""
+    rows = []
     for d in data:
         if not d.obs_noise:
             continue
         for noise in sorted({r["noise"] for r in d.obs_noise}):
             at = sorted((r for r in d.obs_noise if r["noise"] == noise), key=lambda r: r["env_steps"])
-            # the seeds evaluated at every checkpoint
             seeds = sorted(set.intersection(*(set(r["returns"]) for r in at)), key=int)
-            aucs = [stats.auc([r["env_steps"] for r in at], [np.mean(r["returns"][s]) for r in at])
-                    for s in seeds]
-            iqm, lo, hi = stats.iqm_interval(aucs)
-            out.setdefault(d.method.family, {}).setdefault(f"{d.method.label}" + (
-                f" · {d.task}" if len(study.tasks) > 1 else ""), []).append(
-                (noise, len(seeds), float(iqm[0]), None if lo is None else float(lo[0]),
-                 None if hi is None else float(hi[0])))
+            steps = [r["env_steps"] for r in at]
+            for s in seeds:
+                rows.append({"task": d.task, "method": d.method.label, "family": d.method.family,
+                             "noise": noise, "seed": int(s),
+                             "auc": stats.auc(steps, [np.mean(r["returns"][s]) for r in at])})
+    return rows
+
+
+def obs_noise_points(study: Study, data: list[RunData]):
+    """{family: {method label: [(noise, seeds, IQM, lo, hi)]}}: per seed the AUC of the return over the
+    evaluated checkpoints (`obs_noise_rows`), then the IQM over seeds with its 95% bootstrap interval
+    (paper App. C.2.2, Fig. 9 right)."""
+    out = {}
+    rows = obs_noise_rows(data)
+    for key in dict.fromkeys((r["family"], r["method"], r["task"], r["noise"]) for r in rows):
+        family, label, task, noise = key
+        aucs = [r["auc"] for r in rows if (r["family"], r["method"], r["task"], r["noise"]) == key]
+        iqm, lo, hi = stats.iqm_interval(aucs)
+        name = label + (f" · {task}" if len(study.tasks) > 1 else "")
+        out.setdefault(family, {}).setdefault(name, []).append(
+            (noise, len(aucs), float(iqm[0]), None if lo is None else float(lo[0]),
+             None if hi is None else float(hi[0])))
     return out
 
 
@@ -375,11 +389,12 @@ def report(path, out=None, command: str | None = None) -> dict[str, Path]:
             written.update(figures.aggregate(table, out / "aggregate", study, covers))
             md += ["![aggregate](aggregate.png)", ""]
     if study.claims:
-        md += claims.markdown(study, rows)
+        noise_rows = obs_noise_rows(data)
+        md += claims.markdown(study, rows, noise_rows)
         with open(out / "claims.csv", "w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=claims.CSV_FIELDS)
             w.writeheader()
-            w.writerows(claims.csv_rows(study, rows))
+            w.writerows(claims.csv_rows(study, rows, noise_rows))
         written["claims.csv"] = out / "claims.csv"
     md += ["## Per task", ""] + _md_per_task(study, data, rows) + [""]
     if "curves" in figs and finished:

@@ -314,7 +314,7 @@ def loads(text: str, path="<study>") -> Study:
     report = _report(data.get("report", {}), where, sweeps, evaluation)
     from .claims import parse as parse_claims
 
-    claims = parse_claims(data.get("claims"), where, methods, tasks)
+    claims = parse_claims(data.get("claims"), where, methods, tasks, evaluation)
     return Study(path=path, text=text, data=data, name=name.strip(),
                  description=str(data.get("description", "")), framework=framework, preset=preset,
                  seeds=seeds, tasks=tuple(tasks), overrides=tuple(overrides.items()), methods=tuple(methods),
