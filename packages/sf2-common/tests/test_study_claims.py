@@ -97,7 +97,8 @@ def test_difference_interval_and_probability_are_rliables():
     assert stats.difference_interval(sf2[:2], td3[:2])[1:] == (None, None)
 
 
-def test_verdicts_from_scores_derived_by_hand(tmp_path):
+def test_verdicts_from_scores_derived_by_hand(tmp_path, monkeypatch):
+    monkeypatch.setattr(stats, "RESAMPLES", 500)   # the verdicts below hold for any resample
     study = loads(STUDY + CLAIM, tmp_path / "s.toml")
     claim = study.claims[0]
     seeds = range(5)
@@ -175,10 +176,11 @@ def test_report_and_a_study_folder_that_takes_claims_later(tmp_path):
     assert row["verdict"] == "supported" and float(row["difference"]) == pytest.approx(10 / 14)
 
 
-def test_observation_noise_claims_compare_each_level(tmp_path):
+def test_observation_noise_claims_compare_each_level(tmp_path, monkeypatch):
     """Fig. 9 right: `score = "obs_noise"` compares the AUC over the noisy checkpoints at each [evaluation]
     level. SF² 100–104 against TD3 10–14 without noise; under noise 0.2 both 50–54: supported at 0, not
     resolved at 0.2 (equal scores), so the claim is not resolved."""
+    monkeypatch.setattr(stats, "RESAMPLES", 500)
     text = (STUDY.replace('tasks = ["T1", "T2"]', 'tasks = ["T1"]') + "[evaluation]\nobs_noise = [0.0, 0.2]\n"
             + CLAIM + 'score = "obs_noise"\n')
     study = loads(text, tmp_path / "s.toml")

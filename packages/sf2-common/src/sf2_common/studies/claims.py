@@ -157,7 +157,7 @@ def _compare(scope: str, method: str, other: str, tasks, rows, statistic: str) -
                           "cannot decide")
     x = [[mine[t][s] for t in have] for s in seeds]
     y = [[theirs[t][s] for t in have] for s in seeds]
-    point, lo, hi = stats.difference_interval(x, y, statistic)
+    point, lo, hi = stats.difference_interval(x, y, statistic, resamples=stats.RESAMPLES)
     p = stats.probability_of_improvement(x, y)
     if missing or lo is None:
         verdict = "cannot decide"
