@@ -139,3 +139,27 @@ def test_ray_task_on_a_host_without_the_study_folder(tmp_path, monkeypatch):
     rayrun.land(path, result)
     assert (path / "final" / "params_seed0.npz").read_bytes() == b"params"
     assert (path / "metrics.jsonl").exists() and not (path / "checkpoints").exists()
+
+
+def test_dry_run_estimate_from_the_finished_runs(tmp_path):
+    """Finished runs of 1,000 env steps: task A's took 100 s and 300 s (0.1 and 0.3 s per env step), B's 50 s
+    (0.05).
+    To do: A with 2,000 env steps of which 500 are done (1,500 × 0.2 = 300 s), B with 1,000 (50 s), C
+    with none finished (1,000 × the mean of the three rates, (0.1 + 0.3 + 0.05) / 3 = 0.15: 150 s): 500 s."""
+    from types import SimpleNamespace
+
+    def job(task, name, total, done=0, wall=None):
+        path = tmp_path / task / name
+        path.mkdir(parents=True)
+        if wall is not None:
+            (path / "metrics.jsonl").write_text(json.dumps({"epoch": 1, "seed": 0, "env_steps": total,
+                                                            "walltime": wall}) + "\n")
+        return runner.Job(SimpleNamespace(task=task, rel=name), path, [], total, done)
+
+    done = [job("A", "a1", 1000, 1000, 100.0), job("A", "a2", 1000, 1000, 300.0),
+            job("B", "b", 1000, 1000, 50.0)]
+    todo = [job("A", "a3", 2000, 500), job("B", "b2", 1000), job("C", "c", 1000)]
+    assert runner.estimate(done, todo) == (
+        "estimate: 3 run(s) to do ≈ 8m20s of training on one worker (at the wall time per env step of the 3 "
+        "finished run(s) here; C: no finished run yet, their mean)")
+    assert runner.estimate([], todo) is None and runner.estimate(done, []) is None

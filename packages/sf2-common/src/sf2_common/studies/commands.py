@@ -132,6 +132,9 @@ def _run(backend, args, command: str) -> int:
             state = "partial" if job.done_steps else "new"
             steps = " ; ".join(f"{backend.prog} {' '.join(c)}" for c in job.commands)
             print(f"  {state:8} {job.name}: {steps}")
+        forecast = runner.estimate(done, jobs)
+        if forecast:
+            print(forecast)
         return 0
     folder.open(study, backend.name, runs, command)
     if args.ray is not None:

@@ -30,11 +30,11 @@ from collections.abc import Callable
 from pathlib import Path
 
 from .folder import LOG, StudyFolder
-from .progress import Progress
+from .progress import Progress, duration
 from .spec import Run, Study, StudyError
 
-__all__ = ["Backend", "Job", "plan", "eval_argv", "child_env", "visible_gpus", "run_local", "Outcome",
-           "LOCK"]
+__all__ = ["Backend", "Job", "plan", "estimate", "eval_argv", "child_env", "visible_gpus", "run_local",
+           "Outcome", "LOCK"]
 
 LOCK = ".study-lock"
 
@@ -101,6 +101,30 @@ def plan(study: Study, folder: StudyFolder, runs: list[Run]) -> tuple[list[Job],
         job = Job(run, path, commands, state.total_env_steps, state.env_steps)
         (todo if commands else done).append(job)
     return todo, done
+
+
+def estimate(done: list[Job], todo: list[Job]) -> str | None:
+    """A dry run's forecast of the training time left: each job's remaining env steps at the wall-clock
+    seconds per env step of the finished runs of its task in this folder (the mean over all finished runs
+    for a task without one), summed as if one worker ran them all. None without a finished run. The rates
+    are those of the machines the runs ran on; evaluation children ([evaluation]) are not counted."""
+    from sf2_common.agents.runfolder import RunFolder
+
+    rates: dict[str, list[float]] = {}
+    for job in done:
+        wall = max((r.get("walltime", 0.0) for r in RunFolder(job.path).read_rows()), default=0.0)
+        if wall > 0 and job.total_steps > 0:
+            rates.setdefault(job.run.task, []).append(wall / job.total_steps)
+    if not rates or not todo:
+        return None
+    every = [x for v in rates.values() for x in v]
+    overall = sum(every) / len(every)
+    seconds = sum((j.total_steps - j.done_steps) * (sum(rates[j.run.task]) / len(rates[j.run.task])
+                                                    if j.run.task in rates else overall) for j in todo)
+    guessed = sorted({j.run.task for j in todo if j.run.task not in rates})
+    return (f"estimate: {len(todo)} run(s) to do ≈ {duration(seconds)} of training on one worker (at the "
+            f"wall time per env step of the {len(every)} finished run(s) here"
+            + (f"; {', '.join(guessed)}: no finished run yet, their mean" if guessed else "") + ")")
 
 
 def child_env(base: dict, **extra) -> dict:
