@@ -8,8 +8,7 @@ half-written file under the final name; every reader failure is a `ParamsError` 
 
 from __future__ import annotations
 
-import os
-import tempfile
+import io
 import zipfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -17,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ParamsError
+from .fileio import atomic_write
 
 __all__ = ["FORMATS", "save_arrays", "load_arrays", "check_shapes"]
 
@@ -49,21 +49,13 @@ def save_arrays(path, arrays: Mapping[str, np.ndarray]) -> Path:
         if arr.dtype.kind not in "fiub":
             raise ParamsError(f"cannot save {name}: expected a real numeric array, found dtype {arr.dtype}")
         out[str(name)] = arr
-    st = _safetensors_numpy() if fmt == ".safetensors" else None
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            if st is None:
-                np.savez(f, **out)
-            else:
-                f.write(st.save(out))
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    if fmt == ".safetensors":
+        raw = _safetensors_numpy().save(out)
+    else:
+        buf = io.BytesIO()
+        np.savez(buf, **out)
+        raw = buf.getvalue()
+    return atomic_write(path, raw)
 
 
 def load_arrays(path) -> dict[str, np.ndarray]:

@@ -37,7 +37,8 @@ import dataclasses
 from . import stats
 from .spec import StudyError, seeds_text
 
-__all__ = ["Claim", "Comparison", "parse", "evaluate", "markdown", "csv_rows", "VERDICTS", "CSV_FIELDS"]
+__all__ = ["Claim", "Comparison", "parse", "evaluate", "check", "markdown", "csv_rows", "VERDICTS",
+           "CSV_FIELDS"]
 
 VERDICTS = ("supported", "contradicted", "not resolved", "cannot decide")
 CSV_FIELDS = ("claim", "scope", "method", "other", "score", "statistic", "tasks", "missing_tasks", "seeds",
@@ -201,13 +202,19 @@ def evaluate(claim: Claim, study, rows: list[dict], noise_rows=()) -> tuple[str,
     return overall(comparisons), comparisons
 
 
+def check(study, rows: list[dict], noise_rows=()) -> list[tuple[Claim, str, list[Comparison]]]:
+    """Every claim of the study with its verdict and comparisons (`evaluate`), computed once for the report's
+    `markdown` and `csv_rows`."""
+    return [(claim, *evaluate(claim, study, rows, noise_rows)) for claim in study.claims]
+
+
 # ------------------------------------------------------------------------------------------- output
 def _num(x) -> str:
     return "—" if x is None else f"{x:+.3f}"
 
 
-def markdown(study, rows: list[dict], noise_rows=()) -> list[str]:
-    """summary.md's section: per claim its verdict and a table of its comparisons."""
+def markdown(checked) -> list[str]:
+    """summary.md's section from `check`'s result: per claim its verdict and a table of its comparisons."""
     lines = ["## The paper's claims (the study file's [[claims]])", "",
              "Each comparison: the difference of the statistic of the scores (claimed method − other; "
              "the normalized AUC unless a claim says otherwise) over the seeds both finished on every task, "
@@ -218,8 +225,7 @@ def markdown(study, rows: list[dict], noise_rows=()) -> list[str]:
              f"finished seeds of one of the two (numbers then over the tasks that have them), or fewer than "
              f"{stats.MIN_SEEDS} seeds. With 5 seeds a nominal 95% interval covers the truth only about 84% "
              "of the time (sf2_common/studies/stats.py).", ""]
-    for i, claim in enumerate(study.claims, 1):
-        verdict, comps = evaluate(claim, study, rows, noise_rows)
+    for i, (claim, verdict, comps) in enumerate(checked, 1):
         counts = ", ".join(f"{v} {n}" for v in VERDICTS if (n := sum(c.verdict == v for c in comps)))
         plural = "s" * (len(comps) > 1)
         lines += [f"**Claim {i}** — {claim.text}", "",
@@ -247,11 +253,11 @@ def markdown(study, rows: list[dict], noise_rows=()) -> list[str]:
     return lines
 
 
-def csv_rows(study, rows: list[dict], noise_rows=()) -> list[dict]:
-    """One row per comparison of every claim (`CSV_FIELDS`)."""
+def csv_rows(checked) -> list[dict]:
+    """One row per comparison of every claim (`CSV_FIELDS`) from `check`'s result."""
     out = []
-    for i, claim in enumerate(study.claims, 1):
-        for c in evaluate(claim, study, rows, noise_rows)[1]:
+    for i, (claim, _, comps) in enumerate(checked, 1):
+        for c in comps:
             out.append({"claim": i, "scope": c.scope, "method": c.method, "other": c.other,
                         "score": claim.score, "statistic": claim.statistic, "tasks": ";".join(c.tasks),
                         "missing_tasks": ";".join(c.missing), "seeds": seeds_text(c.seeds) if c.seeds else "",

@@ -76,8 +76,8 @@ class StudyFolder:
                                  f"an empty or new folder")
             return
         old = self.load_study()
-        if old.runs_data() != study.runs_data():
-            mine, theirs = old.runs_data(), study.runs_data()
+        mine, theirs = old.runs_data(), study.runs_data()
+        if mine != theirs:
             keys = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
             raise StudyError(
                 f"study folder {self.path} was made from another study file: its copy {self.study_path} "

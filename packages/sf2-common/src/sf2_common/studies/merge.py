@@ -254,8 +254,8 @@ def _check_studies(opened, dest: StudyFolder, framework: str) -> Study:
                          f"choose a study folder of the same study, or a new folder")
     first_name, first = studies[0]
     for name, study in studies[1:]:
-        if study.runs_data() != first.runs_data():   # description, report, claims may differ: DEST's stay
-            mine, theirs = first.runs_data(), study.runs_data()
+        mine, theirs = first.runs_data(), study.runs_data()   # description, report, claims may differ
+        if mine != theirs:
             keys = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
             raise StudyError(f"{name} holds study {study.name!r}, not the study of {first_name} "
                              f"({first.name!r}): their study.toml differ in {', '.join(keys)}; nothing was "

@@ -389,12 +389,12 @@ def report(path, out=None, command: str | None = None) -> dict[str, Path]:
             written.update(figures.aggregate(table, out / "aggregate", study, covers))
             md += ["![aggregate](aggregate.png)", ""]
     if study.claims:
-        noise_rows = obs_noise_rows(data)
-        md += claims.markdown(study, rows, noise_rows)
+        checked = claims.check(study, rows, obs_noise_rows(data))
+        md += claims.markdown(checked)
         with open(out / "claims.csv", "w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=claims.CSV_FIELDS)
             w.writeheader()
-            w.writerows(claims.csv_rows(study, rows, noise_rows))
+            w.writerows(claims.csv_rows(checked))
         written["claims.csv"] = out / "claims.csv"
     md += ["## Per task", ""] + _md_per_task(study, data, rows) + [""]
     if "curves" in figs and finished:

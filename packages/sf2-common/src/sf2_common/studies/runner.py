@@ -29,6 +29,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from sf2_common.agents.runfolder import RunFolder
+
 from .folder import LOG, StudyFolder
 from .progress import Progress, duration
 from .spec import Run, Study, StudyError
@@ -108,8 +110,6 @@ def estimate(done: list[Job], todo: list[Job]) -> str | None:
     seconds per env step of the finished runs of its task in this folder (the mean over all finished runs
     for a task without one), summed as if one worker ran them all. None without a finished run. The rates
     are those of the machines the runs ran on; evaluation children ([evaluation]) are not counted."""
-    from sf2_common.agents.runfolder import RunFolder
-
     rates: dict[str, list[float]] = {}
     for job in done:
         wall = max((r.get("walltime", 0.0) for r in RunFolder(job.path).read_rows()), default=0.0)
