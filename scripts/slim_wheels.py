@@ -1,0 +1,47 @@
+"""Shrinks the GPU host's wheels so they travel with the working tree (the device tool carries 64 MiB in
+all, this repository included): drops from the wheels in FOLDER what training never loads, in place.
+
+    python scripts/slim_wheels.py .whl-jax
+
+mujoco: `mujoco/experimental/` (15.7 MB compressed) and `mujoco/testdata/`; mujoco-mjx:
+`mujoco/mjx/test_data/`
+(6.5 MB); playground: the locomotion and manipulation robots' assets (7.6 MB; their Python modules stay, as
+the registry imports them). The seven DM Control tasks of the studies load and step with what is left
+(checked with Python 3.12, the host's, on 2026-11-23). pip installs such a wheel: it writes its own RECORD.
+"""
+
+import sys
+import zipfile
+from pathlib import Path
+
+DROP = {
+    "mujoco-": lambda n: n.startswith(("mujoco/experimental/", "mujoco/testdata/")),
+    "mujoco_mjx-": lambda n: n.startswith("mujoco/mjx/test_data/"),
+    "playground-": lambda n: n.startswith(("mujoco_playground/_src/locomotion/",
+                                           "mujoco_playground/_src/manipulation/")) and not n.endswith(".py"),
+}
+
+
+def slim(wheel: Path) -> int:
+    """Rewrites `wheel` without the files DROP names for it; the number of files dropped."""
+    drop = next((rule for prefix, rule in DROP.items() if wheel.name.startswith(prefix)), None)
+    if drop is None:
+        return 0
+    with zipfile.ZipFile(wheel) as zin:
+        keep = [i for i in zin.infolist() if not drop(i.filename)]
+        dropped = len(zin.infolist()) - len(keep)
+        if dropped:
+            tmp = wheel.with_suffix(".tmp")
+            with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zout:
+                for info in keep:
+                    zout.writestr(info, zin.read(info.filename))
+            tmp.replace(wheel)
+    return dropped
+
+
+if __name__ == "__main__":
+    folder = Path(sys.argv[1] if len(sys.argv) > 1 else ".whl-jax")
+    for wheel in sorted(folder.glob("*.whl")):
+        n = slim(wheel)
+        if n:
+            print(f"{wheel.name}: {n} files dropped, {wheel.stat().st_size / 2**20:.1f} MiB left")
