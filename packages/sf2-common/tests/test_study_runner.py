@@ -23,8 +23,7 @@ FAKE_CLI = textwrap.dedent('''
     os.makedirs(out, exist_ok=True)
     with open(os.path.join(out, "child.json"), "w") as f:
         json.dump({"gpu": os.environ.get("CUDA_VISIBLE_DEVICES"), "start": t0, "end": time.time(),
-                   "hashseed": os.environ.get("PYTHONHASHSEED"),
-                   "memory": os.environ.get("XLA_PYTHON_CLIENT_MEM_FRACTION")}, f)
+                   "hashseed": os.environ.get("PYTHONHASHSEED")}, f)
 ''')
 
 STUDY = """
@@ -85,38 +84,6 @@ def test_runs_spread_over_visible_gpus_one_each(tmp_path, monkeypatch):
         assert all(a_end <= b_start for (_, a_end), (b_start, _) in zip(mine, mine[1:]))   # never two at once
     with pytest.raises(spec.StudyError, match="--workers 3: this host has 2 visible GPU"):
         runner.run_local(study, folder, jobs, done, backend=backend, base_env=env, workers=3, progress=False)
-
-
-def test_runs_share_a_gpu_with_a_share_of_its_memory(tmp_path, monkeypatch):
-    study, backend, folder, runs = _setup(tmp_path, monkeypatch)
-    jobs, done = runner.plan(study, folder, runs)
-    env = {"PATH": "/usr/bin:/bin", "PYTHONPATH": str(tmp_path) + ":" + ":".join(sys.path),
-           "CUDA_VISIBLE_DEVICES": "3,5"}
-    slots = runner.slots_for(env, runs_per_gpu=3)
-    assert [label for _, label in slots] == ["GPU 3 #1", "GPU 5 #1", "GPU 3 #2", "GPU 5 #2", "GPU 3 #3",
-                                             "GPU 5 #3"]
-    assert {e["XLA_PYTHON_CLIENT_MEM_FRACTION"] for e, _ in slots} == {"0.300"}     # 0.9 / 3
-    assert [e["CUDA_VISIBLE_DEVICES"] for e, _ in runner.slots_for(env, workers=3, runs_per_gpu=2)] == \
-        ["3", "5", "3"]
-    assert "XLA_PYTHON_CLIENT_MEM_FRACTION" not in runner.slots_for(env)[0][0]       # one run: JAX's default
-    own = runner.slots_for({**env, "XLA_PYTHON_CLIENT_MEM_FRACTION": "0.2"}, runs_per_gpu=2)
-    assert {e["XLA_PYTHON_CLIENT_MEM_FRACTION"] for e, _ in own} == {"0.2"}         # the caller's wins
-    outcome = runner.run_local(study, folder, jobs, done, backend=backend, base_env=env, runs_per_gpu=2,
-                               progress=False, poll=0.05)
-    assert outcome.ok and len(outcome.done) == 6
-    spans = [json.loads((j.path / "child.json").read_text()) for j in jobs]
-    assert {s["memory"] for s in spans} == {"0.450"}
-    at_once = []
-    for gpu in ("3", "5"):
-        mine = [(s["start"], s["end"]) for s in spans if s["gpu"] == gpu]
-        at_once.append(max(sum(a <= t < b for a, b in mine) for t, _ in mine))
-    assert max(at_once) == 2                                 # two runs shared a GPU, never three
-    with pytest.raises(spec.StudyError, match=r"--workers 5: .* use --workers <= 4"):
-        runner.slots_for(env, workers=5, runs_per_gpu=2)
-    with pytest.raises(spec.StudyError, match="--runs-per-gpu 0 is invalid"):
-        runner.slots_for(env, runs_per_gpu=0)
-    with pytest.raises(spec.StudyError, match="no visible GPU; use --workers"):
-        runner.slots_for({"CUDA_VISIBLE_DEVICES": ""}, runs_per_gpu=2)
 
 
 def test_visible_gpus():

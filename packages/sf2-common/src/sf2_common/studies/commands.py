@@ -1,8 +1,8 @@
 """The `study` subcommand of `sf2-jax` and `sf2-torch` (sf2_common.cli adds it with `add_parser` and calls
 `main`):
 
-    PROG study run FILE --out DIR [--tasks A,B] [--methods m1,m2] [--seeds 0-4] [--workers N]
-                   [--runs-per-gpu K] [--ray ADDRESS] [--dry-run]
+    PROG study run FILE --out DIR [--tasks A,B] [--methods m1,m2] [--seeds 0-4] [--workers N] [--ray ADDRESS]
+                   [--dry-run]
     PROG study report DIR [--out REPORT_DIR]
     PROG study merge SOURCE... --into DIR [--partial]
 
@@ -42,11 +42,7 @@ def add_parser(sub, prog: str) -> None:
                    help="only the seed groups wholly inside these seeds (e.g. 0-4; the study file's "
                    "seeds_per_run makes the groups)")
     r.add_argument("--workers", type=int, default=None,
-                   help="runs at a time on this host (default: one per visible GPU, times "
-                   "--runs-per-gpu; 1 without a GPU)")
-    r.add_argument("--runs-per-gpu", type=int, default=1,
-                   help="runs sharing each GPU (default 1); a few seeds leave a GPU mostly idle, so 2-3 "
-                   "finish sooner together")
+                   help="runs at a time on this host (default: one per visible GPU, else 1)")
     r.add_argument("--ray", metavar="ADDRESS", default=None,
                    help="dispatch each run as a Ray task to this cluster ('local': start one here, 'auto')")
     r.add_argument("--ray-gpus", type=float, default=1.0,
@@ -116,16 +112,10 @@ def _run(backend, args, command: str) -> int:
                          f"`sf2-{study.framework} study run`, not {backend.prog}")
     if args.workers is not None and args.workers < 1:
         raise StudyError(f"--workers {args.workers} is invalid: an int >= 1")
-    if args.ray is not None and args.runs_per_gpu != 1:
-        raise StudyError(f"--runs-per-gpu {args.runs_per_gpu} is for this host's runner; with --ray, "
-                         f"let runs share a GPU by asking less of one: "
-                         f"--ray-gpus {1 / args.runs_per_gpu:.2g}")
     if args.ray is not None:
         from .rayrun import _ray
 
         _ray()
-    elif not args.dry_run:
-        runner.slots_for(base_env, args.workers, args.runs_per_gpu)   # a bad --workers/--runs-per-gpu: exit 2
     runs = _resolve(backend, study)
     selected = spec.select_runs(study, runs, _names(args.tasks), _names(args.methods), args.seeds)
     folder = StudyFolder(args.out)
@@ -154,8 +144,7 @@ def _run(backend, args, command: str) -> int:
                           num_gpus=args.ray_gpus, num_cpus=args.ray_cpus, progress=not args.no_progress)
     else:
         outcome = runner.run_local(study, folder, jobs, done, backend=backend, base_env=base_env,
-                                   workers=args.workers, runs_per_gpu=args.runs_per_gpu,
-                                   progress=not args.no_progress)
+                                   workers=args.workers, progress=not args.no_progress)
     print(f"{study.name}: {len(outcome.done)} of {len(selected)} run(s) done"
           + (f", {len(outcome.failed)} failed" if outcome.failed else "")
           + (f", {len(outcome.busy)} held by another runner" if outcome.busy else ""))

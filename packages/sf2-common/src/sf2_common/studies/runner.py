@@ -5,12 +5,8 @@ framework's own CLI, `python -m sf2_jax.cli train ... --out DIR/runs/<task>/<met
 [evaluation]), so resuming, `kill -9` and the no-duplicate-row guarantee are the trainer's
 (sf2_common.agents.runfolder): a finished run is skipped, a partial one resumes from its last checkpoint.
 
-Where the children run: one per visible GPU (CUDA_VISIBLE_DEVICES set to that GPU alone), or
-`runs_per_gpu` per GPU (each child then told to take at most its share of the GPU's memory:
-XLA_PYTHON_CLIENT_MEM_FRACTION = 0.9 / runs_per_gpu, since JAX otherwise takes 75% of it at start), or on a
-CPU one at a time unless `workers` says more. A few seeds leave most of a GPU idle (the learner's kernels
-are small and the physics' while loops wait on the host), so two or three runs on one GPU finish sooner
-together than one after the other; bench/results/ says by how much. A child dies with
+Where the children run: one per visible GPU (CUDA_VISIBLE_DEVICES set to that GPU alone, so two runs
+never share a GPU's memory), or on a CPU one at a time unless `workers` says more. A child dies with
 the runner (Linux: PR_SET_PDEATHSIG), and holds its run folder's lock (`.study-lock`, flock) for as long
 as it lives, so a second runner on the same folder never trains the same run twice at once.
 
@@ -39,8 +35,8 @@ from .folder import LOG, StudyFolder
 from .progress import Progress, duration
 from .spec import Run, Study, StudyError
 
-__all__ = ["Backend", "Job", "plan", "estimate", "eval_argv", "child_env", "visible_gpus", "slots_for",
-           "run_local", "Outcome", "LOCK"]
+__all__ = ["Backend", "Job", "plan", "estimate", "eval_argv", "child_env", "visible_gpus", "run_local",
+           "Outcome", "LOCK"]
 
 LOCK = ".study-lock"
 
@@ -212,41 +208,19 @@ class _Slot:
         self.queue: list[list[str]] = []
 
 
-MEMORY_SHARE = 0.9    # of a GPU's memory, split between the runs sharing it
-
-
-def slots_for(base_env: dict, workers: int | None = None, runs_per_gpu: int = 1) -> list[tuple[dict, str]]:
-    """Each child slot's environment and label: `runs_per_gpu` slots per visible GPU (GPUs first, so a
-    second GPU gets a run before the first gets two), at most `workers` in all; on a host without a GPU,
-    `workers` slots (default 1)."""
-    if runs_per_gpu < 1:
-        raise StudyError(f"--runs-per-gpu {runs_per_gpu} is invalid: an int >= 1")
-    gpus = visible_gpus(base_env)
-    if not gpus:
-        if runs_per_gpu > 1:
-            raise StudyError(f"--runs-per-gpu {runs_per_gpu}: this host has no visible GPU; "
-                             "use --workers N for N runs at a time on the CPU")
-        return [(child_env(base_env), f"worker {i}") for i in range(workers or 1)]
-    most = len(gpus) * runs_per_gpu
-    if workers is not None and workers > most:
-        raise StudyError(f"--workers {workers}: this host has {len(gpus)} visible GPU(s) ({','.join(gpus)}) "
-                         f"and --runs-per-gpu {runs_per_gpu}; use --workers <= {most}, "
-                         "or more --runs-per-gpu")
-    extra = {}
-    if runs_per_gpu > 1 and "XLA_PYTHON_CLIENT_MEM_FRACTION" not in base_env:
-        extra["XLA_PYTHON_CLIENT_MEM_FRACTION"] = f"{MEMORY_SHARE / runs_per_gpu:.3f}"
-    slots = [(child_env(base_env, CUDA_VISIBLE_DEVICES=g, **extra),
-              f"GPU {g}" + (f" #{k + 1}" if runs_per_gpu > 1 else ""))
-             for k in range(runs_per_gpu) for g in gpus]
-    return slots[:workers]
-
-
 def run_local(study: Study, folder: StudyFolder, jobs: list[Job], done: list[Job], *, backend: Backend,
-              base_env: dict, workers: int | None = None, runs_per_gpu: int = 1, progress: bool = True,
-              poll: float = 1.0, stream=None) -> Outcome:
+              base_env: dict, workers: int | None = None, progress: bool = True, poll: float = 1.0,
+              stream=None) -> Outcome:
     """Run `jobs` on this host (module docstring); `done` counts towards the progress view."""
     stream = stream or sys.stderr
-    slots = [_Slot(env, label) for env, label in slots_for(base_env, workers, runs_per_gpu)]
+    gpus = visible_gpus(base_env)
+    if gpus:
+        if workers is not None and workers > len(gpus):
+            raise StudyError(f"--workers {workers}: this host has {len(gpus)} visible GPU(s) "
+                             f"({','.join(gpus)}) and a run never shares a GPU; use --workers <= {len(gpus)}")
+        slots = [_Slot(child_env(base_env, CUDA_VISIBLE_DEVICES=g), f"GPU {g}") for g in gpus[:workers]]
+    else:
+        slots = [_Slot(child_env(base_env), f"worker {i}") for i in range(workers or 1)]
     total_steps = sum(j.total_steps for j in jobs + done)
     view = Progress(study.name, len(jobs) + len(done), total_steps, enabled=progress, stream=stream)
     view.event(f"{study.name}: {len(jobs)} run(s) to do, {len(done)} done; "
