@@ -49,41 +49,57 @@ def _unflatten(flat: dict, like, dtype):
     return fill(dict(like), "")
 
 
+def talg_states(algo, rep, kw) -> set[str]:
+    """The names of a torch agent's Adam states (one per trained group, `psi:aux` too when not shared)."""
+    return set(talgs.make_algorithm(algo, sf2_torch.SF2Config(**kw), treps.get(rep)).optimizers)
+
+
+def _renamed(flat: dict, group: str, state: str) -> dict:
+    """`flat`'s canonical names of `group` under the name of its Adam state (`psi` -> `psi:aux`)."""
+    return {state + name[len(group):]: v for name, v in flat.items()}
+
+
 def torch_moments(talg) -> dict[str, dict[str, np.ndarray]]:
-    """{"mu"|"nu": {canonical name: moment}} of every trained group of the torch agent: the Adam states
-    exported as if they were gradients (`to_canonical(..., grads=True)` lays them out canonically)."""
-    trained = {g: talg.groups[g] for g in talg.optimizers}
-    out = {}
+    """{"mu"|"nu": {canonical name: moment}} of every Adam state of the torch agent (a second state of a
+    group, `psi:aux` with `shared_adam = False`, under its own name): exported as if they were gradients
+    (`to_canonical(..., grads=True)` lays them out canonically)."""
+    out = {"mu": {}, "nu": {}}
     for k, sk in (("mu", "exp_avg"), ("nu", "exp_avg_sq")):
-        saved = {}
-        for g, opt in talg.optimizers.items():
-            for p in talg._params((g,)):
+        for state, opt in talg.optimizers.items():
+            group = state.split(":")[0]
+            saved = {}
+            for p in talg._params((group,)):
                 saved[p] = p.grad
                 p.grad = opt.state[p][sk]
-        out[k] = tparams.to_canonical(trained, grads=True)
-        for p, g in saved.items():
-            p.grad = g
+            flat = tparams.to_canonical({group: talg.groups[group]}, grads=True)
+            out[k].update(_renamed(flat, group, state))
+            for p, g in saved.items():
+                p.grad = g
     return out
 
 
 def jax_moments(jopt) -> dict[str, dict[str, np.ndarray]]:
     out = {"mu": {}, "nu": {}}
-    for group, state in jopt.items():
-        adam = state[0]
+    for state, opt in jopt.items():
+        adam, group = opt[0], state.split(":")[0]
         for k in ("mu", "nu"):
             tree = getattr(adam, k)
             flat = {group: np.asarray(tree)} if group == "log_alpha" else jparams.to_canonical({group: tree})
-            out[k].update(flat)
+            out[k].update(_renamed(flat, group, state))
     return out
 
 
-CASES = [("td3", "sf2", 1), ("td3", "sf2", 2), ("sac", "sf2", 1), ("td3", "none", 2), ("sac", "none", 1)]
+# (algo, representation, policy delay, shared_adam): shared_adam = False gives ψ a second Adam state for
+# the flow loss's step
+CASES = [("td3", "sf2", 1, True), ("td3", "sf2", 2, True), ("sac", "sf2", 1, True), ("td3", "none", 2, True),
+         ("sac", "none", 1, True), ("td3", "sf2", 1, False)]
 
 
 @pytest.mark.parametrize("dtype", ["float64", "float32"])
-@pytest.mark.parametrize("algo,rep,policy_delay", CASES, ids=[f"{a}-{r}-delay{d}" for a, r, d in CASES])
-def test_full_sgd_step(dtype, algo, rep, policy_delay):
-    kw = dict(KW, policy_delay=policy_delay)
+@pytest.mark.parametrize("algo,rep,policy_delay,shared_adam", CASES,
+                         ids=[f"{a}-{r}-delay{d}" + ("" if s else "-own-adam") for a, r, d, s in CASES])
+def test_full_sgd_step(dtype, algo, rep, policy_delay, shared_adam):
+    kw = dict(KW, policy_delay=policy_delay, shared_adam=shared_adam)
     jdt, tdt = getattr(jnp, dtype), getattr(torch, dtype)
 
     jalg = jalgs.make_algorithm(algo, sf2_jax.SF2Config(**kw), jreps.get(rep), dtype=jdt)
@@ -92,6 +108,8 @@ def test_full_sgd_step(dtype, algo, rep, policy_delay):
     flat = canonical_values(shapes, seed=21)
     jp = _unflatten(flat, structure, jdt)
     jopt = {g: jalg._tx(g).init(jp[g]) for g in jalg.trained_groups()}
+    jopt.update({jalg.aux_state(g): jalg._tx(g).init(jp[g]) for g in jalg.rep.aux_groups})
+    assert set(jopt) == set(jalg.init(jax.random.PRNGKey(0))[1]) == set(talg_states(algo, rep, kw))
     jstep = jax.jit(jalg.sgd_step)
 
     torch.manual_seed(0)

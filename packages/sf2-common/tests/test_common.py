@@ -88,7 +88,8 @@ def test_spr_augmentation_std_is_checked_and_older_run_folders_keep_resuming(tmp
     run = RunFolder(tmp_path / "old")
     old = {k: v for k, v in cfg.to_dict().items() if k != "spr_augmentation_std"}
     run.write_config({"config": old, "seeds": [0]})
-    assert configs.ADDED_FIELDS == {"spr_augmentation_std": 0.05} and cfg.spr_augmentation_std == 0.05
+    assert configs.ADDED_FIELDS == {"spr_augmentation_std": 0.05, "shared_adam": True}
+    assert cfg.spr_augmentation_std == 0.05
     assert run.check_compatible(cfg.to_dict(), (0,)) is True
     with pytest.raises(RunFolderMismatch, match="spr_augmentation_std: 0.05 \\(folder\\) vs 0.1 \\(now\\)"):
         run.check_compatible(cfg.replace(spr_augmentation_std=0.1).to_dict(), (0,))

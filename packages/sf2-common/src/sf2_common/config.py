@@ -62,6 +62,9 @@ class SF2Config:
     learning_rate: float = 1e-3  # Adam lr of psi, zeta, Q, policy (authors' runs; Table 1 says 1e-4)
     alpha_learning_rate: float = 3e-4  # Adam lr of SAC's log alpha (Table 1)
     adam_eps: float = 1e-5  # authors' optimizer
+    # ψ (a group both the TD loss and the representation's loss train) keeps one Adam state across its two
+    # steps per SGD step, as the authors' code does; False gives each loss its own state (an ablation)
+    shared_adam: bool = True
     smoothing_noise: float = 0.2  # TD3 target-policy smoothing sigma (Table 1)
     noise_clip: float = 0.3  # TD3 smoothing clip (Table 1)
     exploration_noise: float = 0.2  # TD3 acting noise (Table 1)
@@ -109,7 +112,7 @@ class SF2Config:
                 _fail(name, value, "must be > 0")
         if not _is_real(self.discount) or not 0.0 < self.discount <= 1.0:
             _fail("discount", self.discount, "must satisfy 0 < discount <= 1")
-        for name in ("layer_norm", "contract_zeta"):
+        for name in ("layer_norm", "contract_zeta", "shared_adam"):
             if not isinstance(getattr(self, name), bool):
                 _fail(name, getattr(self, name), "must be a bool")
         if not _is_real(self.spr_augmentation_std) or self.spr_augmentation_std < 0:

@@ -217,3 +217,31 @@ def test_aux_every_is_validated(every, message):
     bad = type("Bad", (representations.SF2Representation,), {"aux_every": every})
     with pytest.raises(ValueError, match=message):
         make_algorithm("td3", SF2Config.small(D, A), bad)
+
+
+@pytest.mark.parametrize("shared", [True, False])
+def test_psi_adam_state_shared_or_one_per_loss(shared):
+    """`shared_adam` (the authors' way, True): ψ's TD step and flow step share one Adam state. False: each
+    loss has its own, so from fresh states the flow step is Adam's first step, Δψ = −lr·g/(|g| + ε)
+    (bias correction is exact at t = 1): every element moves by lr·|g|/(|g| + ε) ≤ lr. ψ after the critic
+    step alone (ψ₁) is Adam's first step on the TD gradient, derived here from `critic_loss`."""
+    cfg = SF2Config.small(D, A, gamma_su=0.9, shared_adam=shared)
+    algo = make_algorithm("td3", cfg, representations.get("sf2"))
+    params, opt = algo.init(jax.random.PRNGKey(0))
+    assert set(opt) == {"q", "psi", "zeta", "policy"} | (set() if shared else {"psi:aux"})
+    batch = _batch(jax.random.PRNGKey(1))
+    noise = algo.step_noise(jax.random.PRNGKey(2), batch)
+    g_td = jax.grad(lambda psi: algo.critic_loss({**params, "psi": psi}, batch, noise)[0])(params["psi"])
+    lr, eps = cfg.learning_rate, cfg.adam_eps
+    psi1 = jax.tree_util.tree_map(lambda p, g: p - lr * g / (jnp.abs(g) + eps), params["psi"], g_td)
+    new, opt, _ = jax.jit(algo.sgd_step)(params, opt, batch, noise, 0)
+    counts = {k: int(v[0].count) for k, v in opt.items()}
+    assert counts == ({"q": 1, "psi": 2, "zeta": 1, "policy": 1} if shared
+                      else {"q": 1, "psi": 1, "psi:aux": 1, "zeta": 1, "policy": 1})
+    steps = np.concatenate([np.abs(np.ravel(a - b)) for a, b in zip(
+        jax.tree_util.tree_leaves(new["psi"]), jax.tree_util.tree_leaves(psi1))])
+    at_lr = np.mean(np.isclose(steps, lr, rtol=1e-2))
+    if shared:
+        assert at_lr < 0.5           # the shared moments blend both gradients: most steps are not lr
+    else:
+        assert steps.max() <= lr * (1 + 1e-3) and at_lr > 0.9   # 1e-3: float32 rounding of ψ − ψ₁

@@ -238,10 +238,15 @@ def test_aux_every_is_validated(every, message):
         algorithms.make_algorithm("td3", SF2Config.small(D, A), bad)
 
 
-def test_state_dict_round_trip():
-    """A checkpoint holds every group and Adam state: a fresh agent loaded from it takes the same step."""
-    algo = _algo("sac")
+@pytest.mark.parametrize("shared_adam", [True, False])
+def test_state_dict_round_trip(shared_adam):
+    """A checkpoint holds every group and Adam state (ψ's second one, `psi:aux`, when `shared_adam` is
+    False): a fresh agent loaded from it takes the same step."""
+    algo = _algo("sac", shared_adam=shared_adam)
     algo.sgd_step(_batch(0), _noise(algo, _batch(0)), 0)
+    steps = {g: int(next(iter(o.state.values()))["step"]) for g, o in algo.optimizers.items()
+             if g in ("psi", "psi:aux")}
+    assert steps == ({"psi": 2} if shared_adam else {"psi": 1, "psi:aux": 1})
     fresh = algorithms.make_algorithm("sac", algo.cfg, representations.get("sf2"))
     fresh.load_state_dict(copy.deepcopy(algo.state_dict()))
     batch = _batch(1)

@@ -49,7 +49,7 @@ _SF2_DEFAULTS = {f.name: f.default for f in fields(SF2Config)}
 # Fields added after run folders were written, with the value every older run trained with (then a module
 # constant): a folder whose config.json lacks one holds the same run as a config with that value
 # (`RunFolder.check_compatible`), so it resumes and joins a study as before.
-ADDED_FIELDS = {"spr_augmentation_std": _SF2_DEFAULTS["spr_augmentation_std"]}
+ADDED_FIELDS = {name: _SF2_DEFAULTS[name] for name in ("spr_augmentation_std", "shared_adam")}
 SF2_FIELDS = tuple(name for name in _SF2_DEFAULTS if name not in ("obs_size", "action_size"))
 
 
@@ -93,6 +93,7 @@ class TrainConfig:
     learning_rate: float = _SF2_DEFAULTS["learning_rate"]
     alpha_learning_rate: float = _SF2_DEFAULTS["alpha_learning_rate"]
     adam_eps: float = _SF2_DEFAULTS["adam_eps"]
+    shared_adam: bool = _SF2_DEFAULTS["shared_adam"]   # ψ: one Adam state, TD and flow steps (authors')
     smoothing_noise: float = _SF2_DEFAULTS["smoothing_noise"]
     noise_clip: float = _SF2_DEFAULTS["noise_clip"]
     exploration_noise: float = _SF2_DEFAULTS["exploration_noise"]

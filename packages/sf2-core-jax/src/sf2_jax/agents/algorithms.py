@@ -17,7 +17,9 @@ One SGD step (`sgd_step`; docs/core-contract.md "One SGD step", the authors' ord
    step), the representation's `targets()` every step. The authors' TD3 blended the new policy into the
    old *online* policy; we average into the target.
 Each group has its own Adam state, so ψ, trained in steps 2 and 3, keeps one state across both (as in
-the authors' code).
+the authors' code); with `shared_adam = False` step 3 gives such a group a second state of its own,
+`opt_state["<group>:aux"]` (an ablation: then the flow loss's gradient does not set the scale of the TD
+loss's steps on ψ through the shared second moment).
 
 Noise: `step_noise(key, batch)` draws every random input of one SGD step, a dict keyed by
 `noise_keys()`: TD3 `smoothing_noise` ξ (target-policy smoothing); SAC `next_action_noise` ξ′ (a′ ~ π(s′)
@@ -93,7 +95,16 @@ class Algorithm:
         params = {n: core[n] for n in ("obs_norm", "policy", "target_policy", "log_alpha") if n in core}
         params.update(self.rep.init(k_rep, core))
         opt_state = {g: self._tx(g).init(params[g]) for g in self.trained_groups()}
+        for g in self.rep.aux_groups:
+            if self.aux_state(g) != g:
+                opt_state[self.aux_state(g)] = self._tx(g).init(params[g])
         return params, opt_state
+
+    def aux_state(self, group: str) -> str:
+        """The Adam state the representation's loss steps `group` with: its own, or with `shared_adam =
+        False` a second one when the critic also trains the group (ψ)."""
+        shared = self.cfg.shared_adam or group not in self.rep.critic_groups
+        return group if shared else f"{group}:aux"
 
     def _value_and_grad(self, loss_fn, groups, params):
         """((loss, aux), {group: gradient}) of `loss_fn(params)` with respect to `groups` only."""
@@ -102,20 +113,22 @@ class Algorithm:
 
         return jax.value_and_grad(f, has_aux=True)({g: params[g] for g in groups})
 
-    def _adam_step(self, params, opt_state, grads, due=None):
-        """Adam on every group of `grads`; a group of `due` ({group: bool scalar}) keeps its parameters
-        and Adam state (moments and count) where its flag is False."""
+    def _adam_step(self, params, opt_state, grads, due=None, states=None):
+        """Adam on every group of `grads`, with the state `states[group]` (default: the group's own); a
+        group of `due` ({group: bool scalar}) keeps its parameters and Adam state (moments and count) where
+        its flag is False."""
         params, opt_state = dict(params), dict(opt_state)
         for group, grad in grads.items():
-            updates, state = self._tx(group).update(grad, opt_state[group], params[group])
+            key = (states or {}).get(group, group)
+            updates, state = self._tx(group).update(grad, opt_state[key], params[group])
             new = optax.apply_updates(params[group], updates)
             if due is not None and group in due:
                 def keep(n, o, flag=due[group]):
                     return jnp.where(flag, n, o)
 
                 new = jax.tree_util.tree_map(keep, new, params[group])
-                state = jax.tree_util.tree_map(keep, state, opt_state[group])
-            params[group], opt_state[group] = new, state
+                state = jax.tree_util.tree_map(keep, state, opt_state[key])
+            params[group], opt_state[key] = new, state
         return params, opt_state
 
     # ------------------------------------------------------------------ acting (overridden)
@@ -189,7 +202,8 @@ class Algorithm:
             (loss, aux), grads = self._value_and_grad(
                 lambda p: rep.aux_loss(p, batch, next_action, aux_noise), rep.aux_groups, params)
             due = {g: step % every == 0 for g, every in rep.aux_every.items()}
-            params, opt_state = self._adam_step(params, opt_state, grads, due)
+            params, opt_state = self._adam_step(params, opt_state, grads, due,
+                                                {g: self.aux_state(g) for g in grads})
             metrics.update({rep.aux_loss_name: loss, **aux})
 
         # 1 and 4: the policy groups' gradients at `pre`, then Adam on them (actor steps only)

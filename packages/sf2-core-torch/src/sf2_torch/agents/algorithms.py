@@ -17,7 +17,9 @@ One SGD step (`sgd_step`; docs/core-contract.md "One SGD step", the authors' ord
    step), the representation's `targets()` every step. The authors' TD3 blended the new policy into the
    old *online* policy; we average into the target.
 Each group has its own Adam state, so ψ, trained in steps 2 and 3, keeps one state across both (as in
-the authors' code). torch: each loss's gradient lands only in the groups it trains,
+the authors' code); with `shared_adam = False` step 3 steps such a group with a second optimizer of its
+own, `optimizers["<group>:aux"]` (an ablation; sf2_jax's `opt_state["<group>:aux"]`). torch: each loss's
+gradient lands only in the groups it trains,
 `loss.backward(inputs=...)` with their parameters (losses.py, "Gradient contract"); one `torch.optim.Adam`
 per group (lr `learning_rate`, ε `adam_eps`; log α: lr `alpha_learning_rate`, ε 1e-8 as optax's default);
 the targets move by one `torch._foreach_lerp_` per rate.
@@ -86,6 +88,9 @@ class Algorithm:
             n: getattr(self.nets, n) for n in core if hasattr(self.nets, n)}
         self.groups.update(self.rep.init(self.nets))
         self.optimizers = {g: self._make_adam(g, bool(cudagraphs)) for g in self.trained_groups()}
+        for g in self.rep.aux_groups:
+            if self.aux_state(g) != g:
+                self.optimizers[self.aux_state(g)] = self._make_adam(g, bool(cudagraphs))
         self.compile_mode = compile_mode
         self.cudagraphs = bool(cudagraphs)
         self._steps: dict[tuple, Any] = {}
@@ -114,6 +119,12 @@ class Algorithm:
     def trained_groups(self) -> tuple[str, ...]:
         groups = ["q", *self.rep.critic_groups, *self.rep.aux_groups, *self.policy_groups]
         return tuple(dict.fromkeys(groups))
+
+    def aux_state(self, group: str) -> str:
+        """The optimizer the representation's loss steps `group` with: its own, or with `shared_adam =
+        False` a second one when the critic also trains the group (ψ)."""
+        shared = self.cfg.shared_adam or group not in self.rep.critic_groups
+        return group if shared else f"{group}:aux"
 
     def state_dict(self) -> dict:
         """Every group (modules' state dicts, parameters' values) and every Adam state."""
@@ -233,7 +244,7 @@ class Algorithm:
             self._zero(rep.aux_groups)
             loss, aux_metrics = self._part("_aux")(batch, noise)
             loss.backward(inputs=self._params(rep.aux_groups))
-            self._adam(g for g in rep.aux_groups if g not in skip)
+            self._adam(self.aux_state(g) for g in rep.aux_groups if g not in skip)
             metrics.update(aux_metrics)
         # 4. Adam on the policy groups (actor steps only; zeros as their metrics otherwise)
         if actor_step:
