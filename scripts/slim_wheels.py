@@ -6,8 +6,8 @@ all, this repository included): drops from the wheels in FOLDER what training ne
 mujoco: `mujoco/experimental/` (15.7 MB compressed) and `mujoco/testdata/`; mujoco-mjx:
 `mujoco/mjx/test_data/` (6.5 MB); playground: the locomotion and manipulation robots' assets (7.6 MB; their
 Python modules stay, as the registry imports them). The seven DM Control tasks of the studies load and step
-with what is left
-(checked with Python 3.12, the host's, on 2026-11-23). pip installs such a wheel: it writes its own RECORD.
+with what is left (checked with Python 3.12, the host's, on 2026-11-23). pip installs such a wheel: it
+writes its own RECORD.
 """
 
 import sys
