@@ -7,6 +7,9 @@
 #
 #   bash scripts/gpu_study.sh STUDY.toml SECONDS [study run options: --tasks ... --methods ... --seeds ...]
 #
+# On a lease's last command add `--finish-within <seconds the lease has left>`: runs forecast to end later
+# are not started (their checkpoints would go back with the host).
+#
 # Wheels: .whl-jax (git-excluded) = the output of ../shared/device/wheels.sh without TorchRL, plus
 # pandas 2.3 (the host's pandas 3 breaks arch, rliable's dependency) and its pytz/tzdata/dateutil/six.
 # The archive $OUT/<name>.tar.gz is a study folder (no checkpoints); merge it here with

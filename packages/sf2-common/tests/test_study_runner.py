@@ -163,3 +163,31 @@ def test_dry_run_estimate_from_the_finished_runs(tmp_path):
         "estimate: 3 run(s) to do ≈ 8m20s of training on one worker (at the wall time per env step of the 3 "
         "finished run(s) here; C: no finished run yet, their mean)")
     assert runner.estimate([], todo) is None and runner.estimate(done, []) is None
+
+
+def test_finish_within_starts_only_runs_forecast_to_end_in_time(tmp_path, monkeypatch):
+    """Finished runs of 1,000 env steps took 1e6 s on task A (1,000 s per env step) and 0.001 s on B: with
+    60 s to go, B's runs start (forecast ≈ 0 s), A's do not, nor C's (no finished run: the mean rate,
+    500 s per env step); every run starts without a finished run to forecast from."""
+    from types import SimpleNamespace
+
+    study, backend, folder, runs = _setup(tmp_path, monkeypatch)
+    jobs, done = runner.plan(study, folder, runs)
+    finished = []
+    for task, wall in (("A", 1e6), ("B", 1e-3)):
+        path = tmp_path / "finished" / task
+        path.mkdir(parents=True)
+        (path / "metrics.jsonl").write_text(json.dumps({"epoch": 1, "seed": 0, "env_steps": 1000,
+                                                        "walltime": wall}) + "\n")
+        finished.append(runner.Job(SimpleNamespace(task=task, rel="m"), path, [], 1000, 1000))
+    env = {"PATH": "/usr/bin:/bin", "PYTHONPATH": str(tmp_path) + ":" + ":".join(sys.path),
+           "CUDA_VISIBLE_DEVICES": ""}
+    outcome = runner.run_local(study, folder, jobs, finished, backend=backend, base_env=env, progress=False,
+                               poll=0.05, finish_within=60)
+    assert outcome.ok
+    assert sorted(outcome.deferred) == sorted(j.name for j in jobs if j.run.task in ("A", "C"))
+    assert sorted(outcome.done) == sorted([j.name for j in jobs if j.run.task == "B"] + ["A/m", "B/m"])
+    assert all((j.path / "child.json").exists() == (j.run.task == "B") for j in jobs)
+    outcome = runner.run_local(study, folder, [j for j in jobs if j.run.task == "A"], [], backend=backend,
+                               base_env=env, progress=False, poll=0.05, finish_within=60)
+    assert not outcome.deferred and len(outcome.done) == 2            # nothing to forecast from: all start

@@ -2,13 +2,14 @@
 `main`):
 
     PROG study run FILE --out DIR [--tasks A,B] [--methods m1,m2] [--seeds 0-4] [--workers N] [--ray ADDRESS]
-                   [--dry-run]
+                   [--finish-within SECONDS] [--dry-run]
     PROG study report DIR [--out REPORT_DIR]
     PROG study merge SOURCE... --into DIR [--partial]
 
 `run` checks the study file and every run's config before anything is compiled (bad input: exit status
 2, nothing written), then trains what is not done yet (runner.py, rayrun.py); exit status 0 when every
-selected run is done, 1 if one failed or was held by another runner. `report` writes results.csv,
+selected run is done (or, with --finish-within, left unstarted as forecast not to end in time), 1 if
+one failed or was held by another runner. `report` writes results.csv,
 summary.md and the figures (report.py). `merge` joins study folders or their .tar.gz archives (runs
 that came back from other commands, machines or sessions) into one study folder (merge.py).
 FILE may also be the name of a file in ./studies/ (`smoke`).
@@ -43,6 +44,10 @@ def add_parser(sub, prog: str) -> None:
                    "seeds_per_run makes the groups)")
     r.add_argument("--workers", type=int, default=None,
                    help="runs at a time on this host (default: one per visible GPU, else 1)")
+    r.add_argument("--finish-within", metavar="SECONDS", type=float, default=None,
+                   help="start a run only if the forecast from the finished runs' rates ends it within "
+                   "SECONDS from now (e.g. the time left on a leased machine); runs started are never "
+                   "stopped")
     r.add_argument("--ray", metavar="ADDRESS", default=None,
                    help="dispatch each run as a Ray task to this cluster ('local': start one here, 'auto')")
     r.add_argument("--ray-gpus", type=float, default=1.0,
@@ -112,6 +117,10 @@ def _run(backend, args, command: str) -> int:
                          f"`sf2-{study.framework} study run`, not {backend.prog}")
     if args.workers is not None and args.workers < 1:
         raise StudyError(f"--workers {args.workers} is invalid: an int >= 1")
+    if args.finish_within is not None and not args.finish_within > 0:
+        raise StudyError(f"--finish-within {args.finish_within} is invalid: seconds > 0")
+    if args.finish_within is not None and args.ray is not None:
+        raise StudyError("--finish-within is for this host's runner, not --ray")
     if args.ray is not None:
         from .rayrun import _ray
 
@@ -144,10 +153,13 @@ def _run(backend, args, command: str) -> int:
                           num_gpus=args.ray_gpus, num_cpus=args.ray_cpus, progress=not args.no_progress)
     else:
         outcome = runner.run_local(study, folder, jobs, done, backend=backend, base_env=base_env,
-                                   workers=args.workers, progress=not args.no_progress)
+                                   workers=args.workers, progress=not args.no_progress,
+                                   finish_within=args.finish_within)
     print(f"{study.name}: {len(outcome.done)} of {len(selected)} run(s) done"
           + (f", {len(outcome.failed)} failed" if outcome.failed else "")
-          + (f", {len(outcome.busy)} held by another runner" if outcome.busy else ""))
+          + (f", {len(outcome.busy)} held by another runner" if outcome.busy else "")
+          + (f", {len(outcome.deferred)} not started (would not end within --finish-within)"
+             if outcome.deferred else ""))
     for name, rc, log in outcome.failed:
         print(f"  FAILED {name} (exit status {rc}): see {log}", file=sys.stderr)
     print(f"report: {backend.prog} study report {folder.path}")

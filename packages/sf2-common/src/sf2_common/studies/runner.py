@@ -35,8 +35,8 @@ from .folder import LOG, StudyFolder
 from .progress import Progress, duration
 from .spec import Run, Study, StudyError
 
-__all__ = ["Backend", "Job", "plan", "estimate", "eval_argv", "child_env", "visible_gpus", "run_local",
-           "Outcome", "LOCK"]
+__all__ = ["Backend", "Job", "plan", "Forecast", "estimate", "eval_argv", "child_env", "visible_gpus",
+           "run_local", "Outcome", "LOCK"]
 
 LOCK = ".study-lock"
 
@@ -70,6 +70,7 @@ class Outcome:
     done: list[str]
     failed: list[tuple[str, int, Path]]     # (run, exit status, log)
     busy: list[str]                         # locked by another runner
+    deferred: list[str] = dataclasses.field(default_factory=list)   # would not end by --finish-within
 
     @property
     def ok(self) -> bool:
@@ -105,25 +106,45 @@ def plan(study: Study, folder: StudyFolder, runs: list[Run]) -> tuple[list[Job],
     return todo, done
 
 
-def estimate(done: list[Job], todo: list[Job]) -> str | None:
-    """A dry run's forecast of the training time left: each job's remaining env steps at the wall-clock
-    seconds per env step of the finished runs of its task in this folder (the mean over all finished runs
-    for a task without one), summed as if one worker ran them all. None without a finished run. The rates
-    are those of the machines the runs ran on; evaluation children ([evaluation]) are not counted."""
-    rates: dict[str, list[float]] = {}
-    for job in done:
+class Forecast:
+    """Seconds of training a job still needs: its remaining env steps at the wall-clock seconds per env step
+    of the finished runs of its task (their mean; for a task without one, the mean over every finished run).
+    The rates are those of the machines the finished runs ran on; evaluation children ([evaluation]) are
+    not counted. `known` is False without any finished run."""
+
+    def __init__(self, done: list[Job]):
+        self.rates: dict[str, list[float]] = {}
+        for job in done:
+            self.add(job)
+
+    def add(self, job: Job) -> None:
         wall = max((r.get("walltime", 0.0) for r in RunFolder(job.path).read_rows()), default=0.0)
         if wall > 0 and job.total_steps > 0:
-            rates.setdefault(job.run.task, []).append(wall / job.total_steps)
-    if not rates or not todo:
+            self.rates.setdefault(job.run.task, []).append(wall / job.total_steps)
+
+    @property
+    def known(self) -> bool:
+        return bool(self.rates)
+
+    def rate(self, task: str) -> float:
+        mine = self.rates.get(task) or [x for v in self.rates.values() for x in v]
+        return sum(mine) / len(mine)
+
+    def seconds(self, job: Job) -> float:
+        return (job.total_steps - job.done_steps) * self.rate(job.run.task)
+
+
+def estimate(done: list[Job], todo: list[Job]) -> str | None:
+    """A dry run's forecast of the training time left (`Forecast`), summed as if one worker ran every job.
+    None without a finished run or without a job."""
+    forecast = Forecast(done)
+    if not forecast.known or not todo:
         return None
-    every = [x for v in rates.values() for x in v]
-    overall = sum(every) / len(every)
-    seconds = sum((j.total_steps - j.done_steps) * (sum(rates[j.run.task]) / len(rates[j.run.task])
-                                                    if j.run.task in rates else overall) for j in todo)
-    guessed = sorted({j.run.task for j in todo if j.run.task not in rates})
+    seconds = sum(forecast.seconds(j) for j in todo)
+    guessed = sorted({j.run.task for j in todo if j.run.task not in forecast.rates})
+    finished = sum(len(v) for v in forecast.rates.values())
     return (f"estimate: {len(todo)} run(s) to do ≈ {duration(seconds)} of training on one worker (at the "
-            f"wall time per env step of the {len(every)} finished run(s) here"
+            f"wall time per env step of the {finished} finished run(s) here"
             + (f"; {', '.join(guessed)}: no finished run yet, their mean" if guessed else "") + ")")
 
 
@@ -210,9 +231,14 @@ class _Slot:
 
 def run_local(study: Study, folder: StudyFolder, jobs: list[Job], done: list[Job], *, backend: Backend,
               base_env: dict, workers: int | None = None, progress: bool = True, poll: float = 1.0,
-              stream=None) -> Outcome:
-    """Run `jobs` on this host (module docstring); `done` counts towards the progress view."""
+              stream=None, finish_within: float | None = None) -> Outcome:
+    """Run `jobs` on this host (module docstring); `done` counts towards the progress view. With
+    `finish_within` (seconds from now) a job starts only if its `Forecast` ends by then (a leased machine
+    that goes back at a known time then spends none of it on runs that would be cut and lost); every job
+    starts while no run has finished to forecast from. Runs already started are never stopped by it."""
     stream = stream or sys.stderr
+    deadline = None if finish_within is None else time.monotonic() + finish_within
+    forecast = Forecast(done)
     gpus = visible_gpus(base_env)
     if gpus:
         if workers is not None and workers > len(gpus):
@@ -230,6 +256,13 @@ def run_local(study: Study, folder: StudyFolder, jobs: list[Job], done: list[Job
     steps = {j.name: j.done_steps for j in jobs + done}
 
     def start(slot: _Slot, job: Job) -> bool:
+        if deadline is not None and forecast.known:
+            left, need = deadline - time.monotonic(), forecast.seconds(job)
+            if need > left:
+                outcome.deferred.append(job.name)
+                view.event(f"  {job.name}: not started, its forecast {duration(need)} exceeds the "
+                           f"{duration(max(left, 0))} left of --finish-within")
+                return False
         fd = lock(job.path)
         if fd is None:
             outcome.busy.append(job.name)
@@ -265,6 +298,7 @@ def run_local(study: Study, folder: StudyFolder, jobs: list[Job], done: list[Job
                 steps[job.name] = folder.run_state(job.run, study).env_steps
                 if rc == 0:
                     outcome.done.append(job.name)
+                    forecast.add(job)
                     view.event(f"  {job.name}: done")
                 else:
                     outcome.failed.append((job.name, rc, job.path / LOG))
