@@ -142,7 +142,8 @@ def test_plan_and_dry_run_per_group(tmp_path, monkeypatch, capsys):
 
     backend = runner.Backend("sf2-fake", "jax", "fake", _make, lambda cfg, seeds: cfg)
     args = argparse.Namespace(file=str(study.path), out=str(folder.path), tasks="A", methods=None,
-                              seeds="0-9", workers=None, ray=None, dry_run=True, no_progress=True)
+                              seeds="0-9", workers=None, ray=None, dry_run=True, no_progress=True,
+                              finish_within=None)
     assert commands._run(backend, args, "cmd") == 0
     out = capsys.readouterr().out.splitlines()
     assert "4 run(s) selected of 12; seed groups 0-4, 5-9" in out[0]
@@ -214,7 +215,7 @@ def test_report_joins_groups_and_flags_unequal_seeds(tmp_path):
     assert sorted(int(r["seed"]) for r in rows if r["task"] == "B" and r["method"] == "TD3+SF²") == [0, 1]
     summary = written["summary.md"].read_text()
     assert "Runs: 3 of 4 (task, method) pairs finished, 1 with some of their seeds" in summary
-    assert "in seed groups of 2 (0-1, 2-3), one run each" in summary
+    assert "in seed groups (0-1, 2-3), one run each" in summary
     assert "| TD3 | 4 | 4 |" in summary and "| TD3+SF² | 4 | 2 (missing 2-3) |" in summary
     assert "**Unequal seed counts**: methods are compared at different numbers of seeds on B (TD3: TD3 4, " \
            "TD3+SF² 2)" in summary
@@ -232,3 +233,64 @@ def test_report_joins_groups_and_flags_unequal_seeds(tmp_path):
             "are finished on these tasks by some methods only and left out") in summary
     assert "Unequal seed counts (TD3)" not in summary     # the aggregate compares equal seeds
     assert "| B | TD3+SF² | 2-3: partial (epoch 1 of 2) |" in summary
+
+
+def test_listed_groups_split_the_seeds(tmp_path):
+    """`seeds_per_run` may list the groups: they must split the study's seeds, each seed in one group."""
+    study = _load(tmp_path, STUDY.replace("seeds_per_run = 5", 'seeds_per_run = ["0-4", "5-14"]'))
+    assert study.seed_groups() == (tuple(range(5)), tuple(range(5, 15)))
+    assert [study.group_folder(g) for g in study.seed_groups()] == ["seeds-0-4", "seeds-5-14"]
+    assert study.groups_text == "seed groups 0-4, 5-14"
+    assert study.select_groups("5-14") == (tuple(range(5, 15)),)
+    for groups, why in (('["0-4", "4-14"]', "in two groups: 4"), ('["0-4", "6-14"]', "in no group: 5"),
+                        ('["0-4", "5-15"]', "not seeds of the study: 15"),
+                        ('["0-4", "x"]', "group 'x' is invalid"), ("[]", "\\[\\] is invalid")):
+        with pytest.raises(StudyError, match=why):
+            _load(tmp_path, STUDY.replace("seeds_per_run = 5", f"seeds_per_run = {groups}"))
+
+
+@pytest.mark.parametrize("on_disk,accepted", [(["seeds-0-4"], True), (["seeds-0-4", "seeds-5-9"], False),
+                                              ([], True)])
+def test_a_folder_accepts_other_groups_that_keep_its_runs(tmp_path, monkeypatch, on_disk, accepted):
+    """A folder made with groups of 5 accepts the groups 0-4, 5-14 while it holds no run folder of a group
+    that would be gone (5-9); a folder made without seed groups keeps its layout."""
+    old = _load(tmp_path)
+    folder = StudyFolder(tmp_path / "study")
+    folder.open(old, "jax", _resolve(old, monkeypatch))
+    for name in on_disk:
+        (folder.path / "runs" / "A" / "td3" / name).mkdir(parents=True)
+    new = _load(tmp_path, STUDY.replace("seeds_per_run = 5", 'seeds_per_run = ["0-4", "5-14"]'))
+    if accepted:
+        folder.open(new, "jax", _resolve(new, monkeypatch))
+        assert folder.load_study().seed_groups() == new.seed_groups()      # the copy follows the file
+    else:
+        with pytest.raises(StudyError, match="differ in seeds_per_run"):
+            folder.check(new, "jax")
+    flat = StudyFolder(tmp_path / "flat")
+    ungrouped = _load(tmp_path, STUDY.replace("seeds_per_run = 5", ""))
+    flat.open(ungrouped, "jax", _resolve(ungrouped, monkeypatch))
+    with pytest.raises(StudyError, match="differ in seeds_per_run"):
+        flat.check(new, "jax")
+
+
+def test_merge_takes_a_source_of_other_groups_that_are_still_groups(tmp_path, monkeypatch):
+    """`study merge` into a folder whose study lists the groups 0-4, 5-14 takes a source made with groups of
+    5 while the source holds run folders of 0-4 only; one of 5-9 makes it refuse, writing nothing."""
+    from sf2_common.studies import merge as merging
+
+    old = _load(tmp_path)
+    new = _load(tmp_path, STUDY.replace("seeds_per_run = 5", 'seeds_per_run = ["0-4", "5-14"]'))
+    dest = StudyFolder(tmp_path / "dest")
+    dest.open(new, "jax", _resolve(new, monkeypatch))
+    src = StudyFolder(tmp_path / "src")
+    src.open(old, "jax", _resolve(old, monkeypatch))
+    (src.path / "runs" / "A" / "td3" / "seeds-0-4").mkdir(parents=True)
+
+    def runs_of(study):
+        return _resolve(study, monkeypatch)
+
+    out = merging.merge([src.path], dest.path, runs_of, framework="jax", say=lambda line: None)
+    assert not out.merged
+    (src.path / "runs" / "A" / "td3" / "seeds-5-9").mkdir(parents=True)
+    with pytest.raises(StudyError, match="differ in seeds_per_run"):
+        merging.merge([src.path], dest.path, runs_of, framework="jax", say=lambda line: None)

@@ -49,7 +49,7 @@ def test_shipped_study_files_parse(path):
 def test_paper_studies_declare_the_protocol():
     fig7 = spec.load(STUDIES / "fig7-td3.toml")
     assert fig7.seeds == tuple(range(15)) and len(fig7.tasks) == 7
-    assert fig7.seed_groups() == (tuple(range(5)), tuple(range(5, 10)), tuple(range(10, 15)))
+    assert fig7.seed_groups() == (tuple(range(5)), tuple(range(5, 15)))     # seeds_per_run = ["0-4", "5-14"]
     assert dict(fig7.overrides)["num_timesteps"] == "1000000"
     assert [m.label for m in fig7.methods] == ["TD3", "TD3+SF² (γ=0.99)", "TD3+SF² (γ=0)", "TD3+Sim",
                                                "TD3+SimLap", "TD3+SPR"]

@@ -27,7 +27,7 @@ from pathlib import Path
 from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch
 from sf2_common.fileio import atomic_write
 
-from .spec import Run, Study, StudyError, loads
+from .spec import Run, Study, StudyError, loads, same_runs
 
 __all__ = ["StudyFolder", "RunState", "OBS_NOISE", "LOG", "evaluation_settings", "evaluation_done",
            "command_line"]
@@ -76,9 +76,8 @@ class StudyFolder:
                                  f"an empty or new folder")
             return
         old = self.load_study()
-        mine, theirs = old.runs_data(), study.runs_data()
-        if mine != theirs:
-            keys = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
+        keys = same_runs(old, study, self.groups_on_disk(old))
+        if keys:
             raise StudyError(
                 f"study folder {self.path} was made from another study file: its copy {self.study_path} "
                 f"(study {old.name!r}) and {study.path} (study {study.name!r}) differ in {', '.join(keys)}. "
@@ -87,6 +86,12 @@ class StudyFolder:
         if old_framework and old_framework != framework:
             raise StudyError(f"study folder {self.path} holds runs of sf2-{old_framework}; continue it with "
                              f"`sf2-{old_framework} study run` (runs of two frameworks do not mix)")
+
+    def groups_on_disk(self, study: Study) -> set[tuple[int, ...]]:
+        """The seed groups of `study` that have a run folder here (of any task and method, any state)."""
+        base = self.path / self.RUNS
+        return {g for g in study.seed_groups()
+                if study.group_folder(g) and any(base.glob(f"*/*/{study.group_folder(g)}"))}
 
     def open(self, study: Study, framework: str, runs: list[Run], command: str | None = None) -> dict:
         """`check`, then create or update the folder: its copy of the study file, and study.json (the run

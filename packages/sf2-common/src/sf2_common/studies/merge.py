@@ -44,7 +44,7 @@ from sf2_common.agents.runfolder import RunFolder, RunFolderError, RunFolderMism
 from sf2_common.fileio import atomic_write
 
 from .folder import OBS_NOISE, StudyFolder
-from .spec import Run, Study, StudyError, loads, seeds_text
+from .spec import Run, Study, StudyError, loads, same_runs, seeds_text
 
 __all__ = ["KEPT", "Outcome", "merge"]
 
@@ -236,7 +236,7 @@ def _check_studies(opened, dest: StudyFolder, framework: str) -> Study:
             raise StudyError(f"merge source {name}: {src.study_path} cannot be read ({err})") from None
         except StudyError as err:
             raise StudyError(f"merge source {name}: {err}") from None
-        studies.append((name, study))
+        studies.append((name, study, src))
         got = _state(src, name).get("framework") or study.framework
         if got is not None and got != framework:
             raise StudyError(f"merge source {name} holds runs of sf2-{got}; merge it with `sf2-{got} study "
@@ -244,7 +244,7 @@ def _check_studies(opened, dest: StudyFolder, framework: str) -> Study:
     if dest.path.exists() and not dest.path.is_dir():
         raise StudyError(f"--into {dest.path} is a file, not a study folder")
     if dest.study_path.exists():
-        studies.insert(0, (f"--into {dest.path}", dest.load_study()))
+        studies.insert(0, (f"--into {dest.path}", dest.load_study(), dest))
         got = _state(dest, str(dest.path)).get("framework")
         if got is not None and got != framework:
             raise StudyError(f"--into {dest.path} holds runs of sf2-{got}; merge with `sf2-{got} study "
@@ -252,11 +252,12 @@ def _check_studies(opened, dest: StudyFolder, framework: str) -> Study:
     elif dest.path.exists() and any(dest.path.iterdir()):
         raise StudyError(f"--into {dest.path} is not empty and holds no study ({StudyFolder.STUDY}); "
                          f"choose a study folder of the same study, or a new folder")
-    first_name, first = studies[0]
-    for name, study in studies[1:]:
-        mine, theirs = first.runs_data(), study.runs_data()   # description, report, claims may differ
-        if mine != theirs:
-            keys = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
+    first_name, first, _ = studies[0]
+    for name, study, folder in studies[1:]:
+        # description, report, claims may differ; seed groups too while every group the source holds a
+        # run folder of is one of the first study's (spec.same_runs)
+        keys = same_runs(study, first, folder.groups_on_disk(study))
+        if keys:
             raise StudyError(f"{name} holds study {study.name!r}, not the study of {first_name} "
                              f"({first.name!r}): their study.toml differ in {', '.join(keys)}; nothing was "
                              f"merged")

@@ -373,8 +373,8 @@ def report(path, out=None, command: str | None = None) -> dict[str, Path]:
     md += [f"Runs: {complete} of {len(data)} (task, method) pairs finished"
            + (f", {partial} with some of their seeds" if partial else "") + f"; seeds "
            f"{', '.join(map(str, study.seeds))}"
-           + (f" in seed groups of {study.seeds_per_run} ({', '.join(seeds_text(g) for g in groups)}), "
-              f"one run each" if study.seeds_per_run else "") + f"; preset `{study.preset}`.", ""]
+           + (f" in seed groups ({', '.join(seeds_text(g) for g in groups)}), one run each"
+              if study.seeds_per_run else "") + f"; preset `{study.preset}`.", ""]
     md += _md_definitions(study)
     md += _md_seed_counts(study, data)
 

@@ -7,7 +7,8 @@ anything is compiled. Every problem is a `StudyError` naming the file, the entry
     framework = "jax"                      # optional: only `sf2-jax study run` may run it
     preset = "paper"                       # paper | quick
     seeds = "0-14"                         # or a list of ints
-    seeds_per_run = 5                      # optional: runs of 5 consecutive seeds each (default: all)
+    seeds_per_run = 5                      # optional: runs of 5 consecutive seeds each (default: all),
+                                           # or the groups themselves: ["0-4", "5-14"]
     tasks = ["AcrobotSwingup", "CheetahRun"]
     budget = 1_000_000                     # env steps per run; "preset" (default): the preset's own
     [overrides]                            # TrainConfig fields for every run
@@ -44,6 +45,10 @@ may be shorter): seeds "0-14" with seeds_per_run = 5 give the groups 0-4, 5-9 an
 (one program over its seeds) in runs/<task>/<method>/seeds-0-4/ etc., trained, resumed and skipped on its
 own; `study run --seeds 0-4` runs only the groups inside 0-4, and the report joins the groups' seeds per
 (task, method). A study can so grow 5 → 10 → 15 seeds over sessions, every finished run folder reused.
+`seeds_per_run` may also list the groups (they must split the study's seeds, each seed in one): a GPU
+trains more seeds in one program at a higher rate, so `["0-4", "5-14"]` runs seeds 5-14 as one run. A
+study folder accepts a study file whose groups differ from its copy's as long as every group it has a run
+folder of is still a group (`same_runs`): seeds 0-4 as run before, seeds 5-14 as one new run.
 """
 
 from __future__ import annotations
@@ -65,7 +70,7 @@ else:  # pragma: no cover - Python 3.10: the backport (a dependency of sf2-commo
 
 __all__ = [
     "StudyError", "Method", "Evaluation", "ReportSettings", "Study", "Run", "load", "loads", "resolve",
-    "select_runs",
+    "select_runs", "same_runs",
     "slug", "FIGURES", "FRAMEWORKS", "RUN_NEUTRAL",
 ]
 
@@ -139,7 +144,8 @@ class Study:
     methods: tuple[Method, ...]
     evaluation: Evaluation | None
     report: ReportSettings
-    seeds_per_run: int | None = None      # None: one run over every seed (module docstring)
+    # None: one run over every seed; an int: consecutive chunks; a tuple of seed tuples: those groups
+    seeds_per_run: int | tuple[tuple[int, ...], ...] | None = None
     claims: tuple = ()                    # claims.Claim: the paper's claims the report checks (claims.py)
 
     def runs_data(self) -> dict:
@@ -149,8 +155,19 @@ class Study:
     def seed_groups(self) -> tuple[tuple[int, ...], ...]:
         """The seeds of each run of a (task, method): consecutive chunks of `seeds_per_run` seeds in file
         order, or all seeds in one group without it."""
+        if isinstance(self.seeds_per_run, tuple):
+            return self.seeds_per_run
         n = self.seeds_per_run or len(self.seeds)
         return tuple(self.seeds[i:i + n] for i in range(0, len(self.seeds), n))
+
+    @property
+    def groups_text(self) -> str:
+        """How the study groups its seeds, for messages: 'seeds_per_run = 5', 'seed groups 0-4, 5-14'."""
+        if self.seeds_per_run is None:
+            return "no seeds_per_run: all seeds are one run"
+        if isinstance(self.seeds_per_run, tuple):
+            return "seed groups " + ", ".join(seeds_text(g) for g in self.seeds_per_run)
+        return f"seeds_per_run = {self.seeds_per_run}"
 
     def group_folder(self, seeds) -> str | None:
         """The run folder of a seed group under runs/<task>/<method>/: 'seeds-0-4' ('seeds-0_2_4' for
@@ -172,8 +189,7 @@ class Study:
         chosen = tuple(g for g in groups if wanted.issuperset(g))
         if not chosen:
             text = seeds if isinstance(seeds, str) else seeds_text(sorted(wanted))
-            per = (f"seeds_per_run = {self.seeds_per_run}" if self.seeds_per_run else
-                   "no seeds_per_run: all seeds are one run")
+            per = self.groups_text
             names = ", ".join(seeds_text(g) for g in groups)
             raise StudyError(f"--seeds {text}: no seed group of study {self.name!r} ({self.path}) lies "
                              f"wholly inside it ({per}); its groups: {names}")
@@ -254,11 +270,7 @@ def loads(text: str, path="<study>") -> Study:
         seeds = parse_seeds(data.get("seeds", "0"))
     except ConfigError as err:
         fail("seeds", str(err))
-    per_run = data.get("seeds_per_run")
-    if per_run is not None and (isinstance(per_run, bool) or not isinstance(per_run, int)
-                                or not 1 <= per_run <= len(seeds)):
-        fail("seeds_per_run", f"{per_run!r} is invalid: an int from 1 to {len(seeds)} (the number of seeds "
-             f"{seeds_text(seeds)}), e.g. seeds_per_run = 5; leave it out to train all seeds in one run")
+    per_run = _seed_groups(data.get("seeds_per_run"), seeds, fail)
     tasks = data.get("tasks")
     if not isinstance(tasks, list) or not tasks or not all(isinstance(t, str) for t in tasks):
         fail("tasks", "a non-empty list of task names is required, e.g. tasks = [\"CartpoleBalance\"]")
@@ -319,6 +331,52 @@ def loads(text: str, path="<study>") -> Study:
                  description=str(data.get("description", "")), framework=framework, preset=preset,
                  seeds=seeds, tasks=tuple(tasks), overrides=tuple(overrides.items()), methods=tuple(methods),
                  evaluation=evaluation, report=report, seeds_per_run=per_run, claims=claims)
+
+
+def _seed_groups(value, seeds, fail):
+    """`seeds_per_run`: None, an int from 1 to len(seeds), or a list of seed groups (texts such as "0-4" or
+    lists of ints) that split `seeds`, each seed in exactly one group; returned as a tuple of tuples."""
+    if value is None:
+        return None
+    if isinstance(value, int) and not isinstance(value, bool) and 1 <= value <= len(seeds):
+        return value
+    usage = (f"an int from 1 to {len(seeds)} (the number of seeds {seeds_text(seeds)}), e.g. seeds_per_run = "
+             f"5, or the groups, e.g. seeds_per_run = [\"0-4\", \"5-14\"]; leave it out to train all seeds "
+             f"in one run")
+    if not isinstance(value, list) or not value:
+        fail("seeds_per_run", f"{value!r} is invalid: {usage}")
+    from sf2_common.agents.configs import parse_seeds
+
+    groups = []
+    for g in value:
+        try:
+            groups.append(tuple(parse_seeds(g)))
+        except (ConfigError, TypeError, ValueError) as err:
+            fail("seeds_per_run", f"group {g!r} is invalid ({err}): {usage}")
+    flat = [s for g in groups for s in g]
+    if sorted(flat) != sorted(seeds) or len(set(flat)) != len(flat):
+        twice = sorted({s for s in flat if flat.count(s) > 1})
+        missing = sorted(set(seeds) - set(flat))
+        extra = sorted(set(flat) - set(seeds))
+        names = ", ".join(seeds_text(g) for g in groups)
+        fail("seeds_per_run", f"the groups {names} do not split the study's "
+             f"seeds {seeds_text(seeds)} (each seed in one group)"
+             + (f"; in two groups: {seeds_text(twice)}" if twice else "")
+             + (f"; in no group: {seeds_text(missing)}" if missing else "")
+             + (f"; not seeds of the study: {seeds_text(extra)}" if extra else ""))
+    return tuple(groups)
+
+
+def same_runs(old: Study, new: Study, kept_groups) -> list[str]:
+    """The keys (`runs_data`) in which `new` declares other runs than `old`, a study folder's copy: [] when
+    they are the same study. Their seed groups may differ when both group their seeds and every group of
+    `kept_groups` (those the folder holds run folders of) is a group of `new` too."""
+    mine, theirs = old.runs_data(), new.runs_data()
+    keys = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
+    if (keys == ["seeds_per_run"] and old.seeds_per_run is not None and new.seeds_per_run is not None
+            and set(kept_groups) <= set(new.seed_groups())):
+        return []
+    return keys
 
 
 def _known(table, valid, where: str, entry: str) -> None:
