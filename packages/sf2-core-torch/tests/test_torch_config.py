@@ -24,6 +24,7 @@ TABLE = dict(
     learning_rate=1e-3,
     alpha_learning_rate=3e-4,
     adam_eps=1e-5,
+    shared_adam=True,
     smoothing_noise=0.2,
     noise_clip=0.3,
     exploration_noise=0.2,
