@@ -108,7 +108,7 @@ def test_full_sgd_step(dtype, algo, rep, policy_delay, shared_adam):
     flat = canonical_values(shapes, seed=21)
     jp = _unflatten(flat, structure, jdt)
     jopt = {g: jalg._tx(g).init(jp[g]) for g in jalg.trained_groups()}
-    jopt.update({jalg.aux_state(g): jalg._tx(g).init(jp[g]) for g in jalg.rep.aux_groups})
+    jopt.update({state: jalg._tx(g).init(jp[g]) for g, state in jalg.aux_states.items()})
     assert set(jopt) == set(jalg.init(jax.random.PRNGKey(0))[1]) == set(talg_states(algo, rep, kw))
     jstep = jax.jit(jalg.sgd_step)
 

@@ -87,6 +87,14 @@ class Registry:
         return text
 
 
+def aux_states(cfg, rep) -> dict[str, str]:
+    """{group: the optimizer state the representation's loss steps it with} for every group of
+    `rep.aux_groups`: the group's own, or with `cfg.shared_adam` False a second state "<group>:aux" when
+    the critic trains the group too (ψ; docs/core-contract.md "One SGD step"). Both cores' base algorithms
+    use it (sf2_jax `opt_state[...]`, sf2_torch `optimizers[...]`)."""
+    return {g: g if cfg.shared_adam or g not in rep.critic_groups else f"{g}:aux" for g in rep.aux_groups}
+
+
 def check_aux_every(rep) -> None:
     """Raise ValueError unless `rep.aux_every` maps groups of `rep.aux_groups` to periods >= 1 (a
     representation's update schedule; both cores' base algorithms check it when they are built)."""

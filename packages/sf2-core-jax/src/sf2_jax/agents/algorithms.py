@@ -43,7 +43,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import optax
-from sf2_common.agents.registry import check_aux_every
+from sf2_common.agents.registry import aux_states, check_aux_every
 from sf2_common.config import SF2Config
 
 from sf2_jax import losses, networks
@@ -78,6 +78,7 @@ class Algorithm:
         self.dtype = dtype
         self._adam = optax.adam(cfg.learning_rate, eps=cfg.adam_eps)
         self._alpha_adam = optax.adam(cfg.alpha_learning_rate)  # Brax SAC's temperature optimizer
+        self.aux_states = aux_states(cfg, self.rep)   # {aux group: its Adam state's name in opt_state}
 
     # ------------------------------------------------------------------ parameters and optimizers
     def _tx(self, group: str):
@@ -95,16 +96,9 @@ class Algorithm:
         params = {n: core[n] for n in ("obs_norm", "policy", "target_policy", "log_alpha") if n in core}
         params.update(self.rep.init(k_rep, core))
         opt_state = {g: self._tx(g).init(params[g]) for g in self.trained_groups()}
-        for g in self.rep.aux_groups:
-            if self.aux_state(g) != g:
-                opt_state[self.aux_state(g)] = self._tx(g).init(params[g])
+        opt_state.update({state: self._tx(g).init(params[g]) for g, state in self.aux_states.items()
+                          if state != g})
         return params, opt_state
-
-    def aux_state(self, group: str) -> str:
-        """The Adam state the representation's loss steps `group` with: its own, or with `shared_adam =
-        False` a second one when the critic also trains the group (ψ)."""
-        shared = self.cfg.shared_adam or group not in self.rep.critic_groups
-        return group if shared else f"{group}:aux"
 
     def _value_and_grad(self, loss_fn, groups, params):
         """((loss, aux), {group: gradient}) of `loss_fn(params)` with respect to `groups` only."""
@@ -202,8 +196,7 @@ class Algorithm:
             (loss, aux), grads = self._value_and_grad(
                 lambda p: rep.aux_loss(p, batch, next_action, aux_noise), rep.aux_groups, params)
             due = {g: step % every == 0 for g, every in rep.aux_every.items()}
-            params, opt_state = self._adam_step(params, opt_state, grads, due,
-                                                {g: self.aux_state(g) for g in grads})
+            params, opt_state = self._adam_step(params, opt_state, grads, due, self.aux_states)
             metrics.update({rep.aux_loss_name: loss, **aux})
 
         # 1 and 4: the policy groups' gradients at `pre`, then Adam on them (actor steps only)

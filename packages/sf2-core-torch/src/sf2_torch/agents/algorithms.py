@@ -53,7 +53,7 @@ from collections import defaultdict
 from typing import Any
 
 import torch
-from sf2_common.agents.registry import check_aux_every
+from sf2_common.agents.registry import aux_states, check_aux_every
 from sf2_common.config import SF2Config
 from torch import nn
 
@@ -88,9 +88,9 @@ class Algorithm:
             n: getattr(self.nets, n) for n in core if hasattr(self.nets, n)}
         self.groups.update(self.rep.init(self.nets))
         self.optimizers = {g: self._make_adam(g, bool(cudagraphs)) for g in self.trained_groups()}
-        for g in self.rep.aux_groups:
-            if self.aux_state(g) != g:
-                self.optimizers[self.aux_state(g)] = self._make_adam(g, bool(cudagraphs))
+        self.aux_states = aux_states(cfg, self.rep)   # {aux group: its optimizer's name in optimizers}
+        self.optimizers.update({state: self._make_adam(g, bool(cudagraphs))
+                                for g, state in self.aux_states.items() if state != g})
         self.compile_mode = compile_mode
         self.cudagraphs = bool(cudagraphs)
         self._steps: dict[tuple, Any] = {}
@@ -119,12 +119,6 @@ class Algorithm:
     def trained_groups(self) -> tuple[str, ...]:
         groups = ["q", *self.rep.critic_groups, *self.rep.aux_groups, *self.policy_groups]
         return tuple(dict.fromkeys(groups))
-
-    def aux_state(self, group: str) -> str:
-        """The optimizer the representation's loss steps `group` with: its own, or with `shared_adam =
-        False` a second one when the critic also trains the group (ψ)."""
-        shared = self.cfg.shared_adam or group not in self.rep.critic_groups
-        return group if shared else f"{group}:aux"
 
     def state_dict(self) -> dict:
         """Every group (modules' state dicts, parameters' values) and every Adam state."""
@@ -244,7 +238,7 @@ class Algorithm:
             self._zero(rep.aux_groups)
             loss, aux_metrics = self._part("_aux")(batch, noise)
             loss.backward(inputs=self._params(rep.aux_groups))
-            self._adam(self.aux_state(g) for g in rep.aux_groups if g not in skip)
+            self._adam(self.aux_states[g] for g in rep.aux_groups if g not in skip)
             metrics.update(aux_metrics)
         # 4. Adam on the policy groups (actor steps only; zeros as their metrics otherwise)
         if actor_step:
