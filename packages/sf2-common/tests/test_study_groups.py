@@ -152,9 +152,10 @@ def test_plan_and_dry_run_per_group(tmp_path, monkeypatch, capsys):
                          f"{r} --config quick --seeds 5-9 --out {folder.path}/runs/A/{m}/seeds-5-9 "
                          f"--no-progress" for m, r in (("td3", "none"), ("td3-sf2", "sf2"))],
                        # the finished groups took 10 s for their budget; the partial ones stopped halfway
-                       # (epoch 1 of 2): 2 × half a budget at 10 s a budget
+                       # (epoch 1 of 2): 2 × half a budget at 10 s a budget; the forecast draws on
+                       # every finished run of the folder, the two outside this selection included
                        "estimate: 2 run(s) to do ≈ 10s of training on one worker (at the wall time per env "
-                       "step of the 2 finished run(s) here)"]
+                       "step of the 4 finished run(s) here)"]
     with pytest.raises(StudyError, match="--seeds 20: no seed group"):
         commands._run(backend, argparse.Namespace(**{**vars(args), "seeds": "20"}), "cmd")
 

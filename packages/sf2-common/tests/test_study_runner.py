@@ -154,21 +154,26 @@ def test_dry_run_estimate_from_the_finished_runs(tmp_path):
         if wall is not None:
             (path / "metrics.jsonl").write_text(json.dumps({"epoch": 1, "seed": 0, "env_steps": total,
                                                             "walltime": wall}) + "\n")
-        return runner.Job(SimpleNamespace(task=task, rel=name), path, [], total, done)
+        return runner.Job(SimpleNamespace(task=task, folder=name, rel=name), path, [], total, done)
 
+    # Rates (s per env step): A/a1 0.1, A/a2 0.3, B/b 0.05. A/a1 again (a second draw) uses its own mean
+    # 0.1: 1000 steps -> 100 s; A/a3 (no A/a3 finished) A's slowest 0.3: 1500 steps left -> 450 s; B/b2
+    # B's slowest 0.05 -> 50 s; C/c (no C finished) the slowest of all 0.3 -> 300 s; 900 s in all.
     done = [job("A", "a1", 1000, 1000, 100.0), job("A", "a2", 1000, 1000, 300.0),
             job("B", "b", 1000, 1000, 50.0)]
     todo = [job("A", "a3", 2000, 500), job("B", "b2", 1000), job("C", "c", 1000)]
-    assert runner.estimate(done, todo) == (
-        "estimate: 3 run(s) to do ≈ 8m20s of training on one worker (at the wall time per env step of the 3 "
-        "finished run(s) here; C: no finished run yet, their mean)")
+    again = runner.Job(SimpleNamespace(task="A", folder="a1", rel="a1"), tmp_path / "A" / "a1", [], 1000, 0)
+    assert runner.estimate(done, todo + [again]) == (
+        "estimate: 4 run(s) to do ≈ 15m00s of training on one worker (at the wall time per env step of the 3 "
+        "finished run(s) here; C: no finished run yet, the slowest)")
     assert runner.estimate([], todo) is None and runner.estimate(done, []) is None
 
 
 def test_finish_within_starts_only_runs_forecast_to_end_in_time(tmp_path, monkeypatch):
     """Finished runs of 1,000 env steps took 1e6 s on task A (1,000 s per env step) and 0.001 s on B: with
-    60 s to go, B's runs start (forecast ≈ 0 s), A's do not, nor C's (no finished run: the mean rate,
-    500 s per env step); every run starts without a finished run to forecast from."""
+    60 s to go, B's runs start (forecast ≈ 0 s), A's do not, nor C's (no finished run: the slowest rate,
+    1,000 s per env step); a selection with no finished run of its own is forecast from `history` (the
+    folder's other finished runs); every run starts without a finished run to forecast from."""
     from types import SimpleNamespace
 
     study, backend, folder, runs = _setup(tmp_path, monkeypatch)
@@ -179,7 +184,7 @@ def test_finish_within_starts_only_runs_forecast_to_end_in_time(tmp_path, monkey
         path.mkdir(parents=True)
         (path / "metrics.jsonl").write_text(json.dumps({"epoch": 1, "seed": 0, "env_steps": 1000,
                                                         "walltime": wall}) + "\n")
-        finished.append(runner.Job(SimpleNamespace(task=task, rel="m"), path, [], 1000, 1000))
+        finished.append(runner.Job(SimpleNamespace(task=task, folder="m", rel="m"), path, [], 1000, 1000))
     env = {"PATH": "/usr/bin:/bin", "PYTHONPATH": str(tmp_path) + ":" + ":".join(sys.path),
            "CUDA_VISIBLE_DEVICES": ""}
     outcome = runner.run_local(study, folder, jobs, finished, backend=backend, base_env=env, progress=False,
@@ -188,6 +193,10 @@ def test_finish_within_starts_only_runs_forecast_to_end_in_time(tmp_path, monkey
     assert sorted(outcome.deferred) == sorted(j.name for j in jobs if j.run.task in ("A", "C"))
     assert sorted(outcome.done) == sorted([j.name for j in jobs if j.run.task == "B"] + ["A/m", "B/m"])
     assert all((j.path / "child.json").exists() == (j.run.task == "B") for j in jobs)
-    outcome = runner.run_local(study, folder, [j for j in jobs if j.run.task == "A"], [], backend=backend,
+    only_a = [j for j in jobs if j.run.task == "A"]
+    outcome = runner.run_local(study, folder, only_a, [], backend=backend, base_env=env, progress=False,
+                               poll=0.05, finish_within=60, history=finished)
+    assert sorted(outcome.deferred) == sorted(j.name for j in only_a) and not outcome.done
+    outcome = runner.run_local(study, folder, only_a, [], backend=backend,
                                base_env=env, progress=False, poll=0.05, finish_within=60)
     assert not outcome.deferred and len(outcome.done) == 2            # nothing to forecast from: all start

@@ -130,6 +130,8 @@ def _run(backend, args, command: str) -> int:
     folder = StudyFolder(args.out)
     folder.check(study, backend.name)
     jobs, done = runner.plan(study, folder, selected)
+    # Forecasts (the dry run's estimate, --finish-within) draw on every finished run of the folder.
+    history = done if len(selected) == len(runs) else runner.plan(study, folder, runs)[1]
     if args.dry_run:
         groups = study.select_groups(args.seeds)
         print(f"{study.name} ({study.path}) → {folder.path}: {len(selected)} run(s) selected of {len(runs)}"
@@ -141,7 +143,7 @@ def _run(backend, args, command: str) -> int:
             state = "partial" if job.done_steps else "new"
             steps = " ; ".join(f"{backend.prog} {' '.join(c)}" for c in job.commands)
             print(f"  {state:8} {job.name}: {steps}")
-        forecast = runner.estimate(done, jobs)
+        forecast = runner.estimate(history, jobs)
         if forecast:
             print(forecast)
         return 0
@@ -154,7 +156,7 @@ def _run(backend, args, command: str) -> int:
     else:
         outcome = runner.run_local(study, folder, jobs, done, backend=backend, base_env=base_env,
                                    workers=args.workers, progress=not args.no_progress,
-                                   finish_within=args.finish_within)
+                                   finish_within=args.finish_within, history=history)
     print(f"{study.name}: {len(outcome.done)} of {len(selected)} run(s) done"
           + (f", {len(outcome.failed)} failed" if outcome.failed else "")
           + (f", {len(outcome.busy)} held by another runner" if outcome.busy else "")

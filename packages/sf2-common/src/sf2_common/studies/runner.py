@@ -108,30 +108,39 @@ def plan(study: Study, folder: StudyFolder, runs: list[Run]) -> tuple[list[Job],
 
 class Forecast:
     """Seconds of training a job still needs: its remaining env steps at the wall-clock seconds per env step
-    of the finished runs of its task (their mean; for a task without one, the mean over every finished run).
-    The rates are those of the machines the finished runs ran on; evaluation children ([evaluation]) are
-    not counted. `known` is False without any finished run."""
+    of finished runs. The rate is the mean over the finished runs of the job's own task and method folder
+    (`Run.folder`); without one, the slowest finished run of its task; without one, the slowest finished
+    run of all. The slowest, not the mean, because methods differ up to ~4x in cost (results/fig7-td3/
+    README.md "Cost per run") and `--finish-within` must not start a run the lease's end would cut. The
+    rates are those of the machines the finished runs ran on; evaluation children ([evaluation]) are not
+    counted. `known` is False without any finished run."""
 
     def __init__(self, done: list[Job]):
-        self.rates: dict[str, list[float]] = {}
+        self.rates: dict[tuple[str, str], list[float]] = {}
         for job in done:
             self.add(job)
 
     def add(self, job: Job) -> None:
         wall = max((r.get("walltime", 0.0) for r in RunFolder(job.path).read_rows()), default=0.0)
         if wall > 0 and job.total_steps > 0:
-            self.rates.setdefault(job.run.task, []).append(wall / job.total_steps)
+            self.rates.setdefault((job.run.task, job.run.folder), []).append(wall / job.total_steps)
 
     @property
     def known(self) -> bool:
         return bool(self.rates)
 
-    def rate(self, task: str) -> float:
-        mine = self.rates.get(task) or [x for v in self.rates.values() for x in v]
-        return sum(mine) / len(mine)
+    def has_task(self, task: str) -> bool:
+        return any(t == task for t, _ in self.rates)
+
+    def rate(self, task: str, folder: str) -> float:
+        mine = self.rates.get((task, folder))
+        if mine:
+            return sum(mine) / len(mine)
+        same_task = [x for (t, _), v in self.rates.items() if t == task for x in v]
+        return max(same_task or [x for v in self.rates.values() for x in v])
 
     def seconds(self, job: Job) -> float:
-        return (job.total_steps - job.done_steps) * self.rate(job.run.task)
+        return (job.total_steps - job.done_steps) * self.rate(job.run.task, job.run.folder)
 
 
 def estimate(done: list[Job], todo: list[Job]) -> str | None:
@@ -141,11 +150,11 @@ def estimate(done: list[Job], todo: list[Job]) -> str | None:
     if not forecast.known or not todo:
         return None
     seconds = sum(forecast.seconds(j) for j in todo)
-    guessed = sorted({j.run.task for j in todo if j.run.task not in forecast.rates})
+    guessed = sorted({j.run.task for j in todo if not forecast.has_task(j.run.task)})
     finished = sum(len(v) for v in forecast.rates.values())
     return (f"estimate: {len(todo)} run(s) to do ≈ {duration(seconds)} of training on one worker (at the "
             f"wall time per env step of the {finished} finished run(s) here"
-            + (f"; {', '.join(guessed)}: no finished run yet, their mean" if guessed else "") + ")")
+            + (f"; {', '.join(guessed)}: no finished run yet, the slowest" if guessed else "") + ")")
 
 
 def child_env(base: dict, **extra) -> dict:
@@ -231,14 +240,16 @@ class _Slot:
 
 def run_local(study: Study, folder: StudyFolder, jobs: list[Job], done: list[Job], *, backend: Backend,
               base_env: dict, workers: int | None = None, progress: bool = True, poll: float = 1.0,
-              stream=None, finish_within: float | None = None) -> Outcome:
+              stream=None, finish_within: float | None = None, history: list[Job] | None = None) -> Outcome:
     """Run `jobs` on this host (module docstring); `done` counts towards the progress view. With
     `finish_within` (seconds from now) a job starts only if its `Forecast` ends by then (a leased machine
     that goes back at a known time then spends none of it on runs that would be cut and lost); every job
-    starts while no run has finished to forecast from. Runs already started are never stopped by it."""
+    starts while no run has finished to forecast from. `history`: the finished runs the forecast draws on
+    (default `done`; `study run` passes every finished run of the study folder, not only the selected ones).
+    Runs already started are never stopped by it."""
     stream = stream or sys.stderr
     deadline = None if finish_within is None else time.monotonic() + finish_within
-    forecast = Forecast(done)
+    forecast = Forecast(done if history is None else history)
     gpus = visible_gpus(base_env)
     if gpus:
         if workers is not None and workers > len(gpus):
