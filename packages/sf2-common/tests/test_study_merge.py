@@ -229,3 +229,26 @@ def test_wrong_source_is_refused_with_dest_unchanged(tmp_path, runs_of):
     with pytest.raises(StudyError, match="holds runs of sf2-torch; merge it with `sf2-torch study merge`"):
         _merge([src], dest, runs_of)
     assert folder_digest(dest) == before
+
+
+def test_a_source_that_adds_a_method_gives_dest_its_study_file(tmp_path, runs_of):
+    """DEST ran the study; a host ran it with an ablation added (a third method): the merge takes that
+    method's runs and DEST's study.toml becomes the larger study's. Merging DEST's older study into the
+    larger DEST afterwards changes nothing; a source that changes a method is still refused."""
+    grown = STUDY + '[[methods]]\nlabel = "SAC+SF²"\nname = "own"\nalgo = "sac"\nrepresentation = "sf2"\n'
+    old = _source(tmp_path, "old", runs_of, finished=["A/td3/seeds-0-1"])
+    dest = tmp_path / "results"
+    _merge([old], dest, runs_of)
+    new = _source(tmp_path, "new", runs_of, finished=["A/own/seeds-0-1"], text=grown)
+    outcome, said = _merge([new], dest, runs_of)
+    assert "A/own/seeds-0-1" in outcome.merged and "replaced by a source's" in said
+    assert StudyFolder(dest).load_study().data == spec.loads(grown, tmp_path / "g.toml").data
+    assert (dest / "runs" / "A" / "td3" / "seeds-0-1" / "metrics.jsonl").exists()
+    before = folder_digest(dest)
+    _merge([old], dest, runs_of)
+    assert folder_digest(dest) == before
+    relabeled = grown.replace('label = "SAC+SF²"', 'label = "SAC+SF2"')   # a changed method
+    changed = _source(tmp_path, "changed", runs_of, text=relabeled)
+    with pytest.raises(StudyError, match="differ in methods"):
+        _merge([changed], dest, runs_of)
+    assert folder_digest(dest) == before

@@ -148,6 +148,23 @@ def test_folder_of_another_study_file_is_refused_untouched(tmp_path):
         "sf2-jax study run a.toml --out study", "again"]
 
 
+def test_folder_takes_added_tasks_and_methods_but_no_changed_ones(tmp_path):
+    """A study under way may gain a task or a method (an ablation run beside the finished runs): the folder's
+    copy follows the file. A method changed or removed, or a task removed, is another study."""
+    folder = StudyFolder(tmp_path / "study")
+    folder.open(_load(tmp_path, BASE, "a.toml"), "jax", [])
+    added = BASE.replace('["CartpoleBalance"]', '["CartpoleBalance", "AcrobotSwingup"]') + (
+        '[[methods]]\nlabel = "TD3+SF²"\nalgo = "td3"\nrepresentation = "sf2"\n')
+    folder.open(_load(tmp_path, added, "b.toml"), "jax", [])
+    assert folder.load_study().data == _load(tmp_path, added, "b.toml").data
+    changed = added.replace('representation = "none"', 'representation = "none"\noverrides = { tau = 0.01 }')
+    for text, key in ((BASE, "methods, tasks"), (changed, "methods"),
+                      (added.replace('"CartpoleBalance", ', ""), "tasks")):
+        with pytest.raises(StudyError, match=f"differ in {key}\\."):
+            folder.open(_load(tmp_path, text, "c.toml"), "jax", [])
+    assert folder.load_study().data == _load(tmp_path, added, "b.toml").data
+
+
 def test_non_empty_folder_without_a_study_is_refused(tmp_path):
     (tmp_path / "out").mkdir()
     (tmp_path / "out" / "precious.txt").write_text("x")

@@ -1,7 +1,8 @@
 """A study folder: the study file it was made from, its state, and one run folder per training program.
 
     DIR/study.toml              a copy of the study file (a different file → `StudyError`, nothing written;
-                                one that differs only in description, report or claims replaces it)
+                                one that differs only in description, report or claims, or that only adds
+                                tasks or methods (spec.same_runs), replaces it)
     DIR/study.json              name, framework, id, the run folder of every (task, method) and seed
                                 group, the commands
     DIR/runs/<task>/<method>/   a run folder of the framework's trainer (sf2_common.agents.runfolder):

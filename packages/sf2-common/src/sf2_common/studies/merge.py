@@ -3,7 +3,8 @@ machines, sessions) joined into one study folder (folder.py), e.g. the archives 
 brings back merged into results/<study>/.
 
 A SOURCE is a study folder or a .tar.gz archive of one. Every SOURCE must hold the study DEST holds (the
-same study file: `Study.data` equal), or DEST does not exist yet and is created with SOURCE's study.toml.
+same study file up to `spec.same_runs`), or DEST does not exist yet and is created with SOURCE's study.toml;
+a SOURCE whose study only adds tasks or methods to DEST's (an ablation run elsewhere) gives DEST its copy.
 Per run folder of the study (a task, a method, a seed group) the merge copies only what a study folder
 keeps in git (`KEPT`: config.json, metrics.jsonl, train.log and, with an [evaluation], obs_noise.json;
 never checkpoints/, final/, damaged/, parameters or learning_curve.png):
@@ -44,7 +45,7 @@ from sf2_common.agents.runfolder import RunFolder, RunFolderError, RunFolderMism
 from sf2_common.fileio import atomic_write
 
 from .folder import OBS_NOISE, StudyFolder
-from .spec import Run, Study, StudyError, loads, same_runs, seeds_text
+from .spec import Run, Study, StudyError, loads, only_adds, same_runs, seeds_text
 
 __all__ = ["KEPT", "Outcome", "merge"]
 
@@ -153,7 +154,10 @@ def merge(sources, into, runs_of: Callable[[Study], list[Run]], *, framework: st
             say(line)
         if outcome.created:
             dest.path.mkdir(parents=True, exist_ok=True)
-            atomic_write(dest.study_path, opened[0][1].study_path.read_text(encoding="utf-8"))
+            atomic_write(dest.study_path, study.text)
+        elif dest.load_study().data != study.data:
+            say(f"  study.toml of {dest.path}: replaced by a source's, which adds tasks or methods")
+            atomic_write(dest.study_path, study.text)
         for name, side in chosen.items():
             target = dest.run_path(expected[name].task, expected[name].rel)
             existed = target.exists() and any(target.iterdir())
@@ -252,16 +256,23 @@ def _check_studies(opened, dest: StudyFolder, framework: str) -> Study:
     elif dest.path.exists() and any(dest.path.iterdir()):
         raise StudyError(f"--into {dest.path} is not empty and holds no study ({StudyFolder.STUDY}); "
                          f"choose a study folder of the same study, or a new folder")
+    # The study of the merge: the one every other holds runs of (spec.same_runs: description, report, claims
+    # may differ; seed groups while every group a folder holds is one of its; it may add tasks and methods).
+    # DEST's copy first; a source whose study only adds tasks or methods to DEST's becomes DEST's copy.
     first_name, first, _ = studies[0]
+    for _, candidate, _ in studies:
+        holds = (not same_runs(study, candidate, folder.groups_on_disk(study))
+                 for _, study, folder in studies)
+        if (candidate is first or only_adds(first, candidate)) and all(holds):
+            return candidate
     for name, study, folder in studies[1:]:
-        # description, report, claims may differ; seed groups too while every group the source holds a
-        # run folder of is one of the first study's (spec.same_runs)
         keys = same_runs(study, first, folder.groups_on_disk(study))
         if keys:
             raise StudyError(f"{name} holds study {study.name!r}, not the study of {first_name} "
                              f"({first.name!r}): their study.toml differ in {', '.join(keys)}; nothing was "
                              f"merged")
-    return first
+    raise StudyError(f"the study files of {', '.join(n for n, _, _ in studies)} each add tasks or methods "
+                     f"the others lack; merge them into DEST one at a time; nothing was merged")
 
 
 def _stray_runs(src: StudyFolder, expected) -> list[str]:

@@ -70,7 +70,7 @@ else:  # pragma: no cover - Python 3.10: the backport (a dependency of sf2-commo
 
 __all__ = [
     "StudyError", "Method", "Evaluation", "ReportSettings", "Study", "Run", "load", "loads", "resolve",
-    "select_runs", "same_runs",
+    "select_runs", "same_runs", "only_adds",
     "slug", "FIGURES", "FRAMEWORKS", "RUN_NEUTRAL",
 ]
 
@@ -369,14 +369,34 @@ def _seed_groups(value, seeds, fail):
 
 def same_runs(old: Study, new: Study, kept_groups) -> list[str]:
     """The keys (`runs_data`) in which `new` declares other runs than `old`, a study folder's copy: [] when
-    they are the same study. Their seed groups may differ when both group their seeds and every group of
-    `kept_groups` (those the folder holds run folders of) is a group of `new` too."""
+    they are the same study. `new` may add tasks and methods (`_grows`); their seed groups may differ when
+    both group their seeds and every group of `kept_groups` (those the folder holds run folders of) is a
+    group of `new` too."""
     mine, theirs = old.runs_data(), new.runs_data()
-    keys = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
+    keys = sorted(k for k in set(mine) | set(theirs)
+                  if mine.get(k) != theirs.get(k) and not _grows(k, mine.get(k), theirs.get(k)))
     if (keys == ["seeds_per_run"] and old.seeds_per_run is not None and new.seeds_per_run is not None
             and set(kept_groups) <= set(new.seed_groups())):
         return []
     return keys
+
+
+def only_adds(old: Study, new: Study) -> bool:
+    """True when `new` declares `old`'s runs plus tasks or methods of its own, nothing else changed."""
+    mine, theirs = old.runs_data(), new.runs_data()
+    keys = [k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k)]
+    return bool(keys) and all(_grows(k, mine.get(k), theirs.get(k)) for k in keys)
+
+
+def _grows(key: str, old, new) -> bool:
+    """True when `new` only adds to `old`'s tasks or methods: every task, and every method table exactly as it
+    was, is still there, so the runs a folder holds stay runs of the study (a method added to a study under
+    way, e.g. an ablation, runs beside the finished ones)."""
+    if key == "tasks" and isinstance(old, list) and isinstance(new, list):
+        return set(old) <= set(new)
+    if key == "methods" and isinstance(old, list) and isinstance(new, list):
+        return all(m in new for m in old)
+    return False
 
 
 def _known(table, valid, where: str, entry: str) -> None:
