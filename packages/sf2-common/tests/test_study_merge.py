@@ -252,3 +252,23 @@ def test_a_source_that_adds_a_method_gives_dest_its_study_file(tmp_path, runs_of
     with pytest.raises(StudyError, match="differ in methods"):
         _merge([changed], dest, runs_of)
     assert folder_digest(dest) == before
+
+
+def test_sources_adding_different_methods_are_refused_together(tmp_path, runs_of):
+    """Two hosts each added a different method: no one study file holds both, so the merge refuses, naming
+    both sources and writing nothing; into a folder of a study that holds both, each merges."""
+    extra = '[[methods]]\nlabel = "{0}"\nname = "{1}"\nalgo = "sac"\nrepresentation = "{2}"\n'
+    with_sac = STUDY + extra.format("SAC", "sac", "none")
+    with_sac_sf2 = STUDY + extra.format("SAC+SF²", "sac-sf2", "sf2")
+    dest = tmp_path / "results"
+    _merge([_source(tmp_path, "old", runs_of, finished=["A/td3/seeds-0-1"])], dest, runs_of)
+    one = _source(tmp_path, "one", runs_of, finished=["A/sac/seeds-0-1"], text=with_sac)
+    two = _source(tmp_path, "two", runs_of, finished=["A/sac-sf2/seeds-0-1"], text=with_sac_sf2)
+    before = folder_digest(dest)
+    with pytest.raises(StudyError, match=f"{one}, {two} add different tasks or methods"):
+        _merge([one, two], dest, runs_of)
+    assert folder_digest(dest) == before
+    both = tmp_path / "both"
+    _source(tmp_path, "both", runs_of, text=with_sac + extra.format("SAC+SF²", "sac-sf2", "sf2"))
+    outcome, _ = _merge([one, two], both, runs_of)
+    assert sorted(outcome.merged) == ["A/sac-sf2/seeds-0-1", "A/sac/seeds-0-1"]

@@ -267,12 +267,14 @@ def _check_studies(opened, dest: StudyFolder, framework: str) -> Study:
             return candidate
     for name, study, folder in studies[1:]:
         keys = same_runs(study, first, folder.groups_on_disk(study))
-        if keys:
+        if keys and not only_adds(first, study):
             raise StudyError(f"{name} holds study {study.name!r}, not the study of {first_name} "
                              f"({first.name!r}): their study.toml differ in {', '.join(keys)}; nothing was "
                              f"merged")
-    raise StudyError(f"the study files of {', '.join(n for n, _, _ in studies)} each add tasks or methods "
-                     f"the others lack; merge them into DEST one at a time; nothing was merged")
+    # every source holds the first's study or adds to it, but no one study holds them all
+    adders = [name for name, study, _ in studies[1:] if only_adds(first, study)]
+    raise StudyError(f"{', '.join(adders)} add different tasks or methods to the study of {first_name}; "
+                     f"merge them into a folder whose study.toml holds all of them; nothing was merged")
 
 
 def _stray_runs(src: StudyFolder, expected) -> list[str]:
