@@ -22,13 +22,14 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import os
 import statistics
 import sys
 import time
 from pathlib import Path
 
 COLUMNS = ["task", "num_envs", "steps_per_call", "compilations", "type_changes", "first_call_s",
-           "median_call_s", "env_steps_per_s", "call_s"]
+           "median_call_s", "env_steps_per_s", "call_s", "state_checksum"]
 
 
 def type_changes(env, state) -> list[str]:
@@ -47,6 +48,15 @@ def type_changes(env, state) -> list[str]:
             out.append(f"{jax.tree_util.keystr(path)}: {weak[ta.weak_type]}{ta.dtype} -> "
                        f"{weak[tb.weak_type]}{tb.dtype}")
     return out
+
+
+def checksum_of(state) -> str:
+    """A fingerprint of the final physics state (qpos, qvel; every case runs the same actions from the same
+    start), so two runs of one case under different XLA flags can be checked to compute the same
+    trajectory: the float64 sums of qpos and qvel, exactly (`float.hex`)."""
+    import numpy as np
+
+    return ";".join(float(np.asarray(x, np.float64).sum()).hex() for x in (state.data.qpos, state.data.qvel))
 
 
 def measure(task: str, num_envs: int, steps: int, repeats: int, log=print) -> dict:
@@ -79,11 +89,13 @@ def measure(task: str, num_envs: int, steps: int, repeats: int, log=print) -> di
             times.append(time.perf_counter() - t)
         times = times[1:]
         compilations = rollout._cache_size()
+        checksum = checksum_of(state)
     med = statistics.median(times)
     row = {"task": task, "num_envs": num_envs, "steps_per_call": steps, "compilations": compilations,
            "type_changes": "; ".join(changes) or "none",
            "first_call_s": round(first, 2), "median_call_s": round(med, 5),
-           "env_steps_per_s": round(num_envs * steps / med, 1), "call_s": ";".join(f"{x:.5f}" for x in times)}
+           "env_steps_per_s": round(num_envs * steps / med, 1), "call_s": ";".join(f"{x:.5f}" for x in times),
+           "state_checksum": checksum}
     log(f"  {task} x{num_envs}: {row['env_steps_per_s']:,.0f} env steps/s ({compilations} compilation"
         f"{'s' * (compilations > 1)}, first call {first:.1f} s; type changes: {row['type_changes']})")
     return row
@@ -96,6 +108,7 @@ def markdown(rows: list[dict], info: dict) -> str:
     lines = ["# Physics alone: MJX env steps per second", "",
              "Command:", "", "```", info["command"], "```", "",
              f"- machine: {info.get('cpu')}; GPU: {info.get('gpu')}",
+             f"- XLA_FLAGS: `{info.get('xla_flags') or '(unset)'}`",
              f"- versions: {json.dumps(info.get('versions'))}; jax backend {info.get('jax_backend')}",
              "- one program per case: `lax.scan` of vmapped `env.step` with random actions drawn inside it, "
              "fp32 `highest`, impl='jax', the carry strongly typed; median of the timed calls",
@@ -128,6 +141,7 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     command = "python -m bench.physics " + " ".join(argv if argv is not None else sys.argv[1:])
     info = describe(str(Path(__file__).resolve().parents[1]), command)
+    info["xla_flags"] = os.environ.get("XLA_FLAGS", "")
     rows = []
     for task in tasks:
         for n in (int(x) for x in args.envs.split(",")):
