@@ -16,11 +16,11 @@ source scripts/gpu_env.sh || exit 1
 export PYTHONPATH=$PYTHONPATH:$PWD PYTHONUNBUFFERED=1 XLA_PYTHON_CLIENT_PREALLOCATE=false
 flag="--xla_gpu_enable_command_buffer=+WHILE,+CONDITIONAL"
 out=/tmp/physics-flags; rm -rf "$out"; mkdir -p "$out"
-P="python3 -m bench.physics --tasks $tasks --envs $envs --steps 200 --repeats 3"
+P="timeout 240 python3 -m bench.physics --tasks $tasks --envs $envs --steps 200 --repeats 3"
 gpus=$(nvidia-smi -L | grep -c '^GPU ')
 if [ "$gpus" -ge 2 ]; then
-  CUDA_VISIBLE_DEVICES=0 timeout 240 $P --out "$out/default" > "$out/default.log" 2>&1 &
-  CUDA_VISIBLE_DEVICES=1 XLA_FLAGS="$flag" timeout 240 $P --out "$out/while" > "$out/while.log" 2>&1 &
+  CUDA_VISIBLE_DEVICES=0 $P --out "$out/default" > "$out/default.log" 2>&1 &
+  CUDA_VISIBLE_DEVICES=1 XLA_FLAGS="$flag" $P --out "$out/while" > "$out/while.log" 2>&1 &
   wait
 else
   $P --out "$out/default" > "$out/default.log" 2>&1
