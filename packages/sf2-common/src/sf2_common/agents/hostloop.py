@@ -5,7 +5,13 @@ schedule, and writes metric rows, the NaN guard's message, the learning-curve PN
 
 Both trainers thus run the same order per epoch (train → NaN guard → evaluate → append rows →
 checkpoint), so a run folder written by either has the same rows; only the programs that train and
-evaluate differ. tqdm is imported only when a progress bar is shown.
+evaluate differ. A session that can evaluate several epochs in one program (`BatchedEvaluation`: the JAX
+trainer) evaluates the epochs between two checkpoints together, just before the checkpoint: an evaluation
+is ~1000 sequential env steps whose latency, not arithmetic, sets its pace on a GPU (docs/physics.md
+"Evaluation latency"), so ten of them vmapped cost little more than one. Each epoch is still evaluated
+from its own parameters with its own keys, and its rows are written before the checkpoint that follows
+it, so what a resume finds is as in the per-epoch order. tqdm is imported only when a progress bar is
+shown.
 """
 
 from __future__ import annotations
@@ -20,7 +26,7 @@ import numpy as np
 from .runlog import library_log
 
 __all__ = [
-    "WALL_FIELDS", "TrainingDiverged", "Session", "run_epochs", "diverged_message",
+    "WALL_FIELDS", "TrainingDiverged", "Session", "BatchedEvaluation", "run_epochs", "diverged_message",
     "row_metrics", "make_row", "write_curve", "call_hook", "versions", "progress_bar", "NoBar", "run_title",
 ]
 
@@ -134,6 +140,19 @@ class Session(Protocol):
         """The run is complete: write the final parameters."""
 
 
+class BatchedEvaluation(Protocol):
+    """What a `Session` may offer besides: several epochs' evaluations in one program (module docstring).
+    `run_epochs` uses it when the session has it and `cfg.checkpoint_every` > 1."""
+
+    def snapshot(self, epoch: int) -> None:
+        """Keep a copy of what the evaluation after epoch `epoch` needs (the policy as it is now)."""
+
+    def evaluate_many(self, epochs: list[int]) -> np.ndarray:
+        """Returns (len(epochs), seeds, episodes): for each epoch, the returns `Session.evaluate(epoch)`
+        gives right after that epoch trained (up to float rounding of the batched program), from the
+        snapshots of those epochs, which it then drops."""
+
+
 def run_epochs(session: Session, *, cfg, sched, seeds, run, title: str, rows: list[dict], start: int,
                last: int | None, walltime: float = 0.0, progress: bool = True,
                hook: Callable[[str, int], None] | None = None, stop_after_epoch: int | None = None,
@@ -143,10 +162,12 @@ def run_epochs(session: Session, *, cfg, sched, seeds, run, title: str, rows: li
     (`TrainingDiverged` before anything of the epoch is written) → evaluate → append rows → `hook("rows")`
     → checkpoint (every `checkpoint_every` epochs, the last and `stop_after_epoch`) → `hook("checkpoint")`
     → learning curve. `hook("train"|"evaluate"|"save", epoch)` is called as each of those begins (a kill
-    there is a kill during it: nothing is written while an epoch trains or evaluates). `rows` (the
-    folder's rows so far) and `last` (the latest checkpoint) come from a resume; `walltime` is the wall
-    time the run had already spent. What libraries log goes to the run's train.log
-    (`sf2_common.agents.runlog`). Returns all rows."""
+    there is a kill during it: nothing is written while an epoch trains or evaluates). With a
+    `BatchedEvaluation` session and `checkpoint_every` > 1 the epochs between checkpoints are evaluated
+    together before each checkpoint (module docstring): "evaluate" and "rows" are then called once per
+    batch, with its last epoch. `rows` (the folder's rows so far) and `last` (the latest checkpoint) come
+    from a resume; `walltime` is the wall time the run had already spent. What libraries log goes to the
+    run's train.log (`sf2_common.agents.runlog`). Returns all rows."""
     bar = progress_bar(progress, sched.total_env_steps, sched.env_steps_after(max(start - 1, 0)), title)
     t_start = time.time() - walltime
     with library_log(run):
@@ -177,6 +198,9 @@ def _run_epochs(session, bar, t_start, *, cfg, sched, seeds, run, title, rows, s
         call_hook(hook, "checkpoint", 0)
         bar.set_postfix_str(f"eval {returns.mean():.1f}")
         start = 1
+    batched = cfg.checkpoint_every > 1 and hasattr(session, "evaluate_many")
+    pending = []    # trained epochs not yet evaluated (batched): (epoch, means, sps, epoch seconds)
+    shown = ""      # the progress bar's last evaluation
     for epoch in range(start, sched.num_epochs + 1):
         call_hook(hook, "train", epoch)
         t0 = time.time()
@@ -184,27 +208,29 @@ def _run_epochs(session, bar, t_start, *, cfg, sched, seeds, run, title, rows, s
         epoch_seconds = time.time() - t0
         message = diverged_message(first_bad, sched, epoch, seeds, cfg, last, session.loss_order())
         if message:
+            if pending:   # the good epochs' rows, as the per-epoch order would have written them
+                _evaluate(session, pending, batched, seeds=seeds, sched=sched, run=run, rows=rows,
+                          t_start=t_start, hook=hook)
             raise TrainingDiverged(message)
-        call_hook(hook, "evaluate", epoch)
-        t1 = time.time()
-        returns = session.evaluate(epoch)
-        eval_seconds = time.time() - t1
         sps = sched.env_steps_per_epoch / epoch_seconds
-        env_steps = sched.env_steps_after(epoch)
-        new = [make_row(epoch, s, env_steps, returns[i], row_metrics(means, i), sps, eval_seconds,
-                        time.time() - t_start, epoch_seconds) for i, s in enumerate(seeds)]
-        run.append_rows(new)
-        rows += new
-        call_hook(hook, "rows", epoch)
-        if epoch % cfg.checkpoint_every == 0 or epoch == sched.num_epochs or epoch == stop_after_epoch:
-            call_hook(hook, "save", epoch)
-            session.save(epoch, env_steps)
-            last = epoch
-            call_hook(hook, "checkpoint", epoch)
-        if plot:
-            write_curve(rows, run, title)
+        save = epoch % cfg.checkpoint_every == 0 or epoch == sched.num_epochs or epoch == stop_after_epoch
+        if batched:
+            session.snapshot(epoch)
+        pending.append((epoch, means, sps, epoch_seconds))
+        if save or not batched:
+            returns = _evaluate(session, pending, batched, seeds=seeds, sched=sched, run=run, rows=rows,
+                                t_start=t_start, hook=hook)
+            pending = []
+            shown = f", eval {returns.mean():.1f}"
+            if save:
+                call_hook(hook, "save", epoch)
+                session.save(epoch, sched.env_steps_after(epoch))
+                last = epoch
+                call_hook(hook, "checkpoint", epoch)
+            if plot:
+                write_curve(rows, run, title)
         bar.update(sched.env_steps_per_epoch)
-        bar.set_postfix_str(f"{sps:,.0f} steps/s, eval {returns.mean():.1f}")
+        bar.set_postfix_str(f"{sps:,.0f} steps/s{shown}")
         if stop_after_epoch is not None and epoch >= stop_after_epoch:
             break
     else:
@@ -212,6 +238,25 @@ def _run_epochs(session, bar, t_start, *, cfg, sched, seeds, run, title, rows, s
         if plot:
             write_curve(rows, run, title)
     return rows
+
+
+def _evaluate(session, done, batched: bool, *, seeds, sched, run, rows, t_start, hook) -> np.ndarray:
+    """Evaluate the trained epochs `done` (one, or in batched mode those since the last checkpoint: one
+    program, `BatchedEvaluation.evaluate_many`) and append their rows, each with an equal share of the
+    evaluation's wall time. `hook("evaluate"|"rows", e)` with e the last of them. Returns the last
+    epoch's returns (seeds, episodes)."""
+    epochs = [d[0] for d in done]
+    call_hook(hook, "evaluate", epochs[-1])
+    t = time.time()
+    returns = session.evaluate_many(epochs) if batched else np.asarray(session.evaluate(epochs[-1]))[None]
+    eval_seconds = (time.time() - t) / len(done)
+    new = [make_row(epoch, s, sched.env_steps_after(epoch), returns[k][i], row_metrics(means, i), sps,
+                    eval_seconds, time.time() - t_start, epoch_seconds)
+           for k, (epoch, means, sps, epoch_seconds) in enumerate(done) for i, s in enumerate(seeds)]
+    run.append_rows(new)
+    rows += new
+    call_hook(hook, "rows", epochs[-1])
+    return returns[-1]
 
 
 class NoBar:

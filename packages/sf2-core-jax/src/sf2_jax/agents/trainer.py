@@ -19,11 +19,14 @@ the same code path). Per seed:
   is compiled once for training (the env dominates compile time on a CPU).
 - `evaluate`: one episode from each evaluation start state (deterministic or acting policy; the
   policy's noise key changes with every evaluation, the start states do not).
+- `evaluate_many`: `evaluate` of several epochs' parameters in one program vmapped over them; the
+  host loop uses it (through `_Session.snapshot`) for the epochs between two checkpoints when
+  `checkpoint_every` > 1, since an evaluation's ~1000 sequential env steps are bound by latency.
 
 The host loop between epochs (`sf2_common.agents.hostloop.run_epochs`, shared with sf2_torch) does
-everything that needs the host: the NaN guard (before anything is
-written), evaluation rows, checkpoints, the progress bar and the learning-curve PNG. Order per epoch:
-train → NaN guard → evaluate → append rows → checkpoint. A run killed at any moment resumes from its
+everything that needs the host: the NaN guard (before anything is written), evaluation rows,
+checkpoints, the progress bar and the learning-curve PNG. Order per epoch: train → NaN guard → evaluate
+(batched up to the checkpoint) → append rows → checkpoint. A run killed at any moment resumes from its
 last checkpoint; rows of later epochs are dropped and produced again identically (runfolder.py).
 """
 
@@ -175,6 +178,22 @@ class Program:
         with self._precision():
             return self._program("evaluate", len(seeds), float(obs_noise))(params, eval_start,
                                                                             eval_keys(seeds, epoch))
+
+    def evaluate_many(self, params, eval_start, seeds, epochs, obs_noise: float = 0.0) -> jax.Array:
+        """Episode returns (len(epochs), n_seeds, n_eval_envs): `evaluate` of each epoch's parameters
+        (`params`: leaves stacked (len(epochs), n_seeds, ...)) from the same start states, in one program
+        vmapped over the epochs (sf2_common.agents.hostloop.BatchedEvaluation says why). With the seeds
+        spread over several devices (`mesh`) it is one `evaluate` per epoch."""
+        if self.mesh(len(seeds)) is not None:
+            return jnp.stack([self.evaluate(jax.tree_util.tree_map(lambda x, k=k: x[k], params), eval_start,
+                                            seeds, e, obs_noise) for k, e in enumerate(epochs)])
+        key = ("evaluate_many", float(obs_noise), False)
+        if key not in self._programs:
+            per_seed = jax.vmap(functools.partial(self._eval_one, obs_noise=float(obs_noise)))
+            self._programs[key] = jax.jit(jax.vmap(per_seed, in_axes=(0, None, 0)))
+        keys = jnp.stack([eval_keys(seeds, e) for e in epochs])
+        with self._precision():
+            return self._programs[key](params, eval_start, keys)
 
     def fresh_eval_starts(self, seeds, n: int, epoch: int):
         """`n` new evaluation start states per seed (for `sf2-jax eval --episodes`)."""
@@ -370,6 +389,7 @@ class _Session:
 
     def __init__(self, program: Program, ckpt: Checkpointer, run: RunFolder, seeds, state):
         self.program, self.ckpt, self.run, self.seeds, self.state = program, ckpt, run, seeds, state
+        self.snapshots: dict[int, dict] = {}   # epoch -> a copy of its params (`snapshot`)
 
     def start(self) -> None:
         self.state = self.program.init(self.seeds)
@@ -380,6 +400,14 @@ class _Session:
 
     def evaluate(self, epoch: int) -> np.ndarray:
         return np.asarray(self.program.evaluate(self.state.params, self.state.eval_start, self.seeds, epoch))
+
+    def snapshot(self, epoch: int) -> None:
+        # a copy: the next epoch's program donates (overwrites) the state's buffers
+        self.snapshots[epoch] = jax.tree_util.tree_map(jnp.copy, self.state.params)
+
+    def evaluate_many(self, epochs: list[int]) -> np.ndarray:
+        params = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *[self.snapshots.pop(e) for e in epochs])
+        return np.asarray(self.program.evaluate_many(params, self.state.eval_start, self.seeds, epochs))
 
     def save(self, epoch: int, env_steps: int) -> None:
         self.ckpt.save(epoch, self.state, {"env_steps": env_steps, "seeds": list(self.seeds)})

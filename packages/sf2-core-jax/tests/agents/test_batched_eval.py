@@ -1,0 +1,107 @@
+"""The batched evaluation (`Program.evaluate_many`, used by the host loop between checkpoints when
+`checkpoint_every` > 1) against the plain per-epoch evaluation it replaces: the same returns, the same
+rows, the same resume and NaN-guard behaviour. CPU, float32 (the trainer's dtype)."""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import numpy as np
+import pytest
+from sf2_common.testing import kill_and_resume
+from sf2_jax.agents import trainer
+from sf2_jax.agents.checkpoint import Checkpointer
+from sf2_jax.agents.trainer import WALL_FIELDS, TrainingDiverged, get_program, train
+
+# Vmapping over the snapshot axis changes the shapes of the policy's matmuls (a batch dimension more),
+# which may round differently in the last bit; a 60-step episode keeps such a difference near float32
+# resolution (measured here: equal).
+RTOL = 1e-5
+
+
+def _strip(rows):
+    return [{k: v for k, v in r.items() if k not in WALL_FIELDS} for r in rows]
+
+
+def _assert_rows_match(batched, plain):
+    """Same rows; training metrics exactly (the evaluation does not touch training), returns to RTOL."""
+    assert [(r["epoch"], r["seed"]) for r in batched] == [(r["epoch"], r["seed"]) for r in plain]
+    for a, b in zip(_strip(batched), _strip(plain)):
+        assert set(a) == set(b)
+        for k in a:
+            if k.startswith("eval_return"):
+                np.testing.assert_allclose(a[k], b[k], rtol=RTOL, atol=1e-6, err_msg=k)
+            else:
+                assert a[k] == b[k], k
+
+
+@pytest.fixture(scope="module")
+def cfg(tiny_cfg):
+    """tiny_cfg with a checkpoint every 2 epochs: epochs 1-2 are evaluated in one program before
+    checkpoint 2, epoch 3 alone before the last checkpoint."""
+    return tiny_cfg.replace(checkpoint_every=2)
+
+
+@pytest.fixture(scope="module")
+def plain(cfg, tmp_path_factory):
+    """The run with the per-epoch evaluation (a session without `evaluate_many`)."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.delattr(trainer._Session, "evaluate_many")
+        return train(cfg, (0, 1), tmp_path_factory.mktemp("plain"), progress=False)
+
+
+@pytest.fixture(scope="module")
+def batched(cfg, tmp_path_factory):
+    return train(cfg, (0, 1), tmp_path_factory.mktemp("batched"), progress=False)
+
+
+def test_evaluate_many_equals_evaluate_of_each(tiny_cfg):
+    """Three different policies (scaled parameters) and epochs in one program give each policy's
+    `evaluate` at its epoch (its own acting keys), and the three really differ."""
+    program = get_program(tiny_cfg)
+    seeds = (0, 1)
+    state = program.init(seeds)
+    policies = [jax.tree_util.tree_map(lambda x, s=s: x * s, state.params) for s in (1.0, 1.5, 3.0)]
+    epochs = [4, 5, 6]
+    stacked = jax.tree_util.tree_map(lambda *xs: np.stack(xs), *policies)
+    many = np.asarray(program.evaluate_many(stacked, state.eval_start, seeds, epochs))
+    one = np.stack([np.asarray(program.evaluate(p, state.eval_start, seeds, e))
+                    for p, e in zip(policies, epochs)])
+    assert many.shape == (3, 2, tiny_cfg.num_eval_envs)
+    np.testing.assert_allclose(many, one, rtol=RTOL, atol=1e-6)
+    assert not np.allclose(one[0], one[2])   # the policies act differently: the test compares something
+
+
+def test_batched_run_writes_the_per_epoch_rows(batched, plain, cfg):
+    _assert_rows_match(batched.run.read_rows(), plain.run.read_rows())
+    assert [r["epoch"] for r in batched.run.read_rows() if r["seed"] == 0] == [0, 1, 2, 3]
+    assert Checkpointer(batched.run.checkpoint_dir).all() == Checkpointer(plain.run.checkpoint_dir).all()
+
+
+def test_kill_between_checkpoints_resumes_to_the_same_rows(batched, cfg, tmp_path):
+    """Killed as epoch 2 begins (epoch 1 trained, its evaluation pending, nothing of it written), the run
+    resumes from checkpoint 0 and ends with the uninterrupted run's rows, exactly (same batches)."""
+    resumed = kill_and_resume(lambda c, s, o, **kw: train(c, (0, 1), o, **kw), cfg, tmp_path / "killed",
+                              "train", 2, 0)
+    assert _strip(resumed.run.read_rows()) == _strip(batched.run.read_rows())
+
+
+def test_divergence_writes_the_pending_epochs_rows(cfg, plain, tmp_path, monkeypatch):
+    """A NaN at the start of epoch 2 (Q heads poisoned, as in test_training.py): epoch 1's pending
+    evaluation is written before the run stops, so the folder holds rows 0-1, as with per-epoch
+    evaluation, and checkpoint 0 is the last good one."""
+    program = get_program(cfg)
+    real_epoch = program.epoch
+
+    def poisoned_epoch(state, epoch):
+        if epoch == 2:
+            q = jax.tree_util.tree_map(lambda x: x * np.nan, state.params["q"])
+            state = state._replace(params={**state.params, "q": q})
+        return real_epoch(state, epoch)
+
+    monkeypatch.setattr(program, "epoch", poisoned_epoch)
+    with pytest.raises(TrainingDiverged, match=r"last good checkpoint \(epoch 0\) is kept"):
+        train(cfg, (0, 1), tmp_path / "nan", progress=False)
+    rows = [json.loads(line) for line in (tmp_path / "nan" / "metrics.jsonl").read_text().splitlines()]
+    _assert_rows_match(rows, [r for r in plain.run.read_rows() if r["epoch"] <= 1])
