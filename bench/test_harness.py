@@ -175,3 +175,25 @@ def test_cli_end_to_end(tmp_path):
     md = (out / "updates.md").read_text()
     assert "PendulumSwingup" in md and "python -m bench run" in md
     cli.main(["report", str(out)])
+
+
+# ----------------------------------------------------------------------------- eval_share
+def test_eval_share_of_a_run_folder(tmp_path):
+    """Two seeds, epochs 0-2: seed 0's rows give the run's numbers (by hand: evaluations after epoch 0
+    1.5 + 1.5 = 3 s of a 10 s run; epochs 2 + 2 = 4 s; 2 seeds x 200 env steps / 10 s = 40 steps/s)."""
+    from bench import eval_share
+
+    rows = []
+    for epoch, env_steps, wall in ((0, 0, 3.0), (1, 100, 6.5), (2, 200, 10.0)):
+        for seed in (0, 1):
+            row = {"epoch": epoch, "seed": seed, "env_steps": env_steps, "walltime": wall,
+                   "eval_seconds": 3.0 if epoch == 0 else 1.5}
+            if epoch:
+                row["epoch_seconds"] = 2.0
+            rows.append(row)
+    (tmp_path / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    got = eval_share.measure(tmp_path)
+    assert (got["wall_s"], got["eval_s"], got["train_s"], got["eval_share"], got["env_steps_per_s"]) == (
+        10.0, 3.0, 4.0, 0.3, 40)
+    with pytest.raises(SystemExit, match="no metrics.jsonl"):
+        eval_share.measure(tmp_path / "missing")
