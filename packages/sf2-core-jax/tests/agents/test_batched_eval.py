@@ -74,9 +74,11 @@ def test_evaluate_many_equals_evaluate_of_each(tiny_cfg):
 
 
 def test_batched_run_writes_the_per_epoch_rows(batched, plain, cfg):
+    """Batches [1, 2] and [3] (padded to two epochs, so the batched program compiled once)."""
     _assert_rows_match(batched.run.read_rows(), plain.run.read_rows())
     assert [r["epoch"] for r in batched.run.read_rows() if r["seed"] == 0] == [0, 1, 2, 3]
     assert Checkpointer(batched.run.checkpoint_dir).all() == Checkpointer(plain.run.checkpoint_dir).all()
+    assert get_program(cfg)._programs[("evaluate_many", 0.0, False)]._cache_size() == 1
 
 
 def test_kill_between_checkpoints_resumes_to_the_same_rows(batched, cfg, tmp_path):

@@ -406,8 +406,15 @@ class _Session:
         self.snapshots[epoch] = jax.tree_util.tree_map(jnp.copy, self.state.params)
 
     def evaluate_many(self, epochs: list[int]) -> np.ndarray:
-        params = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *[self.snapshots.pop(e) for e in epochs])
-        return np.asarray(self.program.evaluate_many(params, self.state.eval_start, self.seeds, epochs))
+        # One batch shape per run: a shorter batch (the schedule's last, a stop) is padded with its last
+        # epoch, whose extra returns are dropped, so the program compiles once (a second shape cost 10-19 s
+        # of a HopperHop run: bench/results/h200/19-batched-eval).
+        pad = max(self.program.cfg.checkpoint_every - len(epochs), 0)
+        snaps = [self.snapshots.pop(e) for e in epochs]
+        params = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *snaps, *[snaps[-1]] * pad)
+        padded = epochs + [epochs[-1]] * pad
+        returns = self.program.evaluate_many(params, self.state.eval_start, self.seeds, padded)
+        return np.asarray(returns)[: len(epochs)]
 
     def save(self, epoch: int, env_steps: int) -> None:
         self.ckpt.save(epoch, self.state, {"env_steps": env_steps, "seeds": list(self.seeds)})
