@@ -58,3 +58,27 @@ def tiny_cfg():
         num_timesteps=4 * 36, num_evals=4, num_envs=4, num_eval_envs=2, episode_length=60,
         batch_size=16, grad_updates_per_step=2, min_replay_size=32, max_replay_size=512,
         feature_size=8, hidden_sizes=(16,), q_hidden_size=16, zeta_hidden_sizes=(16,), embedding_size=4))
+
+
+@pytest.fixture
+def poison_epoch(monkeypatch):
+    """`poison_epoch(cfg, epoch)`: the cached program of `cfg` trains epoch `epoch` from Q heads set to NaN
+    (as if an update had diverged there), so every loss of that epoch's first SGD step is non-finite. It
+    wraps the program's `epoch`, so no new program is compiled; undone after the test."""
+    import jax
+    import jax.numpy as jnp
+    from sf2_jax.agents.trainer import get_program
+
+    def poison(cfg, bad_epoch: int) -> None:
+        program = get_program(cfg)
+        real_epoch = program.epoch
+
+        def poisoned_epoch(state, epoch):
+            if epoch == bad_epoch:
+                q = jax.tree_util.tree_map(lambda x: x * jnp.nan, state.params["q"])
+                state = state._replace(params={**state.params, "q": q})
+            return real_epoch(state, epoch)
+
+        monkeypatch.setattr(program, "epoch", poisoned_epoch)
+
+    return poison

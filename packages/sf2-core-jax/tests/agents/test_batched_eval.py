@@ -89,20 +89,11 @@ def test_kill_between_checkpoints_resumes_to_the_same_rows(batched, cfg, tmp_pat
     assert _strip(resumed.run.read_rows()) == _strip(batched.run.read_rows())
 
 
-def test_divergence_writes_the_pending_epochs_rows(cfg, plain, tmp_path, monkeypatch):
-    """A NaN at the start of epoch 2 (Q heads poisoned, as in test_training.py): epoch 1's pending
-    evaluation is written before the run stops, so the folder holds rows 0-1, as with per-epoch
-    evaluation, and checkpoint 0 is the last good one."""
-    program = get_program(cfg)
-    real_epoch = program.epoch
-
-    def poisoned_epoch(state, epoch):
-        if epoch == 2:
-            q = jax.tree_util.tree_map(lambda x: x * np.nan, state.params["q"])
-            state = state._replace(params={**state.params, "q": q})
-        return real_epoch(state, epoch)
-
-    monkeypatch.setattr(program, "epoch", poisoned_epoch)
+def test_divergence_writes_the_pending_epochs_rows(cfg, plain, tmp_path, poison_epoch):
+    """A NaN at the start of epoch 2 (`poison_epoch`, conftest.py): epoch 1's pending evaluation is
+    written before the run stops, so the folder holds rows 0-1, as with per-epoch evaluation, and
+    checkpoint 0 is the last good one."""
+    poison_epoch(cfg, 2)
     with pytest.raises(TrainingDiverged, match=r"last good checkpoint \(epoch 0\) is kept"):
         train(cfg, (0, 1), tmp_path / "nan", progress=False)
     rows = [json.loads(line) for line in (tmp_path / "nan" / "metrics.jsonl").read_text().splitlines()]

@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 from sf2_common.testing import KILL_POINTS, kill_and_resume
@@ -107,24 +106,14 @@ def test_finished_run_is_not_retrained(reference, tiny_cfg):
     assert again.resumed_from == 3 and _strip(again.rows) == _strip(reference.rows)
 
 
-def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tiny_cfg, tmp_path, monkeypatch):
+def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tiny_cfg, tmp_path, poison_epoch):
     """A NaN in the Q heads at the start of epoch 3 (as if an update had diverged there) makes every loss
     of that epoch's first SGD step non-finite; the run stops naming the loss, the SGD step (32: epochs
-    1 and 2 hold SGD steps 0-31) and the epoch, and keeps checkpoint 2 and rows 0-2. The poisoning wraps
-    the cached program's `epoch`, so no new program is compiled."""
+    1 and 2 hold SGD steps 0-31) and the epoch, and keeps checkpoint 2 and rows 0-2 (`poison_epoch`:
+    conftest.py)."""
     from sf2_jax.agents.checkpoint import Checkpointer
-    from sf2_jax.agents.trainer import get_program
 
-    program = get_program(tiny_cfg)
-    real_epoch = program.epoch
-
-    def poisoned_epoch(state, epoch):
-        if epoch == 3:
-            q = jax.tree_util.tree_map(lambda x: x * jnp.nan, state.params["q"])
-            state = state._replace(params={**state.params, "q": q})
-        return real_epoch(state, epoch)
-
-    monkeypatch.setattr(program, "epoch", poisoned_epoch)
+    poison_epoch(tiny_cfg, 3)
     with pytest.raises(TrainingDiverged) as err:
         train(tiny_cfg, (0,), tmp_path / "nan", progress=False)
     msg = str(err.value)
