@@ -59,7 +59,7 @@ from .checkpoint import Checkpointer
 from .replay import ReplayBuffer
 
 __all__ = ["TrainState", "Program", "get_program", "TrainingDiverged", "TrainResult", "train",
-           "seed_keys", "eval_keys", "flatten_params", "WALL_FIELDS"]
+           "seed_keys", "eval_keys", "acting_params", "flatten_params", "WALL_FIELDS"]
 
 EVAL_STREAM = 0x5EED  # eval keys: fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), epoch)
 # WALL_FIELDS, TrainingDiverged and the host loop's framework-free helpers (rows, the NaN guard's
@@ -84,6 +84,13 @@ def seed_keys(seeds) -> jax.Array:
 def eval_keys(seeds, epoch: int) -> jax.Array:
     return jnp.stack([jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(s), EVAL_STREAM), epoch)
                       for s in seeds])
+
+
+def acting_params(params: dict) -> dict:
+    """The parameter groups `Algorithm.act` reads (TD3's and SAC's: the policy and the observation
+    statistics; a group it lacks fails as the program traces): all that the evaluation programs take and
+    an epoch's snapshot keeps (1/22 of TD3+SF²'s parameters on the paper preset)."""
+    return {name: params[name] for name in ("policy", "obs_norm")}
 
 
 SHARD_SEEDS = "SF2_SHARD_SEEDS"   # "1": spread a run's seeds over the local devices (Program.mesh)
@@ -176,8 +183,8 @@ class Program:
         Gaussian noise of that std to every observation the policy sees (paper App. C.2.2; one compiled
         program per std; 0 is the training's own evaluation program)."""
         with self._precision():
-            return self._program("evaluate", len(seeds), float(obs_noise))(params, eval_start,
-                                                                            eval_keys(seeds, epoch))
+            program = self._program("evaluate", len(seeds), float(obs_noise))
+            return program(acting_params(params), eval_start, eval_keys(seeds, epoch))
 
     def evaluate_many(self, params, eval_start, seeds, epochs, obs_noise: float = 0.0) -> jax.Array:
         """Episode returns (len(epochs), n_seeds, n_eval_envs): `evaluate` of each epoch's parameters
@@ -193,7 +200,7 @@ class Program:
             self._programs[key] = jax.jit(jax.vmap(per_seed, in_axes=(0, None, 0)))
         keys = jnp.stack([eval_keys(seeds, e) for e in epochs])
         with self._precision():
-            return self._programs[key](params, eval_start, keys)
+            return self._programs[key](acting_params(params), eval_start, keys)
 
     def fresh_eval_starts(self, seeds, n: int, epoch: int):
         """`n` new evaluation start states per seed (for `sf2-jax eval --episodes`)."""
@@ -389,7 +396,7 @@ class _Session:
 
     def __init__(self, program: Program, ckpt: Checkpointer, run: RunFolder, seeds, state):
         self.program, self.ckpt, self.run, self.seeds, self.state = program, ckpt, run, seeds, state
-        self.snapshots: dict[int, dict] = {}   # epoch -> a copy of its params (`snapshot`)
+        self.snapshots: dict[int, dict] = {}   # epoch -> a copy of its acting params (`snapshot`)
 
     def start(self) -> None:
         self.state = self.program.init(self.seeds)
@@ -403,7 +410,7 @@ class _Session:
 
     def snapshot(self, epoch: int) -> None:
         # a copy: the next epoch's program donates (overwrites) the state's buffers
-        self.snapshots[epoch] = jax.tree_util.tree_map(jnp.copy, self.state.params)
+        self.snapshots[epoch] = jax.tree_util.tree_map(jnp.copy, acting_params(self.state.params))
 
     def evaluate_many(self, epochs: list[int]) -> np.ndarray:
         # One batch shape per run: a shorter batch (the schedule's last, a stop) is padded with its last
