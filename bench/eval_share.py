@@ -1,12 +1,14 @@
 """How much of a finished run's wall time its evaluations took, from its run folder alone.
 
-    python -m bench.eval_share results/fig7-td3/runs/HopperHop/*/seeds-0-4 [--markdown]
+    python -m bench.eval_share results/fig7-td3/runs/HopperHop/*/seeds-0-4 [--markdown] [--epochs A-B]
 
 Per run folder (metrics.jsonl of the first seed: every seed of a run shares one program and one clock):
 the whole run's wall time (the last row's `walltime`, resumptions included), the evaluations after
 epoch 0 (`eval_seconds` summed; with the batched evaluation each row holds its share of its batch's
 time, so the sum is the batches' time), the training epochs (`epoch_seconds` summed), the evaluations'
 share, and the run's env steps/s over all seeds. docs/physics.md "Evaluation latency" uses it.
+`--epochs A-B`: the same over epochs A+1..B only (wall time from epoch A's row to epoch B's): the rate of a
+stretch of a run, e.g. after the run it shared its GPU with had finished (bench/results/h200/20-runs-per-gpu).
 """
 
 from __future__ import annotations
@@ -16,11 +18,12 @@ import json
 import sys
 from pathlib import Path
 
-FIELDS = ("run", "wall_s", "eval_s", "train_s", "eval_share", "env_steps_per_s")
+FIELDS = ("run", "epochs", "wall_s", "eval_s", "train_s", "eval_share", "env_steps_per_s")
 
 
-def measure(folder: Path) -> dict:
-    """The row of FIELDS for one finished run folder; a folder without metrics is an error naming it."""
+def measure(folder: Path, span: tuple[int, int] | None = None) -> dict:
+    """The row of FIELDS for one run folder, whole (finished) or over the epochs `span` = (A, B); a folder
+    without metrics, or without the span's epochs, is an error naming it."""
     path = folder / "metrics.jsonl"
     if not path.is_file():
         raise SystemExit(f"error: {folder} holds no metrics.jsonl (not a run folder)")
@@ -28,21 +31,39 @@ def measure(folder: Path) -> dict:
     if not rows:
         raise SystemExit(f"error: {path} is empty")
     seeds = sorted({r["seed"] for r in rows})
-    first = [r for r in rows if r["seed"] == seeds[0]]
-    wall = first[-1]["walltime"]
-    evals = sum(r["eval_seconds"] for r in first if r["epoch"] >= 1)
-    train = sum(r.get("epoch_seconds", 0.0) for r in first)
-    return {"run": str(folder), "wall_s": round(wall, 1), "eval_s": round(evals, 1),
+    first = {r["epoch"]: r for r in rows if r["seed"] == seeds[0]}
+    a, b = span if span is not None else (0, max(first))
+    if a not in first or b not in first:
+        raise SystemExit(f"error: {path} has epochs {min(first)}-{max(first)}, not {a} and {b}")
+    inside = [first[e] for e in range(a + 1, b + 1) if e in first]
+    wall = first[b]["walltime"] - (first[a]["walltime"] if span is not None else 0.0)
+    evals = sum(r["eval_seconds"] for r in inside)
+    train = sum(r.get("epoch_seconds", 0.0) for r in inside) + (
+        first[0].get("epoch_seconds", 0.0) if span is None else 0.0)
+    steps = first[b]["env_steps"] - (first[a]["env_steps"] if span is not None else 0)
+    return {"run": str(folder), "epochs": f"{a}-{b}", "wall_s": round(wall, 1), "eval_s": round(evals, 1),
             "train_s": round(train, 1), "eval_share": round(evals / wall, 3),
-            "env_steps_per_s": round(first[-1]["env_steps"] * len(seeds) / wall)}
+            "env_steps_per_s": round(steps * len(seeds) / wall)}
+
+
+def _span(text: str) -> tuple[int, int]:
+    try:
+        a, b = (int(x) for x in text.split("-"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: A-B, two epochs, A < B (e.g. 40-99)") from None
+    if not 0 <= a < b:
+        raise argparse.ArgumentTypeError(f"{text!r}: A-B with 0 <= A < B (e.g. 40-99)")
+    return a, b
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.eval_share", description=__doc__.split("\n")[0])
     parser.add_argument("folders", nargs="+", type=Path, help="finished run folders")
+    parser.add_argument("--epochs", type=_span, default=None, metavar="A-B",
+                        help="only epochs A+1..B (the wall time between epoch A's and epoch B's rows)")
     parser.add_argument("--markdown", action="store_true", help="a Markdown table instead of JSON lines")
     args = parser.parse_args(argv)
-    rows = [measure(f) for f in args.folders]
+    rows = [measure(f, args.epochs) for f in args.folders]
     if args.markdown:
         print("| " + " | ".join(FIELDS) + " |\n|" + "---|" * len(FIELDS))
         for r in rows:

@@ -195,5 +195,11 @@ def test_eval_share_of_a_run_folder(tmp_path):
     got = eval_share.measure(tmp_path)
     assert (got["wall_s"], got["eval_s"], got["train_s"], got["eval_share"], got["env_steps_per_s"]) == (
         10.0, 3.0, 4.0, 0.3, 40)
+    # epochs 1-2 only: 10.0 - 6.5 = 3.5 s, one evaluation 1.5 s, one epoch 2 s, 2 x 100 steps / 3.5 s = 57
+    got = eval_share.measure(tmp_path, (1, 2))
+    assert (got["epochs"], got["wall_s"], got["eval_s"], got["train_s"], got["eval_share"],
+            got["env_steps_per_s"]) == ("1-2", 3.5, 1.5, 2.0, round(1.5 / 3.5, 3), round(200 / 3.5))
+    with pytest.raises(SystemExit, match="has epochs 0-2, not 1 and 5"):
+        eval_share.measure(tmp_path, (1, 5))
     with pytest.raises(SystemExit, match="no metrics.jsonl"):
         eval_share.measure(tmp_path / "missing")

@@ -45,9 +45,9 @@ def add_parser(sub, prog: str) -> None:
     r.add_argument("--workers", type=int, default=None,
                    help="runs at a time on this host (default: one per visible GPU, else 1)")
     r.add_argument("--runs-per-gpu", type=int, default=1, metavar="N",
-                   help="runs sharing each visible GPU (default 1), each with 0.9/N of its memory: more "
-                   "runs per hour where the physics' latency, not the GPU, sets a run's pace "
-                   "(bench/results/h200/20-runs-per-gpu)")
+                   help="runs sharing each visible GPU (default 1), each with 0.9/N of its memory; on an "
+                   "H200 two runs together made 1.06-1.12x one alone (they time-slice the GPU; "
+                   "bench/results/h200/20-runs-per-gpu): for GPUs one run leaves idle")
     r.add_argument("--finish-within", metavar="SECONDS", type=float, default=None,
                    help="start a run only if the forecast from the finished runs' rates ends it within "
                    "SECONDS from now (e.g. the time left on a leased machine); runs started are never "

@@ -8,8 +8,9 @@ framework's own CLI, `python -m sf2_jax.cli train ... --out DIR/runs/<task>/<met
 Where the children run: one per visible GPU (CUDA_VISIBLE_DEVICES set to that GPU alone), or on a CPU one
 at a time unless `workers` says more. `runs_per_gpu` > 1 puts that many children on each GPU, each with
 its share of the GPU's memory (XLA_PYTHON_CLIENT_MEM_FRACTION = 0.9 / runs_per_gpu, where the caller has
-not set it): a run whose pace is set by the physics' latency (while loops whose every iteration waits on
-the host) leaves the GPU idle most of the time, and a second run fills those gaps. A child dies with
+not set it). The processes time-slice the GPU, so a second run only fills the gaps the first leaves: on
+an H200 two study runs together made 1.06-1.12x the rate of one alone (bench/results/h200/20-runs-per-gpu);
+a GPU's rate rises with the seeds of one vmapped program instead, hence the default of one. A child dies with
 the runner (Linux: PR_SET_PDEATHSIG), and holds its run folder's lock (`.study-lock`, flock) for as long
 as it lives, so a second runner on the same folder never trains the same run twice at once.
 
