@@ -143,7 +143,7 @@ def test_plan_and_dry_run_per_group(tmp_path, monkeypatch, capsys):
     backend = runner.Backend("sf2-fake", "jax", "fake", _make, lambda cfg, seeds: cfg)
     args = argparse.Namespace(file=str(study.path), out=str(folder.path), tasks="A", methods=None,
                               seeds="0-9", workers=None, ray=None, dry_run=True, no_progress=True,
-                              finish_within=None, runs_per_gpu=1)
+                              finish_within=None)
     assert commands._run(backend, args, "cmd") == 0
     out = capsys.readouterr().out.splitlines()
     assert "4 run(s) selected of 12; seed groups 0-4, 5-9" in out[0]

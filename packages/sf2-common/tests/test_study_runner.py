@@ -23,8 +23,7 @@ FAKE_CLI = textwrap.dedent('''
     os.makedirs(out, exist_ok=True)
     with open(os.path.join(out, "child.json"), "w") as f:
         json.dump({"gpu": os.environ.get("CUDA_VISIBLE_DEVICES"), "start": t0, "end": time.time(),
-                   "hashseed": os.environ.get("PYTHONHASHSEED"),
-                   "mem": os.environ.get("XLA_PYTHON_CLIENT_MEM_FRACTION")}, f)
+                   "hashseed": os.environ.get("PYTHONHASHSEED")}, f)
 ''')
 
 STUDY = """
@@ -83,53 +82,8 @@ def test_runs_spread_over_visible_gpus_one_each(tmp_path, monkeypatch):
     for gpu in ("3", "5"):
         mine = sorted((s["start"], s["end"]) for s in spans if s["gpu"] == gpu)
         assert all(a_end <= b_start for (_, a_end), (b_start, _) in zip(mine, mine[1:]))   # never two at once
-    assert all(s["mem"] is None for s in spans)                        # alone on its GPU: JAX's default
     with pytest.raises(spec.StudyError, match="--workers 3: this host has 2 visible GPU"):
         runner.run_local(study, folder, jobs, done, backend=backend, base_env=env, workers=3, progress=False)
-
-
-def _overlaps(spans) -> int:
-    """The most spans running at one instant."""
-    edges = sorted([(s["start"], 1) for s in spans] + [(s["end"], -1) for s in spans])
-    most = now = 0
-    for _, d in edges:
-        now += d
-        most = max(most, now)
-    return most
-
-
-def test_runs_per_gpu_share_each_gpu_with_a_memory_share(tmp_path, monkeypatch):
-    study, backend, folder, runs = _setup(tmp_path, monkeypatch)
-    jobs, done = runner.plan(study, folder, runs)
-    env = {"PATH": "/usr/bin:/bin", "PYTHONPATH": str(tmp_path) + ":" + ":".join(sys.path),
-           "CUDA_VISIBLE_DEVICES": "3,5"}
-    outcome = runner.run_local(study, folder, jobs, done, backend=backend, base_env=env, progress=False,
-                               poll=0.05, runs_per_gpu=3)
-    assert outcome.ok and len(outcome.done) == 6
-    spans = [json.loads((j.path / "child.json").read_text()) for j in jobs]
-    assert sorted(s["gpu"] for s in spans) == ["3", "3", "3", "5", "5", "5"]   # 6 runs, 6 places: 3 per GPU
-    assert {s["mem"] for s in spans} == {"0.300"}                      # 0.9 / 3 of each GPU's memory each
-    for gpu in ("3", "5"):
-        assert _overlaps([s for s in spans if s["gpu"] == gpu]) >= 2   # they did share it
-    with pytest.raises(spec.StudyError, match="--workers 7: this host has 2 visible GPU.*--runs-per-gpu 3"):
-        runner.run_local(study, folder, jobs, done, backend=backend, base_env=env, workers=7, progress=False,
-                         runs_per_gpu=3)
-    with pytest.raises(spec.StudyError, match="--runs-per-gpu 2: this host has no visible GPU"):
-        runner.run_local(study, folder, jobs, done, backend=backend,
-                         base_env={**env, "CUDA_VISIBLE_DEVICES": ""}, progress=False, runs_per_gpu=2)
-    with pytest.raises(spec.StudyError, match="--runs-per-gpu 0 is invalid"):
-        runner.run_local(study, folder, jobs, done, backend=backend, base_env=env, progress=False,
-                         runs_per_gpu=0)
-
-
-def test_a_callers_memory_fraction_is_kept(tmp_path, monkeypatch):
-    study, backend, folder, runs = _setup(tmp_path, monkeypatch)
-    jobs, done = runner.plan(study, folder, runs[:2])
-    env = {"PATH": "/usr/bin:/bin", "PYTHONPATH": str(tmp_path) + ":" + ":".join(sys.path),
-           "CUDA_VISIBLE_DEVICES": "0", "XLA_PYTHON_CLIENT_MEM_FRACTION": "0.2"}
-    assert runner.run_local(study, folder, jobs, done, backend=backend, base_env=env, progress=False,
-                            poll=0.05, runs_per_gpu=2).ok
-    assert {json.loads((j.path / "child.json").read_text())["mem"] for j in jobs} == {"0.2"}
 
 
 def test_visible_gpus():

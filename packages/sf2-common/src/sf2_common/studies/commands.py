@@ -44,10 +44,6 @@ def add_parser(sub, prog: str) -> None:
                    "seeds_per_run makes the groups)")
     r.add_argument("--workers", type=int, default=None,
                    help="runs at a time on this host (default: one per visible GPU, else 1)")
-    r.add_argument("--runs-per-gpu", type=int, default=1, metavar="N",
-                   help="runs sharing each visible GPU (default 1), each with 0.9/N of its memory; on an "
-                   "H200 two runs together made 1.06-1.12x one alone (they time-slice the GPU; "
-                   "bench/results/h200/20-runs-per-gpu): for GPUs one run leaves idle")
     r.add_argument("--finish-within", metavar="SECONDS", type=float, default=None,
                    help="start a run only if the forecast from the finished runs' rates ends it within "
                    "SECONDS from now (e.g. the time left on a leased machine); runs started are never "
@@ -121,10 +117,6 @@ def _run(backend, args, command: str) -> int:
                          f"`sf2-{study.framework} study run`, not {backend.prog}")
     if args.workers is not None and args.workers < 1:
         raise StudyError(f"--workers {args.workers} is invalid: an int >= 1")
-    if args.runs_per_gpu < 1:
-        raise StudyError(f"--runs-per-gpu {args.runs_per_gpu} is invalid: an int >= 1")
-    if args.runs_per_gpu > 1 and args.ray is not None:
-        raise StudyError("--runs-per-gpu is for this host's runner; with --ray give --ray-gpus a fraction")
     if args.finish_within is not None and not args.finish_within > 0:
         raise StudyError(f"--finish-within {args.finish_within} is invalid: seconds > 0")
     if args.finish_within is not None and args.ray is not None:
@@ -164,8 +156,7 @@ def _run(backend, args, command: str) -> int:
     else:
         outcome = runner.run_local(study, folder, jobs, done, backend=backend, base_env=base_env,
                                    workers=args.workers, progress=not args.no_progress,
-                                   finish_within=args.finish_within, history=history,
-                                   runs_per_gpu=args.runs_per_gpu)
+                                   finish_within=args.finish_within, history=history)
     print(f"{study.name}: {len(outcome.done)} of {len(selected)} run(s) done"
           + (f", {len(outcome.failed)} failed" if outcome.failed else "")
           + (f", {len(outcome.busy)} held by another runner" if outcome.busy else "")

@@ -5,12 +5,11 @@ framework's own CLI, `python -m sf2_jax.cli train ... --out DIR/runs/<task>/<met
 [evaluation]), so resuming, `kill -9` and the no-duplicate-row guarantee are the trainer's
 (sf2_common.agents.runfolder): a finished run is skipped, a partial one resumes from its last checkpoint.
 
-Where the children run: one per visible GPU (CUDA_VISIBLE_DEVICES set to that GPU alone), or on a CPU one
-at a time unless `workers` says more. `runs_per_gpu` > 1 puts that many children on each GPU, each with
-its share of the GPU's memory (XLA_PYTHON_CLIENT_MEM_FRACTION = 0.9 / runs_per_gpu, where the caller has
-not set it). The processes time-slice the GPU, so a second run only fills the gaps the first leaves: on
-an H200 two study runs together made 1.06-1.12x the rate of one alone (bench/results/h200/20-runs-per-gpu);
-a GPU's rate rises with the seeds of one vmapped program instead, hence the default of one. A child dies with
+Where the children run: one per visible GPU (CUDA_VISIBLE_DEVICES set to that GPU alone, so two runs
+never share a GPU's memory), or on a CPU one at a time unless `workers` says more. Never two runs to a GPU:
+they time-slice it, and together made 0.9-1.4x (bench/results/h200x2/README.md "17") and 1.06-1.12x
+(bench/results/h200/20-runs-per-gpu) the rate of one run alone; a GPU's rate grows with the seeds of one
+vmapped program instead. A child dies with
 the runner (Linux: PR_SET_PDEATHSIG), and holds its run folder's lock (`.study-lock`, flock) for as long
 as it lives, so a second runner on the same folder never trains the same run twice at once.
 
@@ -233,31 +232,6 @@ def lock(path: Path):
 
 
 # ------------------------------------------------------------------------------------------- local runner
-def _slots(base_env: dict, workers: int | None, runs_per_gpu: int) -> list[_Slot]:
-    """Where children run: `runs_per_gpu` per visible GPU (at most `workers` in all), else `workers` (default
-    1) on the CPU."""
-    if runs_per_gpu < 1:
-        raise StudyError(f"--runs-per-gpu {runs_per_gpu} is invalid: an int >= 1")
-    gpus = visible_gpus(base_env)
-    if not gpus:
-        if runs_per_gpu > 1:
-            raise StudyError(f"--runs-per-gpu {runs_per_gpu}: this host has no visible GPU; use --workers "
-                             "for runs at a time on the CPU")
-        return [_Slot(child_env(base_env), f"worker {i}") for i in range(workers or 1)]
-    places = len(gpus) * runs_per_gpu
-    if workers is not None and workers > places:
-        raise StudyError(f"--workers {workers}: this host has {len(gpus)} visible GPU(s) ({','.join(gpus)}) "
-                         f"and --runs-per-gpu {runs_per_gpu}; use --workers <= {places} or raise "
-                         "--runs-per-gpu")
-    extra = {}
-    if runs_per_gpu > 1 and "XLA_PYTHON_CLIENT_MEM_FRACTION" not in base_env:
-        extra["XLA_PYTHON_CLIENT_MEM_FRACTION"] = f"{0.9 / runs_per_gpu:.3f}"
-    slots = [_Slot(child_env(base_env, CUDA_VISIBLE_DEVICES=g, **extra),
-                   f"GPU {g}" + (f" #{k}" if runs_per_gpu > 1 else ""))
-             for k in range(runs_per_gpu) for g in gpus]   # GPU-major: 2 GPUs × 2 fill 0, 1, 0, 1
-    return slots[:workers]
-
-
 class _Slot:
     def __init__(self, env: dict, label: str):
         self.env, self.label = env, label
@@ -269,19 +243,24 @@ class _Slot:
 
 def run_local(study: Study, folder: StudyFolder, jobs: list[Job], done: list[Job], *, backend: Backend,
               base_env: dict, workers: int | None = None, progress: bool = True, poll: float = 1.0,
-              stream=None, finish_within: float | None = None, history: list[Job] | None = None,
-              runs_per_gpu: int = 1) -> Outcome:
+              stream=None, finish_within: float | None = None, history: list[Job] | None = None) -> Outcome:
     """Run `jobs` on this host (module docstring); `done` counts towards the progress view. With
     `finish_within` (seconds from now) a job starts only if its `Forecast` ends by then (a leased machine
     that goes back at a known time then spends none of it on runs that would be cut and lost); every job
     starts while no run has finished to forecast from. `history`: the finished runs the forecast draws on
     (default `done`; `study run` passes every finished run of the study folder, not only the selected ones).
-    Runs already started are never stopped by it. `runs_per_gpu`: children sharing each GPU (module
-    docstring); the forecast does not know it, so it is optimistic when the finished runs ran alone."""
+    Runs already started are never stopped by it."""
     stream = stream or sys.stderr
     deadline = None if finish_within is None else time.monotonic() + finish_within
     forecast = Forecast(done if history is None else history)
-    slots = _slots(base_env, workers, runs_per_gpu)
+    gpus = visible_gpus(base_env)
+    if gpus:
+        if workers is not None and workers > len(gpus):
+            raise StudyError(f"--workers {workers}: this host has {len(gpus)} visible GPU(s) "
+                             f"({','.join(gpus)}) and a run never shares a GPU; use --workers <= {len(gpus)}")
+        slots = [_Slot(child_env(base_env, CUDA_VISIBLE_DEVICES=g), f"GPU {g}") for g in gpus[:workers]]
+    else:
+        slots = [_Slot(child_env(base_env), f"worker {i}") for i in range(workers or 1)]
     total_steps = sum(j.total_steps for j in jobs + done)
     view = Progress(study.name, len(jobs) + len(done), total_steps, enabled=progress, stream=stream)
     view.event(f"{study.name}: {len(jobs)} run(s) to do, {len(done)} done; "
