@@ -215,7 +215,7 @@ def test_report_joins_groups_and_flags_unequal_seeds(tmp_path):
         assert float(r["wall_time_s"]) == (10.0 if int(r["seed"]) < 2 else 20.0)   # the seed's own run
     assert sorted(int(r["seed"]) for r in rows if r["task"] == "B" and r["method"] == "TD3+SF²") == [0, 1]
     summary = written["summary.md"].read_text()
-    assert "Runs: 3 of 4 (task, method) pairs finished, 1 with some of their seeds" in summary
+    assert "Runs: 3 of 4 (task, method) pairs have all 4 of the study's seeds, 1 some of them" in summary
     assert "in seed groups (0-1, 2-3), one run each" in summary
     assert "| TD3 | 4 | 4 |" in summary and "| TD3+SF² | 4 | 2 (missing 2-3) |" in summary
     assert "**Unequal seed counts**: methods are compared at different numbers of seeds on B (TD3: TD3 4, " \

@@ -121,6 +121,11 @@ def test_report_numbers_by_hand_and_by_rliable(tmp_path):
     assert "sf2-jax study run s.toml --out study" in summary and "sf2-jax study report study" in summary
     for name in ("aggregate.png", "aggregate.svg", "curves.png", "curves.svg"):
         assert name in written and written[name].stat().st_size > 1000
+    # made again from the same runs, the report's files are the same bytes (a committed report does not
+    # change when it is remade): the SVGs carry no date and fixed clip-path ids
+    before = {name: path.read_bytes() for name, path in written.items()}
+    again = report(folder.path, command="sf2-jax study report study")
+    assert {name: path.read_bytes() for name, path in again.items()} == before
 
 
 INTERIM = FAMILY.replace('tasks = ["A", "B"]', 'tasks = ["A", "B", "C"]')

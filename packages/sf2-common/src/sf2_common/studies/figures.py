@@ -47,11 +47,17 @@ class _Colors:
 
 
 def _save(fig, stem: Path) -> dict[str, Path]:
+    """`stem`.png and `stem`.svg. The SVG is the same bytes for the same figure (no date, clip-path ids from
+    a fixed salt), so a report made again from unchanged runs changes no file in the repository."""
+    import matplotlib
+
     plt = _plt()
     out = {}
     for ext in ("png", "svg"):
         path = stem.with_suffix(f".{ext}")
-        fig.savefig(path, dpi=150, bbox_inches="tight")
+        fixed = {"metadata": {"Date": None}} if ext == "svg" else {}
+        with matplotlib.rc_context({"svg.hashsalt": "sf2"}):
+            fig.savefig(path, dpi=150, bbox_inches="tight", **fixed)
         out[path.name] = path
     plt.close(fig)
     return out

@@ -370,8 +370,8 @@ def report(path, out=None, command: str | None = None) -> dict[str, Path]:
     complete = sum(d.finished and not d.missing() for d in data)
     partial = sum(d.finished and bool(d.missing()) for d in data)
     groups = study.seed_groups()
-    md += [f"Runs: {complete} of {len(data)} (task, method) pairs finished"
-           + (f", {partial} with some of their seeds" if partial else "") + f"; seeds "
+    md += [f"Runs: {complete} of {len(data)} (task, method) pairs have all {len(study.seeds)} of the study's "
+           f"seeds" + (f", {partial} some of them" if partial else "") + f"; seeds "
            f"{', '.join(map(str, study.seeds))}"
            + (f" in seed groups ({', '.join(seeds_text(g) for g in groups)}), one run each"
               if study.seeds_per_run else "") + f"; preset `{study.preset}`.", ""]
