@@ -35,12 +35,12 @@ def measure(folder: Path, span: tuple[int, int] | None = None) -> dict:
     a, b = span if span is not None else (0, max(first))
     if a not in first or b not in first:
         raise SystemExit(f"error: {path} has epochs {min(first)}-{max(first)}, not {a} and {b}")
-    inside = [first[e] for e in range(a + 1, b + 1) if e in first]
-    wall = first[b]["walltime"] - (first[a]["walltime"] if span is not None else 0.0)
+    start = first[a] if span is not None else {"walltime": 0.0, "env_steps": 0}   # a whole run: from launch
+    inside = [first[e] for e in range(a + 1, b + 1) if e in first]   # epoch 0 evaluates, trains none
+    wall = first[b]["walltime"] - start["walltime"]
     evals = sum(r["eval_seconds"] for r in inside)
-    train = sum(r.get("epoch_seconds", 0.0) for r in inside) + (
-        first[0].get("epoch_seconds", 0.0) if span is None else 0.0)
-    steps = first[b]["env_steps"] - (first[a]["env_steps"] if span is not None else 0)
+    train = sum(r.get("epoch_seconds", 0.0) for r in inside)
+    steps = first[b]["env_steps"] - start["env_steps"]
     return {"run": str(folder), "epochs": f"{a}-{b}", "wall_s": round(wall, 1), "eval_s": round(evals, 1),
             "train_s": round(train, 1), "eval_share": round(evals / wall, 3),
             "env_steps_per_s": round(steps * len(seeds) / wall)}
