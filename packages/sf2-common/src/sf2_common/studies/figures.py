@@ -230,9 +230,12 @@ def obs_noise(study, points: dict, stem: Path) -> dict[str, Path]:
         ax.set_title(family)
         ax.set_xlabel("observation noise std (Gaussian, added to the observations)")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
     checkpoints = study.evaluation.checkpoints
-    axes[0][0].set_ylabel(f"IQM over seeds of the AUC over {checkpoints} checkpoint(s)")
+    axes[0][0].set_ylabel(f"IQM over seeds of the AUC\nover {checkpoints} checkpoint(s)")
     fig.suptitle(f"{study.name}: band: {_CI} of the IQM" + _seed_note(ns), fontsize=10)
     fig.tight_layout()
+    # Legends below the panels, placed after the layout (the saved image grows to hold them): six curves
+    # and their bands fill a panel, and a legend inside would cover some of them.
+    for ax in axes[0]:
+        ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2, frameon=False)
     return _save(fig, stem)
