@@ -56,6 +56,7 @@ class Framework:
     validate: Callable            # validate(cfg, seeds) -> cfg: everything checkable before building
     train: Callable               # the core's agents.trainer.train
     evaluate_checkpoint: Callable  # the core's agents.trainer.evaluate_checkpoint
+    evaluate_checkpoint_noises: Callable  # ... evaluate_checkpoint_noises (several noise stds, one restore)
     env_defaults: tuple[tuple[str, str], ...] = ()   # environment defaults set before JAX is imported
 
     def compile_cache(self) -> str:
@@ -225,7 +226,7 @@ def _eval(fw: Framework, args) -> int:
     if args.obs_noise is not None:
         from sf2_common.studies import robustness
 
-        return robustness.eval_command(fw.evaluate_checkpoint, args, deterministic)
+        return robustness.eval_command(fw.evaluate_checkpoint_noises, args, deterministic)
     res = fw.evaluate_checkpoint(args.run, epoch=args.epoch, num_eval_envs=args.episodes,
                               deterministic=deterministic)
     if args.json:

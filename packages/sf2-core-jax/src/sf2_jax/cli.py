@@ -47,11 +47,18 @@ def _evaluate_checkpoint(*args, **kwargs):
     return evaluate_checkpoint(*args, **kwargs)
 
 
+def _evaluate_checkpoint_noises(*args, **kwargs):
+    from sf2_jax.agents.trainer import evaluate_checkpoint_noises
+
+    return evaluate_checkpoint_noises(*args, **kwargs)
+
+
 FRAMEWORK = _cli.Framework(
     prog="sf2-jax", package="sf2_jax", doc=__doc__,
     seeds_help="all seeds run in one vmapped program", cache_env="SF2_JAX_COMPILE_CACHE",
     config_class=configs.TrainConfig, registry=_registry, validate=_validate, train=_train,
     evaluate_checkpoint=_evaluate_checkpoint,
+    evaluate_checkpoint_noises=_evaluate_checkpoint_noises,
 )
 
 

@@ -47,11 +47,18 @@ def _evaluate_checkpoint(*args, **kwargs):
     return evaluate_checkpoint(*args, **kwargs)
 
 
+def _evaluate_checkpoint_noises(*args, **kwargs):
+    from sf2_torch.agents.trainer import evaluate_checkpoint_noises
+
+    return evaluate_checkpoint_noises(*args, **kwargs)
+
+
 FRAMEWORK = _cli.Framework(
     prog="sf2-torch", package="sf2_torch", doc=__doc__,
     seeds_help="the seeds' envs step in one batch, their SGD steps one after the other",
     cache_env="SF2_TORCH_COMPILE_CACHE", config_class=configs.TrainConfig, registry=_registry,
     validate=configs.validate, train=_train, evaluate_checkpoint=_evaluate_checkpoint,
+    evaluate_checkpoint_noises=_evaluate_checkpoint_noises,
     env_defaults=(("XLA_PYTHON_CLIENT_PREALLOCATE", "false"),),  # JAX (the envs) shares the GPU with torch
 )
 

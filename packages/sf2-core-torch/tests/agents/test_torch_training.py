@@ -237,7 +237,8 @@ def test_evaluation_under_observation_noise(reference, tmp_path, capsys, monkeyp
     import shutil
 
     from sf2_common.errors import ConfigError
-    from sf2_torch.agents.trainer import evaluate_checkpoint
+    from sf2_torch.agents import trainer as trainer_module
+    from sf2_torch.agents.trainer import evaluate_checkpoint, evaluate_checkpoint_noises
 
     monkeypatch.setenv("SF2_JAX_COMPILE_CACHE", "")
     run = tmp_path / "run"
@@ -248,9 +249,22 @@ def test_evaluation_under_observation_noise(reference, tmp_path, capsys, monkeyp
     noisy = evaluate_checkpoint(run, obs_noise=1.0)
     assert noisy["obs_noise"] == 1.0 and noisy["returns"] != plain["returns"]
     assert evaluate_checkpoint(run, obs_noise=1.0)["returns"] == noisy["returns"]   # reproducible
+    # Several stds from one restore give the numbers of one evaluation per std.
+    both = evaluate_checkpoint_noises(run, None, None, None, (0.0, 1.0))
+    assert [(r["obs_noise"], r["returns"]) for r in both] == [(0.0, plain["returns"]),
+                                                               (1.0, noisy["returns"])]
     with pytest.raises(ConfigError, match="obs_noise = -0.1 is invalid"):
         evaluate_checkpoint(run, obs_noise=-0.1)
+    restored = []   # `eval --obs-noise` restores each checkpoint once, whatever the number of stds
+    real_restore = trainer_module.Checkpointer.restore
+
+    def counting_restore(self, epoch, *args, **kwargs):
+        restored.append(epoch)
+        return real_restore(self, epoch, *args, **kwargs)
+
+    monkeypatch.setattr(trainer_module.Checkpointer, "restore", counting_restore)
     assert cli.main(["eval", str(run), "--obs-noise", "0,1", "--checkpoints", "2", "--save"]) == 0
+    assert restored == [3, 2]
     saved = json.loads((run / "obs_noise.json").read_text())
     assert [(r["noise"], r["epoch"]) for r in saved["results"]] == [(0.0, 2), (1.0, 2), (0.0, 3), (1.0, 3)]
     assert saved["results"][3]["returns"] == {str(k): v for k, v in noisy["returns"].items()}

@@ -1,8 +1,9 @@
 """A run's checkpoints evaluated with Gaussian noise added to the observations the policy sees (paper
 App. C.2.2, Fig. 9 right): `PROG eval RUN --obs-noise 0,0.05,0.1,0.2 [--checkpoints 5] [--save]`, and
 the [evaluation] of a study file, which `study run` runs after training. Framework-free: it calls the
-framework's `evaluate_checkpoint(run, epoch, num_eval_envs, deterministic, obs_noise=σ)` once per
-(checkpoint, σ); the report turns the returns into an AUC over the checkpoints per seed and noise level.
+framework's `evaluate_checkpoint_noises(run, epoch, num_eval_envs, deterministic, noises)` once per
+checkpoint (one restore of the training state for all σ); the report turns the returns into an AUC over
+the checkpoints per seed and noise level.
 
 RUN/obs_noise.json (`--save`): {"settings": {"obs_noise", "checkpoints", "episodes", "deterministic"},
 "results": [{"noise", "epoch", "env_steps", "deterministic", "returns": {seed: [episode returns]}}]}.
@@ -42,22 +43,24 @@ def parse_noise(text: str) -> tuple[float, ...]:
     return values
 
 
-def evaluate_obs_noise(evaluate_checkpoint: Callable, run, noises, checkpoints: int = 1,
+def evaluate_obs_noise(evaluate_noises: Callable, run, noises, checkpoints: int = 1,
                        episodes: int | None = None, deterministic: bool | None = None,
                        log: Callable[[str], None] | None = None) -> dict:
-    """Evaluate the last `checkpoints` checkpoints of `run` at every noise std (module docstring)."""
+    """Evaluate the last `checkpoints` checkpoints of `run` at every noise std (module docstring);
+    `evaluate_noises` is the framework's `evaluate_checkpoint_noises`. Results: checkpoint by
+    checkpoint (oldest first), each at every std in the order of `noises`."""
     if not isinstance(checkpoints, int) or checkpoints < 1:
         raise ConfigError(f"--checkpoints {checkpoints!r} is invalid: an int >= 1")
-    first = evaluate_checkpoint(run, None, episodes, deterministic, obs_noise=noises[0])
-    available = sorted(first["checkpoints"])
+    latest = evaluate_noises(run, None, episodes, deterministic, tuple(noises))
+    available = sorted(latest[0]["checkpoints"])
     if len(available) < checkpoints:
         raise ConfigError(f"{run} holds {len(available)} checkpoint(s) ({available}), fewer than the "
                           f"{checkpoints} asked for; train with keep_checkpoints >= {checkpoints}")
     results = []
     for epoch in available[-checkpoints:]:
-        for noise in noises:
-            res = (first if (epoch == first["epoch"] and noise == noises[0])
-                   else evaluate_checkpoint(run, epoch, episodes, deterministic, obs_noise=noise))
+        batch = (latest if epoch == latest[0]["epoch"]
+                 else evaluate_noises(run, epoch, episodes, deterministic, tuple(noises)))
+        for noise, res in zip(noises, batch):
             results.append({"noise": noise, "epoch": res["epoch"], "env_steps": res["env_steps"],
                             "deterministic": res["deterministic"], "returns": res["returns"]})
             if log:
@@ -74,7 +77,7 @@ def save(run, result: dict) -> Path:
     return path
 
 
-def eval_command(evaluate_checkpoint: Callable, args, deterministic: bool | None) -> int:
+def eval_command(evaluate_noises: Callable, args, deterministic: bool | None) -> int:
     """`PROG eval RUN --obs-noise STDS [--checkpoints N] [--episodes E] [--save] [--json]`."""
     import numpy as np
 
@@ -82,7 +85,7 @@ def eval_command(evaluate_checkpoint: Callable, args, deterministic: bool | None
         raise ConfigError("--epoch and --obs-noise do not go together: --checkpoints N evaluates the "
                           "latest N")
     noises = parse_noise(args.obs_noise)
-    result = evaluate_obs_noise(evaluate_checkpoint, args.run, noises, args.checkpoints, args.episodes,
+    result = evaluate_obs_noise(evaluate_noises, args.run, noises, args.checkpoints, args.episodes,
                                 deterministic, log=None if args.json else print)
     if args.json:
         print(json.dumps(result))

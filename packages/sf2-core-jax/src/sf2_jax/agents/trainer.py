@@ -59,7 +59,8 @@ from .checkpoint import Checkpointer
 from .replay import ReplayBuffer
 
 __all__ = ["TrainState", "Program", "get_program", "TrainingDiverged", "TrainResult", "train",
-           "seed_keys", "eval_keys", "acting_params", "flatten_params", "WALL_FIELDS"]
+           "evaluate_checkpoint", "evaluate_checkpoint_noises", "seed_keys", "eval_keys", "acting_params",
+           "flatten_params", "WALL_FIELDS"]
 
 EVAL_STREAM = 0x5EED  # eval keys: fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), epoch)
 # WALL_FIELDS, TrainingDiverged and the host loop's framework-free helpers (rows, the NaN guard's
@@ -456,7 +457,15 @@ def evaluate_checkpoint(out, epoch: int | None = None, num_eval_envs: int | None
     of std `obs_noise` added to the observations the policy sees (paper App. C.2.2):
     {"epoch", "env_steps", "returns": {seed: [episode returns]}, "deterministic", "obs_noise",
     "checkpoints": the epochs of the folder's checkpoints}."""
-    obs_noise = check_obs_noise(obs_noise)
+    return evaluate_checkpoint_noises(out, epoch, num_eval_envs, deterministic, (obs_noise,))[0]
+
+
+def evaluate_checkpoint_noises(out, epoch: int | None = None, num_eval_envs: int | None = None,
+                               deterministic: bool | None = None, noises=(0.0,)) -> list[dict]:
+    """`evaluate_checkpoint` at each observation-noise std of `noises`, from one restore of the
+    checkpoint (a run's whole training state, replay buffers included: restoring it once per std was
+    most of the cost of `eval --obs-noise`). One result per std, in order, each as `evaluate_checkpoint`'s."""
+    noises = [check_obs_noise(x) for x in noises]
     run = RunFolder(out)
     conf = run.read_config()
     if conf is None:
@@ -481,8 +490,14 @@ def evaluate_checkpoint(out, epoch: int | None = None, num_eval_envs: int | None
         if num_eval_envs < 1:
             raise ConfigError(f"episodes = {num_eval_envs} is invalid: must be >= 1")
         starts = program.fresh_eval_starts(seeds, num_eval_envs, 10_000 + epoch)
-    returns = np.asarray(program.evaluate(state.params, starts, seeds, 10_000 + epoch, obs_noise))
-    return {"epoch": epoch, "env_steps": meta.get("env_steps"),
-            "returns": {int(s): [float(x) for x in returns[i]] for i, s in enumerate(seeds)},
-            "deterministic": eval_cfg.deterministic_eval, "obs_noise": obs_noise, "checkpoints": available}
+    params = state.params
+    del state   # the replay buffers and optimizer states: not needed to act
+    results = []
+    for obs_noise in noises:
+        returns = np.asarray(program.evaluate(params, starts, seeds, 10_000 + epoch, obs_noise))
+        results.append({"epoch": epoch, "env_steps": meta.get("env_steps"),
+                        "returns": {int(s): [float(x) for x in returns[i]] for i, s in enumerate(seeds)},
+                        "deterministic": eval_cfg.deterministic_eval, "obs_noise": obs_noise,
+                        "checkpoints": available})
+    return results
 

@@ -57,8 +57,8 @@ from .configs import TrainConfig
 from .replay import ReplayBuffer, to_batch
 
 __all__ = ["Program", "SeedState", "TrainState", "get_program", "TrainingDiverged", "TrainResult", "train",
-           "evaluate_checkpoint", "env_reset_keys", "eval_key", "fresh_eval_start_keys", "EVAL_STREAM",
-           "WALL_FIELDS"]
+           "evaluate_checkpoint", "evaluate_checkpoint_noises", "env_reset_keys", "eval_key",
+           "fresh_eval_start_keys", "EVAL_STREAM", "WALL_FIELDS"]
 
 EVAL_STREAM = 0x5EED  # eval keys: fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), epoch), as in the JAX core
 OBS_NOISE_STREAM = 0x0B5  # the observation noise of `evaluate(..., obs_noise)`: its own generator per seed
@@ -432,7 +432,15 @@ def evaluate_checkpoint(out, epoch: int | None = None, num_eval_envs: int | None
     of std `obs_noise` added to the observations the policy sees (paper App. C.2.2):
     {"epoch", "env_steps", "returns": {seed: [episode returns]}, "deterministic", "obs_noise",
     "checkpoints": the epochs of the folder's checkpoints}."""
-    obs_noise = check_obs_noise(obs_noise)
+    return evaluate_checkpoint_noises(out, epoch, num_eval_envs, deterministic, (obs_noise,))[0]
+
+
+def evaluate_checkpoint_noises(out, epoch: int | None = None, num_eval_envs: int | None = None,
+                               deterministic: bool | None = None, noises=(0.0,)) -> list[dict]:
+    """`evaluate_checkpoint` at each observation-noise std of `noises`, from one restore of the
+    checkpoint (a run's whole training state, replay buffers included: restoring it once per std was
+    most of the cost of `eval --obs-noise`). One result per std, in order, each as `evaluate_checkpoint`'s."""
+    noises = [check_obs_noise(x) for x in noises]
     run = RunFolder(out)
     conf = run.read_config()
     if conf is None:
@@ -466,8 +474,13 @@ def evaluate_checkpoint(out, epoch: int | None = None, num_eval_envs: int | None
             ag.algo.load_state_dict(s["algo"])
     except (RuntimeError, KeyError) as err:
         raise CheckpointMismatch(f"checkpoint {epoch} does not fit this program: {err}") from err
-    returns = program.evaluate(agents, starts, seeds, 10_000 + epoch, obs_noise=obs_noise)
-    return {"epoch": epoch, "env_steps": meta.get("env_steps"),
-            "returns": {int(s): [float(x) for x in returns[i]] for i, s in enumerate(seeds)},
-            "deterministic": eval_cfg.deterministic_eval, "obs_noise": obs_noise, "checkpoints": available}
+    del saved   # the restored replay buffers: not needed to act
+    results = []
+    for obs_noise in noises:
+        returns = program.evaluate(agents, starts, seeds, 10_000 + epoch, obs_noise=obs_noise)
+        results.append({"epoch": epoch, "env_steps": meta.get("env_steps"),
+                        "returns": {int(s): [float(x) for x in returns[i]] for i, s in enumerate(seeds)},
+                        "deterministic": eval_cfg.deterministic_eval, "obs_noise": obs_noise,
+                        "checkpoints": available})
+    return results
 
