@@ -463,8 +463,8 @@ def evaluate_checkpoint(out, epoch: int | None = None, num_eval_envs: int | None
 def evaluate_checkpoint_noises(out, epoch: int | None = None, num_eval_envs: int | None = None,
                                deterministic: bool | None = None, noises=(0.0,)) -> list[dict]:
     """`evaluate_checkpoint` at each observation-noise std of `noises`, from one restore of the
-    checkpoint (a run's whole training state, replay buffers included: restoring it once per std was
-    most of the cost of `eval --obs-noise`). One result per std, in order, each as `evaluate_checkpoint`'s."""
+    checkpoint (the run's whole training state, replay buffers included, which `eval --obs-noise` would
+    otherwise read once per std). One result per std, in order, each as `evaluate_checkpoint`'s."""
     noises = [check_obs_noise(x) for x in noises]
     run = RunFolder(out)
     conf = run.read_config()
