@@ -1,8 +1,6 @@
 # Sourced by the scripts that run on the lent GPU host (scripts/gpu_study.sh, scripts/gpu_scaling.sh):
-# installs the carried wheels (.whl-jax, git-excluded: ../shared/device/wheels.sh without TorchRL, plus
-# pandas 2.3 and its pytz/tzdata/dateutil/six; then `python scripts/slim_wheels.py .whl-jax`, as the wheels
-# and this repository travel within 64 MiB) once per host into /tmp/site and puts the packages' src/
-# folders on PYTHONPATH.
+# installs the carried wheels (.whl-jax, git-excluded; recipe in scripts/gpu_study.sh) once per host into
+# /tmp/site and puts the packages' src/ folders on PYTHONPATH.
 if [ ! -f /tmp/site/.done ]; then
   python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site \
     .whl-jax/*.whl || return 1

@@ -10,8 +10,12 @@
 # On a lease's last command add `--finish-within <seconds the lease has left>`: runs forecast to end later
 # are not started (their checkpoints would go back with the host).
 #
-# Wheels: .whl-jax (git-excluded) = the output of ../shared/device/wheels.sh without TorchRL, plus
-# pandas 2.3 (the host's pandas 3 breaks arch, rliable's dependency) and its pytz/tzdata/dateutil/six.
+# Wheels: .whl-jax (git-excluded), what the host's image lacks for training and evaluation, nothing more:
+#   bash ../shared/device/wheels.sh .whl-jax && rm .whl-jax/{torchrl,tensordict,rliable,arch}-* \
+#     && python3 scripts/slim_wheels.py .whl-jax          # 17 MB in 18 files
+# This repository (its results/ included) and the wheels travel within 64 MiB. Statistics stay here: without
+# rliable (and arch, and the pandas < 3 it needs: 14 MB) `train`'s final table and learning_curve.png have
+# means and no interval (a warning says so), and reports are made here from the archive.
 # The archive $OUT/<name>.tar.gz is a study folder (no checkpoints); merge it here with
 #   sf2-jax study merge <name>.tar.gz --into results/<name>   then   sf2-jax study report results/<name>
 set -uo pipefail

@@ -7,6 +7,7 @@ Playground is not needed: the task list is replaced by a fixed one where a test 
 from __future__ import annotations
 
 import json
+import sys
 from importlib import metadata
 
 import numpy as np
@@ -196,6 +197,25 @@ def test_final_table_pools_folders_of_one_method_and_refuses_disjoint_points(tmp
         plotting.final_table([a, c])
     assert plotting.method_label("sac", "none") == "SAC" and plotting.method_label("td3", "sim") == "TD3+sim"
     assert cli.expand_runs([tmp_path]) == [a, b, c]
+
+
+def test_final_table_without_rliable_has_means_and_no_interval(tmp_path, monkeypatch, capsys):
+    """rliable belongs to the train extra, but a finished training's table and curve do not fail without
+    it (a lean GPU host): the means stay, the interval is NaN, the band's label and a warning say why."""
+    a = _write_run(tmp_path / "a", "TD3+X", [0, 10, 20], [[0.0, 1.0, 2.0], [0.0, 1.0, 4.0], [0.0, 1.0, 6.0]])
+    monkeypatch.setitem(sys.modules, "rliable", None)  # `import rliable` raises ImportError
+    plotting._rliable_missing.cache_clear()
+    try:
+        (row,) = plotting.final_table([a])
+        assert (row["final_return"], row["seeds"]) == (4.0, 3)
+        assert np.isnan(row["ci_low"]) and np.isnan(row["ci_high"])
+        assert "rliable is not installed" in plotting.band_label(3)
+        assert "n=2 < 3" in plotting.band_label(2)
+        cli.print_table([row])
+    finally:
+        plotting._rliable_missing.cache_clear()
+    out, err = capsys.readouterr()
+    assert "no rliable" in out and err.count("warning: no confidence intervals") == 1
 
 
 # ------------------------------------------------------------------------------------------- the loop

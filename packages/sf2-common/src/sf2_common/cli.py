@@ -203,7 +203,8 @@ def print_table(table, seconds=None) -> None:
     print(head)
     print("-" * len(head))
     for row in table:
-        ci = f"[{row['ci_low']:.1f}, {row['ci_high']:.1f}]" if row["ci_low"] == row["ci_low"] else "n < 3"
+        ci = f"[{row['ci_low']:.1f}, {row['ci_high']:.1f}]" if row["ci_low"] == row["ci_low"] else (
+            "n < 3" if row["seeds"] < 3 else "no rliable")
         per_seed = ", ".join(f"{x:.1f}" for x in row["per_seed"])
         line = (f"{row['task']:22} {row['method']:12} {row['seeds']:>5} {row['env_steps']:>10} "
                 f"{row['final_return']:>18.1f} {ci:>17}  {per_seed}")

@@ -12,6 +12,8 @@ is the `label` its trainer wrote into config.json, so plotting needs no framewor
 
 from __future__ import annotations
 
+import functools
+import sys
 import textwrap
 from collections import defaultdict
 from pathlib import Path
@@ -38,22 +40,42 @@ def method_label(algo: str, representation: str, registry=None) -> str:
 
 def mean_ci(values, resamples: int = BOOTSTRAP_RESAMPLES) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """values (n_seeds, n_points) → mean over seeds, lower, upper of the 95% percentile-bootstrap interval
-    of the mean (module docstring); lower = upper = NaN (no interval) below `stats.MIN_SEEDS` seeds."""
+    of the mean (module docstring); lower = upper = NaN (no interval) below `stats.MIN_SEEDS` seeds, and
+    without rliable (a warning names the extra): a finished training's table and curve never fail on it."""
     from sf2_common.studies import stats
 
+    values = np.asarray(values, dtype=float)
+    if stats.informative(values.shape[0]) and _rliable_missing():
+        mean = values.mean(axis=0)
+        return mean, np.full_like(mean, np.nan), np.full_like(mean, np.nan)
     mean, lo, hi = stats.mean_interval(values, resamples)
     if lo is None:
         lo = hi = np.full_like(mean, np.nan)
     return mean, lo, hi
 
 
+@functools.cache
+def _rliable_missing() -> str | None:
+    """None if rliable imports, else why not (warned once on stderr)."""
+    from sf2_common.studies import stats
+
+    try:
+        stats.require_rliable()
+    except ImportError as err:
+        print(f"warning: no confidence intervals in tables and curves: {err}", file=sys.stderr)
+        return str(err)
+    return None
+
+
 def band_label(n_seeds: int) -> str:
     """What a band (or its absence) is, for legends and footnotes."""
     from sf2_common.studies import stats
 
-    if stats.informative(n_seeds):
-        return f"95% bootstrap CI of the mean (n={n_seeds})"
-    return f"no CI: n={n_seeds} < {stats.MIN_SEEDS} seeds is not informative"
+    if not stats.informative(n_seeds):
+        return f"no CI: n={n_seeds} < {stats.MIN_SEEDS} seeds is not informative"
+    if _rliable_missing():
+        return f"no CI: rliable is not installed ({stats.STUDIES_EXTRA})"
+    return f"95% bootstrap CI of the mean (n={n_seeds})"
 
 
 def curves(rows: list[dict]) -> tuple[np.ndarray, dict[int, np.ndarray]]:
