@@ -89,9 +89,10 @@ class Checkpointer:
             raise CheckpointMismatch(
                 f"checkpoint {epoch} in {self.directory} has {_get(meta, 'num_leaves')} arrays, this program "
                 f"has {len(leaves)}: it was written by a different config, seed count or version")
-        device = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
-        flat = {f"{i:05d}": jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=device)
-                for i, x in enumerate(leaves) if _size(x)}
+        # NumPy targets: Orbax reads into host memory and each array then makes one trip to the device
+        # (jnp.asarray below, uncommitted); device targets would read to the host, copy to the device, and
+        # the uncommitted copy below would go device -> host -> device again (np.empty allocates lazily)
+        flat = {f"{i:05d}": np.empty(x.shape, x.dtype) for i, x in enumerate(leaves) if _size(x)}
         try:
             restored = self.manager.restore(int(epoch), args=ocp.args.Composite(
                 state=ocp.args.StandardRestore(flat)))["state"]
@@ -108,7 +109,7 @@ class Checkpointer:
                 if got.shape != x.shape or got.dtype != x.dtype:
                     raise CheckpointMismatch(f"checkpoint {epoch}: array {key} is {got.shape} {got.dtype}, "
                                              f"expected {x.shape} {x.dtype}")
-                out.append(jax.numpy.asarray(np.asarray(got)))
+                out.append(jax.numpy.asarray(got))
             else:  # zero-size leaf: not stored
                 out.append(jax.numpy.zeros(x.shape, x.dtype))
         # Uncommitted arrays, like a jitted function's outputs: committed ones would make every jitted
