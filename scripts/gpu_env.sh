@@ -6,6 +6,7 @@ if [ ! -f /tmp/site/.done ]; then
     .whl-jax/*.whl || return 1
   touch /tmp/site/.done
 fi
+export MUJOCO_GL=disable   # no rendering on the host: mujoco imports no GL backend (PyOpenGL is not carried)
 export PYTHONPATH=/tmp/site:$PWD/packages/sf2-common/src:$PWD/packages/sf2-core-jax/src:$PWD/packages/sf2-baselines/src
 # The baselines register their representations as entry points: on PYTHONPATH alone they would not be
 # found, so a dist-info folder carries sf2-baselines' entry points (from its pyproject.toml).

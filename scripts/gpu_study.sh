@@ -11,11 +11,14 @@
 # are not started (their checkpoints would go back with the host).
 #
 # Wheels: .whl-jax (git-excluded), what the host's image lacks for training and evaluation, nothing more:
-#   bash ../shared/device/wheels.sh .whl-jax && rm .whl-jax/{torchrl,tensordict,rliable,arch}-* \
-#     && python3 scripts/slim_wheels.py .whl-jax          # 17 MB in 18 files
+#   bash ../shared/device/wheels.sh .whl-jax \
+#     && rm .whl-jax/{torchrl,tensordict,rliable,arch,pyopengl,flask,flask_cors,mediapy,tensorboardx}-* \
+#     && python3 scripts/slim_wheels.py .whl-jax
 # This repository (its results/ included) and the wheels travel within 64 MiB. Statistics stay here: without
 # rliable (and arch, and the pandas < 3 it needs: 14 MB) `train`'s final table and learning_curve.png have
-# means and no interval (a warning says so), and reports are made here from the archive.
+# means and no interval (a warning says so), and reports are made here from the archive. PyOpenGL, Flask,
+# mediapy and tensorboardX serve rendering and Brax's viewer only (gpu_env.sh sets MUJOCO_GL=disable): a
+# CPU train and eval with them blocked run as before (2026-11-25).
 # The archive $OUT/<name>.tar.gz is a study folder (no checkpoints); merge it here with
 #   sf2-jax study merge <name>.tar.gz --into results/<name>   then   sf2-jax study report results/<name>
 set -uo pipefail

@@ -3,7 +3,9 @@ all, this repository included): drops from the wheels in FOLDER what training ne
 
     python scripts/slim_wheels.py .whl-jax
 
-mujoco: `mujoco/experimental/` (15.7 MB compressed) and `mujoco/testdata/`; mujoco-mjx:
+mujoco: `mujoco/experimental/` (15.7 MB compressed), `mujoco/testdata/`, the C headers and the filament
+renderer's and the viewer's extension modules (2.5 MB; only `mujoco.mjrf` and `mujoco.viewer` import them,
+and training imports neither: checked with a train and an eval that block them, 2026-11-25); mujoco-mjx:
 `mujoco/mjx/test_data/` (6.5 MB); playground: the locomotion and manipulation robots' assets (7.6 MB; their
 Python modules stay, as the registry imports them). The seven DM Control tasks of the studies load and step
 with what is left (checked with Python 3.12, the host's, on 2026-11-23). pip installs such a wheel: it
@@ -15,7 +17,8 @@ import zipfile
 from pathlib import Path
 
 DROP = {
-    "mujoco-": lambda n: n.startswith(("mujoco/experimental/", "mujoco/testdata/")),
+    "mujoco-": lambda n: n.startswith(("mujoco/experimental/", "mujoco/testdata/", "mujoco/include/",
+                                       "mujoco/_render_filament.", "mujoco/_simulate.")),
     "mujoco_mjx-": lambda n: n.startswith("mujoco/mjx/test_data/"),
     "playground-": lambda n: n.startswith(("mujoco_playground/_src/locomotion/",
                                            "mujoco_playground/_src/manipulation/")) and not n.endswith(".py"),

@@ -215,7 +215,7 @@ def print_table(table, seconds=None) -> None:
     if any(r["seeds"] > 1 for r in table):
         print("(final eval return: mean over seeds of each seed's mean over its evaluation episodes; 95% CI: "
               "percentile bootstrap of that mean over seeds (rliable, 5000 resamples); none below 3 seeds, "
-              "where it would not be informative)")
+              "where it would not be informative, and none without rliable installed)")
 
 
 # ------------------------------------------------------------------------------------------- eval, plot
