@@ -135,6 +135,24 @@ def test_cli_eval_and_plot(reference, tmp_path, capsys, monkeypatch):
     assert png.exists() and "TD3+SF²" in capsys.readouterr().out
 
 
+def test_a_torch_run_folder_is_refused(tiny_cfg, tmp_path, capsys):
+    """A folder written by sf2-torch (its config.json says "framework": "torch") is neither resumed nor
+    evaluated by sf2-jax, and stays as it was."""
+    from sf2_common.agents.runfolder import RunFolderMismatch
+
+    folder = tmp_path / "torch-run"
+    folder.mkdir()
+    text = json.dumps({"config": tiny_cfg.to_dict(), "seeds": [0], "framework": "torch",
+                       "versions": {"torch": "2.9", "torchrl": "0.14"}})
+    (folder / "config.json").write_text(text)
+    with pytest.raises(RunFolderMismatch, match="sf2-torch"):
+        train(tiny_cfg, (0,), folder, progress=False)
+    assert cli.main(["eval", str(folder)]) == 2
+    assert "trained by sf2-torch" in capsys.readouterr().err
+    assert sorted(p.name for p in folder.iterdir()) == ["config.json"]
+    assert (folder / "config.json").read_text() == text
+
+
 def test_evaluation_under_observation_noise(reference, tmp_path, capsys, monkeypatch):
     """Noise std 0 is the plain evaluation (the same returns: the same program and acting noise); a std > 0
     changes what the policy sees and so the returns; `eval --obs-noise` evaluates the latest checkpoints

@@ -42,6 +42,14 @@ class RunFolderMismatch(RunFolderError):
     """The folder holds a run with another config or other seeds."""
 
 
+def framework_of(conf: dict) -> str:
+    """"torch" or "jax": the core that wrote a run folder's config.json (sf2-jax writes no "framework"
+    entry; sf2-torch's versions name torch). Each core's train and eval refuse the other's folders."""
+    if "framework" in conf:
+        return conf["framework"]
+    return "torch" if "torch" in conf.get("versions", {}) else "jax"
+
+
 class RunFolder:
     CONFIG = "config.json"
     METRICS = "metrics.jsonl"

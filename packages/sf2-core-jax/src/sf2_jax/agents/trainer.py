@@ -46,7 +46,7 @@ from sf2_common.agents import configs, hostloop, plotting
 from sf2_common.agents.configs import TrainConfig
 from sf2_common.agents.hostloop import WALL_FIELDS, TrainingDiverged
 from sf2_common.agents.resume import resume_run
-from sf2_common.agents.runfolder import RunFolder
+from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch, framework_of
 from sf2_common.errors import ConfigError
 from sf2_common.studies.robustness import check_obs_noise
 
@@ -368,6 +368,10 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
     run = RunFolder(out)
     if fresh:
         run.clear()
+    conf = run.read_config()
+    if conf is not None and framework_of(conf) != "jax":
+        raise RunFolderMismatch(f"run folder {run.path} holds a run of sf2-{framework_of(conf)}; use another "
+                                f"--out (or --fresh to overwrite it)")
     existing = run.check_compatible(cfg.to_dict(), seeds)
     sched = configs.schedule(cfg)
     if not existing:
@@ -470,6 +474,8 @@ def evaluate_checkpoint_noises(out, epoch: int | None = None, num_eval_envs: int
     conf = run.read_config()
     if conf is None:
         raise FileNotFoundError(f"{out} is not a run folder (no {RunFolder.CONFIG})")
+    if framework_of(conf) != "jax":
+        raise ConfigError(f"{out} was trained by sf2-{framework_of(conf)}; evaluate it with that CLI")
     cfg = TrainConfig.from_dict(conf["config"])
     seeds = tuple(conf["seeds"])
     ckpt = Checkpointer(run.checkpoint_dir, keep=cfg.keep_checkpoints)

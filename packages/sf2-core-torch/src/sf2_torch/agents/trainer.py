@@ -43,7 +43,7 @@ from sf2_common.agents import hostloop
 from sf2_common.agents.hostloop import WALL_FIELDS, TrainingDiverged
 from sf2_common.agents.plotting import method_label
 from sf2_common.agents.resume import resume_run
-from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch
+from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch, framework_of
 from sf2_common.errors import ConfigError
 from sf2_common.studies.robustness import check_obs_noise
 from tensordict import TensorDict
@@ -336,8 +336,8 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
     if fresh:
         run.clear()
     conf = run.read_config()
-    if conf is not None and _framework(conf) != "torch":
-        raise RunFolderMismatch(f"run folder {run.path} holds a run of sf2-{_framework(conf)}; use another "
+    if conf is not None and framework_of(conf) != "torch":
+        raise RunFolderMismatch(f"run folder {run.path} holds a run of sf2-{framework_of(conf)}; use another "
                                 f"--out (or --fresh to overwrite it)")
     existing = run.check_compatible(cfg.to_dict(), seeds)
     sched = common_configs.schedule(cfg)
@@ -398,13 +398,6 @@ class _Session:
         _write_final(self.run, self.state)
 
 
-def _framework(conf: dict) -> str:
-    """"torch" or "jax": who wrote a run folder's config.json (sf2-jax writes no "framework" entry)."""
-    if "framework" in conf:
-        return conf["framework"]
-    return "torch" if "torch" in conf.get("versions", {}) else "jax"
-
-
 def _eval_env(program: Program, seeds):
     cfg = program.cfg
     return envs.make_env(cfg.task, cfg.episode_length, cfg.action_repeat, len(seeds) * cfg.num_eval_envs,
@@ -445,8 +438,8 @@ def evaluate_checkpoint_noises(out, epoch: int | None = None, num_eval_envs: int
     conf = run.read_config()
     if conf is None:
         raise FileNotFoundError(f"{out} is not a run folder (no {RunFolder.CONFIG})")
-    if _framework(conf) != "torch":
-        raise ConfigError(f"{out} was trained by sf2-{_framework(conf)}; evaluate it with that CLI")
+    if framework_of(conf) != "torch":
+        raise ConfigError(f"{out} was trained by sf2-{framework_of(conf)}; evaluate it with that CLI")
     cfg = TrainConfig.from_dict(conf["config"])
     seeds = tuple(conf["seeds"])
     ckpt = Checkpointer(run.checkpoint_dir, keep=cfg.keep_checkpoints)
