@@ -18,16 +18,18 @@ import json
 import sys
 from pathlib import Path
 
+from sf2_common.fileio import read_text, stored
+
 FIELDS = ("run", "epochs", "wall_s", "eval_s", "train_s", "eval_share", "env_steps_per_s")
 
 
 def measure(folder: Path, span: tuple[int, int] | None = None) -> dict:
     """The row of FIELDS for one run folder, whole (finished) or over the epochs `span` = (A, B); a folder
     without metrics, or without the span's epochs, is an error naming it."""
-    path = folder / "metrics.jsonl"
-    if not path.is_file():
+    path = stored(folder / "metrics.jsonl")   # a study folder in results/ keeps it as metrics.jsonl.gz
+    if path is None:
         raise SystemExit(f"error: {folder} holds no metrics.jsonl (not a run folder)")
-    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    rows = [json.loads(line) for line in read_text(path).splitlines() if line.strip()]
     if not rows:
         raise SystemExit(f"error: {path} is empty")
     seeds = sorted({r["seed"] for r in rows})

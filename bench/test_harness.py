@@ -201,5 +201,10 @@ def test_eval_share_of_a_run_folder(tmp_path):
             got["env_steps_per_s"]) == ("1-2", 3.5, 1.5, 2.0, round(1.5 / 3.5, 3), round(200 / 3.5))
     with pytest.raises(SystemExit, match="has epochs 0-2, not 1 and 5"):
         eval_share.measure(tmp_path, (1, 5))
+    # a study folder in results/ keeps metrics.jsonl gzip-compressed: the same numbers
+    from sf2_common.fileio import compress
+
+    assert compress(tmp_path / "metrics.jsonl")
+    assert eval_share.measure(tmp_path, (1, 2)) == got
     with pytest.raises(SystemExit, match="no metrics.jsonl"):
         eval_share.measure(tmp_path / "missing")

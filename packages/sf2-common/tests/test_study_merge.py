@@ -5,12 +5,15 @@ checkpoints/, final/*.npz, learning_curve.png)."""
 
 from __future__ import annotations
 
+import gzip
 import json
 import tarfile
 
 import pytest
 from sf2_common.agents import tasks as task_table
 from sf2_common.agents.configs import TrainConfig, schedule
+from sf2_common.agents.runfolder import RunFolder
+from sf2_common.fileio import read_text
 from sf2_common.studies import merge as merging
 from sf2_common.studies import spec
 from sf2_common.studies.folder import StudyFolder
@@ -91,15 +94,20 @@ def test_merge_into_a_new_folder_copies_finished_runs_only_their_kept_files(tmp_
     mine = folder_digest(src)
     assert (dest / "study.toml").read_text() == (src / "study.toml").read_text()
     assert json.loads((dest / "study.json").read_text()) == json.loads((src / "study.json").read_text())
-    # exactly config.json, metrics.jsonl, train.log of the finished runs, byte for byte
-    expected = {f"runs/{r}/{f}" for r in ("A/td3/seeds-0-1", "B/td3-sf2/seeds-2-3")
-                for f in ("config.json", "metrics.jsonl", "train.log")} | {"study.toml", "study.json"}
+    # exactly config.json, metrics.jsonl (gzip-compressed), train.log of the finished runs, byte for byte
+    finished = ("A/td3/seeds-0-1", "B/td3-sf2/seeds-2-3")
+    expected = {f"runs/{r}/{f}" for r in finished
+                for f in ("config.json", "metrics.jsonl.gz", "train.log")} | {"study.toml", "study.json"}
     assert set(have) == expected
-    assert all(have[k] == mine[k] for k in expected - {"study.json"})   # study.json: equal as JSON above
+    plain = {k for k in expected if not k.endswith((".gz", "study.json"))}  # study.json: equal as JSON above
+    assert all(have[k] == mine[k] for k in plain)
+    for r in finished:
+        assert (gzip.decompress((dest / f"runs/{r}/metrics.jsonl.gz").read_bytes())
+                == (src / f"runs/{r}/metrics.jsonl").read_bytes())
     # --partial: the unfinished run too (DEST has none of it)
     out, _ = _merge([src], dest, runs_of, partial=True)
     assert out.merged == ["A/td3-sf2/seeds-0-1"]
-    assert (dest / "runs/A/td3-sf2/seeds-0-1/metrics.jsonl").exists()
+    assert (dest / "runs/A/td3-sf2/seeds-0-1/metrics.jsonl.gz").exists()
 
 
 def test_two_sources_with_disjoint_runs_and_their_commands_in_time_order(tmp_path, runs_of):
@@ -121,14 +129,14 @@ def test_two_sources_with_disjoint_runs_and_their_commands_in_time_order(tmp_pat
     four = _source(tmp_path, "four", runs_of, finished=["A/td3-sf2/seeds-0-1"],
                    commands=["2026-01-02 10:00:00"])
     _merge([three], dest, runs_of, partial=True)
-    assert len((dest / "runs/A/td3-sf2/seeds-0-1/metrics.jsonl").read_text().splitlines()) == 2 * 2
+    assert len(read_text(dest / "runs/A/td3-sf2/seeds-0-1/metrics.jsonl").splitlines()) == 2 * 2
     out, said = _merge([four], dest, runs_of)
     # DEST's: 2 seeds at epoch 1 of 2
     sched = schedule(_make("quick", "A", "td3", "sf2", {}))
     assert out.replaced == ["A/td3-sf2/seeds-0-1"] and (
         f"DEST's was unfinished, {2 * sched.env_steps_per_epoch:,} of {2 * sched.total_env_steps:,} env steps"
         in said)
-    assert len((dest / "runs/A/td3-sf2/seeds-0-1/metrics.jsonl").read_text().splitlines()) == 3 * 2
+    assert len(read_text(dest / "runs/A/td3-sf2/seeds-0-1/metrics.jsonl").splitlines()) == 3 * 2
     assert json.loads((dest / "study.json").read_text())["id"] == state["id"]
     # four's command has two's time but another host: another command
     assert len(json.loads((dest / "study.json").read_text())["commands"]) == 4
@@ -243,7 +251,7 @@ def test_a_source_that_adds_a_method_gives_dest_its_study_file(tmp_path, runs_of
     outcome, said = _merge([new], dest, runs_of)
     assert "A/own/seeds-0-1" in outcome.merged and "replaced by a source's" in said
     assert StudyFolder(dest).load_study().data == spec.loads(grown, tmp_path / "g.toml").data
-    assert (dest / "runs" / "A" / "td3" / "seeds-0-1" / "metrics.jsonl").exists()
+    assert (dest / "runs" / "A" / "td3" / "seeds-0-1" / "metrics.jsonl.gz").exists()
     before = folder_digest(dest)
     _merge([old], dest, runs_of)
     assert folder_digest(dest) == before
@@ -272,3 +280,73 @@ def test_sources_adding_different_methods_are_refused_together(tmp_path, runs_of
     _source(tmp_path, "both", runs_of, text=with_sac + extra.format("SAC+SF²", "sac-sf2", "sf2"))
     outcome, _ = _merge([one, two], both, runs_of)
     assert sorted(outcome.merged) == ["A/sac-sf2/seeds-0-1", "A/sac/seeds-0-1"]
+
+
+def test_compressed_runs_read_merge_and_resume_as_plain_ones(tmp_path, runs_of):
+    """A study folder in results/ keeps finished runs' metrics gzip-compressed (`study merge`, `study
+    compress`): the run states, the rows, a merge of the same runs in plain form (a host that trained them
+    from a plain copy) and a trainer appending to a compressed run all see what the plain files hold."""
+    src = _source(tmp_path, "gpu", runs_of, finished=["A/td3/seeds-0-1", "B/td3/seeds-2-3"],
+                  partial=["A/td3-sf2/seeds-0-1"], commands=["2026-01-01 10:00:00"])
+    folder = StudyFolder(src)
+    study = folder.load_study()
+    runs = runs_of(study)
+    states = {r.rel + r.task: folder.run_state(r, study) for r in runs}
+    rows = {r.rel + r.task: RunFolder(folder.path_of(r)).read_rows(strict=True) for r in runs}
+    plain = src.with_name("plain")
+    import shutil
+
+    shutil.copytree(src, plain)
+    # `study compress`: finished runs only (the partial one's trainer appends to it)
+    assert sorted(folder.compress_runs(runs, study)) == ["A/td3/seeds-0-1", "B/td3/seeds-2-3"]
+    assert not (src / "runs/A/td3/seeds-0-1/metrics.jsonl").exists()
+    assert (src / "runs/A/td3-sf2/seeds-0-1/metrics.jsonl").exists()
+    assert folder.compress_runs(runs, study) == []   # nothing left to do
+    assert {r.rel + r.task: folder.run_state(r, study) for r in runs} == states
+    assert {r.rel + r.task: RunFolder(folder.path_of(r)).read_rows(strict=True) for r in runs} == rows
+    # the same runs, one side compressed and the other plain, are identical to a merge
+    dest = tmp_path / "results"
+    _merge([plain], dest, runs_of)
+    before = folder_digest(dest)
+    out, said = _merge([src], dest, runs_of)
+    assert sorted(out.skipped) == ["A/td3-sf2/seeds-0-1", "A/td3/seeds-0-1", "B/td3/seeds-2-3"]
+    assert "A/td3/seeds-0-1: identical to DEST's" in said and folder_digest(dest) == before
+    # appending to a compressed run continues its rows in a plain file (the .gz goes)
+    run = RunFolder(src / "runs/A/td3/seeds-0-1")
+    run.append_rows([{"epoch": 3, "seed": 0, "eval_return": 9.0}])
+    assert not (run.path / "metrics.jsonl.gz").exists()
+    assert run.read_rows() == rows["td3/seeds-0-1A"] + [{"epoch": 3, "seed": 0, "eval_return": 9.0}]
+    # damaged compressed data: the run's rows cannot be read, and the error names the file
+    bad = RunFolder(src / "runs/B/td3/seeds-2-3")
+    data = (bad.path / "metrics.jsonl.gz").read_bytes()
+    (bad.path / "metrics.jsonl.gz").write_bytes(data[: len(data) // 2])
+    with pytest.raises(Exception, match=r"metrics.jsonl.gz is damaged gzip data"):
+        bad.read_rows(strict=True)
+
+
+def test_evaluated_runs_stay_done_when_their_obs_noise_is_compressed(tmp_path, runs_of):
+    """With an [evaluation], a run is done once obs_noise.json holds the study's settings; compressed (by
+    `study compress` here, by the merge in DEST) it stays done, and DEST keeps it compressed."""
+    from sf2_common.studies.folder import evaluation_settings
+
+    src = _source(tmp_path, "gpu", runs_of, finished=["A/td3/seeds-0-1"],
+                  text=STUDY + "[evaluation]\nobs_noise = [0.0, 0.1]\n")
+    folder = StudyFolder(src)
+    study = folder.load_study()
+    runs = runs_of(study)
+    run = next(r for r in runs if f"{r.task}/{r.rel}" == "A/td3/seeds-0-1")
+    assert folder.run_state(run, study).status == "trained"   # trained, not evaluated yet
+    noise = {"settings": evaluation_settings(study), "results": [{"noise": 0.1, "epoch": 2, "returns": {}}]}
+    (folder.path_of(run) / "obs_noise.json").write_text(json.dumps(noise))
+    assert folder.run_state(run, study).status == "done"
+    dest = tmp_path / "results"
+    out, _ = _merge([src], dest, runs_of)
+    assert out.merged == ["A/td3/seeds-0-1"]
+    kept = dest / "runs/A/td3/seeds-0-1"
+    assert json.loads(gzip.decompress((kept / "obs_noise.json.gz").read_bytes())) == noise
+    assert not (kept / "obs_noise.json").exists()
+    assert folder.compress_runs(runs, study) == ["A/td3/seeds-0-1"]
+    assert folder.run_state(run, study).status == "done"
+    assert StudyFolder(dest).run_state(run, study).status == "done"
+    out, said = _merge([src], dest, runs_of)   # compressed on both sides: identical
+    assert out.skipped == ["A/td3/seeds-0-1"] and "identical to DEST's" in said

@@ -14,6 +14,7 @@ pytest.importorskip("rliable", reason="the studies extra: pip install packages/s
 pytest.importorskip("matplotlib", reason="the studies extra: pip install packages/sf2-common[studies]")
 
 from rliable import library, metrics  # noqa: E402
+from sf2_common.fileio import compress  # noqa: E402
 from sf2_common.studies import stats  # noqa: E402
 from sf2_common.studies.folder import StudyFolder  # noqa: E402
 from sf2_common.studies.report import report  # noqa: E402
@@ -126,6 +127,11 @@ def test_report_numbers_by_hand_and_by_rliable(tmp_path):
     before = {name: path.read_bytes() for name, path in written.items()}
     again = report(folder.path, command="sf2-jax study report study")
     assert {name: path.read_bytes() for name, path in again.items()} == before
+    # the same runs stored gzip-compressed (`study merge`, `study compress`): the same report, byte for byte
+    files = list(folder.path.rglob("metrics.jsonl"))
+    assert len(files) == 6 and all(compress(m) for m in files)   # 2 tasks × 3 methods
+    again = report(folder.path, command="sf2-jax study report study")
+    assert {name: path.read_bytes() for name, path in again.items()} == before
 
 
 INTERIM = FAMILY.replace('tasks = ["A", "B"]', 'tasks = ["A", "B", "C"]')
@@ -228,3 +234,8 @@ def test_sweep_and_obs_noise_with_two_seeds(tmp_path):
     assert "| TD3+SF² (tau_zeta=0.01) | 0.1 | 2 | 6.500 (n < 3: no CI) |" in summary
     for name in ("sweeps.png", "obs_noise.png", "curves.png"):
         assert name in written
+    # obs_noise.json and metrics.jsonl gzip-compressed: the same numbers
+    before = written["summary.md"].read_text()
+    stored = [*folder.path.rglob("obs_noise.json"), *folder.path.rglob("metrics.jsonl")]
+    assert stored and all(compress(p) for p in stored)
+    assert report(folder.path)["summary.md"].read_text() == before

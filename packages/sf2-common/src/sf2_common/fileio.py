@@ -1,15 +1,24 @@
 """Atomic file writes for everything a run or study folder holds (config.json, metrics.jsonl, study.json,
 study.toml, checkpoint manifests, evaluation results, files that come back from another host): the data
 goes to a temporary file in the same folder, is synced, then renamed over the final name, so a crash or a
-`kill -9` never leaves a half-written file under that name (docs/run-folders.md)."""
+`kill -9` never leaves a half-written file under that name (docs/run-folders.md).
+
+A study folder keeps its finished runs' metrics.jsonl and obs_noise.json gzip-compressed (`compress`:
+`study merge` and `study compress` do it; `metrics.jsonl.gz` is 4-5× smaller, which is what lets a
+repository's results travel to a GPU host within its size limit). Every reader of this project goes through
+`stored` / `read_text`, which take either form; `zcat` and pandas read the .gz too."""
 
 from __future__ import annotations
 
+import gzip
 import os
 import tempfile
+import zlib
 from pathlib import Path
 
-__all__ = ["atomic_write"]
+__all__ = ["GZ", "atomic_write", "compress", "expand", "read_text", "stored"]
+
+GZ = ".gz"
 
 
 def atomic_write(path, data: str | bytes) -> Path:
@@ -29,3 +38,54 @@ def atomic_write(path, data: str | bytes) -> Path:
             os.unlink(tmp)
         raise
     return path
+
+
+def _gz(path: Path) -> Path:
+    return path.with_name(path.name + GZ)
+
+
+def stored(path) -> Path | None:
+    """The file that holds `path`'s content: `path` itself, else its compressed form `path.gz`; None if
+    neither exists. (Both exist only for a moment inside `compress` or `expand`; they are then equal.)"""
+    path = Path(path)
+    if path.is_file():
+        return path
+    return _gz(path) if _gz(path).is_file() else None
+
+
+def read_text(path) -> str:
+    """The text of `path` or of `path.gz` (`stored`; a .gz is decompressed, also when named directly).
+    `FileNotFoundError` if neither exists; `OSError` naming the file if the compressed data is damaged
+    (truncated or not gzip)."""
+    found = stored(path)
+    if found is None:
+        raise FileNotFoundError(f"{path} does not exist (nor {_gz(Path(path)).name})")
+    if found.name.endswith(GZ):
+        try:
+            return gzip.decompress(found.read_bytes()).decode("utf-8")
+        except (EOFError, zlib.error, gzip.BadGzipFile) as err:
+            raise OSError(f"{found} is damaged gzip data ({err or type(err).__name__})") from None
+    return found.read_text(encoding="utf-8")
+
+
+def compress(path) -> bool:
+    """Replace the file `path` by `path.gz` (gzip level 9, no timestamp: the same content gives the same
+    bytes); True if it did, False if `path` does not exist (already compressed, or never written). The
+    .gz is written atomically before `path` is removed, so a crash leaves one of them whole."""
+    path = Path(path)
+    if not path.is_file():
+        return False
+    atomic_write(_gz(path), gzip.compress(path.read_bytes(), compresslevel=9, mtime=0))
+    path.unlink()
+    return True
+
+
+def expand(path) -> bool:
+    """The inverse of `compress` (before a writer appends to a compressed file): `path` from `path.gz`,
+    then the .gz removed; True if it did, False if there was nothing to expand."""
+    path = Path(path)
+    if path.is_file() or not _gz(path).is_file():
+        return False
+    atomic_write(path, read_text(path))
+    _gz(path).unlink()
+    return True

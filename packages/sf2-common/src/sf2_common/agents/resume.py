@@ -24,6 +24,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol
 
+from sf2_common.fileio import stored
+
 from .checkpoints import CheckpointDamaged
 from .runfolder import RunFolder, RunFolderError, RunFolderMismatch
 from .runlog import library_log
@@ -103,13 +105,15 @@ def _check_rows(run: RunFolder, rows, epoch, damaged, seeds) -> None:
 
 def _set_aside(run: RunFolder, damaged: list[CheckpointDamaged], epoch) -> Path:
     dest = run.set_aside_folder()
-    if run.metrics_path.exists():
-        shutil.copy2(run.metrics_path, dest / run.METRICS)
+    kept = stored(run.metrics_path)   # metrics.jsonl, or its compressed form
+    if kept is not None:
+        shutil.copy2(kept, dest / kept.name)
     used = f"checkpoint {epoch}" if epoch is not None else "no checkpoint (a fresh start)"
     (dest / "reasons.txt").write_text("".join(f"{d}\n" for d in damaged) + f"resumed from {used}\n")
     (dest / run.CHECKPOINTS).mkdir()
     for d in damaged:
         shutil.move(str(d.path), str(dest / run.CHECKPOINTS / str(d.epoch)))
         run.say(f"{d}; set aside in {dest / run.CHECKPOINTS / str(d.epoch)}")
-    run.say(f"metrics.jsonl as it was is kept in {dest / run.METRICS}")
+    if kept is not None:
+        run.say(f"{kept.name} as it was is kept in {dest / kept.name}")
     return dest

@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 from sf2_common.errors import ConfigError
-from sf2_common.fileio import atomic_write
+from sf2_common.fileio import GZ, atomic_write, expand, read_text, stored
 
 from .configs import ADDED_FIELDS
 
@@ -53,13 +53,14 @@ def framework_of(conf: dict) -> str:
 class RunFolder:
     CONFIG = "config.json"
     METRICS = "metrics.jsonl"
+    METRICS_GZ = METRICS + GZ   # a study folder's finished run keeps it compressed (sf2_common.fileio)
     CHECKPOINTS = "checkpoints"
     CURVE = "learning_curve.png"
     FINAL = "final"
     LOG = "train.log"
     DAMAGED = "damaged"
     # what a run writes besides config.json: a folder holding any of these holds a run
-    RUN_FILES = (METRICS, CHECKPOINTS, FINAL, CURVE)
+    RUN_FILES = (METRICS, METRICS_GZ, CHECKPOINTS, FINAL, CURVE)
 
     def __init__(self, path):
         self.path = Path(path)
@@ -131,7 +132,8 @@ class RunFolder:
         if not gone:
             return []
         detail = {self.CHECKPOINTS: _listing(self.checkpoint_dir),
-                  self.METRICS: _row_count(self.metrics_path)}
+                  self.METRICS: _row_count(self.metrics_path),
+                  self.METRICS_GZ: _row_count(self.metrics_path)}
         what = ", ".join(n + detail.get(n, "") for n in gone)
         (say or _stderr)(f"--fresh: discarding {what} in {self.path}")
         for name in gone:
@@ -221,14 +223,14 @@ class RunFolder:
 
     # ------------------------------------------------------------------ metrics
     def read_rows(self, strict: bool = False) -> list[dict]:
-        """The rows of metrics.jsonl (none if it does not exist), the first of each (epoch, seed). A torn
-        last line (a kill mid-write) is skipped. Any other line that is not a row is skipped too, or, with
-        `strict`, a `RunFolderError` naming the file and the line."""
-        path = self.metrics_path
-        if not path.exists():
+        """The rows of metrics.jsonl or of its compressed form metrics.jsonl.gz (none if neither exists),
+        the first of each (epoch, seed). A torn last line (a kill mid-write) is skipped. Any other line that
+        is not a row is skipped too, or, with `strict`, a `RunFolderError` naming the file and the line."""
+        path = stored(self.metrics_path)
+        if path is None:
             return []
         try:
-            lines = path.read_text().splitlines()
+            lines = read_text(path).splitlines()
         except (OSError, UnicodeDecodeError) as err:
             if not strict:
                 return []
@@ -268,7 +270,7 @@ class RunFolder:
         missing = sorted({e for e in range(epoch + 1) for s in seeds if (e, s) not in have})
         if not missing:
             return
-        state = "is missing" if not self.metrics_path.exists() else \
+        state = "is missing" if stored(self.metrics_path) is None else \
             f"lacks the rows of epoch{'s' if len(missing) > 1 else ''} {_ranges(missing)}"
         raise RunFolderError(
             f"{self.metrics_path} {state}, which checkpoint {epoch} was written after (truncated or "
@@ -278,10 +280,12 @@ class RunFolder:
         """Keep the (deduplicated, well-formed) rows of epochs ≤ `last_epoch`; rewrite atomically."""
         rows = [r for r in self.read_rows() if r.get("epoch", 1 << 62) <= last_epoch]
         self.path.mkdir(parents=True, exist_ok=True)
+        expand(self.metrics_path)   # a compressed one becomes plain (and the .gz goes) before the rewrite
         atomic_write(self.metrics_path, "".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
         return rows
 
     def append_rows(self, rows: list[dict]) -> None:
+        expand(self.metrics_path)   # appending continues a compressed file's rows, never a new file
         text = "".join(json.dumps(r, sort_keys=True) + "\n" for r in rows)
         with open(self.metrics_path, "a") as f:
             f.write(text)
@@ -333,7 +337,7 @@ def _listing(folder: Path) -> str:
 
 def _row_count(path: Path) -> str:
     try:
-        n = sum(1 for line in path.read_text().splitlines() if line.strip())
+        n = sum(1 for line in read_text(path).splitlines() if line.strip())
     except (OSError, UnicodeDecodeError):
         return ""
     return f" ({n} row{'s' if n != 1 else ''})"

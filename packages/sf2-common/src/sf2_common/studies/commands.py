@@ -5,13 +5,16 @@
                    [--finish-within SECONDS] [--dry-run]
     PROG study report DIR [--out REPORT_DIR]
     PROG study merge SOURCE... --into DIR [--partial]
+    PROG study compress DIR
 
 `run` checks the study file and every run's config before anything is compiled (bad input: exit status
 2, nothing written), then trains what is not done yet (runner.py, rayrun.py); exit status 0 when every
 selected run is done (or, with --finish-within, left unstarted as forecast not to end in time), 1 if
 one failed or was held by another runner. `report` writes results.csv,
 summary.md and the figures (report.py). `merge` joins study folders or their .tar.gz archives (runs
-that came back from other commands, machines or sessions) into one study folder (merge.py).
+that came back from other commands, machines or sessions) into one study folder (merge.py), and keeps
+their metrics.jsonl and obs_noise.json gzip-compressed; `compress` does that to a folder's finished runs
+(sf2_common.fileio: every reader takes either form).
 FILE may also be the name of a file in ./studies/ (`smoke`).
 """
 
@@ -70,6 +73,12 @@ def add_parser(sub, prog: str) -> None:
     g.add_argument("--partial", action="store_true",
                    help="also merge unfinished runs (where DIR has none or less of it); without checkpoints "
                    "they cannot resume: `study run` then needs the run folder removed to train it again")
+    c = ssub.add_parser("compress", help="gzip the metrics.jsonl and obs_noise.json of a study folder's "
+                        "finished runs", description="Replace each finished run's metrics.jsonl and "
+                        "obs_noise.json by a .gz of it (4-5x smaller; `study report`, `study run` and "
+                        "`study merge` read either form, as do zcat and pandas). `study merge` does this to "
+                        "the runs it writes. Unfinished runs are left as they are.")
+    c.add_argument("dir", help="study folder")
 
 
 def _study_file(text: str) -> Path:
@@ -101,6 +110,8 @@ def main(fw, args) -> int:
             return _report(args, command)
         if args.study_command == "merge":
             return _merge(backend(fw), args)
+        if args.study_command == "compress":
+            return _compress(backend(fw), args)
         return _run(backend(fw), args, command)
     except ImportError as err:   # an extra that is not installed: the message names it
         raise StudyError(str(err)) from None
@@ -189,6 +200,17 @@ def _merge(backend, args) -> int:
 
     merge(args.sources, args.into, functools.partial(_resolve, backend), framework=backend.name,
           partial=args.partial)
+    return 0
+
+
+def _compress(backend, args) -> int:
+    from .folder import StudyFolder
+
+    folder = StudyFolder(args.dir)
+    study = folder.load_study()
+    names = folder.compress_runs(_resolve(backend, study), study)
+    print(f"{folder.path}: compressed the metrics of {len(names)} finished run(s)"
+          + ("" if names else " (none was left uncompressed)"))
     return 0
 
 

@@ -7,7 +7,8 @@ same study file up to `spec.same_runs`), or DEST does not exist yet and is creat
 a SOURCE whose study only adds tasks or methods to DEST's (an ablation run elsewhere) gives DEST its copy.
 Per run folder of the study (a task, a method, a seed group) the merge copies only what a study folder
 keeps in git (`KEPT`: config.json, metrics.jsonl, train.log and, with an [evaluation], obs_noise.json;
-never checkpoints/, final/, damaged/, parameters or learning_curve.png):
+never checkpoints/, final/, damaged/, parameters or learning_curve.png), and writes metrics.jsonl and
+obs_noise.json gzip-compressed (`COMPRESSED`; a SOURCE may hold either form, sf2_common.fileio):
 
     SOURCE's run        DEST's run          what happens
     finished            none / unfinished   copied (an unfinished DEST run is replaced)
@@ -42,7 +43,7 @@ from pathlib import Path, PurePosixPath
 
 from sf2_common.agents.hostloop import WALL_FIELDS
 from sf2_common.agents.runfolder import RunFolder, RunFolderError, RunFolderMismatch
-from sf2_common.fileio import atomic_write
+from sf2_common.fileio import GZ, atomic_write, compress, read_text, stored
 
 from .folder import OBS_NOISE, StudyFolder
 from .spec import Run, Study, StudyError, loads, only_adds, same_runs, seeds_text
@@ -50,6 +51,8 @@ from .spec import Run, Study, StudyError, loads, only_adds, same_runs, seeds_tex
 __all__ = ["KEPT", "Outcome", "merge"]
 
 KEPT = (RunFolder.CONFIG, RunFolder.METRICS, RunFolder.LOG, OBS_NOISE)
+COMPRESSED = (RunFolder.METRICS, OBS_NOISE)   # DEST keeps these gzip-compressed (sf2_common.fileio)
+_KEPT_NAMES = {*KEPT, *(name + GZ for name in COMPRESSED)}   # a source's, in either form
 _NEVER = {RunFolder.CHECKPOINTS, RunFolder.FINAL, RunFolder.DAMAGED}   # folders never read from a source
 _LOCK = ".study-lock"   # runner.LOCK (not imported: runner pulls in the process machinery)
 
@@ -204,7 +207,7 @@ def _unpack(path: Path, into: Path) -> Path:
                         or _NEVER.intersection(parts)):
                     continue
                 wanted = (parts[-1] in (StudyFolder.STUDY, StudyFolder.STATE) and len(parts) <= 2) or (
-                    "runs" in parts and parts[-1] in KEPT)
+                    "runs" in parts and parts[-1] in _KEPT_NAMES)
                 if wanted:
                     out = into.joinpath(*parts)
                     out.parent.mkdir(parents=True, exist_ok=True)
@@ -304,10 +307,10 @@ def _look(folder: StudyFolder, run: Run, study: Study, where: str) -> _Side:
     except RunFolderError as err:
         raise StudyError(f"{where}: {err}; nothing was merged") from None
     noise = None
-    if (path / OBS_NOISE).is_file():
+    if stored(path / OBS_NOISE) is not None:
         try:
-            noise = json.loads((path / OBS_NOISE).read_text()).get("results")
-        except (json.JSONDecodeError, AttributeError):
+            noise = json.loads(read_text(path / OBS_NOISE)).get("results")
+        except (json.JSONDecodeError, AttributeError, OSError, UnicodeDecodeError):
             noise = "unreadable"
     return _Side(path, state.status, state.env_steps, rows, noise, where)
 
@@ -383,8 +386,11 @@ def _install(source: Path, target: Path) -> Path | None:
         os.umask(umask)
         os.chmod(tmp, 0o777 & ~umask)
         for name in KEPT:
-            if (source / name).is_file():
-                _copy(source / name, tmp / name)
+            found = stored(source / name)
+            if found is not None:
+                _copy(found, tmp / found.name)
+        for name in COMPRESSED:
+            compress(tmp / name)
         if target.exists():
             old = target.with_name(f".{target.name}.replaced-{os.getpid()}")
             os.rename(target, old)
@@ -396,7 +402,7 @@ def _install(source: Path, target: Path) -> Path | None:
         raise
     if old is None:
         return None
-    if {p.name for p in old.iterdir()} <= {*KEPT, _LOCK}:
+    if {p.name for p in old.iterdir()} <= {*_KEPT_NAMES, _LOCK}:
         shutil.rmtree(old)
         return None
     aside = target.with_name(f"{target.name}.before-merge-{time.strftime('%Y%m%d-%H%M%S')}")

@@ -27,6 +27,7 @@ import numpy as np
 
 from sf2_common.agents.plotting import curves
 from sf2_common.agents.runfolder import RunFolder
+from sf2_common.fileio import read_text, stored
 
 from . import claims, stats
 from .folder import OBS_NOISE, StudyFolder
@@ -90,8 +91,8 @@ def _group(seeds, path: Path):
     progress = ("not started" if not conf else f"partial (epoch {first} of {epochs})" if first >= 0 else
                 "partial (no evaluation yet)")
     noise = None
-    if (path / OBS_NOISE).exists():
-        noise = json.loads((path / OBS_NOISE).read_text()).get("results")
+    if stored(path / OBS_NOISE) is not None:
+        noise = json.loads(read_text(path / OBS_NOISE)).get("results")
     wall = max((r.get("walltime", 0.0) for r in rows), default=0.0)
     return GroupData(tuple(seeds), path, finished, progress), steps, per_seed, wall, noise
 
