@@ -169,6 +169,33 @@ def test_dry_run_estimate_from_the_finished_runs(tmp_path):
     assert runner.estimate([], todo) is None and runner.estimate(done, []) is None
 
 
+def test_forecast_scales_rates_between_seed_counts(tmp_path):
+    """Rates in s per env step (all seeds' steps). A/m finished with 5 seeds at 0.1 and with 10 at 0.07;
+    A/q with 5 seeds at 0.2, B/m with 5 at 0.04. The only measured 5 -> 10 ratio is A/m's 0.7, so A/q at 10
+    seeds forecasts 0.2 x 0.7 = 0.14 and B/m at 10 seeds 0.04 x 0.7 = 0.028; A/m at 10 seeds uses its own
+    0.07. No run measures 5 -> 2 or 5 -> 20: 2 seeds scale by 5/2 (B/m: 0.1, a run no longer than its
+    5-seed run), 20 by 1 (B/m: 0.04, as if the time doubled with the seeds). A task with no finished run
+    (C, 10 seeds): the slowest of all scaled to 10 seeds, A/q's 0.14."""
+    from types import SimpleNamespace
+
+    def job(task, name, seeds, total=1000, wall=None):
+        path = tmp_path / ("done" if wall is not None else "todo") / task / f"{name}-{seeds}"
+        path.mkdir(parents=True)
+        if wall is not None:
+            (path / "metrics.jsonl").write_text(json.dumps({"epoch": 1, "seed": 0, "env_steps": total,
+                                                            "walltime": wall}) + "\n")
+        run = SimpleNamespace(task=task, folder=name, rel=name, seeds=tuple(range(seeds)))
+        return runner.Job(run, path, [], total, total if wall is not None else 0)
+
+    forecast = runner.Forecast([job("A", "m", 5, wall=100.0), job("A", "m", 10, wall=70.0),
+                                job("A", "q", 5, wall=200.0), job("B", "m", 5, wall=40.0)])
+    assert forecast.scale(5, 10) == pytest.approx(0.7)
+    expected = {("A", "q", 10): 0.14, ("B", "m", 10): 0.028, ("A", "m", 10): 0.07, ("A", "m", 5): 0.1,
+                ("B", "m", 2): 0.1, ("B", "m", 20): 0.04, ("C", "m", 10): 0.14}
+    for (task, name, seeds), rate in expected.items():
+        assert forecast.seconds(job(task, name, seeds)) == pytest.approx(1000 * rate), (task, name, seeds)
+
+
 def test_finish_within_starts_only_runs_forecast_to_end_in_time(tmp_path, monkeypatch):
     """Finished runs of 1,000 env steps took 1e6 s on task A (1,000 s per env step) and 0.001 s on B: with
     60 s to go, B's runs start (forecast ≈ 0 s), A's do not, nor C's (no finished run: the slowest rate,

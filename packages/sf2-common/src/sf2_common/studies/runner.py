@@ -112,21 +112,30 @@ def plan(study: Study, folder: StudyFolder, runs: list[Run]) -> tuple[list[Job],
 class Forecast:
     """Seconds of training a job still needs: its remaining env steps at the wall-clock seconds per env step
     of finished runs. The rate is the mean over the finished runs of the job's own task and method folder
-    (`Run.folder`); without one, the slowest finished run of its task; without one, the slowest finished
-    run of all. The slowest, not the mean, because methods differ up to ~4x in cost (results/fig7-td3/
-    README.md "Cost per run") and `--finish-within` must not start a run the lease's end would cut. The
-    rates are those of the machines the finished runs ran on; evaluation children ([evaluation]) are not
-    counted. `known` is False without any finished run."""
+    (`Run.folder`) with its number of seeds; without one, those of other seed counts, scaled (below);
+    without any, the slowest finished run of its task; without one, the slowest finished run of all. The
+    slowest, not the mean, because methods differ up to ~4x in cost (results/fig7-td3/README.md "Cost per
+    run") and `--finish-within` must not start a run the lease's end would cut. The rates are those of the
+    machines the finished runs ran on; evaluation children ([evaluation]) are not counted. `known` is False
+    without any finished run.
+
+    Seed counts: a GPU trains vmapped seeds together, so a run of 10 seeds takes ~1.35x the time of one of 5,
+    not 2x (results/fig7-td3/README.md "Cost per run"): the rate per env step (all seeds' steps) falls with
+    the seeds. A rate measured at k seeds is scaled to n by the largest ratio rate(n) / rate(k) of the
+    (task, method) pairs that finished runs of both counts measure; without such a pair, by 1 for n > k (as
+    if the time grew with the seeds) and by k / n for n < k (as if it did not shrink): never below the time
+    the run can take."""
 
     def __init__(self, done: list[Job]):
-        self.rates: dict[tuple[str, str], list[float]] = {}
+        self.rates: dict[tuple[str, str], list[tuple[int, float]]] = {}   # (seeds, s per env step)
         for job in done:
             self.add(job)
 
     def add(self, job: Job) -> None:
         wall = max((r.get("walltime", 0.0) for r in RunFolder(job.path).read_rows()), default=0.0)
         if wall > 0 and job.total_steps > 0:
-            self.rates.setdefault((job.run.task, job.run.folder), []).append(wall / job.total_steps)
+            self.rates.setdefault((job.run.task, job.run.folder), []).append(
+                (_seed_count(job), wall / job.total_steps))
 
     @property
     def known(self) -> bool:
@@ -135,15 +144,33 @@ class Forecast:
     def has_task(self, task: str) -> bool:
         return any(t == task for t, _ in self.rates)
 
-    def rate(self, task: str, folder: str) -> float:
+    def scale(self, k: int, n: int) -> float:
+        """The factor from a rate measured at k seeds to one at n (class docstring)."""
+        if k == n:
+            return 1.0
+        ratios = []
+        for measured in self.rates.values():
+            at_k = [r for m, r in measured if m == k]
+            at_n = [r for m, r in measured if m == n]
+            if at_k and at_n:
+                ratios.append((sum(at_n) / len(at_n)) / (sum(at_k) / len(at_k)))
+        return max(ratios) if ratios else (1.0 if n > k else k / n)
+
+    def rate(self, task: str, folder: str, seeds: int = 1) -> float:
         mine = self.rates.get((task, folder))
         if mine:
-            return sum(mine) / len(mine)
-        same_task = [x for (t, _), v in self.rates.items() if t == task for x in v]
-        return max(same_task or [x for v in self.rates.values() for x in v])
+            same = [r for m, r in mine if m == seeds]
+            scaled = same or [r * self.scale(m, seeds) for m, r in mine]
+            return sum(scaled) / len(scaled)
+        same_task = [r * self.scale(m, seeds) for (t, _), v in self.rates.items() if t == task for m, r in v]
+        return max(same_task or [r * self.scale(m, seeds) for v in self.rates.values() for m, r in v])
 
     def seconds(self, job: Job) -> float:
-        return (job.total_steps - job.done_steps) * self.rate(job.run.task, job.run.folder)
+        return (job.total_steps - job.done_steps) * self.rate(job.run.task, job.run.folder, _seed_count(job))
+
+
+def _seed_count(job: Job) -> int:
+    return len(getattr(job.run, "seeds", None) or (0,))
 
 
 def estimate(done: list[Job], todo: list[Job]) -> str | None:
