@@ -130,6 +130,13 @@ def test_cli_eval_and_plot(reference, tmp_path, capsys, monkeypatch):
     assert cli.main(["eval", str(reference.run.path), "--json"]) == 0
     res = json.loads(capsys.readouterr().out)
     assert res["epoch"] == 3 and len(res["returns"]["0"]) == 2
+    # the same start states as the last evaluation of training; the acting is deterministic
+    assert np.mean(res["returns"]["0"]) == pytest.approx(reference.rows[-1]["eval_return"], rel=1e-5)
+    assert cli.main(["eval", str(reference.run.path), "--json", "--episodes", "3", "--stochastic"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert len(res["returns"]["0"]) == 3 and res["deterministic"] is False
+    assert cli.main(["eval", str(reference.run.path), "--episodes", "0"]) == 2
+    assert "episodes = 0 is invalid" in capsys.readouterr().err
     png = tmp_path / "curves.png"
     assert cli.main(["plot", str(reference.run.path), "--out", str(png)]) == 0
     assert png.exists() and "TD3+SF²" in capsys.readouterr().out

@@ -163,6 +163,8 @@ def test_cli_train_eval_and_plot(reference, tiny_cfg, tmp_path, capsys, monkeypa
     assert cli.main(["eval", str(reference.run.path), "--json", "--episodes", "3", "--stochastic"]) == 0
     res = json.loads(capsys.readouterr().out)
     assert len(res["returns"]["0"]) == 3 and res["deterministic"] is False
+    assert cli.main(["eval", str(reference.run.path), "--episodes", "0"]) == 2
+    assert "episodes = 0 is invalid" in capsys.readouterr().err
     png = tmp_path / "curves.png"
     assert cli.main(["plot", str(reference.run.path), str(out), "--out", str(png)]) == 0
     assert png.exists() and "TD3+SF²" in capsys.readouterr().out

@@ -44,11 +44,10 @@ import jax.numpy as jnp
 import numpy as np
 from sf2_common.agents import configs, hostloop, plotting
 from sf2_common.agents.configs import TrainConfig
+from sf2_common.agents.evaluation import EVAL_KEY_BASE, open_evaluation
 from sf2_common.agents.hostloop import WALL_FIELDS, TrainingDiverged
 from sf2_common.agents.resume import resume_run
 from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch, framework_of
-from sf2_common.errors import ConfigError
-from sf2_common.studies.robustness import check_obs_noise
 
 from sf2_jax import networks
 from sf2_jax.losses import Batch
@@ -469,41 +468,22 @@ def evaluate_checkpoint_noises(out, epoch: int | None = None, num_eval_envs: int
     """`evaluate_checkpoint` at each observation-noise std of `noises`, from one restore of the
     checkpoint (the run's whole training state, replay buffers included, which `eval --obs-noise` would
     otherwise read once per std). One result per std, in order, each as `evaluate_checkpoint`'s."""
-    noises = [check_obs_noise(x) for x in noises]
-    run = RunFolder(out)
-    conf = run.read_config()
-    if conf is None:
-        raise FileNotFoundError(f"{out} is not a run folder (no {RunFolder.CONFIG})")
-    if framework_of(conf) != "jax":
-        raise ConfigError(f"{out} was trained by sf2-{framework_of(conf)}; evaluate it with that CLI")
-    cfg = TrainConfig.from_dict(conf["config"])
-    seeds = tuple(conf["seeds"])
-    ckpt = Checkpointer(run.checkpoint_dir, keep=cfg.keep_checkpoints)
+    ev = open_evaluation(out, "jax", TrainConfig, noises)
+    cfg, seeds = ev.cfg, ev.seeds
+    ckpt = Checkpointer(ev.run.checkpoint_dir, keep=cfg.keep_checkpoints)
     try:
         available = ckpt.all()
-        if not available:
-            raise FileNotFoundError(f"{out} has no checkpoint yet")
-        epoch = max(available) if epoch is None else epoch
-        if epoch not in available:
-            raise FileNotFoundError(f"{out} has no checkpoint {epoch}; available: {available}")
+        epoch = ev.checkpoint(available, epoch)
         state, meta = ckpt.restore(epoch, get_program(cfg).abstract_state(seeds))
     finally:
         ckpt.close()
-    eval_cfg = cfg if deterministic is None else cfg.replace(deterministic_eval=bool(deterministic))
+    eval_cfg = ev.eval_config(deterministic)
     program = get_program(eval_cfg)
-    starts = state.eval_start
-    if num_eval_envs is not None and num_eval_envs != cfg.num_eval_envs:
-        if num_eval_envs < 1:
-            raise ConfigError(f"episodes = {num_eval_envs} is invalid: must be >= 1")
-        starts = program.fresh_eval_starts(seeds, num_eval_envs, 10_000 + epoch)
+    episodes = ev.episodes(num_eval_envs)
+    key = EVAL_KEY_BASE + epoch
+    starts = state.eval_start if episodes is None else program.fresh_eval_starts(seeds, episodes, key)
     params = state.params
     del state   # the replay buffers and optimizer states: not needed to act
-    results = []
-    for obs_noise in noises:
-        returns = np.asarray(program.evaluate(params, starts, seeds, 10_000 + epoch, obs_noise))
-        results.append({"epoch": epoch, "env_steps": meta.get("env_steps"),
-                        "returns": {int(s): [float(x) for x in returns[i]] for i, s in enumerate(seeds)},
-                        "deterministic": eval_cfg.deterministic_eval, "obs_noise": obs_noise,
-                        "checkpoints": available})
-    return results
+    returns = [np.asarray(program.evaluate(params, starts, seeds, key, noise)) for noise in ev.noises]
+    return ev.results(epoch, meta, returns, eval_cfg.deterministic_eval, available)
 

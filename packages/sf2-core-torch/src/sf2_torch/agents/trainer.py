@@ -40,12 +40,12 @@ import numpy as np
 import torch
 from sf2_common.agents import configs as common_configs
 from sf2_common.agents import hostloop
+from sf2_common.agents.evaluation import EVAL_KEY_BASE, open_evaluation
 from sf2_common.agents.hostloop import WALL_FIELDS, TrainingDiverged
 from sf2_common.agents.plotting import method_label
 from sf2_common.agents.resume import resume_run
 from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch, framework_of
 from sf2_common.errors import ConfigError
-from sf2_common.studies.robustness import check_obs_noise
 from tensordict import TensorDict
 
 from sf2_torch import losses, networks, params
@@ -433,31 +433,20 @@ def evaluate_checkpoint_noises(out, epoch: int | None = None, num_eval_envs: int
     """`evaluate_checkpoint` at each observation-noise std of `noises`, from one restore of the
     checkpoint (the run's whole training state, replay buffers included, which `eval --obs-noise` would
     otherwise read once per std). One result per std, in order, each as `evaluate_checkpoint`'s."""
-    noises = [check_obs_noise(x) for x in noises]
-    run = RunFolder(out)
-    conf = run.read_config()
-    if conf is None:
-        raise FileNotFoundError(f"{out} is not a run folder (no {RunFolder.CONFIG})")
-    if framework_of(conf) != "torch":
-        raise ConfigError(f"{out} was trained by sf2-{framework_of(conf)}; evaluate it with that CLI")
-    cfg = TrainConfig.from_dict(conf["config"])
-    seeds = tuple(conf["seeds"])
-    ckpt = Checkpointer(run.checkpoint_dir, keep=cfg.keep_checkpoints)
+    ev = open_evaluation(out, "torch", TrainConfig, noises)
+    cfg, seeds = ev.cfg, ev.seeds
+    ckpt = Checkpointer(ev.run.checkpoint_dir, keep=cfg.keep_checkpoints)
     available = ckpt.all()
-    if not available:
-        raise FileNotFoundError(f"{out} has no checkpoint yet")
-    epoch = max(available) if epoch is None else epoch
-    if epoch not in available:
-        raise FileNotFoundError(f"{out} has no checkpoint {epoch}; available: {available}")
-    eval_cfg = cfg if deterministic is None else cfg.replace(deterministic_eval=bool(deterministic))
+    epoch = ev.checkpoint(available, epoch)
+    eval_cfg = ev.eval_config(deterministic)
     program = get_program(eval_cfg)
     program.precision()
     import jax.numpy as jnp
 
-    if num_eval_envs is not None and num_eval_envs != cfg.num_eval_envs:
-        if not isinstance(num_eval_envs, int) or num_eval_envs < 1:
-            raise ConfigError(f"episodes = {num_eval_envs} is invalid: must be >= 1")
-        starts = jnp.concatenate([fresh_eval_start_keys(s, 10_000 + epoch, num_eval_envs) for s in seeds])
+    episodes = ev.episodes(num_eval_envs)
+    key = EVAL_KEY_BASE + epoch
+    if episodes is not None:
+        starts = jnp.concatenate([fresh_eval_start_keys(s, key, episodes) for s in seeds])
     else:
         starts = jnp.concatenate([env_reset_keys(s, cfg.num_envs, cfg.num_eval_envs)[1] for s in seeds])
     agents = [program.make_agent(s) for s in seeds]
@@ -468,12 +457,6 @@ def evaluate_checkpoint_noises(out, epoch: int | None = None, num_eval_envs: int
     except (RuntimeError, KeyError) as err:
         raise CheckpointMismatch(f"checkpoint {epoch} does not fit this program: {err}") from err
     del saved   # the restored replay buffers: not needed to act
-    results = []
-    for obs_noise in noises:
-        returns = program.evaluate(agents, starts, seeds, 10_000 + epoch, obs_noise=obs_noise)
-        results.append({"epoch": epoch, "env_steps": meta.get("env_steps"),
-                        "returns": {int(s): [float(x) for x in returns[i]] for i, s in enumerate(seeds)},
-                        "deterministic": eval_cfg.deterministic_eval, "obs_noise": obs_noise,
-                        "checkpoints": available})
-    return results
+    returns = [program.evaluate(agents, starts, seeds, key, obs_noise=noise) for noise in ev.noises]
+    return ev.results(epoch, meta, returns, eval_cfg.deterministic_eval, available)
 
