@@ -6,8 +6,8 @@ checkpoint's save; the run-folder faults of docs/run-folders.md (`damage`, `fold
 
 from __future__ import annotations
 
-__all__ = ["BAD_TRAIN_INPUTS", "cli_error", "KILL_POINTS", "Killed", "kill_and_resume", "kill9", "cli_args",
-           "FAULTS", "damage", "folder_digest"]
+__all__ = ["BAD_TRAIN_INPUTS", "cli_error", "check_cli_eval", "KILL_POINTS", "Killed", "kill_and_resume",
+           "kill9", "cli_args", "FAULTS", "damage", "folder_digest"]
 
 # (arguments after `train --config quick --out ...`, texts the error message must contain)
 BAD_TRAIN_INPUTS = [
@@ -45,6 +45,28 @@ def cli_error(main, capsys, *args) -> str:
     argv = ["train", "--config", "quick", "--out", "/nonexistent/should-not-be-created", *args]
     assert main(argv) == 2
     return capsys.readouterr().err
+
+
+def check_cli_eval(main, capsys, run_path, episodes: int, last_eval_return: float) -> None:
+    """`main(["eval", run_path, ...])` on a finished run of 1 seed (seed 0) with deterministic evaluation and
+    `episodes` evaluation envs: the last checkpoint replays training's last evaluation (the same start
+    states: the mean return equals `last_eval_return`); `--episodes 3 --stochastic` acts on 3 fresh starts,
+    stochastically; `--episodes 0` exits 2 naming the value."""
+    import json
+
+    import numpy as np
+    import pytest
+
+    assert main(["eval", str(run_path), "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["epoch"] == max(res["checkpoints"]) and len(res["returns"]["0"]) == episodes
+    assert res["deterministic"] is True
+    assert np.mean(res["returns"]["0"]) == pytest.approx(last_eval_return, rel=1e-5)
+    assert main(["eval", str(run_path), "--json", "--episodes", "3", "--stochastic"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert len(res["returns"]["0"]) == 3 and res["deterministic"] is False
+    assert main(["eval", str(run_path), "--episodes", "0"]) == 2
+    assert "episodes = 0 is invalid" in capsys.readouterr().err
 
 
 # (event, epoch) a run is killed at, and the checkpoint its resume must start from: after an epoch's rows

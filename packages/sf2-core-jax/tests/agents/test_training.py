@@ -8,7 +8,7 @@ import json
 import jax
 import numpy as np
 import pytest
-from sf2_common.testing import KILL_POINTS, kill_and_resume
+from sf2_common.testing import KILL_POINTS, check_cli_eval, kill_and_resume
 from sf2_jax import cli
 from sf2_jax.agents.trainer import WALL_FIELDS, TrainingDiverged, train
 
@@ -127,16 +127,8 @@ def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tiny_cfg, tmp_path
 
 def test_cli_eval_and_plot(reference, tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("SF2_JAX_COMPILE_CACHE", "")  # no persistent cache from inside the tests
-    assert cli.main(["eval", str(reference.run.path), "--json"]) == 0
-    res = json.loads(capsys.readouterr().out)
-    assert res["epoch"] == 3 and len(res["returns"]["0"]) == 2
-    # the same start states as the last evaluation of training; the acting is deterministic
-    assert np.mean(res["returns"]["0"]) == pytest.approx(reference.rows[-1]["eval_return"], rel=1e-5)
-    assert cli.main(["eval", str(reference.run.path), "--json", "--episodes", "3", "--stochastic"]) == 0
-    res = json.loads(capsys.readouterr().out)
-    assert len(res["returns"]["0"]) == 3 and res["deterministic"] is False
-    assert cli.main(["eval", str(reference.run.path), "--episodes", "0"]) == 2
-    assert "episodes = 0 is invalid" in capsys.readouterr().err
+    assert reference.rows[-1]["epoch"] == 3
+    check_cli_eval(cli.main, capsys, reference.run.path, 2, reference.rows[-1]["eval_return"])
     png = tmp_path / "curves.png"
     assert cli.main(["plot", str(reference.run.path), "--out", str(png)]) == 0
     assert png.exists() and "TD3+SF²" in capsys.readouterr().out

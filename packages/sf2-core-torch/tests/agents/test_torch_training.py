@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 import torch
-from sf2_common.testing import KILL_POINTS, kill_and_resume
+from sf2_common.testing import KILL_POINTS, check_cli_eval, kill_and_resume
 from sf2_torch import cli
 from sf2_torch.agents.trainer import WALL_FIELDS, TrainingDiverged, train
 
@@ -155,16 +155,9 @@ def test_cli_train_eval_and_plot(reference, tiny_cfg, tmp_path, capsys, monkeypa
     assert "TD3+SF²" in capsys.readouterr().out
     assert _strip(json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()) == \
         _strip(reference.rows)
-    assert cli.main(["eval", str(reference.run.path), "--json"]) == 0
-    res = json.loads(capsys.readouterr().out)
-    assert res["epoch"] == 3 and len(res["returns"]["0"]) == tiny_cfg.num_eval_envs
-    # the same start states as the last evaluation of training; the acting is deterministic
-    assert np.mean(res["returns"]["0"]) == pytest.approx(reference.rows[-1]["eval_return"], rel=1e-5)
-    assert cli.main(["eval", str(reference.run.path), "--json", "--episodes", "3", "--stochastic"]) == 0
-    res = json.loads(capsys.readouterr().out)
-    assert len(res["returns"]["0"]) == 3 and res["deterministic"] is False
-    assert cli.main(["eval", str(reference.run.path), "--episodes", "0"]) == 2
-    assert "episodes = 0 is invalid" in capsys.readouterr().err
+    assert reference.rows[-1]["epoch"] == 3
+    check_cli_eval(cli.main, capsys, reference.run.path, tiny_cfg.num_eval_envs,
+                   reference.rows[-1]["eval_return"])
     png = tmp_path / "curves.png"
     assert cli.main(["plot", str(reference.run.path), str(out), "--out", str(png)]) == 0
     assert png.exists() and "TD3+SF²" in capsys.readouterr().out
