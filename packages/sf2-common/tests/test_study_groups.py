@@ -148,12 +148,12 @@ def test_plan_and_dry_run_per_group(tmp_path, monkeypatch, capsys):
     out = capsys.readouterr().out.splitlines()
     assert "4 run(s) selected of 12; seed groups 0-4, 5-9" in out[0]
     assert out[1:] == ["  done     A/td3/seeds-0-4", "  done     A/td3-sf2/seeds-0-4",
-                       *[f"  partial  A/{m}/seeds-5-9: sf2-fake train --task A --algo td3 --repr "
+                       *[f"  partial  A/{m}/seeds-5-9 (≈ 5s): sf2-fake train --task A --algo td3 --repr "
                          f"{r} --config quick --seeds 5-9 --out {folder.path}/runs/A/{m}/seeds-5-9 "
                          f"--no-progress" for m, r in (("td3", "none"), ("td3-sf2", "sf2"))],
                        # the finished groups took 10 s for their budget; the partial ones stopped halfway
-                       # (epoch 1 of 2): 2 × half a budget at 10 s a budget; the forecast draws on
-                       # every finished run of the folder, the two outside this selection included
+                       # (epoch 1 of 2): half a budget each at 10 s a budget, 2 × that in all; the forecast
+                       # draws on every finished run of the folder, the two outside this selection included
                        "estimate: 2 run(s) to do ≈ 10s of training on one worker (at the wall time per env "
                        "step of the 4 finished run(s) here)"]
     with pytest.raises(StudyError, match="--seeds 20: no seed group"):

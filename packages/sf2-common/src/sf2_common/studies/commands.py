@@ -26,6 +26,7 @@ import shlex
 import sys
 from pathlib import Path
 
+from .progress import duration
 from .runner import Backend
 from .spec import StudyError
 
@@ -150,10 +151,12 @@ def _run(backend, args, command: str) -> int:
                  if study.seeds_per_run else ""))
         for job in done:
             print(f"  done     {job.name}")
+        forecast = runner.Forecast(history)
         for job in jobs:
             state = "partial" if job.done_steps else "new"
+            eta = f" (≈ {duration(forecast.seconds(job))})" if forecast.known else ""
             steps = " ; ".join(f"{backend.prog} {' '.join(c)}" for c in job.commands)
-            print(f"  {state:8} {job.name}: {steps}")
+            print(f"  {state:8} {job.name}{eta}: {steps}")
         forecast = runner.estimate(history, jobs)
         if forecast:
             print(forecast)
