@@ -6,8 +6,8 @@ checkpoint's save; the run-folder faults of docs/run-folders.md (`damage`, `fold
 
 from __future__ import annotations
 
-__all__ = ["BAD_TRAIN_INPUTS", "cli_error", "check_cli_eval", "KILL_POINTS", "Killed", "kill_and_resume",
-           "kill9", "cli_args", "FAULTS", "damage", "folder_digest"]
+__all__ = ["BAD_TRAIN_INPUTS", "cli_error", "check_cli_eval", "check_obs_noise_eval", "KILL_POINTS", "Killed",
+           "kill_and_resume", "kill9", "cli_args", "FAULTS", "damage", "folder_digest"]
 
 # (arguments after `train --config quick --out ...`, texts the error message must contain)
 BAD_TRAIN_INPUTS = [
@@ -67,6 +67,51 @@ def check_cli_eval(main, capsys, run_path, episodes: int, last_eval_return: floa
     assert len(res["returns"]["0"]) == 3 and res["deterministic"] is False
     assert main(["eval", str(run_path), "--episodes", "0"]) == 2
     assert "episodes = 0 is invalid" in capsys.readouterr().err
+
+
+def check_obs_noise_eval(trainer, main, capsys, monkeypatch, run) -> None:
+    """A core's evaluation under observation noise (paper App. C.2.2) on a copy `run` of a finished run of
+    1 seed with checkpoints 2 and 3 (`trainer`: the core's trainer module, `main`: its CLI's): std 0 is the
+    plain evaluation (the same program and acting noise: the same returns); a std > 0 changes what the
+    policy sees and so the returns, reproducibly; several stds from one restore give one evaluation's
+    numbers per std; a negative std is refused; `eval --obs-noise 0,1 --checkpoints 2 --save` restores
+    each checkpoint once whatever the number of stds and saves obs_noise.json."""
+    import json
+
+    import numpy as np
+    import pytest
+
+    from sf2_common.errors import ConfigError
+
+    plain = trainer.evaluate_checkpoint(run)
+    assert plain["checkpoints"] == [2, 3] and plain["obs_noise"] == 0.0
+    assert trainer.evaluate_checkpoint(run, obs_noise=0.0)["returns"] == plain["returns"]
+    noisy = trainer.evaluate_checkpoint(run, obs_noise=1.0)
+    assert noisy["obs_noise"] == 1.0 and noisy["returns"] != plain["returns"]
+    assert trainer.evaluate_checkpoint(run, obs_noise=1.0)["returns"] == noisy["returns"]   # reproducible
+    both = trainer.evaluate_checkpoint_noises(run, None, None, None, (0.0, 1.0))
+    assert [(r["obs_noise"], r["returns"]) for r in both] == [(0.0, plain["returns"]),
+                                                               (1.0, noisy["returns"])]
+    with pytest.raises(ConfigError, match="obs_noise = -0.1 is invalid"):
+        trainer.evaluate_checkpoint(run, obs_noise=-0.1)
+    restored = []
+    real_restore = trainer.Checkpointer.restore
+
+    def counting_restore(self, epoch, *args, **kwargs):
+        restored.append(epoch)
+        return real_restore(self, epoch, *args, **kwargs)
+
+    monkeypatch.setattr(trainer.Checkpointer, "restore", counting_restore)
+    assert main(["eval", str(run), "--obs-noise", "0,1", "--checkpoints", "2", "--save"]) == 0
+    assert restored == [3, 2]
+    saved = json.loads((run / "obs_noise.json").read_text())
+    assert [(r["noise"], r["epoch"]) for r in saved["results"]] == [(0.0, 2), (1.0, 2), (0.0, 3), (1.0, 3)]
+    # written with the shortest decimal of each float32 return: the same float32 values
+    assert {k: np.float32(v).tolist() for k, v in saved["results"][3]["returns"].items()} == {
+        str(k): np.float32(v).tolist() for k, v in noisy["returns"].items()}
+    assert saved["settings"] == {"obs_noise": [0.0, 1.0], "checkpoints": 2, "episodes": None,
+                                 "deterministic": None}
+    assert "noise std" in capsys.readouterr().out
 
 
 # (event, epoch) a run is killed at, and the checkpoint its resume must start from: after an epoch's rows

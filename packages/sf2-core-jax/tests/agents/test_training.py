@@ -8,7 +8,7 @@ import json
 import jax
 import numpy as np
 import pytest
-from sf2_common.testing import KILL_POINTS, check_cli_eval, kill_and_resume
+from sf2_common.testing import KILL_POINTS, check_cli_eval, check_obs_noise_eval, kill_and_resume
 from sf2_jax import cli
 from sf2_jax.agents.trainer import WALL_FIELDS, TrainingDiverged, train
 
@@ -153,45 +153,12 @@ def test_a_torch_run_folder_is_refused(tiny_cfg, tmp_path, capsys):
 
 
 def test_evaluation_under_observation_noise(reference, tmp_path, capsys, monkeypatch):
-    """Noise std 0 is the plain evaluation (the same returns: the same program and acting noise); a std > 0
-    changes what the policy sees and so the returns; `eval --obs-noise` evaluates the latest checkpoints
-    at each std and saves obs_noise.json (paper App. C.2.2)."""
+    """`sf2_common.testing.check_obs_noise_eval` on a copy of the reference run (paper App. C.2.2)."""
     import shutil
 
-    from sf2_common.errors import ConfigError
     from sf2_jax.agents import trainer as trainer_module
-    from sf2_jax.agents.trainer import evaluate_checkpoint, evaluate_checkpoint_noises
 
     monkeypatch.setenv("SF2_JAX_COMPILE_CACHE", "")
     run = tmp_path / "run"
     shutil.copytree(reference.run.path, run)
-    plain = evaluate_checkpoint(run)
-    assert plain["checkpoints"] == [2, 3] and plain["obs_noise"] == 0.0
-    assert evaluate_checkpoint(run, obs_noise=0.0)["returns"] == plain["returns"]
-    noisy = evaluate_checkpoint(run, obs_noise=1.0)
-    assert noisy["obs_noise"] == 1.0 and noisy["returns"] != plain["returns"]
-    assert evaluate_checkpoint(run, obs_noise=1.0)["returns"] == noisy["returns"]   # reproducible
-    # Several stds from one restore give the numbers of one evaluation per std.
-    both = evaluate_checkpoint_noises(run, None, None, None, (0.0, 1.0))
-    assert [(r["obs_noise"], r["returns"]) for r in both] == [(0.0, plain["returns"]),
-                                                               (1.0, noisy["returns"])]
-    with pytest.raises(ConfigError, match="obs_noise = -0.1 is invalid"):
-        evaluate_checkpoint(run, obs_noise=-0.1)
-    restored = []   # `eval --obs-noise` restores each checkpoint once, whatever the number of stds
-    real_restore = trainer_module.Checkpointer.restore
-
-    def counting_restore(self, epoch, *args, **kwargs):
-        restored.append(epoch)
-        return real_restore(self, epoch, *args, **kwargs)
-
-    monkeypatch.setattr(trainer_module.Checkpointer, "restore", counting_restore)
-    assert cli.main(["eval", str(run), "--obs-noise", "0,1", "--checkpoints", "2", "--save"]) == 0
-    assert restored == [3, 2]
-    saved = json.loads((run / "obs_noise.json").read_text())
-    assert [(r["noise"], r["epoch"]) for r in saved["results"]] == [(0.0, 2), (1.0, 2), (0.0, 3), (1.0, 3)]
-    # written with the shortest decimal of each float32 return: the same float32 values
-    assert {k: np.float32(v).tolist() for k, v in saved["results"][3]["returns"].items()} == {
-        str(k): np.float32(v).tolist() for k, v in noisy["returns"].items()}
-    assert saved["settings"] == {"obs_noise": [0.0, 1.0], "checkpoints": 2, "episodes": None,
-                                 "deterministic": None}
-    assert "noise std" in capsys.readouterr().out
+    check_obs_noise_eval(trainer_module, cli.main, capsys, monkeypatch, run)
