@@ -239,3 +239,37 @@ def test_sweep_and_obs_noise_with_two_seeds(tmp_path):
     stored = [*folder.path.rglob("obs_noise.json"), *folder.path.rglob("metrics.jsonl")]
     assert stored and all(compress(p) for p in stored)
     assert report(folder.path)["summary.md"].read_text() == before
+
+
+def test_a_damaged_run_file_stops_the_report_naming_it(tmp_path):
+    """A finished run whose metrics.jsonl.gz is cut (a bad copy), whose metrics.jsonl has a line that is no
+    row in the middle (an edit), or whose obs_noise.json is not JSON is never reported as unfinished or
+    left out silently: `StudyError` naming the file and the choices, and no report file is written."""
+    from sf2_common.studies.spec import StudyError
+
+    folder = _study(tmp_path, SWEEP)
+    for name in ("td3-sf2-tau-zeta-0.01", "td3-sf2-tau-zeta-0.1"):
+        noise = [{"noise": 0.0, "epoch": 2, "env_steps": 200, "returns": {"0": [1.0], "1": [2.0]}}]
+        _write_run(folder.run_path("A", name), [0, 1], {s: [0.0, 1.0, 2.0] for s in (0, 1)}, noise=noise)
+    run = folder.run_path("A", "td3-sf2-tau-zeta-0.1")
+    rows, results = (run / "metrics.jsonl").read_text(), (run / "obs_noise.json").read_text()
+
+    def cut_gzip():
+        assert compress(run / "metrics.jsonl")
+        data = (run / "metrics.jsonl.gz").read_bytes()
+        (run / "metrics.jsonl.gz").write_bytes(data[: len(data) // 2])
+
+    cases = [(cut_gzip, r"metrics.jsonl.gz is damaged gzip data"),
+             (lambda: (run / "metrics.jsonl").write_text(rows.replace("\n", "\nnot a row\n", 1)),
+              r"metrics.jsonl line 2 is not a metrics row"),
+             (lambda: (run / "obs_noise.json").write_text("{"),
+              r"obs_noise.json is not an evaluation's results")]
+    for damage_it, message in cases:
+        (run / "metrics.jsonl.gz").unlink(missing_ok=True)
+        (run / "metrics.jsonl").write_text(rows)
+        (run / "obs_noise.json").write_text(results)
+        damage_it()
+        with pytest.raises(StudyError, match=message) as err:
+            report(folder.path)
+        assert f"move the run folder {run} out" in str(err.value) and "restore the file" in str(err.value)
+        assert not (folder.path / "report").exists()

@@ -234,8 +234,9 @@ class RunFolder:
         except (OSError, UnicodeDecodeError) as err:
             if not strict:
                 return []
-            raise RunFolderError(f"{path} cannot be read ({getattr(err, 'strerror', None) or err}); "
-                                 f"nothing was changed") from None
+            detail = str(getattr(err, "strerror", None) or err)
+            raise RunFolderError((detail if str(path) in detail else f"{path} cannot be read ({detail})")
+                                 + "; nothing was changed") from None
         rows, seen = [], set()
         last = max((i for i, line in enumerate(lines) if line.strip()), default=-1)
         for i, line in enumerate(lines):

@@ -26,12 +26,12 @@ from pathlib import Path
 import numpy as np
 
 from sf2_common.agents.plotting import curves
-from sf2_common.agents.runfolder import RunFolder
+from sf2_common.agents.runfolder import RunFolder, RunFolderError
 from sf2_common.fileio import read_text, stored
 
 from . import claims, stats
 from .folder import OBS_NOISE, StudyFolder
-from .spec import Method, Study, seeds_text
+from .spec import Method, Study, StudyError, seeds_text
 
 __all__ = ["RunData", "collect", "report", "results_rows", "CSV_FIELDS"]
 
@@ -81,8 +81,11 @@ class RunData:
 def _group(seeds, path: Path):
     """(GroupData, steps, {seed: returns}, wall time, obs-noise results) of one run folder."""
     run = RunFolder(path)
-    conf = run.read_config() or {}
-    rows = run.read_rows()
+    try:
+        conf = run.read_config() or {}
+        rows = run.read_rows(strict=True)
+    except RunFolderError as err:
+        raise StudyError(_damaged(err, path)) from None
     epochs = (conf.get("schedule") or {}).get("num_epochs")
     steps, per_seed = curves([r for r in rows if r["seed"] in seeds])
     last = {s: max((r["epoch"] for r in rows if r["seed"] == s), default=-1) for s in seeds}
@@ -92,9 +95,21 @@ def _group(seeds, path: Path):
                 "partial (no evaluation yet)")
     noise = None
     if stored(path / OBS_NOISE) is not None:
-        noise = json.loads(read_text(path / OBS_NOISE)).get("results")
+        try:
+            noise = json.loads(read_text(path / OBS_NOISE))["results"]
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError) as err:
+            why = err if isinstance(err, OSError) else \
+                f"{stored(path / OBS_NOISE)} is not an evaluation's results ({type(err).__name__}: {err})"
+            raise StudyError(_damaged(why, path)) from None
     wall = max((r.get("walltime", 0.0) for r in rows), default=0.0)
     return GroupData(tuple(seeds), path, finished, progress), steps, per_seed, wall, noise
+
+
+def _damaged(err, path: Path) -> str:
+    """A run folder file the report cannot read: it leaves no run out silently."""
+    return (f"{err}. The report leaves no run out silently: restore the file (e.g. `git checkout` it, or "
+            f"`study merge` the run again from the archive it came in), or move the run folder {path} out "
+            f"of the study folder to report without it")
 
 
 def _join_noise(parts: list[list[dict]]) -> list[dict] | None:
@@ -352,8 +367,8 @@ def report(path, out=None, command: str | None = None) -> dict[str, Path]:
     folder = StudyFolder(path)
     study = folder.load_study()
     out = Path(out) if out is not None else folder.path / StudyFolder.REPORT
+    data = collect(study, folder)   # every run read before anything is written
     out.mkdir(parents=True, exist_ok=True)
-    data = collect(study, folder)
     rows = results_rows(study, data)
     written = {}
 
