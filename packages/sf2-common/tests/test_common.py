@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from sf2_common import cli
 from sf2_common.agents import configs, hostloop, plotting, registry, tasks
-from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch
+from sf2_common.agents.runfolder import RunFolder, RunFolderError, RunFolderMismatch
 from sf2_common.errors import ConfigError
 
 
@@ -197,6 +197,10 @@ def test_final_table_pools_folders_of_one_method_and_refuses_disjoint_points(tmp
         plotting.final_table([a, c])
     assert plotting.method_label("sac", "none") == "SAC" and plotting.method_label("td3", "sim") == "TD3+sim"
     assert cli.expand_runs([tmp_path]) == [a, b, c]
+    # a damaged metrics file is named, never a run missing from the table
+    (b / "metrics.jsonl").write_text((b / "metrics.jsonl").read_text().replace("\n", "\nnot a row\n", 1))
+    with pytest.raises(RunFolderError, match=r"b/metrics.jsonl line 2 is not a metrics row"):
+        plotting.final_table([a, b])
 
 
 def test_final_table_without_rliable_has_means_and_no_interval(tmp_path, monkeypatch, capsys):

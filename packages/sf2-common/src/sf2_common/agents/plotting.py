@@ -145,7 +145,7 @@ def _load(run_dirs) -> dict[tuple[str, str], list[tuple[np.ndarray, dict]]]:
         if conf is None:
             raise FileNotFoundError(f"{d} is not a run folder (no {RunFolder.CONFIG})")
         c = conf["config"]
-        steps, per_seed = curves(run.read_rows())
+        steps, per_seed = curves(run.read_rows(strict=True))   # a damaged file: RunFolderError
         if per_seed:
             label = conf.get("label") or method_label(c["algo"], c["representation"])
             out[(c["task"], label)].append((steps, per_seed))
