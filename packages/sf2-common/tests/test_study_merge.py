@@ -322,6 +322,17 @@ def test_compressed_runs_read_merge_and_resume_as_plain_ones(tmp_path, runs_of):
     (bad.path / "metrics.jsonl.gz").write_bytes(data[: len(data) // 2])
     with pytest.raises(Exception, match=r"metrics.jsonl.gz is damaged gzip data"):
         bad.read_rows(strict=True)
+    # ... and a merge from or into it is refused naming the file and the remedy; nothing is written
+    before = folder_digest(dest)
+    with pytest.raises(StudyError, match=r"gpu: .*seeds-2-3/metrics.jsonl.gz is damaged gzip data.*nothing "
+                                         r"was merged: restore the file, or merge without this source"):
+        _merge([src], dest, runs_of)
+    assert folder_digest(dest) == before
+    damaged = folder_digest(src)
+    with pytest.raises(StudyError, match=r"DEST: .*metrics.jsonl.gz is damaged gzip data.*move the run "
+                                         r"folder .*seeds-2-3 out of DEST"):
+        _merge([plain], src, runs_of)
+    assert folder_digest(src) == damaged
 
 
 def test_evaluated_runs_stay_done_when_their_obs_noise_is_compressed(tmp_path, runs_of):

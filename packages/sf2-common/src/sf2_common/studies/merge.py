@@ -305,7 +305,11 @@ def _look(folder: StudyFolder, run: Run, study: Study, where: str) -> _Side:
         raise StudyError(f"{where}: {why} (a study folder's runs must come from its study file); nothing "
                          f"was merged") from None
     except RunFolderError as err:
-        raise StudyError(f"{where}: {err}; nothing was merged") from None
+        fix = (f"move the run folder {path} out of DEST (a source's finished run then takes its place) or "
+               f"restore the file" if where == "DEST" else
+               "restore the file, or merge without this source")
+        raise StudyError(f"{where}: {str(err).replace('; nothing was changed', '')}; nothing was merged: "
+                         f"{fix}") from None
     noise = None
     if stored(path / OBS_NOISE) is not None:
         try:
