@@ -237,6 +237,22 @@ def test_wrong_source_is_refused_with_dest_unchanged(tmp_path, runs_of):
     with pytest.raises(StudyError, match="holds runs of sf2-torch; merge it with `sf2-torch study merge`"):
         _merge([src], dest, runs_of)
     assert folder_digest(dest) == before
+    # a damaged study.json, in a source or in DEST: named, with the remedy; nothing written
+    from sf2_common.studies.report import report
+
+    for content in ("{", "[1, 2]"):
+        (src / "study.json").write_text(content)
+        with pytest.raises(StudyError, match=r"gpu: .*gpu/study.json is not a study's state .*nothing was "
+                                             r"merged. Restore it"):
+            _merge([src], dest, runs_of)
+        damaged = folder_digest(src)
+        for command in (lambda: _merge([dest], src, runs_of), lambda: report(src),
+                        lambda: StudyFolder(src).open(StudyFolder(src).load_study(), "jax", [])):
+            with pytest.raises(StudyError, match=r"study.json is not a study's state .*delete it and "
+                                                 r"`study run` again"):
+                command()
+        assert folder_digest(src) == damaged
+    assert folder_digest(dest) == before
 
 
 def test_a_source_that_adds_a_method_gives_dest_its_study_file(tmp_path, runs_of):

@@ -56,8 +56,20 @@ class StudyFolder:
         return self.path / self.STUDY
 
     def read_state(self) -> dict:
+        """study.json ({} if there is none); `StudyError` naming it and the remedy if it cannot be read."""
         p = self.path / self.STATE
-        return json.loads(p.read_text()) if p.exists() else {}
+        if not p.exists():
+            return {}
+        try:
+            state = json.loads(p.read_text(encoding="utf-8"))
+            problem = None if isinstance(state, dict) else "not a JSON object"
+        except (json.JSONDecodeError, UnicodeDecodeError, OSError) as err:
+            problem = str(getattr(err, "strerror", None) or err)
+        if problem:
+            raise StudyError(f"{p} is not a study's state ({problem}); nothing was changed. Restore it "
+                             f"(e.g. `git checkout` it), or delete it and `study run` again, which writes "
+                             f"a new one (the record of past commands is lost; the run folders stay)")
+        return state
 
     def load_study(self) -> Study:
         """The study this folder was made from (its copy of the study file)."""

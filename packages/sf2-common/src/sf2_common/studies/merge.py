@@ -223,14 +223,9 @@ def _unpack(path: Path, into: Path) -> Path:
 
 def _state(folder: StudyFolder, name: str) -> dict:
     try:
-        state = folder.read_state()
-    except (json.JSONDecodeError, UnicodeDecodeError, OSError) as err:
-        raise StudyError(f"{name}: {folder.path / StudyFolder.STATE} cannot be read ({err}); nothing was "
-                         f"merged") from None
-    if not isinstance(state, dict):
-        raise StudyError(f"{name}: {folder.path / StudyFolder.STATE} is not a study's state; nothing was "
-                         f"merged")
-    return state
+        return folder.read_state()
+    except StudyError as err:
+        raise StudyError(f"{name}: {str(err).replace('nothing was changed', 'nothing was merged')}") from None
 
 
 def _check_studies(opened, dest: StudyFolder, framework: str) -> Study:
