@@ -12,7 +12,7 @@ import tarfile
 import pytest
 from sf2_common.agents import tasks as task_table
 from sf2_common.agents.configs import TrainConfig, schedule
-from sf2_common.agents.runfolder import RunFolder
+from sf2_common.agents.runfolder import RunFolder, RunFolderError
 from sf2_common.fileio import read_text
 from sf2_common.studies import merge as merging
 from sf2_common.studies import spec
@@ -345,6 +345,11 @@ def test_compressed_runs_read_merge_and_resume_as_plain_ones(tmp_path, runs_of):
         _merge([src], dest, runs_of)
     assert folder_digest(dest) == before
     damaged = folder_digest(src)
+    # `study compress` checks every run before it compresses any (A/td3, appended to above, is plain again)
+    assert (src / "runs/A/td3/seeds-0-1/metrics.jsonl").exists()
+    with pytest.raises(RunFolderError, match=r"seeds-2-3/metrics.jsonl.gz is damaged gzip data"):
+        folder.compress_runs(runs, study)
+    assert folder_digest(src) == damaged
     with pytest.raises(StudyError, match=r"DEST: .*metrics.jsonl.gz is damaged gzip data.*move the run "
                                          r"folder .*seeds-2-3 out of DEST"):
         _merge([plain], src, runs_of)

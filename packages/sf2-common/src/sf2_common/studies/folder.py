@@ -187,6 +187,8 @@ class StudyFolder:
         `study merge` does it to the runs it writes): 4-5× smaller, read as before by every reader of this
         project (sf2_common.fileio). Unfinished runs stay as they are (their trainer appends). Returns
         "<task>/<folder>" of each run it compressed a file of."""
+        for run in runs:   # every check before the first change: a damaged or foreign run stops it here
+            self.check_run(run)
         done = []
         for run in runs:
             if self.run_state(run, study).status != "done":
