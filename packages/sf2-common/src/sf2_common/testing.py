@@ -7,7 +7,8 @@ checkpoint's save; the run-folder faults of docs/run-folders.md (`damage`, `fold
 from __future__ import annotations
 
 __all__ = ["BAD_TRAIN_INPUTS", "cli_error", "check_cli_eval", "check_obs_noise_eval", "KILL_POINTS", "Killed",
-           "kill_and_resume", "kill9", "cli_args", "FAULTS", "damage", "folder_digest"]
+           "kill_and_resume", "kill9", "check_cli_resume", "strip_wall", "cli_args", "FAULTS", "damage",
+           "folder_digest"]
 
 # (arguments after `train --config quick --out ...`, texts the error message must contain)
 BAD_TRAIN_INPUTS = [
@@ -205,6 +206,39 @@ def kill9(cli_module: str, argv: list[str], at: tuple[str, int], env: dict | Non
                           capture_output=True, text=True, timeout=timeout, env={**os.environ, **(env or {})})
     assert proc.returncode == -signal.SIGKILL, (proc.returncode, proc.stderr[-3000:])
     return proc
+
+
+def strip_wall(rows) -> list[dict]:
+    """metrics rows without their wall-clock fields (`hostloop.WALL_FIELDS`): what a resumed or repeated run
+    must reproduce exactly."""
+    from sf2_common.agents.hostloop import WALL_FIELDS
+
+    return [{k: v for k, v in r.items() if k not in WALL_FIELDS} for r in rows]
+
+
+def check_cli_resume(main, args, out, capfd, resumed_from: str, reference_rows) -> list[dict]:
+    """After `kill9` of `train args`: the same command resumes, saying `resuming OUT from RESUMED_FROM`
+    (e.g. "checkpoint 0 (epoch 0 of 3, env step 0)") without library noise on stderr, to the uninterrupted
+    run's rows; run once more, it says the run is complete and its table shows the training's own wall
+    time, not the rerun's. Returns the rows."""
+    import re
+
+    from sf2_common.agents.runfolder import RunFolder
+
+    capfd.readouterr()
+    assert main(args) == 0
+    err = capfd.readouterr().err
+    assert f"resuming {out} from {resumed_from}" in err, err
+    assert "absl" not in err and "Waiting for previous save" not in err
+    rows = RunFolder(out).read_rows()
+    assert strip_wall(rows) == strip_wall(reference_rows)
+    assert main(args) == 0
+    captured = capfd.readouterr()
+    walltime = max(r["walltime"] for r in rows)
+    assert f"{out}: the run is complete (epoch 3 of 3, 144 env steps, trained in {walltime:.0f} s)" in \
+        captured.err
+    assert re.search(rf"\| {walltime:.0f} s\n", captured.out), captured.out
+    return rows
 
 
 def cli_args(cfg, out, fields_skipped=("task", "algo", "representation")) -> list[str]:

@@ -11,10 +11,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from sf2_common.testing import kill_and_resume
+from sf2_common.testing import kill_and_resume, strip_wall
 from sf2_jax.agents import trainer
 from sf2_jax.agents.checkpoint import Checkpointer
-from sf2_jax.agents.trainer import WALL_FIELDS, TrainingDiverged, get_program, train
+from sf2_jax.agents.trainer import TrainingDiverged, get_program, train
 
 # Vmapping over the snapshot axis changes the shapes of the policy's matmuls (a batch dimension more),
 # which may round differently in the last bit; a 60-step episode keeps such a difference near float32
@@ -25,14 +25,10 @@ RTOL = 1e-5
 RTOL_F64 = 1e-10
 
 
-def _strip(rows):
-    return [{k: v for k, v in r.items() if k not in WALL_FIELDS} for r in rows]
-
-
 def _assert_rows_match(batched, plain):
     """Same rows; training metrics exactly (the evaluation does not touch training), returns to RTOL."""
     assert [(r["epoch"], r["seed"]) for r in batched] == [(r["epoch"], r["seed"]) for r in plain]
-    for a, b in zip(_strip(batched), _strip(plain)):
+    for a, b in zip(strip_wall(batched), strip_wall(plain)):
         assert set(a) == set(b)
         for k in a:
             if k.startswith("eval_return"):
@@ -100,7 +96,7 @@ def test_kill_between_checkpoints_resumes_to_the_same_rows(batched, cfg, tmp_pat
     resumes from checkpoint 0 and ends with the uninterrupted run's rows, exactly (same batches)."""
     resumed = kill_and_resume(lambda c, s, o, **kw: train(c, (0, 1), o, **kw), cfg, tmp_path / "killed",
                               "train", 2, 0)
-    assert _strip(resumed.run.read_rows()) == _strip(batched.run.read_rows())
+    assert strip_wall(resumed.run.read_rows()) == strip_wall(batched.run.read_rows())
 
 
 def test_stop_between_checkpoints_resumes_to_the_same_rows(batched, cfg, tmp_path):
@@ -110,7 +106,7 @@ def test_stop_between_checkpoints_resumes_to_the_same_rows(batched, cfg, tmp_pat
     train(cfg, (0, 1), tmp_path, progress=False, stop_after_epoch=1)
     resumed = train(cfg, (0, 1), tmp_path, progress=False)
     assert resumed.resumed_from == 1
-    assert _strip(resumed.run.read_rows()) == _strip(batched.run.read_rows())
+    assert strip_wall(resumed.run.read_rows()) == strip_wall(batched.run.read_rows())
 
 
 def test_divergence_writes_the_pending_epochs_rows(cfg, plain, tmp_path, poison_epoch):

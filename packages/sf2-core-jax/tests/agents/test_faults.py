@@ -14,15 +14,20 @@ import jax
 import numpy as np
 import pytest
 from sf2_common.agents.checkpoints import CheckpointDamaged
-from sf2_common.agents.runfolder import RunFolder, RunFolderError
-from sf2_common.testing import FAULTS, cli_args, damage, folder_digest, kill9, kill_and_resume
+from sf2_common.agents.runfolder import RunFolderError
+from sf2_common.testing import (
+    FAULTS,
+    check_cli_resume,
+    cli_args,
+    damage,
+    folder_digest,
+    kill9,
+    kill_and_resume,
+    strip_wall,
+)
 from sf2_jax import cli
 from sf2_jax.agents.checkpoint import Checkpointer
-from sf2_jax.agents.trainer import WALL_FIELDS, get_program, train
-
-
-def _strip(rows):
-    return [{k: v for k, v in r.items() if k not in WALL_FIELDS} for r in rows]
+from sf2_jax.agents.trainer import get_program, train
 
 
 def _assert_same_state(a, b):
@@ -72,7 +77,7 @@ def test_a_damaged_newest_checkpoint_falls_back_to_the_last_good_one(reference, 
     damaged = folder_digest(out / "checkpoints" / "3")
     resumed = train(tiny_cfg, (0,), out, progress=False, plot=False)
     assert resumed.resumed_from == 2
-    assert _strip(resumed.run.read_rows()) == _strip(reference.rows)
+    assert strip_wall(resumed.run.read_rows()) == strip_wall(reference.rows)
     _assert_same_state(resumed, reference)
     (aside,) = (out / "damaged").iterdir()
     assert folder_digest(aside / "checkpoints" / "3") == damaged          # set aside, not deleted
@@ -103,7 +108,7 @@ def test_killed_in_the_middle_of_a_save(reference, tiny_cfg, tmp_path):
     """Orbax had finished checkpoint 2 when the kill came, only its manifest is missing: checkpoint 2
     restores completely (the reader checks it without the manifest), so the run resumes from it."""
     resumed = kill_and_resume(train, tiny_cfg, tmp_path / "killed", "mid-save", 2, 2)
-    assert _strip(resumed.run.read_rows()) == _strip(reference.rows)
+    assert strip_wall(resumed.run.read_rows()) == strip_wall(reference.rows)
     _assert_same_state(resumed, reference)
 
 
@@ -117,19 +122,7 @@ def test_cli_kill9_during_a_save_then_the_same_command_resumes(reference, tiny_c
     cache = str(cache.mkdir("sf2-jax-compile-cache")) if cache is not None else ""
     args = cli_args(tiny_cfg, out) + ["--compile-cache", cache]
     kill9("sf2_jax.cli", args, ("mid-save", 0))
-    capfd.readouterr()
-    assert cli.main(args) == 0
-    err = capfd.readouterr().err
-    assert f"resuming {out} from checkpoint 0 (epoch 0 of 3, env step 0)" in err, err
-    assert "absl" not in err and "Waiting for previous save" not in err
-    rows = RunFolder(out).read_rows()
-    assert _strip(rows) == _strip(reference.rows)
-    assert cli.main(args) == 0
-    captured = capfd.readouterr()
-    walltime = max(r["walltime"] for r in rows)
-    assert f"{out}: the run is complete (epoch 3 of 3, 144 env steps, trained in {walltime:.0f} s)" in \
-        captured.err
-    assert re.search(rf"\| {walltime:.0f} s\n", captured.out), captured.out
+    check_cli_resume(cli.main, args, out, capfd, "checkpoint 0 (epoch 0 of 3, env step 0)", reference.rows)
 
 
 @pytest.mark.parametrize("where,expected", [

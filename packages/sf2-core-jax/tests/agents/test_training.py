@@ -8,17 +8,13 @@ import json
 import jax
 import numpy as np
 import pytest
-from sf2_common.testing import KILL_POINTS, check_cli_eval, check_obs_noise_eval, kill_and_resume
+from sf2_common.testing import KILL_POINTS, check_cli_eval, check_obs_noise_eval, kill_and_resume, strip_wall
 from sf2_jax import cli
-from sf2_jax.agents.trainer import WALL_FIELDS, TrainingDiverged, train
-
-
-def _strip(rows):
-    return [{k: v for k, v in r.items() if k not in WALL_FIELDS} for r in rows]
+from sf2_jax.agents.trainer import TrainingDiverged, train
 
 
 def _seed_rows(rows, seed):
-    return [r for r in _strip(rows) if r["seed"] == seed]
+    return [r for r in strip_wall(rows) if r["seed"] == seed]
 
 
 def _assert_same_params(a, b, index_a=None, index_b=None):
@@ -53,7 +49,7 @@ def test_reference_run_folder(reference, tiny_cfg):
 
 def test_same_seed_same_metrics(reference, tiny_cfg, tmp_path):
     again = train(tiny_cfg, (0,), tmp_path / "again", progress=False)
-    assert _strip(again.rows) == _strip(reference.rows)
+    assert strip_wall(again.rows) == strip_wall(reference.rows)
     _assert_same_params(again.state.params, reference.state.params)
 
 
@@ -96,14 +92,14 @@ def test_kill_and_resume_equals_uninterrupted(reference, tiny_cfg, tmp_path, kil
     """Killed at each of `KILL_POINTS` (a torn last metrics line too), the resumed run has exactly the
     uninterrupted run's rows and final state."""
     resumed = kill_and_resume(train, tiny_cfg, tmp_path / "killed", *kill, expected_resume)
-    assert _strip(resumed.run.read_rows()) == _strip(reference.rows)
+    assert strip_wall(resumed.run.read_rows()) == strip_wall(reference.rows)
     _assert_same_params(resumed.state.params, reference.state.params)
     _assert_same_params(resumed.state.opt_state, reference.state.opt_state)
 
 
 def test_finished_run_is_not_retrained(reference, tiny_cfg):
     again = train(tiny_cfg, (0,), reference.run.path, progress=False)
-    assert again.resumed_from == 3 and _strip(again.rows) == _strip(reference.rows)
+    assert again.resumed_from == 3 and strip_wall(again.rows) == strip_wall(reference.rows)
 
 
 def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tiny_cfg, tmp_path, poison_epoch):

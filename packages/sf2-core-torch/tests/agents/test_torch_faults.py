@@ -14,16 +14,12 @@ import numpy as np
 import pytest
 import torch
 from sf2_common.agents.checkpoints import CheckpointDamaged
-from sf2_common.agents.runfolder import RunFolder, RunFolderError
-from sf2_common.testing import FAULTS, cli_args, damage, folder_digest, kill9
+from sf2_common.agents.runfolder import RunFolderError
+from sf2_common.testing import FAULTS, check_cli_resume, cli_args, damage, folder_digest, kill9, strip_wall
 from sf2_torch import cli
 from sf2_torch.agents import trainer
 from sf2_torch.agents.checkpoint import Checkpointer
-from sf2_torch.agents.trainer import WALL_FIELDS, train
-
-
-def _strip(rows):
-    return [{k: v for k, v in r.items() if k not in WALL_FIELDS} for r in rows]
+from sf2_torch.agents.trainer import train
 
 
 def _tensors(tree, prefix=""):
@@ -75,7 +71,7 @@ def test_a_damaged_newest_checkpoint_falls_back_to_the_last_good_one(reference, 
     damaged = folder_digest(out / "checkpoints" / "3")
     resumed = train(tiny_cfg, (0,), out, progress=False, plot=False)
     assert resumed.resumed_from == 2
-    assert _strip(resumed.run.read_rows()) == _strip(reference.rows)
+    assert strip_wall(resumed.run.read_rows()) == strip_wall(reference.rows)
     _assert_same_state(resumed, reference)
     (aside,) = (out / "damaged").iterdir()
     assert folder_digest(aside / "checkpoints" / "3") == damaged          # set aside, not deleted
@@ -114,19 +110,8 @@ def test_cli_kill9_during_a_save_then_the_same_command_resumes(reference, tiny_c
     kill9("sf2_torch.cli", args, ("mid-save", 2), env={"OMP_NUM_THREADS": "1"})  # one thread, as here
     left = sorted(p.name for p in (out / "checkpoints").iterdir())
     assert left[1:] == ["0", "1"] and re.fullmatch(r"\.2\.tmp-\d+", left[0]), left  # 2: files, no rename
-    capfd.readouterr()
-    assert cli.main(args) == 0
-    err = capfd.readouterr().err
-    assert f"resuming {out} from checkpoint 1 (epoch 1 of 3, env step 48)" in err, err
-    rows = RunFolder(out).read_rows()
-    assert _strip(rows) == _strip(reference.rows)
+    check_cli_resume(cli.main, args, out, capfd, "checkpoint 1 (epoch 1 of 3, env step 48)", reference.rows)
     assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["2", "3"]  # the partial save is gone
-    assert cli.main(args) == 0
-    captured = capfd.readouterr()
-    walltime = max(r["walltime"] for r in rows)
-    assert f"{out}: the run is complete (epoch 3 of 3, 144 env steps, trained in {walltime:.0f} s)" in \
-        captured.err
-    assert re.search(rf"\| {walltime:.0f} s\n", captured.out), captured.out
 
 
 @pytest.mark.parametrize("where,expected", [
