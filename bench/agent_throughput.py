@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import itertools
 import json
 import statistics
 import sys
@@ -51,24 +52,34 @@ def _block(framework: str, x):
             torch.cuda.synchronize()
 
 
-def measure(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epochs: int,
-            overrides: dict, framework: str = "jax", log=print) -> dict:
-    """Time `epochs` training epochs after a first (compile + prefill) epoch; one row of `COLUMNS`."""
+def config_for(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epochs: int, overrides: dict,
+               framework: str = "jax"):
+    """The `paper` preset's config of one measurement, validated (`ConfigError` naming the problem)."""
     values = {"num_timesteps": env_steps * (epochs + 1) // epochs, "num_evals": epochs + 2, **overrides}
     seeds = tuple(range(n_seeds))
     if framework == "jax":
         from sf2_common.agents import configs
         from sf2_jax.agents import representations
-        from sf2_jax.agents.trainer import get_program
 
         cfg = configs.make_config("paper", task, algo, rep, values)
         configs.validate(cfg, seeds, representations.REGISTRY)
     else:
         from sf2_torch.agents import configs
-        from sf2_torch.agents.trainer import get_program
 
         cfg = configs.make_config("paper", task, algo, rep, values)
         configs.validate(cfg, seeds)
+    return cfg
+
+
+def measure(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epochs: int,
+            overrides: dict, framework: str = "jax", log=print) -> dict:
+    """Time `epochs` training epochs after a first (compile + prefill) epoch; one row of `COLUMNS`."""
+    seeds = tuple(range(n_seeds))
+    cfg = config_for(task, algo, rep, n_seeds, env_steps, epochs, overrides, framework)
+    if framework == "jax":
+        from sf2_jax.agents.trainer import get_program
+    else:
+        from sf2_torch.agents.trainer import get_program
     program = get_program(cfg)
     sched = program.sched
     state = program.init(seeds)
@@ -163,10 +174,28 @@ def main(argv=None) -> int:
     p.add_argument("--out", required=True, help="folder for throughput.csv / throughput.md / machine.json")
     args = p.parse_args(argv)
     from sf2_common.agents import configs
+    from sf2_common.errors import ConfigError
 
     from .machine import describe
 
-    overrides = configs.parse_overrides(args.set) if args.set else {}
+    # every combination checked before anything is compiled or written (exit status 2 naming the problem)
+    bad = [f for f in args.frameworks if f not in ("jax", "torch")]
+    if bad:
+        p.error(f"--frameworks: {', '.join(map(repr, bad))} unknown; valid: jax, torch")
+    try:
+        seed_counts = [int(x) for x in args.seeds.split(",") if x.strip()]
+    except ValueError:
+        seed_counts = []
+    if not seed_counts or min(seed_counts) < 1:
+        p.error(f"--seeds: {args.seeds!r} is not a comma list of seed counts >= 1")
+    try:
+        overrides = configs.parse_overrides(args.set) if args.set else {}
+        for task, fw, prec, algo, rep in itertools.product(args.tasks, args.frameworks, args.precisions,
+                                                           args.algos, args.reps):
+            config_for(task, algo, rep, max(seed_counts), args.env_steps, args.epochs,
+                       {**overrides, "learner_precision": prec}, framework=fw)
+    except ConfigError as err:
+        p.error(str(err))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     command = "python -m bench.agent_throughput " + " ".join(argv if argv is not None else sys.argv[1:])
@@ -174,7 +203,7 @@ def main(argv=None) -> int:
     (out / "machine.json").write_text(json.dumps(info, indent=2))
     rows = []
     for task in args.tasks:
-        for n in (int(x) for x in args.seeds.split(",")):
+        for n in seed_counts:
             for fw in args.frameworks:
                 for prec in args.precisions:
                     for algo in args.algos:

@@ -41,6 +41,55 @@ def _tasks(s: str) -> list[str]:
     return [resolve_task(x) for x in _names(s)]
 
 
+def _unknown(values, valid, flag: str) -> str | None:
+    bad = [v for v in values if v not in valid]
+    return f"{flag}: {', '.join(map(repr, bad))} unknown; valid: {', '.join(valid)}" if bad else None
+
+
+def check(args) -> str | None:
+    """What is wrong with the lists `run` or `flow-step` were given (the first problem, naming the flag and
+    the valid choices), or None. A bad name would otherwise be skipped silently (a framework or
+    representation) or stop the run with a traceback after the machine description (a task)."""
+    from . import prototypes
+    from .jax_steps import baselines_available
+    from .sizes import ALGOS, FRAMEWORKS, INTEGRATORS
+
+    for flag in ("steps", "compiled_steps", "variant_steps", "flow_steps"):
+        text = getattr(args, flag, None)
+        if text is None or (flag == "compiled_steps" and text == "all"):
+            continue
+        values = [x.strip() for x in text.split(",") if x.strip()]
+        if not values or not all(v.isdigit() and int(v) >= 1 for v in values):
+            return f"--{flag.replace('_', '-')}: {text!r} is not a comma list of denoising steps >= 1"
+    for flag in ("tasks", "flow_tasks", "compiled_tasks"):
+        if getattr(args, flag, None):
+            try:
+                _tasks(getattr(args, flag))
+            except ValueError as err:
+                return f"--{flag.replace('_', '-')}: {err}"
+    for flag in ("flow_variants", "variants"):   # prototypes.variant names the retired ones and why
+        for name in _names(getattr(args, flag, None) or ""):
+            try:
+                prototypes.variant(name)
+            except ValueError as err:
+                return f"--{flag.replace('_', '-')}: {err}"
+    lists = [("integrators", INTEGRATORS), ("compiled_integrators", INTEGRATORS)]
+    if args.cmd == "run":
+        lists += [("frameworks", FRAMEWORKS), ("algos", ALGOS), ("compiled_algos", ALGOS),
+                  ("variant_algos", ALGOS)]
+        if args.reps != "auto":
+            for rep in _names(args.reps):
+                if rep.startswith("sf2-") and rep[4:] in prototypes.RETIRED:
+                    return f"--reps: {rep!r} is retired ({prototypes.RETIRED[rep[4:]]})"
+            lists.append(("reps", ("none", "sf2", *baselines_available("jax"), *prototypes.REPRESENTATIONS)))
+    for flag, valid in lists:
+        text = getattr(args, flag, None)
+        problem = text is not None and _unknown(_names(text), valid, f"--{flag.replace('_', '-')}")
+        if problem:
+            return problem
+    return None
+
+
 class Log:
     def __init__(self):
         self.lines: list[str] = []
@@ -150,7 +199,12 @@ def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0].startswith("-") and argv[0] not in ("-h", "--help"):
         argv = ["run", *argv]
-    args = parser().parse_args(argv)
+    p = parser()
+    args = p.parse_args(argv)
+    if args.cmd in ("run", "flow-step"):
+        problem = check(args)
+        if problem:
+            p.error(problem)   # exit status 2, before anything is imported, built or written
     if args.cmd == "report":
         from .report import render
 

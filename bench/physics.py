@@ -125,7 +125,8 @@ def markdown(rows: list[dict], info: dict) -> str:
 
 
 def main(argv=None) -> int:
-    from sf2_common.agents.tasks import PAPER_TASKS
+    from sf2_common.agents.tasks import PAPER_TASKS, validate_task
+    from sf2_common.errors import ConfigError
 
     p = argparse.ArgumentParser(prog="python -m bench.physics", description=__doc__.split("\n\n")[0])
     p.add_argument("--tasks", default="all", help=f"comma list or 'all' ({', '.join(PAPER_TASKS)})")
@@ -134,7 +135,20 @@ def main(argv=None) -> int:
     p.add_argument("--repeats", type=int, default=5, help="timed calls per case")
     p.add_argument("--out", required=True, help="folder for physics.csv / physics.md / machine.json")
     args = p.parse_args(argv)
-    tasks = PAPER_TASKS if args.tasks == "all" else tuple(t for t in args.tasks.split(",") if t)
+    names = [x.strip() for x in args.tasks.split(",") if x.strip()]
+    tasks = PAPER_TASKS if args.tasks == "all" else tuple(names)
+    try:   # checked before anything is compiled or written (exit status 2 naming the problem)
+        for t in tasks:
+            validate_task(t)
+    except ConfigError as err:
+        p.error(f"--tasks: {err}")
+    try:
+        envs = [int(x) for x in args.envs.split(",") if x.strip()]
+    except ValueError:
+        envs = []
+    if not envs or min(envs) < 1 or args.steps < 1 or args.repeats < 1:
+        p.error(f"--envs {args.envs!r}, --steps {args.steps}, --repeats {args.repeats}: each must be >= 1 "
+                f"(--envs a comma list)")
     from .machine import describe
 
     out = Path(args.out)
@@ -144,7 +158,7 @@ def main(argv=None) -> int:
     info["xla_flags"] = os.environ.get("XLA_FLAGS", "")
     rows = []
     for task in tasks:
-        for n in (int(x) for x in args.envs.split(",")):
+        for n in envs:
             rows.append(measure(task, n, args.steps, args.repeats))
             with open(out / "physics.csv", "w", newline="") as f:
                 w = csv.DictWriter(f, fieldnames=COLUMNS)

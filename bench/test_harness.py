@@ -177,6 +177,52 @@ def test_cli_end_to_end(tmp_path):
     cli.main(["report", str(out)])
 
 
+@pytest.mark.parametrize("argv,message", [
+    (["run", "--frameworks", "jax,tpu"], "--frameworks: 'tpu' unknown; valid: jax, jax-scan, torch"),
+    (["run", "--reps", "none,bogus"], "--reps: 'bogus' unknown; valid: none, sf2"),
+    (["run", "--reps", "sf2-bhd"], "--reps: 'sf2-bhd' is retired (a layout of M"),
+    (["run", "--tasks", "cheetah,nope"], "--tasks: unknown task 'nope': valid are AcrobotSwingup"),
+    (["run", "--steps", "1,x"], "--steps: '1,x' is not a comma list of denoising steps >= 1"),
+    (["run", "--compiled-steps", "0"], "--compiled-steps: '0' is not a comma list"),
+    (["run", "--algos", "ddpg"], "--algos: 'ddpg' unknown; valid: td3, sac"),
+    (["run", "--integrators", "rk4"], "--integrators: 'rk4' unknown; valid: midpoint, euler"),
+    (["run", "--flow-variants", "merged"], "--flow-variants: unknown prototype 'merged' (now the cores'"),
+    (["flow-step", "--variants", "zz"], "--variants: unknown prototype 'zz'"),
+])
+def test_bad_bench_input_exits_2_before_anything_runs(argv, message, tmp_path, capsys):
+    """A name the bench does not know stops it naming the flag and the valid choices, with nothing
+    written (before: an unknown framework or representation was skipped silently, a task or step list
+    stopped it with a traceback)."""
+    pytest.importorskip("jax")
+    from bench import cli
+
+    out = tmp_path / "never"
+    with pytest.raises(SystemExit) as exit_:
+        cli.main([*argv, "--out", str(out), "--no-peak"] if argv[0] == "run" else [*argv, "--out", str(out)])
+    assert exit_.value.code == 2 and message in capsys.readouterr().err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("module,argv,message", [
+    ("agent_throughput", ["--frameworks", "tpu"], "--frameworks: 'tpu' unknown; valid: jax, torch"),
+    ("agent_throughput", ["--seeds", "1,0"], "--seeds: '1,0' is not a comma list of seed counts >= 1"),
+    ("agent_throughput", ["--tasks", "Nope"], "unknown task 'Nope'"),
+    ("agent_throughput", ["--precisions", "fp8"], "learner_precision = 'fp8' is invalid"),
+    ("agent_throughput", ["--reps", "bogus"], "representation = 'bogus' is invalid"),
+    ("physics", ["--tasks", "CheetahRun,Nope"], "--tasks: unknown task 'Nope'"),
+    ("physics", ["--envs", "128,0"], "each must be >= 1"),
+])
+def test_bad_throughput_input_exits_2_before_anything_runs(module, argv, message, tmp_path, capsys):
+    pytest.importorskip("mujoco_playground", reason="the trainers' [train] extra")
+    import importlib
+
+    out = tmp_path / "never"
+    with pytest.raises(SystemExit) as exit_:
+        importlib.import_module(f"bench.{module}").main([*argv, "--out", str(out)])
+    assert exit_.value.code == 2 and message in capsys.readouterr().err
+    assert not out.exists()
+
+
 # ----------------------------------------------------------------------------- eval_share
 def test_eval_share_of_a_run_folder(tmp_path):
     """Two seeds, epochs 0-2: seed 0's rows give the run's numbers (by hand: evaluations after epoch 0
