@@ -145,6 +145,17 @@ def test_cli_rejects_bad_gammas_and_models():
         parse_models("fm_explicit,flow")
 
 
+def test_cli_refuses_an_out_that_is_a_file_before_training(tmp_path, capsys):
+    from sf2_jax.experiments.two_gaussians.__main__ import main
+
+    file = tmp_path / "file"
+    file.write_text("mine")
+    for out in (file, file / "sub"):
+        assert main(["--out", str(out), "--steps", "1"]) == 2
+        assert f"{file} is a file, not a folder" in capsys.readouterr().err
+    assert file.read_text() == "mine" and [p.name for p in tmp_path.iterdir()] == ["file"]
+
+
 def _results(final_w1_by_model):
     """Results at γ = 0.99 whose final W1 per seed are the given numbers (set directly: the verdict reads
     only the W1 table and the samples' mass above 0)."""

@@ -93,6 +93,9 @@ def main(argv=None) -> int:
             raise ConfigError(f"steps = {args.steps} is invalid: must be >= 1")
         if args.batch_size < 1:
             raise ConfigError(f"batch size = {args.batch_size} is invalid: must be >= 1")
+        blocking = next((p for p in (Path(args.out), *Path(args.out).parents) if p.exists()), None)
+        if blocking is not None and not blocking.is_dir():   # before the minutes of training, not after
+            raise ConfigError(f"--out {args.out}: {blocking} is a file, not a folder")
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
