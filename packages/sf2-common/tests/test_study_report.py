@@ -273,3 +273,7 @@ def test_a_damaged_run_file_stops_the_report_naming_it(tmp_path):
             report(folder.path)
         assert f"move the run folder {run} out" in str(err.value) and "restore the file" in str(err.value)
         assert not (folder.path / "report").exists()
+    (tmp_path / "file").write_text("mine")
+    with pytest.raises(StudyError, match=r"report folder .*file/report: .*file is a file, not a folder"):
+        report(folder.path, out=tmp_path / "file" / "report")
+    assert (tmp_path / "file").read_text() == "mine"

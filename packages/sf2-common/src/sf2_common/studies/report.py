@@ -367,6 +367,9 @@ def report(path, out=None, command: str | None = None) -> dict[str, Path]:
     folder = StudyFolder(path)
     study = folder.load_study()
     out = Path(out) if out is not None else folder.path / StudyFolder.REPORT
+    blocking = next((p for p in (out, *out.parents) if p.exists()), None)
+    if blocking is not None and not blocking.is_dir():
+        raise StudyError(f"report folder {out}: {blocking} is a file, not a folder; nothing was written")
     data = collect(study, folder)   # every run read before anything is written
     out.mkdir(parents=True, exist_ok=True)
     rows = results_rows(study, data)
