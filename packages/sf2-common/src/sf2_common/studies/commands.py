@@ -157,9 +157,9 @@ def _run(backend, args, command: str) -> int:
             eta = f" (≈ {duration(forecast.seconds(job))})" if forecast.known else ""
             steps = " ; ".join(f"{backend.prog} {' '.join(c)}" for c in job.commands)
             print(f"  {state:8} {job.name}{eta}: {steps}")
-        forecast = runner.estimate(history, jobs)
-        if forecast:
-            print(forecast)
+        total = runner.estimate(history, jobs, forecast)
+        if total:
+            print(total)
         return 0
     folder.open(study, backend.name, runs, command)
     if args.ray is not None:

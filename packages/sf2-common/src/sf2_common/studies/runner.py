@@ -173,10 +173,10 @@ def _seed_count(job: Job) -> int:
     return len(getattr(job.run, "seeds", None) or (0,))
 
 
-def estimate(done: list[Job], todo: list[Job]) -> str | None:
-    """A dry run's forecast of the training time left (`Forecast`), summed as if one worker ran every job.
-    None without a finished run or without a job."""
-    forecast = Forecast(done)
+def estimate(done: list[Job], todo: list[Job], forecast: Forecast | None = None) -> str | None:
+    """A dry run's forecast of the training time left (`Forecast`, of `done` unless given), summed as if one
+    worker ran every job. None without a finished run or without a job."""
+    forecast = forecast or Forecast(done)
     if not forecast.known or not todo:
         return None
     seconds = sum(forecast.seconds(j) for j in todo)
