@@ -31,7 +31,7 @@ from sf2_common.fileio import atomic_write, compress, read_text, stored
 from .spec import Run, Study, StudyError, loads, same_runs
 
 __all__ = ["StudyFolder", "RunState", "OBS_NOISE", "LOG", "evaluation_settings", "evaluation_done",
-           "command_line"]
+           "read_obs_noise", "command_line"]
 
 OBS_NOISE = "obs_noise.json"
 LOG = "train.log"
@@ -205,14 +205,28 @@ def evaluation_settings(study: Study) -> dict:
             "deterministic": e.deterministic}
 
 
-def evaluation_done(run_dir: Path, study: Study) -> bool:
-    p = Path(run_dir) / OBS_NOISE
-    if stored(p) is None:
-        return False
+def read_obs_noise(run_dir) -> dict | None:
+    """A run folder's obs_noise.json (or its .gz) as {"settings", "results"}; None if it has none;
+    `ValueError` naming the file if it cannot be read or is not an evaluation's results."""
+    found = stored(Path(run_dir) / OBS_NOISE)
+    if found is None:
+        return None
     try:
-        return json.loads(read_text(p)).get("settings") == evaluation_settings(study)
-    except (json.JSONDecodeError, OSError, UnicodeDecodeError, AttributeError):
+        data = json.loads(read_text(found))
+        problem = None if isinstance(data, dict) and "results" in data else "no 'results' object"
+    except (json.JSONDecodeError, OSError, UnicodeDecodeError) as err:
+        problem = f"{type(err).__name__}: {err}"
+    if problem:
+        raise ValueError(f"{found} is not an evaluation's results ({problem})")
+    return data
+
+
+def evaluation_done(run_dir: Path, study: Study) -> bool:
+    try:
+        data = read_obs_noise(run_dir)
+    except ValueError:
         return False
+    return data is not None and data.get("settings") == evaluation_settings(study)
 
 
 def command_line(prog: str, argv) -> str:

@@ -43,9 +43,9 @@ from pathlib import Path, PurePosixPath
 
 from sf2_common.agents.hostloop import WALL_FIELDS
 from sf2_common.agents.runfolder import RunFolder, RunFolderError, RunFolderMismatch
-from sf2_common.fileio import GZ, atomic_write, compress, read_text, stored
+from sf2_common.fileio import GZ, atomic_write, compress, stored
 
-from .folder import OBS_NOISE, StudyFolder
+from .folder import OBS_NOISE, StudyFolder, read_obs_noise
 from .spec import Run, Study, StudyError, loads, only_adds, same_runs, seeds_text
 
 __all__ = ["KEPT", "Outcome", "merge"]
@@ -305,12 +305,11 @@ def _look(folder: StudyFolder, run: Run, study: Study, where: str) -> _Side:
                "restore the file, or merge without this source")
         raise StudyError(f"{where}: {str(err).replace('; nothing was changed', '')}; nothing was merged: "
                          f"{fix}") from None
-    noise = None
-    if stored(path / OBS_NOISE) is not None:
-        try:
-            noise = json.loads(read_text(path / OBS_NOISE)).get("results")
-        except (json.JSONDecodeError, AttributeError, OSError, UnicodeDecodeError):
-            noise = "unreadable"
+    try:
+        data = read_obs_noise(path)
+        noise = None if data is None else data["results"]
+    except ValueError:
+        noise = "unreadable"
     return _Side(path, state.status, state.env_steps, rows, noise, where)
 
 

@@ -20,17 +20,15 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import json
 from pathlib import Path
 
 import numpy as np
 
 from sf2_common.agents.plotting import curves
 from sf2_common.agents.runfolder import RunFolder, RunFolderError
-from sf2_common.fileio import read_text, stored
 
 from . import claims, stats
-from .folder import OBS_NOISE, StudyFolder
+from .folder import StudyFolder, read_obs_noise
 from .spec import Method, Study, StudyError, seeds_text
 
 __all__ = ["RunData", "collect", "report", "results_rows", "CSV_FIELDS"]
@@ -93,14 +91,11 @@ def _group(seeds, path: Path):
     first = min(last.values())
     progress = ("not started" if not conf else f"partial (epoch {first} of {epochs})" if first >= 0 else
                 "partial (no evaluation yet)")
-    noise = None
-    if stored(path / OBS_NOISE) is not None:
-        try:
-            noise = json.loads(read_text(path / OBS_NOISE))["results"]
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError) as err:
-            why = err if isinstance(err, OSError) else \
-                f"{stored(path / OBS_NOISE)} is not an evaluation's results ({type(err).__name__}: {err})"
-            raise StudyError(_damaged(why, path)) from None
+    try:
+        data = read_obs_noise(path)
+    except ValueError as err:
+        raise StudyError(_damaged(err, path)) from None
+    noise = None if data is None else data["results"]
     wall = max((r.get("walltime", 0.0) for r in rows), default=0.0)
     return GroupData(tuple(seeds), path, finished, progress), steps, per_seed, wall, noise
 
