@@ -193,7 +193,7 @@ def test_bad_bench_input_exits_2_before_anything_runs(argv, message, tmp_path, c
     """A name the bench does not know stops it naming the flag and the valid choices, with nothing
     written (before: an unknown framework or representation was skipped silently, a task or step list
     stopped it with a traceback)."""
-    pytest.importorskip("jax")
+    pytest.importorskip("jax", reason="the bench's checks import its JAX prototypes: install the JAX core")
     from bench import cli
 
     out = tmp_path / "never"
@@ -213,7 +213,8 @@ def test_bad_bench_input_exits_2_before_anything_runs(argv, message, tmp_path, c
     ("physics", ["--envs", "128,0"], "each must be >= 1"),
 ])
 def test_bad_throughput_input_exits_2_before_anything_runs(module, argv, message, tmp_path, capsys):
-    pytest.importorskip("mujoco_playground", reason="the trainers' [train] extra")
+    pytest.importorskip("mujoco_playground", reason="these CLIs validate against the Playground task "
+                        "list and the agents' registry: install a core's [train] extra")
     import importlib
 
     out = tmp_path / "never"
