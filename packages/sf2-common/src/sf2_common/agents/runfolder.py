@@ -197,6 +197,14 @@ class RunFolder:
             self.check_rows(rows, epochs[0], old["seeds"])
         return old
 
+    def check_framework(self, framework: str) -> None:
+        """`RunFolderMismatch` if the folder holds a run another core ("jax", "torch") trained: each core's
+        train refuses the other's folders (`framework_of`)."""
+        conf = self.read_config()
+        if conf is not None and framework_of(conf) != framework:
+            raise RunFolderMismatch(f"run folder {self.path} holds a run of sf2-{framework_of(conf)}; use "
+                                    f"another --out (or --fresh to overwrite it)")
+
     def check_compatible(self, config: dict, seeds) -> bool:
         """True if the folder already holds this run (resume), False if it is new or holds no run. Raises
         what `preflight` raises, and `RunFolderMismatch` naming the differing fields if the folder holds

@@ -44,7 +44,7 @@ from sf2_common.agents.evaluation import EVAL_KEY_BASE, open_evaluation
 from sf2_common.agents.hostloop import WALL_FIELDS, TrainingDiverged
 from sf2_common.agents.plotting import method_label
 from sf2_common.agents.resume import resume_run
-from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch, framework_of
+from sf2_common.agents.runfolder import RunFolder
 from sf2_common.errors import ConfigError
 from tensordict import TensorDict
 
@@ -335,10 +335,7 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
     run = RunFolder(out)
     if fresh:
         run.clear()
-    conf = run.read_config()
-    if conf is not None and framework_of(conf) != "torch":
-        raise RunFolderMismatch(f"run folder {run.path} holds a run of sf2-{framework_of(conf)}; use another "
-                                f"--out (or --fresh to overwrite it)")
+    run.check_framework("torch")
     existing = run.check_compatible(cfg.to_dict(), seeds)
     sched = common_configs.schedule(cfg)
     program = get_program(cfg)
