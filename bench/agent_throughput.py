@@ -188,6 +188,8 @@ def main(argv=None) -> int:
         seed_counts = []
     if not seed_counts or min(seed_counts) < 1:
         p.error(f"--seeds: {args.seeds!r} is not a comma list of seed counts >= 1")
+    if args.epochs < 1 or args.env_steps < 1:
+        p.error(f"--epochs {args.epochs}, --env-steps {args.env_steps}: each must be >= 1")
     try:
         overrides = configs.parse_overrides(args.set) if args.set else {}
         for task, fw, prec, algo, rep in itertools.product(args.tasks, args.frameworks, args.precisions,

@@ -206,6 +206,7 @@ def test_bad_bench_input_exits_2_before_anything_runs(argv, message, tmp_path, c
 @pytest.mark.parametrize("module,argv,message", [
     ("agent_throughput", ["--frameworks", "tpu"], "--frameworks: 'tpu' unknown; valid: jax, torch"),
     ("agent_throughput", ["--seeds", "1,0"], "--seeds: '1,0' is not a comma list of seed counts >= 1"),
+    ("agent_throughput", ["--epochs", "0"], "--epochs 0, --env-steps 600000: each must be >= 1"),
     ("agent_throughput", ["--tasks", "Nope"], "unknown task 'Nope'"),
     ("agent_throughput", ["--precisions", "fp8"], "learner_precision = 'fp8' is invalid"),
     ("agent_throughput", ["--reps", "bogus"], "representation = 'bogus' is invalid"),
