@@ -10,16 +10,7 @@ import subprocess
 import sys
 from importlib import metadata
 
-
-def _cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
+from sf2_common.agents.hostloop import cpu_model
 
 
 def _version(name: str) -> str:
@@ -75,7 +66,7 @@ def _nvidia_smi() -> str:
 def default_name() -> str:
     """`h200`-style name for a GPU host, `cpu-<model>` otherwise (the results sub-folder)."""
     gpu = gpu_name()
-    name = gpu or "cpu-" + _cpu_model()
+    name = gpu or "cpu-" + cpu_model()
     name = re.sub(r"^nvidia[ -]+", "", name.lower())
     name = re.sub(r"\(r\)|\(tm\)|processor|\d+-core", "", name)
     return re.sub(r"[^a-z0-9]+", "-", name).strip("-")[:40] or "machine"
@@ -90,7 +81,7 @@ def describe(root: str, command: str) -> dict:
         "host": platform.node(),
         "os": platform.platform(),
         "python": sys.version.split()[0],
-        "cpu": _cpu_model(),
+        "cpu": cpu_model(),
         "cpu_count": os.cpu_count(),
         "gpu": gpu_name() or "none",
         "nvidia_smi": _nvidia_smi() or "n/a",

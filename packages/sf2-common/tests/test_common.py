@@ -313,3 +313,13 @@ def test_bootstrap_interval_of_the_mean():
     assert (lo[0] + hi[0]) / 2 == pytest.approx(mean[0], abs=0.1 * half)
     one = plotting.mean_ci([[7.0, 8.0]])
     assert np.array_equal(one[0], [7.0, 8.0]) and np.isnan(one[1]).all() and np.isnan(one[2]).all()
+
+
+def test_hardware_names_the_accelerators_or_the_cpu(monkeypatch):
+    """config.json's `hardware` (hostloop.hardware): each model once, counted when several; the CPU's
+    model name when the program uses no accelerator."""
+    assert hostloop.hardware(["NVIDIA H100 80GB HBM3"]) == "NVIDIA H100 80GB HBM3"
+    assert hostloop.hardware(iter(["NVIDIA H200", "NVIDIA H200"])) == "2 x NVIDIA H200"
+    assert hostloop.hardware(["A", "B", "A"]) == "2 x A, B"
+    monkeypatch.setattr(hostloop, "cpu_model", lambda: "Test CPU 9000")
+    assert hostloop.hardware([]) == "CPU (Test CPU 9000)"

@@ -220,7 +220,8 @@ def check_cli_resume(main, args, out, capfd, resumed_from: str, reference_rows) 
     """After `kill9` of `train args`: the same command resumes, saying `resuming OUT from RESUMED_FROM`
     (e.g. "checkpoint 0 (epoch 0 of 3, env step 0)") without library noise on stderr, to the uninterrupted
     run's rows; run once more, it says the run is complete and its table shows the training's own wall
-    time, not the rerun's. Returns the rows."""
+    time, not the rerun's; config.json and each session's train.log line name the hardware. Returns the
+    rows."""
     import re
 
     from sf2_common.agents.runfolder import RunFolder
@@ -238,6 +239,14 @@ def check_cli_resume(main, args, out, capfd, resumed_from: str, reference_rows) 
     assert f"{out}: the run is complete (epoch 3 of 3, 144 env steps, trained in {walltime:.0f} s)" in \
         captured.err
     assert re.search(rf"\| {walltime:.0f} s\n", captured.out), captured.out
+    # the hardware of the first session is in config.json, each of the three sessions named it in train.log
+    # (the killed one, the resume, the "complete" one); these tests run on the CPU
+    from sf2_common.agents.hostloop import hardware
+
+    run = RunFolder(out)
+    assert run.read_config()["hardware"] == hardware([])
+    log = run.log_path.read_text()
+    assert log.count(f" hardware: {hardware([])}\n") == 3, log
     return rows
 
 

@@ -1,7 +1,8 @@
 """The training host loop of `sf2_jax.agents.trainer` and `sf2_torch.agents.trainer`, framework-free:
 `run_epochs` drives a framework's `Session` (train an epoch, evaluate, save a checkpoint) through the
 schedule, and writes metric rows, the NaN guard's message, the learning-curve PNG and the progress bar;
-`run_title` and `versions` help the trainers set a run up (where it resumes: `sf2_common.agents.resume`).
+`run_title`, `versions` and `hardware` help the trainers set a run up (where it resumes:
+`sf2_common.agents.resume`).
 
 Both trainers thus run the same order per epoch (train → NaN guard → evaluate → append rows →
 checkpoint), so a run folder written by either has the same rows; only the programs that train and
@@ -27,7 +28,8 @@ from .runlog import library_log
 
 __all__ = [
     "WALL_FIELDS", "TrainingDiverged", "Session", "BatchedEvaluation", "run_epochs", "diverged_message",
-    "row_metrics", "make_row", "write_curve", "call_hook", "versions", "progress_bar", "NoBar", "run_title",
+    "row_metrics", "make_row", "write_curve", "call_hook", "versions", "hardware", "cpu_model",
+    "progress_bar", "NoBar", "run_title",
 ]
 
 WALL_FIELDS = ("sps", "epoch_seconds", "eval_seconds", "walltime")  # differ between identical runs
@@ -115,6 +117,33 @@ def versions(dists: Iterable[str]) -> dict:
         except metadata.PackageNotFoundError:
             pass
     return out
+
+
+def cpu_model() -> str:
+    """The CPU's model name (/proc/cpuinfo; else what `platform` knows)."""
+    import platform
+
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def hardware(accelerators: Iterable[str]) -> str:
+    """What a run trains on, for config.json and train.log: the model names of the accelerators its program
+    uses ("NVIDIA H100 80GB HBM3", "2 x NVIDIA H200"), or "CPU (<model>)" without any. Wall times and the
+    study runner's forecasts are those of this hardware (results/fig7-td3/README.md, "Cost per run")."""
+    names = list(accelerators)
+    if not names:
+        return f"CPU ({cpu_model()})"
+    counts = dict.fromkeys(names, 0)
+    for name in names:
+        counts[name] += 1
+    return ", ".join(name if n == 1 else f"{n} x {name}" for name, n in counts.items())
 
 
 class Session(Protocol):

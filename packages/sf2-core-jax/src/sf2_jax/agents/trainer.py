@@ -370,10 +370,12 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
     run.check_framework("jax")
     existing = run.check_compatible(cfg.to_dict(), seeds)
     sched = configs.schedule(cfg)
+    hardware = _hardware(len(seeds))
     if not existing:
         run.write_config({"config": cfg.to_dict(), "seeds": list(seeds),
                           "schedule": dataclasses.asdict(sched), "label": _label(cfg),
-                          "versions": _versions()})
+                          "versions": _versions(), "hardware": hardware})
+    run.log(f"hardware: {hardware}")
     program = get_program(cfg)
     note = device_note(len(seeds))
     if note:
@@ -444,6 +446,14 @@ def _write_final(run: RunFolder, state: TrainState, seeds) -> None:
     params = jax.device_get(state.params)
     for i, s in enumerate(seeds):
         np.savez(run.final_dir / f"params_seed{s}.npz", **flatten_params(params, i))
+
+
+def _hardware(n_seeds: int) -> str:
+    """The devices this run's program uses (`hostloop.hardware`): the default device, or those of
+    `Program.mesh` when the seeds are sharded."""
+    mesh = Program.mesh(n_seeds)
+    devices = list(mesh.devices.flat) if mesh is not None else jax.devices()[:1]
+    return hostloop.hardware(d.device_kind for d in devices if d.platform != "cpu")
 
 
 def _versions() -> dict:

@@ -339,12 +339,14 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
     existing = run.check_compatible(cfg.to_dict(), seeds)
     sched = common_configs.schedule(cfg)
     program = get_program(cfg)
+    hardware = _hardware(program.device)
     if not existing:
         run.write_config({"config": cfg.to_dict(), "seeds": list(seeds),
                           "schedule": dataclasses.asdict(sched), "label": _label(cfg),
                           "versions": _versions(), "framework": "torch",
-                          "device": str(program.device), "compile_mode": program.compile_mode,
-                          "cudagraphs": program.cudagraphs})
+                          "device": str(program.device), "hardware": hardware,
+                          "compile_mode": program.compile_mode, "cudagraphs": program.cudagraphs})
+    run.log(f"hardware: {hardware}")
     ckpt = Checkpointer(run.checkpoint_dir, keep=cfg.keep_checkpoints)
     title = hostloop.run_title(_label(cfg), cfg.task, seeds)
     state = program.init(seeds)
@@ -409,6 +411,11 @@ def _write_final(run: RunFolder, state: TrainState) -> None:
     run.final_dir.mkdir(parents=True, exist_ok=True)
     for ag in state.agents:
         np.savez(run.final_dir / f"params_seed{ag.seed}.npz", **params.to_canonical(ag.algo.groups))
+
+
+def _hardware(device: torch.device) -> str:
+    """The device this run's program uses (`hostloop.hardware`)."""
+    return hostloop.hardware([torch.cuda.get_device_name(device)] if device.type == "cuda" else [])
 
 
 def _versions() -> dict:
