@@ -6,7 +6,8 @@ checkpoint's save; the run-folder faults of docs/run-folders.md (`damage`, `fold
 
 from __future__ import annotations
 
-__all__ = ["BAD_TRAIN_INPUTS", "cli_error", "check_cli_eval", "check_obs_noise_eval", "KILL_POINTS", "Killed",
+__all__ = ["BAD_TRAIN_INPUTS", "cli_error", "check_cli_misuse", "check_baselines_resolve",
+           "check_paper_preset", "check_cli_eval", "check_obs_noise_eval", "KILL_POINTS", "Killed",
            "kill_and_resume", "kill9", "check_cli_resume", "strip_wall", "cli_args", "FAULTS", "damage",
            "folder_digest"]
 
@@ -46,6 +47,52 @@ def cli_error(main, capsys, *args) -> str:
     argv = ["train", "--config", "quick", "--out", "/nonexistent/should-not-be-created", *args]
     assert main(argv) == 2
     return capsys.readouterr().err
+
+
+def check_cli_misuse(main, capsys, tmp_path) -> None:
+    """Exit status 2 with the problem named: an unknown `--config` preset; a method among several that the
+    algorithm lacks (the test module registers "test_sac_only", a SAC-only representation), refused before
+    any method trains; `eval` of a folder that holds no run."""
+    assert main(["train", "--task", "CartpoleBalance", "--config", "huge", "--out", "/x"]) == 2
+    assert "unknown config preset 'huge'" in capsys.readouterr().err
+    err = cli_error(main, capsys, "--task", "CartpoleBalance", "--repr", "sf2,test_sac_only")
+    assert "test_sac_only" in err
+    assert main(["eval", str(tmp_path / "nothing")]) == 2
+    assert "not a run folder" in capsys.readouterr().err
+
+
+def check_baselines_resolve(cli, representations, reprs: str) -> None:
+    """`--repr <reprs>` (e.g. "sim,spr") selects, for both algorithms, the core's classes: sf2-baselines'
+    (entry points of "sf2.representations.<framework>", imported on first use) for sim/simlap/spr, each
+    validated like sf2. `cli` is the core's CLI module, `representations` its registry module."""
+    from sf2_common import cli as common_cli
+
+    for algo in ("td3", "sac"):
+        args = cli.build_parser().parse_args(["train", "--task", "CartpoleBalance", "--algo", algo, "--repr",
+                                              reprs, "--seeds", "0-1", "--out", "/nonexistent"])
+        cfgs, seeds = common_cli.resolve_configs(cli.FRAMEWORK, args)
+        assert [c.representation for c in cfgs] == reprs.split(",") and seeds == (0, 1)
+        for cfg in cfgs:
+            cls = representations.get(cfg.representation)
+            assert cls.name == cfg.representation and algo in cls.supported_algos
+            if cfg.representation not in ("none", "sf2"):
+                framework = cli.FRAMEWORK.package.removeprefix("sf2_")   # "jax" / "torch"
+                assert cls.__module__ == f"sf2_baselines.{framework}.representations"
+
+
+def check_paper_preset(make_config, envs):
+    """The `paper` preset as docs/core-contract.md gives it (paper Table 1, with lr 1e-3 and tau_zeta 0.05
+    as the authors' runs; 10M env steps, FishSwim 5M; action repeat 4 on PendulumSwingup); the core's
+    `envs` knows every paper task. Returns PendulumSwingup's SAC+SF² config for the core's own checks."""
+    paper = make_config("paper", "PendulumSwingup", "sac", "sf2")
+    assert (paper.num_timesteps, paper.action_repeat, paper.learning_rate, paper.tau_zeta) == (
+        10_000_000, 4, 1e-3, 0.05)
+    assert (paper.num_envs, paper.batch_size, paper.grad_updates_per_step, paper.min_replay_size,
+            paper.max_replay_size, paper.num_evals, paper.hidden_sizes, paper.feature_size) == (
+        128, 512, 8, 8192, 4_194_304, 100, (512, 512, 512), 512)
+    assert make_config("paper", "FishSwim").num_timesteps == 5_000_000
+    assert set(envs.PAPER_TASKS) <= set(envs.valid_tasks())
+    return paper
 
 
 def check_cli_eval(main, capsys, run_path, episodes: int, last_eval_return: float) -> None:

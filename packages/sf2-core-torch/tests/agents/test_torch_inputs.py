@@ -7,10 +7,15 @@ import dataclasses
 import importlib.util
 
 import pytest
-from sf2_common import cli as _cli
 from sf2_common.agents import configs as common_configs
 from sf2_common.errors import ConfigError
-from sf2_common.testing import BAD_TRAIN_INPUTS, cli_error
+from sf2_common.testing import (
+    BAD_TRAIN_INPUTS,
+    check_baselines_resolve,
+    check_cli_misuse,
+    check_paper_preset,
+    cli_error,
+)
 from sf2_torch import cli
 from sf2_torch.agents import configs, envs, representations, trainer
 
@@ -59,48 +64,21 @@ def test_cuda_requested_without_cuda(capsys):
     assert "CUDA is not available" in err
 
 
-def test_bad_preset(capsys):
-    assert cli.main(["train", "--task", "CartpoleBalance", "--config", "huge", "--out", "/x"]) == 2
-    assert "unknown config preset 'huge'" in capsys.readouterr().err
-
-
-def test_several_methods_all_checked_before_any_training(capsys):
-    err = _cli_error(capsys, "--task", "CartpoleBalance", "--repr", "sf2,test_sac_only")
-    assert "test_sac_only" in err
-
-
 @pytest.mark.parametrize("reprs", ["sim", "simlap", "spr", "sf2,none,sim,simlap,spr"])
 def test_baseline_representations_resolve(reprs):
-    """`--repr sim|simlap|spr` select sf2-baselines' classes (entry points of "sf2.representations.torch",
-    imported on first use) and validate like sf2, for both algorithms."""
+    """`--repr sim|simlap|spr` select sf2-baselines' classes (entry points of "sf2.representations.torch")
+    and validate like sf2, for both algorithms."""
     pytest.importorskip("sf2_baselines", reason="sf2-baselines is not installed")
-    for algo in ("td3", "sac"):
-        args = cli.build_parser().parse_args(["train", "--task", "CartpoleBalance", "--algo", algo, "--repr",
-                                              reprs, "--seeds", "0-1", "--out", "/nonexistent"])
-        cfgs, seeds = _cli.resolve_configs(cli.FRAMEWORK, args)
-        assert [c.representation for c in cfgs] == reprs.split(",") and seeds == (0, 1)
-        for cfg in cfgs:
-            cls = representations.get(cfg.representation)
-            assert cls.name == cfg.representation and algo in cls.supported_algos
-            if cfg.representation not in ("none", "sf2"):
-                assert cls.__module__ == "sf2_baselines.torch.representations"
+    check_baselines_resolve(cli, representations, reprs)
 
 
-def test_eval_of_missing_folder(capsys, tmp_path):
-    assert cli.main(["eval", str(tmp_path / "nothing")]) == 2
-    assert "not a run folder" in capsys.readouterr().err
+def test_cli_misuse(capsys, tmp_path):
+    check_cli_misuse(cli.main, capsys, tmp_path)
 
 
 def test_presets():
-    paper = configs.make_config("paper", "PendulumSwingup", "sac", "sf2")
-    assert (paper.num_timesteps, paper.action_repeat, paper.learning_rate, paper.tau_zeta) == (
-        10_000_000, 4, 1e-3, 0.05)
-    assert (paper.num_envs, paper.batch_size, paper.grad_updates_per_step, paper.min_replay_size,
-            paper.max_replay_size, paper.num_evals, paper.hidden_sizes, paper.feature_size) == (
-        128, 512, 8, 8192, 4_194_304, 100, (512, 512, 512), 512)
+    paper = check_paper_preset(configs.make_config, envs)
     assert (paper.device, paper.compile, paper.cudagraphs) == ("auto", "auto", "auto")
-    assert configs.make_config("paper", "FishSwim").num_timesteps == 5_000_000
-    assert set(envs.PAPER_TASKS) <= set(envs.valid_tasks())
     quick = configs.make_config("quick", "CartpoleBalance", overrides={"hidden_sizes": "64,64",
                                                                        "deterministic_eval": "false"})
     assert quick.hidden_sizes == (64, 64) and quick.deterministic_eval is False
