@@ -30,13 +30,16 @@ def _study(tmp_path, text):
     return folder
 
 
-def _write_run(path, seeds, returns, steps=STEPS, walltime=12.0, last_epoch=None, noise=None):
-    """A run folder as the trainers write it: config.json (schedule.num_epochs) and one metrics row per
-    evaluation and seed; `returns[seed]` is the eval-return curve at `steps`."""
+def _write_run(path, seeds, returns, steps=STEPS, walltime=12.0, last_epoch=None, noise=None, hardware=None):
+    """A run folder as the trainers write it: config.json (schedule.num_epochs, `hardware` unless None, as
+    before run folders named it) and one metrics row per evaluation and seed; `returns[seed]` is the
+    eval-return curve at `steps`."""
     path.mkdir(parents=True)
     epochs = len(steps) - 1
-    (path / "config.json").write_text(json.dumps({"config": {}, "seeds": seeds,
-                                                  "schedule": {"num_epochs": epochs}}))
+    conf = {"config": {}, "seeds": seeds, "schedule": {"num_epochs": epochs}}
+    if hardware is not None:
+        conf["hardware"] = hardware
+    (path / "config.json").write_text(json.dumps(conf))
     rows = [{"epoch": e, "seed": s, "env_steps": steps[e], "eval_return": float(returns[s][e]),
              "walltime": walltime * e / epochs}
             for e in range(epochs + 1) if last_epoch is None or e <= last_epoch for s in seeds]
@@ -81,7 +84,7 @@ def test_report_numbers_by_hand_and_by_rliable(tmp_path):
             v = {s: SCALE[task] * (base + s) for s in seeds}
             last = 1 if (task, m) == ("B", "sac") else None
             _write_run(folder.run_path(task, m), seeds, {s: [0.0, v[s], v[s]] for s in seeds},
-                       last_epoch=last)
+                       last_epoch=last, hardware={"A": "NVIDIA H100 80GB HBM3", "B": None}[task])
     written = report(folder.path, command="sf2-jax study report study")
     rows = list(csv.DictReader(open(written["results.csv"])))
     assert len(rows) == 2 * 4 + 2 * 4 + 4    # TD3 and TD3+SF² on A and B, SAC on A
@@ -96,6 +99,9 @@ def test_report_numbers_by_hand_and_by_rliable(tmp_path):
         assert r["family"] == ("SAC" if m == "sac" else "TD3")
 
     summary = written["summary.md"].read_text()
+    # the five finished runs (SAC on B is not) by their config.json's hardware: three on A, two on B
+    assert ("Hardware of the finished run folders (their config.json): NVIDIA H100 80GB HBM3: 3 runs; not "
+            "recorded (trained before run folders named it): 2 runs.") in summary
     # TD3's normalized scores are s/13 on both tasks: per-task means 1.5/13 (median, mean); the pooled
     # 0 0 1 1 2 2 3 3 trimmed by 2 at each end: IQM 1.5/13; optimality gap 1 − 1.5/13.
     td3 = np.array([[s / 13, s / 13] for s in seeds])
@@ -179,6 +185,9 @@ def test_incomplete_runs_compact(tmp_path):
     _write_run(folder.run_path("A", "td3/seeds-2-3"), [2, 3], {2: [0, 1, 1], 3: [0, 2, 2]}, last_epoch=1)
     _write_run(folder.run_path("B", "sac/seeds-2-3"), [2, 3], {2: [0, 1, 1], 3: [0, 2, 2]})
     summary = report(folder.path)["summary.md"].read_text()
+    # four finished seed groups (A's td3 2-3 is not), none of whose config.json names its hardware
+    assert ("Hardware: not recorded in the config.json of the 4 finished run folder(s) (they trained before "
+            "run folders named it).") in summary
     part = summary[summary.index("## Incomplete runs"):]
     assert part.splitlines()[2:] == [
         "Not started by any method: C (1 of 3 tasks, every seed group).", "",

@@ -45,6 +45,7 @@ class GroupData:
     path: Path
     finished: bool
     progress: str                     # "partial (epoch 3 of 5)" or "not started" for an incomplete run
+    hardware: str = ""                # config.json's "hardware" (its first session's), "" if not recorded
 
 
 @dataclasses.dataclass
@@ -97,7 +98,8 @@ def _group(seeds, path: Path):
         raise StudyError(_damaged(err, path)) from None
     noise = None if data is None else data["results"]
     wall = max((r.get("walltime", 0.0) for r in rows), default=0.0)
-    return GroupData(tuple(seeds), path, finished, progress), steps, per_seed, wall, noise
+    group = GroupData(tuple(seeds), path, finished, progress, str(conf.get("hardware", "")))
+    return group, steps, per_seed, wall, noise
 
 
 def _damaged(err, path: Path) -> str:
@@ -389,6 +391,7 @@ def report(path, out=None, command: str | None = None) -> dict[str, Path]:
            f"{', '.join(map(str, study.seeds))}"
            + (f" in seed groups ({', '.join(seeds_text(g) for g in groups)}), one run each"
               if study.seeds_per_run else "") + f"; preset `{study.preset}`.", ""]
+    md += _md_hardware(data)
     md += _md_definitions(study)
     md += _md_seed_counts(study, data)
 
@@ -516,6 +519,23 @@ def _md_incomplete(study: Study, data: list[RunData]) -> list[str]:
             lines.append(f"| {d.task} | {d.method.label} | {'; '.join(parts)} |")
         lines.append("")
     return lines
+
+
+def _md_hardware(data: list[RunData]) -> list[str]:
+    """What the finished run folders trained on (config.json's "hardware", the first session's), counted:
+    wall times, and so the per-task table's, are those of that hardware."""
+    unknown = "not recorded (trained before run folders named it)"
+    counts: dict[str, int] = {}
+    for g in (g for d in data for g in d.groups if g.finished):
+        counts[g.hardware or unknown] = counts.get(g.hardware or unknown, 0) + 1
+    if not counts:
+        return []
+    if list(counts) == [unknown]:
+        return [f"Hardware: not recorded in the config.json of the {counts[unknown]} finished run folder(s) "
+                f"(they trained before run folders named it).", ""]
+    parts = [f"{name}: {n} run{'s' * (n > 1)}" for name, n in sorted(counts.items(), key=lambda kv: -kv[1])]
+    return [f"Hardware of the finished run folders (their config.json): {'; '.join(parts)}. Wall times are "
+            f"those of that hardware.", ""]
 
 
 def _md_commands(folder: StudyFolder, command: str | None) -> list[str]:
