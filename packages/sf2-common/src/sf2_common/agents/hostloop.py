@@ -137,12 +137,11 @@ def hardware(accelerators: Iterable[str]) -> str:
     """What a run trains on, for config.json and train.log: the model names of the accelerators its program
     uses ("NVIDIA H100 80GB HBM3", "2 x NVIDIA H200"), or "CPU (<model>)" without any. Wall times and the
     study runner's forecasts are those of this hardware (results/fig7-td3/README.md, "Cost per run")."""
-    names = list(accelerators)
-    if not names:
+    from collections import Counter
+
+    counts = Counter(accelerators)   # in first-seen order
+    if not counts:
         return f"CPU ({cpu_model()})"
-    counts = dict.fromkeys(names, 0)
-    for name in names:
-        counts[name] += 1
     return ", ".join(name if n == 1 else f"{n} x {name}" for name, n in counts.items())
 
 

@@ -524,16 +524,16 @@ def _md_incomplete(study: Study, data: list[RunData]) -> list[str]:
 def _md_hardware(data: list[RunData]) -> list[str]:
     """What the finished run folders trained on (config.json's "hardware", the first session's), counted:
     wall times, and so the per-task table's, are those of that hardware."""
+    from collections import Counter
+
     unknown = "not recorded (trained before run folders named it)"
-    counts: dict[str, int] = {}
-    for g in (g for d in data for g in d.groups if g.finished):
-        counts[g.hardware or unknown] = counts.get(g.hardware or unknown, 0) + 1
+    counts = Counter(g.hardware or unknown for d in data for g in d.groups if g.finished)
     if not counts:
         return []
     if list(counts) == [unknown]:
         return [f"Hardware: not recorded in the config.json of the {counts[unknown]} finished run folder(s) "
                 f"(they trained before run folders named it).", ""]
-    parts = [f"{name}: {n} run{'s' * (n > 1)}" for name, n in sorted(counts.items(), key=lambda kv: -kv[1])]
+    parts = [f"{name}: {n} run{'s' * (n > 1)}" for name, n in counts.most_common()]
     return [f"Hardware of the finished run folders (their config.json): {'; '.join(parts)}. Wall times are "
             f"those of that hardware.", ""]
 

@@ -176,7 +176,7 @@ def _seed_count(job: Job) -> int:
 def estimate(done: list[Job], todo: list[Job], forecast: Forecast | None = None) -> str | None:
     """A dry run's forecast of the training time left (`Forecast`, of `done` unless given), summed as if one
     worker ran every job. None without a finished run or without a job."""
-    forecast = forecast or Forecast(done)
+    forecast = Forecast(done) if forecast is None else forecast
     if not forecast.known or not todo:
         return None
     seconds = sum(forecast.seconds(j) for j in todo)
