@@ -225,6 +225,35 @@ def test_bad_throughput_input_exits_2_before_anything_runs(module, argv, message
     assert not out.exists()
 
 
+@pytest.mark.parametrize("argv,message", [
+    (["--programs", "init,foo"], "--programs: 'foo'; valid: init, epoch, evaluate"),
+    (["--seeds", "1"], "--seeds 1: needs at least 2 to spread over devices"),
+    (["--task", "Nope"], "unknown task 'Nope'"),
+    (["--rep", "bogus"], "representation = 'bogus' is invalid"),
+])
+def test_bad_shard_probe_input_exits_2(argv, message, capsys):
+    pytest.importorskip("mujoco_playground", reason="the probe validates against the Playground task list "
+                        "and the agents' registry: install a core's [train] extra")
+    from bench import shard_probe
+
+    with pytest.raises(SystemExit) as exit_:
+        shard_probe.main(argv)
+    assert exit_.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_shard_probe_without_a_mesh_says_what_it_needs(monkeypatch):
+    """One device, or SF2_SHARD_SEEDS unset: the probe names what is missing instead of probing nothing.
+    (On two host CPU devices it runs every program: packages/sf2-core-jax/tests/agents/test_devices.py
+    checks the sharded programs themselves.)"""
+    pytest.importorskip("mujoco_playground", reason="the probe builds the trainer: install the JAX core's "
+                        "[train] extra")
+    from bench import shard_probe
+
+    monkeypatch.delenv("SF2_SHARD_SEEDS", raising=False)
+    with pytest.raises(SystemExit, match="no seed mesh: needs SF2_SHARD_SEEDS=1 and several local devices"):
+        shard_probe.main(["--config", "quick", "--task", "PendulumSwingup", "--seeds", "2"])
+
+
 # ----------------------------------------------------------------------------- eval_share
 def test_eval_share_of_a_run_folder(tmp_path):
     """Two seeds, epochs 0-2: seed 0's rows give the run's numbers (by hand: evaluations after epoch 0

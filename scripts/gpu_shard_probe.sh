@@ -1,29 +1,60 @@
 #!/usr/bin/env bash
 # Why does one process with a run's seeds sharded over two GPUs die (SF2_SHARD_SEEDS=1, Program.mesh)?
-# bench/results/h200x2/README.md "15-two-gpus": the process ended before its first epoch without a message.
-# Each probe below is a fresh process (timeout 75 s): first a minimal two-device jit (is any multi-GPU
-# compile broken?), then the trainer's sharded program under XLA flags that switch off one suspect each.
-#   bash scripts/gpu_shard_probe.sh      (on a host with two GPUs; prints each probe's exit status)
+# bench/results/h100x2/README.md "23-shard-probe". Each probe is a fresh process (a crash of XLA kills it)
+# with a time limit; each prints its exit status (139 = SIGSEGV).
+#
+#   bash scripts/gpu_shard_probe.sh flags      a minimal two-device jit, then the trainer's sharded program
+#                                              under XLA flags that each switch one suspect off (measured
+#                                              2026-11-25: every one segfaults in the compile of `init`)
+#   bash scripts/gpu_shard_probe.sh programs   which programs crash (`python -m bench.shard_probe`): init
+#                                              sharded; epoch and evaluate sharded after a one-device init;
+#                                              then init again with XLA's per-pass HLO dump, whose last pass
+#                                              names where the compiler died ($OUT/xla-dump.tar.gz)
 set -uo pipefail
+mode=${1:?usage: bash scripts/gpu_shard_probe.sh flags|programs}
 source scripts/gpu_env.sh || exit 1
 export XLA_PYTHON_CLIENT_PREALLOCATE=false
-echo "== minimal: a jitted sum of an array sharded over both GPUs"
-timeout 75 python3 -X faulthandler -c '
+quiet() { grep -v "^WARNING\|warp\|^  File\|^Extension modules" | tail -6; }
+trainer() {   # trainer ENV... : the throughput bench's 4-seed TD3 program, sharded
+  echo "== trainer, 4 seeds sharded over 2 GPUs, $*"
+  env "$@" SF2_SHARD_SEEDS=1 timeout 75 python3 -X faulthandler -u -m bench.agent_throughput \
+    --tasks AcrobotSwingup --reps none --seeds 4 --precisions tensorfloat32 --env-steps 8000 --epochs 2 \
+    --out /tmp/shard-probe 2>&1 | quiet
+  echo "exit ${PIPESTATUS[0]}"
+}
+programs() {   # programs LIST [ENV...]
+  local list=$1; shift
+  echo "== bench.shard_probe --programs $list $*"
+  env "$@" SF2_SHARD_SEEDS=1 timeout 120 python3 -X faulthandler -u -m bench.shard_probe --programs "$list" \
+    --seeds 4 2>&1 | quiet
+  echo "exit ${PIPESTATUS[0]}"
+}
+case $mode in
+  flags)
+    echo "== minimal: a jitted sum of an array sharded over both GPUs"
+    timeout 75 python3 -X faulthandler -c '
 import jax, jax.numpy as jnp, numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 mesh = Mesh(np.array(jax.local_devices()), ("seed",))
 x = jax.device_put(jnp.arange(8.0).reshape(4, 2), NamedSharding(mesh, P("seed")))
 print(jax.devices(), jax.jit(lambda a: (a * 2).sum(axis=1))(x))' 2>&1 | tail -3
-echo "exit ${PIPESTATUS[0]}"
-probe() {
-  echo "== trainer, 4 seeds sharded over 2 GPUs, $*"
-  env "$@" SF2_SHARD_SEEDS=1 timeout 75 python3 -X faulthandler -u -m bench.agent_throughput \
-    --tasks AcrobotSwingup --reps none --seeds 4 --precisions tensorfloat32 --env-steps 8000 --epochs 2 \
-    --out /tmp/shard-probe 2>&1 | grep -v "^WARNING\|warp\|^  File\|^Extension modules" | tail -4
-  echo "exit ${PIPESTATUS[0]}"
-}
-probe XLA_FLAGS=
-probe JAX_ENABLE_COMPILATION_CACHE=false
-probe XLA_FLAGS=--xla_gpu_autotune_level=0
-probe XLA_FLAGS=--xla_gpu_enable_command_buffer=
-probe XLA_FLAGS=--xla_gpu_enable_triton_gemm=false
+    echo "exit ${PIPESTATUS[0]}"
+    trainer XLA_FLAGS=
+    trainer JAX_ENABLE_COMPILATION_CACHE=false
+    trainer XLA_FLAGS=--xla_gpu_autotune_level=0
+    trainer XLA_FLAGS=--xla_gpu_enable_command_buffer=
+    trainer XLA_FLAGS=--xla_gpu_enable_triton_gemm=false ;;
+  programs)
+    programs init
+    programs epoch
+    programs evaluate
+    dump=/tmp/xla-dump; rm -rf "$dump"
+    programs init XLA_FLAGS="--xla_dump_to=$dump --xla_dump_hlo_module_re=.*_init_one.* --xla_dump_hlo_pass_re=.* --xla_dump_hlo_as_text"
+    echo "== the last HLO passes dumped before the crash (newest last)"
+    ls -tr "$dump" 2>/dev/null | tail -8
+    mkdir -p "$OUT"
+    # the module before optimization and the last 20 passes' dumps: enough to bisect, small enough to carry
+    (cd "$dump" 2>/dev/null && tar czf "$OUT/xla-dump.tar.gz" $(ls *before_optimizations* 2>/dev/null) \
+      $(ls -tr | tail -20)) ;;
+  *) echo "gpu_shard_probe.sh: unknown mode '$mode'; valid: flags, programs" >&2; exit 2 ;;
+esac
