@@ -1,13 +1,16 @@
 # Sourced by the scripts that run on the lent GPU host (scripts/gpu_study.sh, scripts/gpu_scaling.sh):
 # installs the carried wheels (.whl-jax, git-excluded; recipe in scripts/gpu_study.sh) once per host into
-# /tmp/site and puts the packages' src/ folders on PYTHONPATH.
+# /tmp/site and puts the packages' src/ folders on PYTHONPATH. The torch trainer also needs TorchRL and
+# tensordict (4 MB): carry `.whl-torch` too (recipe in scripts/gpu_study.sh) and they are installed with them.
 if [ ! -f /tmp/site/.done ]; then
+  wheels=(.whl-jax/*.whl)
+  if [ -d .whl-torch ]; then wheels+=(.whl-torch/*.whl); fi
   python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site \
-    .whl-jax/*.whl || return 1
+    "${wheels[@]}" || return 1
   touch /tmp/site/.done
 fi
 export MUJOCO_GL=disable   # no rendering on the host: mujoco imports no GL backend (PyOpenGL is not carried)
-export PYTHONPATH=/tmp/site:$PWD/packages/sf2-common/src:$PWD/packages/sf2-core-jax/src:$PWD/packages/sf2-baselines/src
+export PYTHONPATH=/tmp/site:$PWD/packages/sf2-common/src:$PWD/packages/sf2-core-jax/src:$PWD/packages/sf2-core-torch/src:$PWD/packages/sf2-baselines/src
 # The baselines register their representations as entry points: on PYTHONPATH alone they would not be
 # found, so a dist-info folder carries sf2-baselines' entry points (from its pyproject.toml).
 python3 - <<'PY' || return 1
