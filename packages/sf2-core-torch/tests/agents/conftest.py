@@ -45,6 +45,21 @@ def _agents_setup(request):
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 
+@pytest.fixture(scope="module", autouse=True)
+def float32_jax():
+    """The torch trainer's envs are JAX programs in float32. The JAX core's and the cross-framework tests'
+    conftests turn x64 on for the whole session, so run in one pytest process with them (not tox's
+    separate envs) the env state would be float64 here and a checkpoint written by a fresh `sf2-torch`
+    child (float32) would not restore. As in the JAX core's agent tests: x64 off inside these modules."""
+    if _MISSING:
+        yield
+        return
+    import jax
+
+    with jax.enable_x64(False):
+        yield
+
+
 TINY = dict(
     num_envs=4, num_eval_envs=4, episode_length=60, num_evals=4, num_timesteps=4 * 36,
     batch_size=16, grad_updates_per_step=2, min_replay_size=32, max_replay_size=512,
