@@ -196,6 +196,41 @@ def test_forecast_scales_rates_between_seed_counts(tmp_path):
         assert forecast.seconds(job(task, name, seeds)) == pytest.approx(1000 * rate), (task, name, seeds)
 
 
+def test_forecast_prefers_the_same_task_at_the_same_seed_count(tmp_path):
+    """A method's first 10-seed run on a task is forecast from another method's 10-seed runs on that task,
+    times the largest ratio between the two methods' 10-seed rates on the other tasks; not from its own
+    5-seed run (which may have shared its GPU). Rates in s per env step:
+        A: td3 @10 0.02, sf2 @5 0.5 (the shared-GPU run), spr @10 0.01
+        B: td3 @10 0.03, sf2 @10 0.045 (sf2/td3 1.5), sf2 @5 0.06
+        C: td3 @10 0.01, sf2 @10 0.012 (sf2/td3 1.2), spr @10 0.008 (sf2/spr 1.5)
+    A/sf2 @10: from td3, 0.02 x max(1.5, 1.2) = 0.03; from spr, 0.01 x 1.5 (C only) = 0.015; the larger,
+    0.03 (not 0.5 x 0.75 = 0.375 from its own 5-seed run scaled by B's 5 -> 10 ratio 0.045 / 0.06).
+    A/sf2 @5: its own 0.5. B/spr @10: from td3 0.03 x max(0.01 / 0.02 (A), 0.008 / 0.01 (C)) = 0.024, from
+    sf2 0.045 x 0.008 / 0.012 (C) = 0.03: the larger, 0.03. C/sim @10 (sim never finished anywhere): no
+    ratio, C's slowest, 0.012. A/sf2 @20: no run of 20 seeds, so no relative rate: A/sf2 @5 x scale(5, 20)
+    = 0.5 x 1."""
+    from types import SimpleNamespace
+
+    def job(task, name, seeds, total=1000, wall=None):
+        path = tmp_path / ("done" if wall is not None else "todo") / task / f"{name}-{seeds}"
+        path.mkdir(parents=True, exist_ok=True)
+        if wall is not None:
+            (path / "metrics.jsonl").write_text(json.dumps({"epoch": 1, "seed": 0, "env_steps": total,
+                                                            "walltime": wall}) + "\n")
+        run = SimpleNamespace(task=task, folder=name, rel=name, seeds=tuple(range(seeds)))
+        return runner.Job(run, path, [], total, total if wall is not None else 0)
+
+    finished = {("A", "td3", 10): 20.0, ("A", "sf2", 5): 500.0, ("A", "spr", 10): 10.0,
+                ("B", "td3", 10): 30.0, ("B", "sf2", 10): 45.0, ("B", "sf2", 5): 60.0,
+                ("C", "td3", 10): 10.0, ("C", "sf2", 10): 12.0, ("C", "spr", 10): 8.0}
+    forecast = runner.Forecast([job(t, m, n, wall=w) for (t, m, n), w in finished.items()])
+    assert forecast.relative("A", "sf2", 10) == pytest.approx(0.03)
+    expected = {("A", "sf2", 10): 0.03, ("A", "sf2", 5): 0.5, ("B", "spr", 10): 0.03, ("C", "sim", 10): 0.012,
+                ("A", "sf2", 20): 0.5}
+    for (task, name, seeds), rate in expected.items():
+        assert forecast.seconds(job(task, name, seeds)) == pytest.approx(1000 * rate), (task, name, seeds)
+
+
 def test_finish_within_starts_only_runs_forecast_to_end_in_time(tmp_path, monkeypatch):
     """Finished runs of 1,000 env steps took 1e6 s on task A (1,000 s per env step) and 0.001 s on B: with
     60 s to go, B's runs start (forecast ≈ 0 s), A's do not, nor C's (no finished run: the slowest rate,

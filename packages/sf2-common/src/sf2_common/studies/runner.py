@@ -111,13 +111,24 @@ def plan(study: Study, folder: StudyFolder, runs: list[Run]) -> tuple[list[Job],
 
 class Forecast:
     """Seconds of training a job still needs: its remaining env steps at the wall-clock seconds per env step
-    of finished runs. The rate is the mean over the finished runs of the job's own task and method folder
-    (`Run.folder`) with its number of seeds; without one, those of other seed counts, scaled (below);
-    without any, the slowest finished run of its task; without one, the slowest finished run of all. The
-    slowest, not the mean, because methods differ up to ~4x in cost (results/fig7-td3/README.md "Cost per
-    run") and `--finish-within` must not start a run the lease's end would cut. The rates are those of the
-    machines the finished runs ran on; evaluation children ([evaluation]) are not counted. `known` is False
-    without any finished run.
+    of finished runs. The rate is, in this order of preference:
+    1. the mean over the finished runs of the job's own task and method folder (`Run.folder`) with its
+       number of seeds;
+    2. relative to another method on the same task at the same number of seeds: that method's rate there
+       times the largest ratio of the job's method to it over the other tasks where both finished runs of
+       that many seeds (the largest such estimate over the task's other methods);
+    3. the job's own runs of other seed counts, scaled (below);
+    4. the slowest finished run of its task (scaled to its seeds); without one, the slowest of all.
+    2 before 3: a first 10-seed run of a method is then forecast from 10-seed runs on its own task, not from
+    its own 5-seed runs, some of which shared their GPU with other runs and took 2-3x their cost (results/
+    fig7-td3/README.md "Cost per run"): CartpoleSwingupSparse TD3+SF² at 10 seeds, 14 m 21 s by 3 and 6 m
+    25 s by 2, where that task's TD3 run of 10 seeds took 4 m 05 s. Neither is exact: from the history
+    before them, the forecasts of the five CartpoleBalanceSparse runs of 10 seeds of 2026-11-25 were 19%
+    short to 11% long by 2 and 14% short to 6% long by 3, so leave `--finish-within` a margin. The
+    largest, not the mean, in 2 and the slowest in 4 because methods differ up to ~4x in cost and
+    `--finish-within` must not start a run the lease's end would cut. The rates are those of the machines
+    the finished runs ran on; evaluation children ([evaluation]) are not counted. `known` is False without
+    any finished run.
 
     Seed counts: a GPU trains vmapped seeds together, so a run of 10 seeds takes ~1.35x the time of one of 5,
     not 2x (results/fig7-td3/README.md "Cost per run"): the rate per env step (all seeds' steps) falls with
@@ -156,11 +167,33 @@ class Forecast:
                 ratios.append((sum(at_n) / len(at_n)) / (sum(at_k) / len(at_k)))
         return max(ratios) if ratios else (1.0 if n > k else k / n)
 
+    def _at(self, task: str, folder: str, seeds: int) -> float | None:
+        """The mean rate of (task, folder)'s finished runs of `seeds` seeds, or None."""
+        same = [r for m, r in self.rates.get((task, folder), ()) if m == seeds]
+        return sum(same) / len(same) if same else None
+
+    def relative(self, task: str, folder: str, seeds: int) -> float | None:
+        """Preference 2 of the class docstring, or None where no other method and task give it."""
+        tasks = {t for t, _ in self.rates} - {task}
+        estimates = []
+        for other in {f for t, f in self.rates if t == task and f != folder}:
+            base = self._at(task, other, seeds)
+            pairs = [(self._at(t, folder, seeds), self._at(t, other, seeds)) for t in tasks]
+            ratios = [mine / theirs for mine, theirs in pairs if mine is not None and theirs is not None]
+            if base is not None and ratios:
+                estimates.append(base * max(ratios))
+        return max(estimates, default=None)
+
     def rate(self, task: str, folder: str, seeds: int = 1) -> float:
+        own = self._at(task, folder, seeds)
+        if own is not None:
+            return own
+        relative = self.relative(task, folder, seeds)
+        if relative is not None:
+            return relative
         mine = self.rates.get((task, folder))
         if mine:
-            same = [r for m, r in mine if m == seeds]
-            scaled = same or [r * self.scale(m, seeds) for m, r in mine]
+            scaled = [r * self.scale(m, seeds) for m, r in mine]
             return sum(scaled) / len(scaled)
         same_task = [r * self.scale(m, seeds) for (t, _), v in self.rates.items() if t == task for m, r in v]
         return max(same_task or [r * self.scale(m, seeds) for v in self.rates.values() for m, r in v])
