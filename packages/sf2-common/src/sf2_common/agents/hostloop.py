@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections import Counter
 from collections.abc import Callable, Iterable
 from typing import Protocol
 
@@ -137,8 +138,6 @@ def hardware(accelerators: Iterable[str]) -> str:
     """What a run trains on, for config.json and train.log: the model names of the accelerators its program
     uses ("NVIDIA H100 80GB HBM3", "2 x NVIDIA H200"), or "CPU (<model>)" without any. Wall times and the
     study runner's forecasts are those of this hardware (results/fig7-td3/README.md, "Cost per run")."""
-    from collections import Counter
-
     counts = Counter(accelerators)   # in first-seen order
     if not counts:
         return f"CPU ({cpu_model()})"

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -524,8 +525,6 @@ def _md_incomplete(study: Study, data: list[RunData]) -> list[str]:
 def _md_hardware(data: list[RunData]) -> list[str]:
     """What the finished run folders trained on (config.json's "hardware", the first session's), counted:
     wall times, and so the per-task table's, are those of that hardware."""
-    from collections import Counter
-
     unknown = "not recorded (trained before run folders named it)"
     counts = Counter(g.hardware or unknown for d in data for g in d.groups if g.finished)
     if not counts:

@@ -159,12 +159,8 @@ class Forecast:
         """The factor from a rate measured at k seeds to one at n (class docstring)."""
         if k == n:
             return 1.0
-        ratios = []
-        for measured in self.rates.values():
-            at_k = [r for m, r in measured if m == k]
-            at_n = [r for m, r in measured if m == n]
-            if at_k and at_n:
-                ratios.append((sum(at_n) / len(at_n)) / (sum(at_k) / len(at_k)))
+        pairs = [(self._at(t, f, n), self._at(t, f, k)) for t, f in self.rates]
+        ratios = [at_n / at_k for at_n, at_k in pairs if at_n is not None and at_k is not None]
         return max(ratios) if ratios else (1.0 if n > k else k / n)
 
     def _at(self, task: str, folder: str, seeds: int) -> float | None:
