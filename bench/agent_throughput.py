@@ -4,18 +4,20 @@
         --precisions highest,tensorfloat32,bfloat16 --env-steps 600000 --epochs 3 \
         --out bench/results/h200/5-agents
 
-Issue #3's measurement and the paper's §4.4 comparison (659 s vs ~1300 s for 10M steps of TD3 vs
-TD3+SF² on an RTX 4090, i.e. about 15k and 7.7k env-steps/s). Each case is the `paper` preset of the
-task with its budget cut to `--env-steps` and split into `--epochs` timed epochs plus one first epoch
-that holds the compilation and the random-action prefill (reported apart as `first_epoch_s`, never
-mixed into the rate). An epoch is the trainer's own jitted program (`sf2_jax.agents.trainer.Program`:
-`lax.scan` over actor steps, each with its env step, buffer insert and `grad_updates_per_step` SGD
-steps, all seeds vmapped); it is timed from dispatch to `block_until_ready` of its outputs, without
-evaluation, checkpointing or plotting. Reported: median over the timed epochs of env steps per second
-per seed, and the aggregate over the vmapped seeds (per seed × seeds). `--precisions` sets the learner's
-matmul precision (`learner_precision`; the physics always runs at fp32 `highest`). `--frameworks
-jax,torch` adds the torch trainer (its seeds take their steps one after the other; its epoch is the same
-schedule, timed the same way).
+Issue #3's measurement and the paper's §4.4 comparison (659 s vs ~1300 s for 10M steps of TD3 vs TD3+SF² on
+an RTX 4090, i.e. about 15k and 7.7k env-steps/s). Each case is the `paper` preset of the task with its
+budget cut to `--env-steps` and split into `--epochs` timed epochs, after warm-up epochs that hold the
+compilation, the random-action prefill and the first SGD step (`warm_up`: JAX compiles the whole epoch
+program at its first call, the torch trainer its update at the first SGD step; reported apart as `warmup_s`,
+never mixed into the rate). Every timed epoch does the same number of SGD steps (a measurement whose timed
+epochs differ stops with an error). An epoch is the trainer's own jitted program
+(`sf2_jax.agents.trainer.Program`: `lax.scan` over actor steps, each with its env step, buffer insert and
+`grad_updates_per_step` SGD steps, all seeds vmapped); it is timed from dispatch to `block_until_ready` of
+its outputs, without evaluation, checkpointing or plotting. Reported: median over the timed epochs of env
+steps per second per seed, and the aggregate over the vmapped seeds (per seed × seeds). `--precisions` sets
+the learner's matmul precision (`learner_precision`; the physics always runs at fp32 `highest`).
+`--frameworks jax,torch` adds the torch trainer (its seeds take their steps one after the other; its epoch
+is the same schedule, timed the same way).
 """
 
 from __future__ import annotations
@@ -32,8 +34,8 @@ from pathlib import Path
 import numpy as np
 
 COLUMNS = ["framework", "task", "algo", "rep", "seeds", "learner_precision", "env_steps_per_epoch",
-           "sgd_steps_per_epoch", "timed_epochs", "first_epoch_s", "median_epoch_s", "sps_per_seed",
-           "sps_total", "epoch_s"]
+           "sgd_steps_per_epoch", "timed_epochs", "warmup_epochs", "warmup_s", "median_epoch_s",
+           "sps_per_seed", "sps_total", "epoch_s"]
 
 
 def _names(s: str) -> tuple[str, ...]:
@@ -52,30 +54,46 @@ def _block(framework: str, x):
             torch.cuda.synchronize()
 
 
+def warm_up(env_steps: int, epochs: int, prefill_env_steps: int) -> tuple[int, int]:
+    """(env steps per epoch, warm-up epochs) of a measurement of `epochs` timed epochs over `env_steps`:
+    the warm-up runs until the epoch that holds the first SGD step (env step `prefill_env_steps` + 1),
+    that epoch included, so every timed epoch is SGD from its first step to its last."""
+    per_epoch = -(-env_steps // epochs)
+    return per_epoch, prefill_env_steps // per_epoch + 1
+
+
 def config_for(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epochs: int, overrides: dict,
                framework: str = "jax"):
-    """The `paper` preset's config of one measurement, validated (`ConfigError` naming the problem)."""
-    values = {"num_timesteps": env_steps * (epochs + 1) // epochs, "num_evals": epochs + 2, **overrides}
-    seeds = tuple(range(n_seeds))
+    """The `paper` preset's config of one measurement (`warm_up` epochs, then `epochs` timed ones),
+    validated (`ConfigError` naming the problem); returns (config, warm-up epochs)."""
+    from sf2_common.agents.configs import schedule
+
     if framework == "jax":
         from sf2_common.agents import configs
         from sf2_jax.agents import representations
 
-        cfg = configs.make_config("paper", task, algo, rep, values)
-        configs.validate(cfg, seeds, representations.REGISTRY)
+        def check(c):
+            configs.validate(c, seeds, representations.REGISTRY)
     else:
         from sf2_torch.agents import configs
 
-        cfg = configs.make_config("paper", task, algo, rep, values)
-        configs.validate(cfg, seeds)
-    return cfg
+        def check(c):
+            configs.validate(c, seeds)
+    seeds = tuple(range(n_seeds))
+    prefill = schedule(configs.make_config("paper", task, algo, rep, overrides)).prefill_env_steps
+    per_epoch, warm = warm_up(env_steps, epochs, prefill)
+    values = {"num_timesteps": per_epoch * (warm + epochs), "num_evals": warm + epochs + 1, **overrides}
+    cfg = configs.make_config("paper", task, algo, rep, values)
+    check(cfg)
+    return cfg, warm
 
 
 def measure(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epochs: int,
             overrides: dict, framework: str = "jax", log=print) -> dict:
-    """Time `epochs` training epochs after a first (compile + prefill) epoch; one row of `COLUMNS`."""
+    """Time `epochs` training epochs after the warm-up ones (compile, prefill, first SGD step: `warm_up`);
+    one row of `COLUMNS`."""
     seeds = tuple(range(n_seeds))
-    cfg = config_for(task, algo, rep, n_seeds, env_steps, epochs, overrides, framework)
+    cfg, warm = config_for(task, algo, rep, n_seeds, env_steps, epochs, overrides, framework)
     if framework == "jax":
         from sf2_jax.agents.trainer import get_program
     else:
@@ -84,26 +102,32 @@ def measure(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epochs
     sched = program.sched
     state = program.init(seeds)
     t = time.perf_counter()
-    state, means, _ = program.epoch(state, 1)
-    _block(framework, (state, means))
+    for e in range(1, warm + 1):
+        state, means, _ = program.epoch(state, e)
+        _block(framework, (state, means))
     first = time.perf_counter() - t
     tag = f"{framework} {task} {algo}+{rep} x{n_seeds} {cfg.learner_precision}"
-    log(f"  {tag}: first epoch (compile + prefill) {first:.1f} s")
-    times = []
-    for e in range(2, epochs + 2):
+    log(f"  {tag}: warm-up ({warm} epoch{'s' * (warm > 1)}: compile, prefill, first SGD step) {first:.1f} s")
+    times, sgds = [], []
+    for e in range(warm + 1, warm + epochs + 1):
         t = time.perf_counter()
         state, means, _ = program.epoch(state, e)
         _block(framework, (state, means))
         times.append(time.perf_counter() - t)
+        sgds.append(int(np.asarray(means["sgd_steps"])[0]))
         log(f"  {tag}: epoch {e} {times[-1]:.2f} s "
             f"({sched.env_steps_per_epoch / times[-1]:,.0f} env steps/s per seed)")
+    if len(set(sgds)) > 1:
+        raise RuntimeError(f"{tag}: the timed epochs did {sgds} SGD steps; a rate needs the same work in "
+                           f"each (warm_up)")
     med = statistics.median(times)
-    sgd = int(np.asarray(means["sgd_steps"])[0])
+    sgd = sgds[0]
     del state
     return {"framework": framework, "task": task, "algo": algo, "rep": rep, "seeds": n_seeds,
             "learner_precision": cfg.learner_precision,
             "env_steps_per_epoch": sched.env_steps_per_epoch, "sgd_steps_per_epoch": sgd,
-            "timed_epochs": epochs, "first_epoch_s": round(first, 2), "median_epoch_s": round(med, 4),
+            "timed_epochs": epochs, "warmup_epochs": warm, "warmup_s": round(first, 2),
+            "median_epoch_s": round(med, 4),
             "sps_per_seed": round(sched.env_steps_per_epoch / med, 1),
             "sps_total": round(n_seeds * sched.env_steps_per_epoch / med, 1),
             "epoch_s": ";".join(f"{x:.4f}" for x in times)}
@@ -118,17 +142,18 @@ def markdown(rows: list[dict], info: dict) -> str:
              f"physics at fp32 `highest`, the learner at the row's `learner_precision`",
              "",
              "One epoch = the trainer's program over `env_steps_per_epoch` env steps per seed (env steps, "
-             "buffer inserts, SGD steps; no evaluation). First epoch (compilation + random prefill) "
-             "reported apart; rates are medians over the timed epochs.", "",
+             "buffer inserts, SGD steps; no evaluation). Warm-up epochs (compilation, random prefill, the "
+             "first SGD step) reported apart; rates are medians over the timed epochs, each all SGD.", "",
              "| framework | task | algo | representation | learner precision | seeds | env steps / epoch / "
-             "seed | SGD steps / epoch | first epoch s | median epoch s | env steps/s per seed | env "
+             "seed | SGD steps / epoch | warm-up s (epochs) | median epoch s | env steps/s per seed | env "
              "steps/s, all seeds | 1M steps per seed at this rate |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         one_m = 1_000_000 / r["sps_per_seed"]
         lines.append(f"| {r['framework']} | {r['task']} | {r['algo']} | {r['rep']} | "
                      f"{r['learner_precision']} | {r['seeds']} | {r['env_steps_per_epoch']:,} | "
-                     f"{r['sgd_steps_per_epoch']:,} | {r['first_epoch_s']} | {r['median_epoch_s']} | "
+                     f"{r['sgd_steps_per_epoch']:,} | {r['warmup_s']} ({r['warmup_epochs']}) | "
+                     f"{r['median_epoch_s']} | "
                      f"{r['sps_per_seed']:,.0f} | {r['sps_total']:,.0f} | {one_m:,.0f} s |")
     key = ("framework", "task", "algo", "rep", "learner_precision", "seeds")
     by = {tuple(r[k] for k in key): r for r in rows}
@@ -168,7 +193,7 @@ def main(argv=None) -> int:
                    help="learner_precision values (highest, tensorfloat32, bfloat16)")
     p.add_argument("--frameworks", default="jax", type=_names, help="jax and/or torch")
     p.add_argument("--env-steps", type=int, default=600_000, help="timed env steps per seed (all epochs)")
-    p.add_argument("--epochs", type=int, default=3, help="timed epochs (after the first)")
+    p.add_argument("--epochs", type=int, default=3, help="timed epochs (after the warm-up ones)")
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="override a config field of the paper preset (repeatable)")
     p.add_argument("--out", required=True, help="folder for throughput.csv / throughput.md / machine.json")

@@ -285,3 +285,31 @@ def test_eval_share_of_a_run_folder(tmp_path):
     assert eval_share.measure(tmp_path, (1, 2)) == got
     with pytest.raises(SystemExit, match="no metrics.jsonl"):
         eval_share.measure(tmp_path / "missing")
+
+
+@pytest.mark.parametrize("env_steps,epochs,prefill,expected", [
+    (16_000, 3, 8_192, (5_334, 2)),   # 8,192 // 5,334 = 1 whole prefill epoch, the next holds SGD step 1
+    (32_000, 2, 8_192, (16_000, 1)),  # the prefill ends inside epoch 1
+    (10_000, 2, 5_000, (5_000, 2)),   # epoch 1 is all prefill; SGD starts at env step 5,001, in epoch 2
+    (10_000, 2, 0, (5_000, 1)),       # no prefill: epoch 1 still holds the compilation and SGD step 1
+])
+def test_throughput_warm_up_holds_the_first_sgd_step(env_steps, epochs, prefill, expected):
+    """The timed epochs of `bench.agent_throughput` start after the epoch of the first SGD step (where the
+    torch trainer compiles its update): before, one fixed first epoch left the compile inside a timed
+    epoch when the prefill outlasted it (H100, 2026-11-25: torch epochs 22.9, 0.82, 0.91 s)."""
+    from bench.agent_throughput import warm_up
+
+    assert warm_up(env_steps, epochs, prefill) == expected
+
+
+def test_throughput_config_times_only_whole_sgd_epochs():
+    pytest.importorskip("mujoco_playground", reason="the paper preset's config needs the task list")
+    from sf2_common.agents.configs import schedule
+
+    from bench.agent_throughput import config_for
+
+    cfg, warm = config_for("AcrobotSwingup", "td3", "sf2", 1, 16_000, 3, {})
+    sched = schedule(cfg)
+    per = sched.env_steps_per_epoch
+    assert sched.num_epochs == warm + 3
+    assert (warm - 1) * per <= sched.prefill_env_steps < warm * per   # the first SGD step is in the warm-up

@@ -2,13 +2,16 @@
 # installs the carried wheels (.whl-jax, git-excluded; recipe in scripts/gpu_study.sh) once per host into
 # /tmp/site and puts the packages' src/ folders on PYTHONPATH. The torch trainer also needs TorchRL and
 # tensordict (4 MB): carry `.whl-torch` too (recipe in scripts/gpu_study.sh) and they are installed with them.
-if [ ! -f /tmp/site/.done ]; then
-  wheels=(.whl-jax/*.whl)
-  if [ -d .whl-torch ]; then wheels+=(.whl-torch/*.whl); fi
-  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site \
-    "${wheels[@]}" || return 1
-  touch /tmp/site/.done
-fi
+# One marker per wheel folder: a host that ran a study (.whl-jax only) and is then called with .whl-torch
+# too installs the torch wheels then (one marker for both skipped them: 2026-11-25, "No module named
+# 'tensordict'").
+for wheels in .whl-jax .whl-torch; do
+  if [ -d "$wheels" ] && [ ! -f "/tmp/site/.done$wheels" ]; then
+    python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site \
+      "$wheels"/*.whl || return 1
+    touch "/tmp/site/.done$wheels"
+  fi
+done
 export MUJOCO_GL=disable   # no rendering on the host: mujoco imports no GL backend (PyOpenGL is not carried)
 export PYTHONPATH=/tmp/site:$PWD/packages/sf2-common/src:$PWD/packages/sf2-core-jax/src:$PWD/packages/sf2-core-torch/src:$PWD/packages/sf2-baselines/src
 # The baselines register their representations as entry points: on PYTHONPATH alone they would not be
