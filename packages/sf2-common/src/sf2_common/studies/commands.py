@@ -67,13 +67,18 @@ def add_parser(sub, prog: str) -> None:
                         "or a .tar.gz archive of one, e.g. from scripts/gpu_study.sh) into the study folder "
                         "DIR: config.json, metrics.jsonl, train.log and evaluation results only. Refuses "
                         "(nothing written) another study, a run whose config is not the study's, or a "
-                        "finished run DIR holds with other metrics; skips identical ones.")
+                        "finished run DIR holds with other metrics (unless --keep-reruns); skips identical "
+                        "ones.")
     g.add_argument("sources", nargs="+", metavar="SOURCE", help="study folder or .tar.gz archive of one")
     g.add_argument("--into", required=True, metavar="DIR",
                    help="the study folder to merge into (created if it does not exist)")
     g.add_argument("--partial", action="store_true",
                    help="also merge unfinished runs (where DIR has none or less of it); without checkpoints "
                    "they cannot resume: `study run` then needs the run folder removed to train it again")
+    g.add_argument("--keep-reruns", action="store_true",
+                   help="a finished run DIR already holds with other metrics (the same config and seeds "
+                   "run twice: GPU runs differ) is kept in DIR/rerun/<task>-<method>/<seeds>/, out of the "
+                   "report, and the rest is merged; without it the merge is refused")
     c = ssub.add_parser("compress", help="gzip the metrics.jsonl and obs_noise.json of a study folder's "
                         "finished runs", description="Replace each finished run's metrics.jsonl and "
                         "obs_noise.json by a .gz of it (4-5x smaller; `study report`, `study run` and "
@@ -202,7 +207,7 @@ def _merge(backend, args) -> int:
     from .merge import merge
 
     merge(args.sources, args.into, functools.partial(_resolve, backend), framework=backend.name,
-          partial=args.partial)
+          partial=args.partial, reruns=args.keep_reruns)
     return 0
 
 

@@ -13,7 +13,8 @@ obs_noise.json gzip-compressed (`COMPRESSED`; a SOURCE may hold either form, sf2
     SOURCE's run        DEST's run          what happens
     finished            none / unfinished   copied (an unfinished DEST run is replaced)
     finished            finished, equal     skipped (identical metrics)
-    finished            finished, differs   refused: the whole merge stops, nothing written
+    finished            finished, differs   refused: the whole merge stops, nothing written; with
+                                            `reruns`, kept beside it as a rerun (below)
     unfinished          any                 skipped; with `partial` copied where DEST has none or less
     not started         any                 nothing to merge
 
@@ -24,6 +25,13 @@ SOURCE comes before the first write; then each run folder is written into a temp
 into place (a replaced DEST folder is renamed away first and removed only after, or set aside if it held
 more than `KEPT`, e.g. checkpoints), and study.json last: the union of the runs entries, the commands of
 DEST and every SOURCE in time order without duplicates (DEST keeps its id).
+
+Reruns. On GPUs two runs of one config and seeds differ from the first epoch on (XLA picks kernels by
+timing them in each process; results/fig7-td3/README.md "reproducible in distribution"), so a run that ran
+twice comes back twice with different metrics. With `reruns` (`--keep-reruns`) the merge keeps DEST's (or
+the first source's) in `runs/` and writes the other, `KEPT` files only, to DEST/rerun/<task>-<method>/<seed
+group>/ (`RERUN`; a second, different rerun of the same run gets "-2", and so on; one identical to a kept
+rerun is skipped): out of the report, which reads `runs/` only, and never lost.
 """
 
 from __future__ import annotations
@@ -48,13 +56,14 @@ from sf2_common.fileio import GZ, atomic_write, compress, stored
 from .folder import OBS_NOISE, StudyFolder, read_obs_noise
 from .spec import Run, Study, StudyError, loads, only_adds, same_runs, seeds_text
 
-__all__ = ["KEPT", "Outcome", "merge"]
+__all__ = ["KEPT", "RERUN", "Outcome", "merge"]
 
 KEPT = (RunFolder.CONFIG, RunFolder.METRICS, RunFolder.LOG, OBS_NOISE)
 COMPRESSED = (RunFolder.METRICS, OBS_NOISE)   # DEST keeps these gzip-compressed (sf2_common.fileio)
 _KEPT_NAMES = {*KEPT, *(name + GZ for name in COMPRESSED)}   # a source's, in either form
 _NEVER = {RunFolder.CHECKPOINTS, RunFolder.FINAL, RunFolder.DAMAGED}   # folders never read from a source
 _LOCK = ".study-lock"   # runner.LOCK (not imported: runner pulls in the process machinery)
+RERUN = "rerun"         # DEST's folder of reruns (module docstring)
 
 
 @dataclasses.dataclass
@@ -86,17 +95,18 @@ class Outcome:
     merged: list[str] = dataclasses.field(default_factory=list)
     replaced: list[str] = dataclasses.field(default_factory=list)
     skipped: list[str] = dataclasses.field(default_factory=list)
+    reruns: list[str] = dataclasses.field(default_factory=list)   # DEST-relative folders written
     commands_added: int = 0
     created: bool = False
 
 
 def merge(sources, into, runs_of: Callable[[Study], list[Run]], *, framework: str, partial: bool = False,
-          say: Callable[[str], None] = print) -> Outcome:
+          reruns: bool = False, say: Callable[[str], None] = print) -> Outcome:
     """Merge the study folders or archives `sources` into the study folder `into` (module docstring).
     `runs_of(study)`: the study's runs resolved against the framework's configs (`spec.resolve`);
     `framework`: its name ("jax"). Raises `StudyError` (nothing written) for a source that is not a study
     folder or archive of one, another study, another framework, a run whose config is not the study's, or
-    a finished run that DEST holds with other metrics."""
+    a finished run that DEST holds with other metrics (unless `reruns`: module docstring)."""
     if not sources:
         raise StudyError("study merge: name at least one SOURCE (a study folder or a .tar.gz archive of one)")
     dest = StudyFolder(into)
@@ -109,6 +119,7 @@ def merge(sources, into, runs_of: Callable[[Study], list[Run]], *, framework: st
         # ---- every check before the first write
         current = {name: _look(dest, run, study, "DEST") for name, run in expected.items()}
         chosen: dict[str, _Side] = {}
+        kept_reruns: dict[Path, _Side] = {}
         conflicts, lines = [], []
         for name_src, src in opened:
             for extra in _stray_runs(src, expected):
@@ -123,6 +134,17 @@ def merge(sources, into, runs_of: Callable[[Study], list[Run]], *, framework: st
                     if old.same_metrics(new):
                         outcome.skipped.append(name)
                         lines.append(f"  skipped   {name}: identical to {old.where}'s")
+                    elif reruns:
+                        target = _rerun_target(dest, expected[name], new, kept_reruns)
+                        if target is None:
+                            outcome.skipped.append(name)
+                            lines.append(f"  skipped   {name} in {name_src}: identical to a rerun DEST keeps")
+                        else:
+                            kept_reruns[target] = new
+                            outcome.reruns.append(target.relative_to(dest.path).as_posix())
+                            lines.append(f"  rerun     {name} from {name_src}: finished with other metrics "
+                                         f"than {old.where}'s ({_difference(old, new)}); kept as "
+                                         f"{outcome.reruns[-1]}, out of the report")
                     else:
                         conflicts.append(f"{name}: {old.where} and {name_src} both hold it finished with "
                                          f"different metrics ({_difference(old, new)})")
@@ -149,7 +171,7 @@ def merge(sources, into, runs_of: Callable[[Study], list[Run]], *, framework: st
             raise StudyError(
                 f"study merge into {dest.path} refused; nothing was written:\n  " + "\n  ".join(conflicts)
                 + "\nA finished run is never overwritten: remove DEST's run folder first if the source's "
-                "should win, or leave that source out.")
+                "should win, leave that source out, or keep the source's as a rerun (--keep-reruns).")
         for name in chosen:
             _check_not_running(dest.run_path(expected[name].task, expected[name].rel))
         # ---- writes
@@ -169,10 +191,13 @@ def merge(sources, into, runs_of: Callable[[Study], list[Run]], *, framework: st
             if aside is not None:
                 say(f"  set aside {name}: DEST's run folder held more than {', '.join(KEPT)}; it is now "
                     f"{aside}")
+        for target, side in kept_reruns.items():
+            _install(side.path, target)
         outcome.commands_added = _merge_state(dest, [src for _, src in opened], study, framework,
                                               [expected[n] for n in chosen])
     say(f"{study.name} → {dest.path}{' (new)' if outcome.created else ''}: {len(outcome.merged)} run(s) "
-        f"merged, {len(outcome.replaced)} replaced, {len(outcome.skipped)} skipped; "
+        f"merged, {len(outcome.replaced)} replaced, {len(outcome.skipped)} skipped"
+        + (f", {len(outcome.reruns)} kept as rerun(s)" if outcome.reruns else "") + "; "
         f"{outcome.commands_added} command(s) added to study.json")
     return outcome
 
@@ -356,6 +381,29 @@ def _difference(a: _Side, b: _Side) -> str:
     if timing is not None:
         return f"equal learned values, only timing differs; first {timing}"
     return "their obs_noise.json results differ"
+
+
+def _rerun_target(dest: StudyFolder, run: Run, side: _Side, planned: dict[Path, _Side]) -> Path | None:
+    """Where DEST keeps `side` as a rerun of `run`: DEST/rerun/<task>-<method>/<seed group>[-k], the first
+    such folder neither taken nor planned by this merge; None when one of them holds the same metrics."""
+    method, group = PurePosixPath(run.rel).parts[-2:]
+    base = dest.path / RERUN / f"{run.task}-{method}"
+    for k in range(1, 1000):
+        target = base / (group if k == 1 else f"{group}-{k}")
+        if target in planned:
+            if planned[target].same_metrics(side):
+                return None
+            continue
+        if not target.exists():
+            return target
+        try:
+            rows = RunFolder(target).read_rows(strict=True)
+            noise = read_obs_noise(target)
+        except (RunFolderError, ValueError):
+            continue   # an unreadable folder there is left as it is; the next name is tried
+        if _key_rows(rows) == _key_rows(side.rows) and (noise and noise["results"]) == (side.noise or None):
+            return None
+    raise StudyError(f"{base}: 999 reruns of {run.task}/{run.rel} already; nothing was merged")
 
 
 def _check_not_running(target: Path) -> None:
