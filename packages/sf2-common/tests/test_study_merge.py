@@ -17,7 +17,6 @@ from sf2_common.fileio import read_text
 from sf2_common.studies import merge as merging
 from sf2_common.studies import spec
 from sf2_common.studies.folder import StudyFolder
-from sf2_common.studies.merge import RERUN
 from sf2_common.studies.spec import StudyError
 from sf2_common.testing import folder_digest
 
@@ -388,7 +387,7 @@ def test_evaluated_runs_stay_done_when_their_obs_noise_is_compressed(tmp_path, r
 def test_keep_reruns_puts_a_differing_finished_run_beside_dest_and_merges_the_rest(tmp_path, runs_of):
     """`--keep-reruns`: the same config and seeds trained twice (on GPUs they differ from epoch 1) come back
     twice; DEST keeps its run, the other goes to rerun/<task>-<method>/<seeds>/ with only the kept files, and
-    the source's other runs merge. Again: identical reruns are skipped; a third draw gets '-2'."""
+    the source's other runs merge. Again: identical reruns are skipped; a third draw gets '.2'."""
     ours = _source(tmp_path, "ours", runs_of, finished=["A/td3/seeds-0-1"], commands=["2026-01-01 10:00:00"])
     theirs = _source(tmp_path, "theirs", runs_of, finished=["A/td3/seeds-0-1", "B/td3/seeds-0-1"],
                      commands=["2026-01-02 10:00:00"], ret=0.5)
@@ -408,13 +407,13 @@ def test_keep_reruns_puts_a_differing_finished_run_beside_dest_and_merges_the_re
     folder = StudyFolder(dest)
     paths = folder.method_runs(folder.load_study())
     read = [p for groups in paths.values() for p in groups.values()]
-    assert dest / "runs/A/td3/seeds-0-1" in read and not any(RERUN in p.parts for p in read)
+    assert dest / "runs/A/td3/seeds-0-1" in read and not any(StudyFolder.RERUN in p.parts for p in read)
     before = folder_digest(dest)
     out, said = _merge([theirs], dest, runs_of, reruns=True)
     assert not out.reruns and "identical to a rerun DEST keeps" in said and folder_digest(dest) == before
     third = _source(tmp_path, "third", runs_of, finished=["A/td3/seeds-0-1"], ret=0.25)
     out, _ = _merge([third], dest, runs_of, reruns=True)
-    assert out.reruns == ["rerun/A-td3/seeds-0-1-2"]
+    assert out.reruns == ["rerun/A-td3/seeds-0-1.2"]
     # without the flag the same source is still refused, naming the flag
     fourth = _source(tmp_path, "fourth", runs_of, finished=["A/td3/seeds-0-1"], ret=0.75)
     with pytest.raises(StudyError, match="--keep-reruns"):

@@ -18,7 +18,7 @@ from sf2_common.fileio import compress  # noqa: E402
 from sf2_common.studies import stats  # noqa: E402
 from sf2_common.studies.folder import StudyFolder  # noqa: E402
 from sf2_common.studies.report import report  # noqa: E402
-from sf2_common.studies.spec import loads  # noqa: E402
+from sf2_common.studies.spec import StudyError, loads  # noqa: E402
 
 STEPS = [0, 100, 200]
 
@@ -286,3 +286,51 @@ def test_a_damaged_run_file_stops_the_report_naming_it(tmp_path):
     with pytest.raises(StudyError, match=r"report folder .*file/report: .*file is a file, not a folder"):
         report(folder.path, out=tmp_path / "file" / "report")
     assert (tmp_path / "file").read_text() == "mine"
+
+
+def test_reruns_compared_with_their_runs_by_hand_and_left_out_of_the_results(tmp_path):
+    """A rerun (rerun/<task>-<method>/<seeds>[.k], as `study merge --keep-reruns` writes it) against the
+    run it repeats. AUC over env steps 0, 100, 200 of returns (a, b, c) = (a + 2b + c) / 4. TD3 on A: seeds
+    0-3 with curves (0, 1, 1), (0, 2, 2), (0, 1, 1), (0, 2, 2) → AUC 0.75, 1.5, 0.75, 1.5 (mean 1.125). Its
+    rerun of seeds 0-1: (0, 3, 3), (0, 2, 2) → 2.25, 1.5: difference +1.5, 0 (mean 0.75; two seeds, no
+    interval); the method's mean with the rerun's seeds in place: (2.25 + 1.5 + 0.75 + 1.5) / 4 = 1.5. A
+    second rerun '.2': (0, 1, 1), (0, 0, 0) → 0.75, 0: differences 0, −1.5 (mean −0.75; largest seed 1)."""
+    import csv as csv_
+
+    text = FAMILY.replace('seeds = "0-3"', 'seeds = "0-3"\nseeds_per_run = 2')
+    folder = _study(tmp_path, text)
+    curve = {0: [0, 1, 1], 1: [0, 2, 2], 2: [0, 1, 1], 3: [0, 2, 2]}
+    for task in ("A", "B"):
+        for m in ("td3", "td3-sf2", "sac"):
+            for seeds in ([0, 1], [2, 3]):
+                _write_run(folder.run_path(task, f"{m}/seeds-{seeds[0]}-{seeds[1]}"), seeds, curve)
+    _write_run(folder.rerun_path("A", "td3", (0, 1)), [0, 1], {0: [0, 3, 3], 1: [0, 2, 2]})
+    _write_run(folder.rerun_path("A", "td3", (0, 1), 2), [0, 1], {0: [0, 1, 1], 1: [0, 0, 0]})
+    _write_run(folder.path / "rerun/A-td3/seeds-7-8", [7, 8], {7: [0, 1, 1], 8: [0, 1, 1]})   # no such run
+    written = report(folder.path)
+    summary = written["summary.md"].read_text()
+    part = summary[summary.index("## Reruns"):].splitlines()
+    rows = [line for line in part if line.startswith("| A |")]
+    assert rows == [
+        "| A | TD3 | 0-1 | `rerun/A-td3/seeds-0-1` | 1.125 | 1.875 | 0.750 (n < 3: no CI) | seed 0: 0.750 → "
+        "2.250 | 1.125 → 1.500 (4) |",
+        "| A | TD3 | 0-1 | `rerun/A-td3/seeds-0-1.2` | 1.125 | 0.375 | -0.750 (n < 3: no CI) | seed 1: 1.500 "
+        "→ 0.000 | 1.125 → 0.750 (4) |"]
+    assert "Ignored (under `rerun/` but repeating no finished run of this study): `rerun/A-td3/seeds-7-8`." \
+        in part
+    with open(written["reruns.csv"]) as f:
+        got = [(r["seed"], float(r["auc_run"]), float(r["auc_rerun"]), r["rerun"])
+               for r in csv_.DictReader(f)]
+    assert got == [("0", 0.75, 2.25, "rerun/A-td3/seeds-0-1"), ("1", 1.5, 1.5, "rerun/A-td3/seeds-0-1"),
+                   ("0", 0.75, 0.75, "rerun/A-td3/seeds-0-1.2"), ("1", 1.5, 0.0, "rerun/A-td3/seeds-0-1.2")]
+    # results.csv holds the runs' AUCs only
+    with open(written["results.csv"]) as f:
+        td3 = [float(r["auc"]) for r in csv_.DictReader(f) if r["task"] == "A" and r["method"] == "TD3"]
+    assert td3 == [0.75, 1.5, 0.75, 1.5]
+    # a rerun whose seeds are not its run's stops the report, naming it; nothing is rewritten
+    before = written["summary.md"].read_bytes()
+    _write_run(folder.rerun_path("A", "sac", (2, 3)), [2], {2: [0, 1, 1]})
+    with pytest.raises(StudyError, match=r"rerun .*A-sac/seeds-2-3 holds seeds \[2\], its run .* seeds "
+                                         r"\[2, 3\]: not a rerun of it"):
+        report(folder.path)
+    assert written["summary.md"].read_bytes() == before

@@ -78,7 +78,8 @@ def add_parser(sub, prog: str) -> None:
     g.add_argument("--keep-reruns", action="store_true",
                    help="a finished run DIR already holds with other metrics (the same config and seeds "
                    "run twice: GPU runs differ) is kept in DIR/rerun/<task>-<method>/<seeds>/, out of the "
-                   "report, and the rest is merged; without it the merge is refused")
+                   "results (the report compares it with the run it repeats), and the rest is merged; "
+                   "without it the merge is refused")
     c = ssub.add_parser("compress", help="gzip the metrics.jsonl and obs_noise.json of a study folder's "
                         "finished runs", description="Replace each finished run's metrics.jsonl and "
                         "obs_noise.json by a .gz of it (4-5x smaller; `study report`, `study run` and "

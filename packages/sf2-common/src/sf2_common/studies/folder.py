@@ -28,7 +28,7 @@ from pathlib import Path
 from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch
 from sf2_common.fileio import atomic_write, compress, read_text, stored
 
-from .spec import Run, Study, StudyError, loads, same_runs
+from .spec import Run, Study, StudyError, loads, same_runs, seeds_folder
 
 __all__ = ["StudyFolder", "RunState", "OBS_NOISE", "LOG", "evaluation_settings", "evaluation_done",
            "read_obs_noise", "command_line"]
@@ -46,6 +46,7 @@ class RunState:
 
 class StudyFolder:
     STUDY, STATE, RUNS, REPORT = "study.toml", "study.json", "runs", "report"
+    RERUN = "rerun"   # reruns kept by `study merge --keep-reruns` (merge.py), compared by reruns.py
 
     def __init__(self, path):
         self.path = Path(path)
@@ -133,6 +134,12 @@ class StudyFolder:
 
     def path_of(self, run: Run) -> Path:
         return self.run_path(run.task, run.rel)
+
+    def rerun_path(self, task: str, folder: str, seeds, k: int = 1) -> Path:
+        """rerun/<task>-<folder>/<seeds folder>, '.k' appended for the k-th rerun (k > 1) of one run;
+        `folder` is the method's run folder under runs/<task>/ (`Run.folder`)."""
+        name = seeds_folder(seeds) + (f".{k}" if k > 1 else "")
+        return self.path / self.RERUN / f"{task}-{folder}" / name
 
     def method_runs(self, study: Study) -> dict[tuple[str, str], dict[tuple[int, ...], Path]]:
         """{(task, method name): {seed group: run folder}}: study.json's map (methods sharing a config

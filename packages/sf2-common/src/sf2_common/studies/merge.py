@@ -30,8 +30,9 @@ Reruns. On GPUs two runs of one config and seeds differ from the first epoch on 
 timing them in each process; results/fig7-td3/README.md "reproducible in distribution"), so a run that ran
 twice comes back twice with different metrics. With `reruns` (`--keep-reruns`) the merge keeps DEST's (or
 the first source's) in `runs/` and writes the other, `KEPT` files only, to DEST/rerun/<task>-<method>/<seed
-group>/ (`RERUN`; a second, different rerun of the same run gets "-2", and so on; one identical to a kept
-rerun is skipped): out of the report, which reads `runs/` only, and never lost.
+group>/ (`StudyFolder.rerun_path`; a second, different rerun of the same run gets ".2", and so on; one
+identical to a kept rerun is skipped): out of the results and claims, which read `runs/` only, compared
+with the run they repeat in the report's "Reruns" section (reruns.py), and never lost.
 """
 
 from __future__ import annotations
@@ -56,14 +57,13 @@ from sf2_common.fileio import GZ, atomic_write, compress, stored
 from .folder import OBS_NOISE, StudyFolder, read_obs_noise
 from .spec import Run, Study, StudyError, loads, only_adds, same_runs, seeds_text
 
-__all__ = ["KEPT", "RERUN", "Outcome", "merge"]
+__all__ = ["KEPT", "Outcome", "merge"]
 
 KEPT = (RunFolder.CONFIG, RunFolder.METRICS, RunFolder.LOG, OBS_NOISE)
 COMPRESSED = (RunFolder.METRICS, OBS_NOISE)   # DEST keeps these gzip-compressed (sf2_common.fileio)
 _KEPT_NAMES = {*KEPT, *(name + GZ for name in COMPRESSED)}   # a source's, in either form
 _NEVER = {RunFolder.CHECKPOINTS, RunFolder.FINAL, RunFolder.DAMAGED}   # folders never read from a source
 _LOCK = ".study-lock"   # runner.LOCK (not imported: runner pulls in the process machinery)
-RERUN = "rerun"         # DEST's folder of reruns (module docstring)
 
 
 @dataclasses.dataclass
@@ -384,12 +384,10 @@ def _difference(a: _Side, b: _Side) -> str:
 
 
 def _rerun_target(dest: StudyFolder, run: Run, side: _Side, planned: dict[Path, _Side]) -> Path | None:
-    """Where DEST keeps `side` as a rerun of `run`: DEST/rerun/<task>-<method>/<seed group>[-k], the first
-    such folder neither taken nor planned by this merge; None when one of them holds the same metrics."""
-    method, group = PurePosixPath(run.rel).parts[-2:]
-    base = dest.path / RERUN / f"{run.task}-{method}"
+    """Where DEST keeps `side` as a rerun of `run` (`StudyFolder.rerun_path`): the first such folder neither
+    taken nor planned by this merge; None when one of them holds the same metrics."""
     for k in range(1, 1000):
-        target = base / (group if k == 1 else f"{group}-{k}")
+        target = dest.rerun_path(run.task, run.folder, run.seeds, k)
         if target in planned:
             if planned[target].same_metrics(side):
                 return None
@@ -403,7 +401,7 @@ def _rerun_target(dest: StudyFolder, run: Run, side: _Side, planned: dict[Path, 
             continue   # an unreadable folder there is left as it is; the next name is tried
         if _key_rows(rows) == _key_rows(side.rows) and (noise and noise["results"]) == (side.noise or None):
             return None
-    raise StudyError(f"{base}: 999 reruns of {run.task}/{run.rel} already; nothing was merged")
+    raise StudyError(f"{target.parent}: 999 reruns of {run.task}/{run.rel} already; nothing was merged")
 
 
 def _check_not_running(target: Path) -> None:

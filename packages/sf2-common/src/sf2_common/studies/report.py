@@ -28,7 +28,7 @@ import numpy as np
 from sf2_common.agents.plotting import curves
 from sf2_common.agents.runfolder import RunFolder, RunFolderError
 
-from . import claims, stats
+from . import claims, reruns, stats
 from .folder import StudyFolder, read_obs_noise
 from .spec import Method, Study, StudyError, seeds_text
 
@@ -369,6 +369,7 @@ def report(path, out=None, command: str | None = None) -> dict[str, Path]:
     if blocking is not None and not blocking.is_dir():
         raise StudyError(f"report folder {out}: {blocking} is a file, not a folder; nothing was written")
     data = collect(study, folder)   # every run read before anything is written
+    found, ignored = reruns.collect(folder, data)
     out.mkdir(parents=True, exist_ok=True)
     rows = results_rows(study, data)
     written = {}
@@ -446,10 +447,47 @@ def report(path, out=None, command: str | None = None) -> dict[str, Path]:
         if points:
             written.update(figures.obs_noise(study, points, out / "obs_noise"))
             md += ["![observation noise](obs_noise.png)", ""]
+    if found or ignored:
+        md += _md_reruns(found, ignored, folder.path)
+    if found:
+        with open(out / "reruns.csv", "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=reruns.CSV_FIELDS)
+            w.writeheader()
+            w.writerows(reruns.csv_rows(found, folder.path))
+        written["reruns.csv"] = out / "reruns.csv"
     md += _md_incomplete(study, data)
     (out / "summary.md").write_text("\n".join(md))
     written["summary.md"] = out / "summary.md"
     return written
+
+
+def _md_reruns(found: list, ignored: list[Path], root: Path) -> list[str]:
+    """The "Reruns" section (reruns.py): each rerun against the run it repeats, by AUC."""
+    lines = ["## Reruns: the same config and seeds trained again (not in the results above)", "",
+             "A rerun repeats a run of `runs/` with its config and seeds (`study merge --keep-reruns` keeps "
+             "it in `rerun/`): on GPUs the two differ from the first epoch on, so it is a second draw of the "
+             "same seeds. Per seed AUC as above; the difference rerun − run is a mean over the seeds with "
+             "its 95% bootstrap interval; the last column is the method's mean AUC over all its finished "
+             "seeds on the task, as reported and with the rerun's seeds in place of the run's "
+             "(reruns.csv: every seed).", ""]
+    if found:
+        lines += ["| task | method | seeds | rerun | AUC run: mean | AUC rerun: mean | rerun − run: mean "
+                  "[95% CI] | largest seed difference | method's AUC (seeds): reported → with the rerun |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        for r in found:
+            diff = stats.mean_interval(r.difference)
+            big = int(np.argmax(np.abs(r.difference)))
+            lines.append(f"| {r.task} | {r.method} | {seeds_text(r.seeds)} | "
+                         f"`{r.path.relative_to(root).as_posix()}` | {_fmt(float(r.auc_run.mean()))} | "
+                         f"{_fmt(float(r.auc_rerun.mean()))} | {_with_ci(diff[0][0], *_lohi(diff))} | "
+                         f"seed {r.seeds[big]}: {_fmt(float(r.auc_run[big]))} → "
+                         f"{_fmt(float(r.auc_rerun[big]))} | {_fmt(r.method_auc)} → "
+                         f"{_fmt(r.method_auc_rerun)} ({r.method_seeds}) |")
+        lines.append("")
+    if ignored:
+        lines += ["Ignored (under `rerun/` but repeating no finished run of this study): "
+                  + ", ".join(f"`{p.relative_to(root).as_posix()}`" for p in ignored) + ".", ""]
+    return lines
 
 
 def _md_seed_counts(study: Study, data: list[RunData]) -> list[str]:

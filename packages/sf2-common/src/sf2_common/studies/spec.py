@@ -172,7 +172,7 @@ class Study:
     def group_folder(self, seeds) -> str | None:
         """The run folder of a seed group under runs/<task>/<method>/: 'seeds-0-4' ('seeds-0_2_4' for
         seeds 0, 2, 4); None without `seeds_per_run` (the method's folder is the run's)."""
-        return None if self.seeds_per_run is None else "seeds-" + seeds_text(seeds).replace(",", "_")
+        return None if self.seeds_per_run is None else seeds_folder(seeds)
 
     def select_groups(self, seeds=None) -> tuple[tuple[int, ...], ...]:
         """The seed groups wholly inside `seeds` (a `--seeds` text such as "0-4", or a sequence of ints;
@@ -551,6 +551,11 @@ def select_runs(study: Study, runs: list[Run], tasks=None, methods=None, seeds=N
     wanted = {(t, m.name) for t, m in study.select(tasks, methods)}
     groups = set(study.select_groups(seeds))
     return [r for r in runs if any((r.task, m.name) in wanted for m in r.methods) and r.seeds in groups]
+
+
+def seeds_folder(seeds) -> str:
+    """The folder name of a seed group: (0, 1, 2, 3, 4) → 'seeds-0-4', (0, 2, 4) → 'seeds-0_2_4'."""
+    return "seeds-" + seeds_text(seeds).replace(",", "_")
 
 
 def seeds_text(seeds) -> str:
