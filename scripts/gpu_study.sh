@@ -32,7 +32,14 @@ folder=/tmp/study-$name
 source scripts/gpu_env.sh || exit 1
 # A new host starts from the runs this repository already holds (results/<name>), so finished runs are
 # not run again; the merge of the archive back into results/<name> skips them as identical.
-if [ ! -d "$folder" ] && [ -d "results/$name/runs" ]; then cp -r "results/$name" "$folder"; fi
+# The first line says which: a fresh host where the previous command's host was meant to be kept (a lease
+# that went back between calls) means that command's unfinished runs start again here.
+if [ ! -d "$folder" ]; then
+  echo "host $(hostname): fresh (no $folder); runs start from results/$name's finished ones"
+  if [ -d "results/$name/runs" ]; then cp -r "results/$name" "$folder"; fi
+else
+  echo "host $(hostname): kept from an earlier command ($folder is here; its unfinished runs resume)"
+fi
 nvidia-smi --query-gpu=name,memory.total --format=csv,noheader
 start=$(date +%s)
 timeout --signal=TERM "$limit" python3 -m sf2_jax.cli study run "$study" --out "$folder" --no-progress "$@"
