@@ -303,7 +303,8 @@ def test_throughput_warm_up_holds_the_first_sgd_step(env_steps, epochs, prefill,
 
 
 def test_throughput_config_times_only_whole_sgd_epochs():
-    pytest.importorskip("mujoco_playground", reason="the paper preset's config needs the task list")
+    pytest.importorskip("mujoco_playground", reason="the paper preset's config needs the Playground "
+                        "task list: install a core's [train] extra")
     from sf2_common.agents.configs import schedule
 
     from bench.agent_throughput import config_for

@@ -396,10 +396,11 @@ def _rerun_target(dest: StudyFolder, run: Run, side: _Side, planned: dict[Path, 
             return target
         try:
             rows = RunFolder(target).read_rows(strict=True)
-            noise = read_obs_noise(target)
+            data = read_obs_noise(target)
         except (RunFolderError, ValueError):
             continue   # an unreadable folder there is left as it is; the next name is tried
-        if _key_rows(rows) == _key_rows(side.rows) and (noise and noise["results"]) == (side.noise or None):
+        kept = _Side(target, "done", 0, rows, None if data is None else data["results"], "rerun")
+        if kept.same_metrics(side):
             return None
     raise StudyError(f"{target.parent}: 999 reruns of {run.task}/{run.rel} already; nothing was merged")
 
