@@ -334,3 +334,17 @@ def test_reruns_compared_with_their_runs_by_hand_and_left_out_of_the_results(tmp
                                          r"\[2, 3\]: not a rerun of it"):
         report(folder.path)
     assert written["summary.md"].read_bytes() == before
+
+
+def test_learning_curves_layout_and_seed_titles_by_hand():
+    from sf2_common.studies.figures import grid, seeds_title
+
+    # seven tasks at four to a row: two rows (4 + 3, the eighth panel holds the legend); three tasks: one row
+    assert grid(7) == (2, 4) and grid(8) == (2, 4) and grid(9) == (3, 4)
+    assert grid(3) == (1, 3) and grid(1) == (1, 1)
+    # every method at 15 seeds; one method behind (the count most methods have comes first); a tie between
+    # counts takes the larger
+    assert seeds_title({"TD3": 15, "TD3+SF²": 15}) == "n=15"
+    assert seeds_title({"TD3": 15, "TD3+SF²": 15, "TD3+SPR": 5}) == "n=15 (TD3+SPR: 5)"
+    assert seeds_title({"TD3": 5, "TD3+SF²": 15}) == "n=15 (TD3: 5)"
+    assert seeds_title({}) == ""

@@ -12,7 +12,7 @@ import numpy as np
 
 from . import stats
 
-__all__ = ["aggregate", "learning_curves", "sweeps", "obs_noise"]
+__all__ = ["aggregate", "learning_curves", "sweeps", "obs_noise", "grid", "seeds_title"]
 
 _CI = f"95% bootstrap CI ({stats.RESAMPLES} resamples)"
 
@@ -124,44 +124,70 @@ def aggregate(table: dict, stem: Path, study, covers: dict | None = None) -> dic
 
 
 # ------------------------------------------------------------------------------------------- Fig. 6 / 8
+CURVE_COLUMNS = 4   # panels per row of the learning curves: seven tasks take two rows, not one 27-inch row
+
+
+def grid(n_panels: int, columns: int = CURVE_COLUMNS) -> tuple[int, int]:
+    """(rows, columns) of a family's panels: at most `columns` per row, as few rows as hold them."""
+    cols = max(1, min(columns, n_panels))
+    return -(-n_panels // cols), cols
+
+
+def seeds_title(counts: dict[str, int]) -> str:
+    """A panel's seed counts, {method label: seeds}: 'n=15' where every method has the same, else the count
+    most methods have and the others by name, 'n=15 (TD3+SPR: 5)'."""
+    if not counts:
+        return ""
+    values = list(counts.values())
+    common = max(sorted(set(values), reverse=True), key=values.count)
+    others = ", ".join(f"{label}: {n}" for label, n in counts.items() if n != common)
+    return f"n={common}" + (f" ({others})" if others else "")
+
+
 def learning_curves(study, data: list, stem: Path) -> dict[str, Path]:
-    """data: finished `report.RunData`; one panel per (family, task): per method the mean eval return
-    over seeds and its 95% bootstrap band, point by point."""
+    """data: finished `report.RunData`; one panel per (family, task), `CURVE_COLUMNS` to a row: per method
+    the mean eval return over seeds and its 95% bootstrap band, point by point. The legend names each
+    method once per family (one color per method across tasks and families); each panel's title gives its
+    seed counts (`seeds_title`), which may differ between tasks while a study is in progress."""
     plt = _plt()
     colors = _Colors()
     families = list(dict.fromkeys(d.method.family for d in data))
     tasks = [t for t in study.tasks if any(d.task == t for d in data)]
-    fig, axes = plt.subplots(len(families), len(tasks), squeeze=False,
-                             figsize=(3.6 * len(tasks) + 2.4, 2.9 * len(families)))
+    rows, cols = grid(len(tasks))
+    fig, axes = plt.subplots(rows * len(families), cols, squeeze=False,
+                             figsize=(3.6 * cols + 2.4, 2.9 * rows * len(families)))
     ns = []
-    for r, family in enumerate(families):
-        for c, task in enumerate(tasks):
-            ax = axes[r][c]
+    for f, family in enumerate(families):
+        panels = [axes[f * rows + i // cols][i % cols] for i in range(rows * cols)]
+        handles: dict[str, object] = {}
+        for i, task in enumerate(tasks):
+            ax, counts = panels[i], {}
             for d in (d for d in data if d.task == task and d.method.family == family):
                 mat = d.matrix()
                 mean, lo, hi = stats.mean_interval(mat)
                 ns.append(mat.shape[0])
+                counts[d.method.label] = mat.shape[0]
                 color = colors(d.method.label)
-                ax.plot(d.steps, mean, color=color, lw=1.6, label=f"{d.method.label} (n={mat.shape[0]})")
+                (line,) = ax.plot(d.steps, mean, color=color, lw=1.6)
+                handles.setdefault(d.method.label, line)
                 if lo is not None:
                     ax.fill_between(d.steps, lo, hi, color=color, alpha=0.2, lw=0)
-            ax.set_title(f"{task} · {family}", fontsize=10)
+            ax.set_title(f"{task} · {family}" + (f" · {seeds_title(counts)}" if counts else ""), fontsize=9)
             ax.grid(alpha=0.3)
             ax.xaxis.set_major_formatter(_steps_formatter())
-            if r == len(families) - 1:
+            if i + cols >= len(tasks):   # nothing below it in this family
                 ax.set_xlabel("env steps")
-            if c == 0:
+            if i % cols == 0:
                 ax.set_ylabel("eval return")
-        handles, labels = axes[r][0].get_legend_handles_labels()
-        for ax in axes[r][1:]:
-            for h, lab in zip(*ax.get_legend_handles_labels()):
-                if lab not in labels:
-                    handles.append(h)
-                    labels.append(lab)
-        axes[r][-1].legend(handles, labels, loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8,
-                           frameon=False)
-    fig.suptitle(f"{study.name}: learning curves\nline: mean eval return over seeds; band: {_CI} of the "
-                 f"mean at each evaluation" + _seed_note(ns), fontsize=10)
+        for ax in panels[len(tasks):]:
+            ax.axis("off")
+        spare = panels[len(tasks):]   # the family's legend in its first empty panel, else right of its top row
+        where = (dict(loc="center left", bbox_to_anchor=(0.0, 0.5)) if spare else
+                 dict(loc="upper left", bbox_to_anchor=(1.02, 1.0)))
+        (spare[0] if spare else panels[cols - 1]).legend(list(handles.values()), list(handles), fontsize=8,
+                                                         frameon=False, **where)
+    fig.suptitle(f"{study.name}: learning curves (n = seeds)\nline: mean eval return over seeds; band: {_CI} "
+                 f"of the mean at each evaluation" + _seed_note(ns), fontsize=10)
     fig.tight_layout()
     return _save(fig, stem)
 
