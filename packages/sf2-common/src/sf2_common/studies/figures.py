@@ -181,7 +181,7 @@ def learning_curves(study, data: list, stem: Path) -> dict[str, Path]:
                 ax.set_ylabel("eval return")
         for ax in panels[len(tasks):]:
             ax.axis("off")
-        spare = panels[len(tasks):]   # the family's legend in its first empty panel, else right of its top row
+        spare = panels[len(tasks):]   # the legend in the first empty panel, else right of the top row
         where = (dict(loc="center left", bbox_to_anchor=(0.0, 0.5)) if spare else
                  dict(loc="upper left", bbox_to_anchor=(1.02, 1.0)))
         (spare[0] if spare else panels[cols - 1]).legend(list(handles.values()), list(handles), fontsize=8,
