@@ -5,6 +5,7 @@ of improvement against rliable's own functions, and a study folder that takes cl
 from __future__ import annotations
 
 import csv
+import dataclasses
 
 import numpy as np
 import pytest
@@ -198,3 +199,26 @@ def test_observation_noise_claims_compare_each_level(tmp_path, monkeypatch):
     with pytest.raises(StudyError, match="over several tasks needs per_task = true"):
         loads(STUDY + "[evaluation]\nobs_noise = [0.0]\n" + CLAIM + 'score = "obs_noise"\n',
               tmp_path / "s.toml")
+
+
+def test_projected_half_width_at_the_study_seeds_by_hand(tmp_path):
+    """A comparison over 4 of 16 seeds: its interval's half-width × √(4/16) = half of it; none with every
+    seed or without an interval; the summary's column says whether the difference lies beyond it."""
+    study = loads(STUDY.replace('seeds = "0-4"', 'seeds = "0-15"') + CLAIM, tmp_path / "s.toml")
+    c = claims.Comparison("all 2 tasks", "TD3+SF²", "TD3", ("T1", "T2"), (), (0, 1, 2, 3), -0.015, -0.115,
+                          0.085, 0.41, "not resolved")
+    assert claims.projected_half_width(c, 16) == pytest.approx(0.1 * 0.5)
+    assert claims.projected_half_width(c, 4) is None
+    assert claims.projected_half_width(dataclasses.replace(c, lower=None, upper=None), 16) is None
+    wide = dataclasses.replace(c, difference=0.08, projected=0.05, study_seeds=16)
+    near = dataclasses.replace(c, projected=0.05, study_seeds=16)
+    md = "\n".join(claims.markdown([(study.claims[0], "not resolved", [wide, near])]))
+    assert "| P(claimed > other) | verdict | at 16 seeds (projected) |" in md
+    assert "| +0.080 [-0.115, +0.085] | 0.41 | not resolved | ±0.050, Δ beyond |" in md
+    assert "| -0.015 [-0.115, +0.085] | 0.41 | not resolved | ±0.050, Δ within |" in md
+    # evaluate() fills it in: 5 seeds of the study's 16 on both tasks
+    scores = {(t, m): {s: (0.1 if m == "TD3" else 0.0) * s for s in range(5)}
+              for t in ("T1", "T2") for m in ("TD3", "TD3+SF²")}
+    (c,) = claims.evaluate(study.claims[0], study, _rows(scores))[1]
+    assert c.study_seeds == 16
+    assert c.projected == pytest.approx((c.upper - c.lower) / 2 * (5 / 16) ** 0.5)

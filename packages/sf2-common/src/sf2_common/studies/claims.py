@@ -28,6 +28,15 @@ improvement P(method > other). Its verdict:
 A claim is contradicted when a comparison is, else cannot be decided when a comparison cannot be, else
 supported when every comparison is, else not resolved. A 95% bootstrap interval of 5 seeds covers the true
 difference less often than 95% (stats.py); summary.md says so beside the table.
+
+Would the study's full seeds decide it? A comparison over n of the study's N seeds (n < N) also gets
+`projected`, the interval's half-width scaled to N seeds, (upper − lower) / 2 × √(n / N): a bootstrap
+interval of a mean-like statistic narrows as 1/√seeds if the seeds spread as the first n do. It is a
+planning figure, not a test: a not-resolved difference larger than it may be resolved by running the rest
+of the seeds; one smaller than it likely will not be. Checked on results/fig7-td3's 15 per-task
+comparisons that went from 5 seeds to 15 (their claims.csv in this repository's history): the 15-seed
+half-width was 0.41–1.63× the projection (median 0.95); the five not resolved at 5 seeds split as
+projected: the four with "Δ within" stayed not resolved, the one "Δ beyond" became supported.
 """
 
 from __future__ import annotations
@@ -42,7 +51,7 @@ __all__ = ["Claim", "Comparison", "parse", "evaluate", "check", "markdown", "csv
 
 VERDICTS = ("supported", "contradicted", "not resolved", "cannot decide")
 CSV_FIELDS = ("claim", "scope", "method", "other", "score", "statistic", "tasks", "missing_tasks", "seeds",
-              "difference", "lower", "upper", "p_improvement", "verdict")
+              "difference", "lower", "upper", "p_improvement", "verdict", "projected_half_width")
 _KEYS = ("text", "method", "above", "tasks", "statistic", "per_task", "score")
 SCORES = ("normalized_auc", "obs_noise")
 
@@ -75,6 +84,8 @@ class Comparison:
     upper: float | None
     p_improvement: float | None
     verdict: str
+    projected: float | None = None   # the interval's half-width projected to the study's seeds (docstring)
+    study_seeds: int = 0             # N, the study's number of seeds
 
 
 # ------------------------------------------------------------------------------------------- parsing
@@ -199,7 +210,18 @@ def evaluate(claim: Claim, study, rows: list[dict], noise_rows=()) -> tuple[str,
                        [(f"noise {level:g}", claim.tasks, at)])
     comparisons = [_compare(scope, label[claim.method], label[other], tasks, scored, claim.statistic)
                    for scope, tasks, scored in scopes for other in claim.above]
+    comparisons = [dataclasses.replace(c, projected=projected_half_width(c, len(study.seeds)),
+                                       study_seeds=len(study.seeds)) for c in comparisons]
     return overall(comparisons), comparisons
+
+
+def projected_half_width(c: Comparison, n_study: int) -> float | None:
+    """The half-width of `c`'s interval scaled from its seeds to the study's `n_study` (module docstring);
+    None without an interval or where `c` already has every seed."""
+    n = len(c.seeds)
+    if c.lower is None or c.upper is None or n >= n_study:
+        return None
+    return (c.upper - c.lower) / 2 * (n / n_study) ** 0.5
 
 
 def check(study, rows: list[dict], noise_rows=()) -> list[tuple[Claim, str, list[Comparison]]]:
@@ -224,24 +246,32 @@ def markdown(checked) -> list[str]:
              "**contradicted**: below 0; **not resolved**: it holds 0; **cannot decide**: a task lacks "
              f"finished seeds of one of the two (numbers then over the tasks that have them), or fewer than "
              f"{stats.MIN_SEEDS} seeds. With 5 seeds a nominal 95% interval covers the truth only about 84% "
-             "of the time (sf2_common/studies/stats.py).", ""]
+             "of the time (sf2_common/studies/stats.py). **At N seeds (projected)**, N the study's seeds, where "
+             "a comparison has fewer: its interval's half-width × √(seeds / N), what the interval would "
+             "narrow to if the remaining seeds spread as these do; \"Δ beyond\" means the difference is "
+             "larger than it (the rest of the seeds may resolve it), \"Δ within\" smaller (they likely "
+             "will not). A planning figure, not a test (sf2_common/studies/claims.py).", ""]
     for i, (claim, verdict, comps) in enumerate(checked, 1):
         counts = ", ".join(f"{v} {n}" for v in VERDICTS if (n := sum(c.verdict == v for c in comps)))
         plural = "s" * (len(comps) > 1)
         lines += [f"**Claim {i}** — {claim.text}", "",
                   f"Verdict: **{verdict}** ({counts} of {len(comps)} comparison{plural}).", ""]
         shown = [c for c in comps if c.seeds]
+        project = max((c.study_seeds for c in shown if c.projected is not None), default=0)
         if shown:
             lines += [f"Scores: {claim.scores_what()}.", "",
                       f"| scope | comparison | tasks with both | seeds | Δ {claim.statistic} [95% CI] | "
-                      f"P(claimed > other) | verdict |", "|---|---|---|---|---|---|---|"]
+                      f"P(claimed > other) | verdict |" + (f" at {project} seeds (projected) |" if project
+                                                           else ""),
+                      "|---|---|---|---|---|---|---|" + ("---|" if project else "")]
         for c in shown:
             tasks = f"{len(c.tasks)} of {len(c.tasks) + len(c.missing)} ({', '.join(c.tasks)})" if c.missing \
                 else "all"
             ci = "" if c.lower is None else f" [{_num(c.lower)}, {_num(c.upper)}]"
             p = "—" if c.p_improvement is None else f"{c.p_improvement:.2f}"
             lines.append(f"| {c.scope} | {c.method} − {c.other} | {tasks} | {seeds_text(c.seeds)} | "
-                         f"{_num(c.difference)}{ci} | {p} | {c.verdict} |")
+                         f"{_num(c.difference)}{ci} | {p} | {c.verdict} |" + (f" {_projection(c)} |" if project
+                                                                               else ""))
         empty = [c for c in comps if not c.seeds]
         if empty:
             whole = [s for s in dict.fromkeys(c.scope for c in comps)
@@ -253,6 +283,12 @@ def markdown(checked) -> list[str]:
     return lines
 
 
+def _projection(c: Comparison) -> str:
+    if c.projected is None:
+        return "—"
+    return f"±{c.projected:.3f}, Δ {'beyond' if abs(c.difference) > c.projected else 'within'}"
+
+
 def csv_rows(checked) -> list[dict]:
     """One row per comparison of every claim (`CSV_FIELDS`) from `check`'s result."""
     out = []
@@ -262,5 +298,6 @@ def csv_rows(checked) -> list[dict]:
                         "score": claim.score, "statistic": claim.statistic, "tasks": ";".join(c.tasks),
                         "missing_tasks": ";".join(c.missing), "seeds": seeds_text(c.seeds) if c.seeds else "",
                         "difference": c.difference, "lower": c.lower, "upper": c.upper,
-                        "p_improvement": c.p_improvement, "verdict": c.verdict})
+                        "p_improvement": c.p_improvement, "verdict": c.verdict,
+                        "projected_half_width": c.projected})
     return out
