@@ -246,8 +246,8 @@ def markdown(checked) -> list[str]:
              "**contradicted**: below 0; **not resolved**: it holds 0; **cannot decide**: a task lacks "
              f"finished seeds of one of the two (numbers then over the tasks that have them), or fewer than "
              f"{stats.MIN_SEEDS} seeds. With 5 seeds a nominal 95% interval covers the truth only about 84% "
-             "of the time (sf2_common/studies/stats.py). **At N seeds (projected)**, N the study's seeds, where "
-             "a comparison has fewer: its interval's half-width × √(seeds / N), what the interval would "
+             "of the time (sf2_common/studies/stats.py). **At N seeds (projected)**, N the study's seeds, "
+             "where a comparison has fewer: its interval's half-width × √(seeds / N), what it would "
              "narrow to if the remaining seeds spread as these do; \"Δ beyond\" means the difference is "
              "larger than it (the rest of the seeds may resolve it), \"Δ within\" smaller (they likely "
              "will not). A planning figure, not a test (sf2_common/studies/claims.py).", ""]
@@ -269,9 +269,9 @@ def markdown(checked) -> list[str]:
                 else "all"
             ci = "" if c.lower is None else f" [{_num(c.lower)}, {_num(c.upper)}]"
             p = "—" if c.p_improvement is None else f"{c.p_improvement:.2f}"
+            projection = f" {_projection(c)} |" if project else ""
             lines.append(f"| {c.scope} | {c.method} − {c.other} | {tasks} | {seeds_text(c.seeds)} | "
-                         f"{_num(c.difference)}{ci} | {p} | {c.verdict} |" + (f" {_projection(c)} |" if project
-                                                                               else ""))
+                         f"{_num(c.difference)}{ci} | {p} | {c.verdict} |{projection}")
         empty = [c for c in comps if not c.seeds]
         if empty:
             whole = [s for s in dict.fromkeys(c.scope for c in comps)
