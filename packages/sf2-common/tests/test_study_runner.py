@@ -5,7 +5,9 @@ when missing."""
 
 from __future__ import annotations
 
+import io
 import json
+import re
 import sys
 import textwrap
 
@@ -249,9 +251,14 @@ def test_finish_within_starts_only_runs_forecast_to_end_in_time(tmp_path, monkey
         finished.append(runner.Job(SimpleNamespace(task=task, folder="m", rel="m"), path, [], 1000, 1000))
     env = {"PATH": "/usr/bin:/bin", "PYTHONPATH": str(tmp_path) + ":" + ":".join(sys.path),
            "CUDA_VISIBLE_DEVICES": ""}
+    log = io.StringIO()
     outcome = runner.run_local(study, folder, jobs, finished, backend=backend, base_env=env, progress=False,
-                               poll=0.05, finish_within=60)
+                               poll=0.05, finish_within=60, stream=log)
     assert outcome.ok
+    # each finished run's line: the time it took and its forecast at its start (B's: 1e-6 s per env step)
+    for j in jobs:
+        if j.run.task == "B":
+            assert re.search(rf"  {re.escape(j.name)}: done after \d+s \(forecast 0s\)\n", log.getvalue())
     assert sorted(outcome.deferred) == sorted(j.name for j in jobs if j.run.task in ("A", "C"))
     assert sorted(outcome.done) == sorted([j.name for j in jobs if j.run.task == "B"] + ["A/m", "B/m"])
     assert all((j.path / "child.json").exists() == (j.run.task == "B") for j in jobs)
@@ -259,6 +266,9 @@ def test_finish_within_starts_only_runs_forecast_to_end_in_time(tmp_path, monkey
     outcome = runner.run_local(study, folder, only_a, [], backend=backend, base_env=env, progress=False,
                                poll=0.05, finish_within=60, history=finished)
     assert sorted(outcome.deferred) == sorted(j.name for j in only_a) and not outcome.done
+    log = io.StringIO()
     outcome = runner.run_local(study, folder, only_a, [], backend=backend,
-                               base_env=env, progress=False, poll=0.05, finish_within=60)
+                               base_env=env, progress=False, poll=0.05, finish_within=60, stream=log)
     assert not outcome.deferred and len(outcome.done) == 2            # nothing to forecast from: all start
+    # the first to finish had no forecast at its start (no finished run then): its line says none
+    assert re.search(r": done after \d+s\n", log.getvalue()), log.getvalue()

@@ -295,6 +295,8 @@ class _Slot:
         self.proc: subprocess.Popen | None = None
         self.fd: int | None = None
         self.queue: list[list[str]] = []
+        self.started = 0.0                     # time.monotonic() when its job started
+        self.forecast: float | None = None     # the job's Forecast then (seconds), None without one
 
 
 def run_local(study: Study, folder: StudyFolder, jobs: list[Job], done: list[Job], *, backend: Backend,
@@ -305,7 +307,9 @@ def run_local(study: Study, folder: StudyFolder, jobs: list[Job], done: list[Job
     that goes back at a known time then spends none of it on runs that would be cut and lost); every job
     starts while no run has finished to forecast from. `history`: the finished runs the forecast draws on
     (default `done`; `study run` passes every finished run of the study folder, not only the selected ones).
-    Runs already started are never stopped by it."""
+    Runs already started are never stopped by it. A finished run's line gives the time it took here and
+    its forecast at its start ("done after 5m23s (forecast 7m32s)"): each session's log checks the
+    forecasts."""
     stream = stream or sys.stderr
     deadline = None if finish_within is None else time.monotonic() + finish_within
     forecast = Forecast(done if history is None else history)
@@ -339,6 +343,7 @@ def run_local(study: Study, folder: StudyFolder, jobs: list[Job], done: list[Job
             view.event(f"  {job.name}: skipped, another runner holds {job.path / LOCK}")
             return False
         slot.job, slot.fd, slot.queue = job, fd, list(job.commands)
+        slot.started, slot.forecast = time.monotonic(), forecast.seconds(job) if forecast.known else None
         _next(slot)
         view.event(f"  {job.name}: started on {slot.label} ({' then '.join(c[0] for c in job.commands)})")
         return True
@@ -369,7 +374,9 @@ def run_local(study: Study, folder: StudyFolder, jobs: list[Job], done: list[Job
                 if rc == 0:
                     outcome.done.append(job.name)
                     forecast.add(job)
-                    view.event(f"  {job.name}: done")
+                    took = duration(time.monotonic() - slot.started)
+                    said = "" if slot.forecast is None else f" (forecast {duration(slot.forecast)})"
+                    view.event(f"  {job.name}: done after {took}{said}")
                 else:
                     outcome.failed.append((job.name, rc, job.path / LOG))
                     view.event(f"  {job.name}: FAILED (exit status {rc}); log: {job.path / LOG}")
