@@ -6,7 +6,10 @@ Per run folder (metrics.jsonl of the first seed: every seed of a run shares one 
 the whole run's wall time (the last row's `walltime`, resumptions included), the evaluations after
 epoch 0 (`eval_seconds` summed; with the batched evaluation each row holds its share of its batch's
 time, so the sum is the batches' time), the training epochs (`epoch_seconds` summed), the evaluations'
-share, and the run's env steps/s over all seeds. docs/physics.md "Evaluation latency" uses it.
+share, and the run's env steps/s over all seeds; with them the seeds, the GPU (config.json's "hardware",
+that of the run's first start; "not recorded" before run folders named it) and how many times `train`
+started in the folder (train.log: 2 = cut by a time limit and resumed once). docs/physics.md "Evaluation
+latency" and bench/README.md's per-task rates use it.
 `--epochs A-B`: the same over epochs A+1..B only (wall time from epoch A's row to epoch B's): the rate of a
 stretch of a run, e.g. after the run it shared its GPU with had finished (bench/results/h200/20-runs-per-gpu).
 """
@@ -20,7 +23,8 @@ from pathlib import Path
 
 from sf2_common.fileio import read_text, stored
 
-FIELDS = ("run", "epochs", "wall_s", "eval_s", "train_s", "eval_share", "env_steps_per_s")
+FIELDS = ("run", "epochs", "wall_s", "eval_s", "train_s", "eval_share", "env_steps_per_s", "seeds",
+          "hardware", "starts")
 
 
 def measure(folder: Path, span: tuple[int, int] | None = None) -> dict:
@@ -45,7 +49,27 @@ def measure(folder: Path, span: tuple[int, int] | None = None) -> dict:
     steps = first[b]["env_steps"] - start["env_steps"]
     return {"run": str(folder), "epochs": f"{a}-{b}", "wall_s": round(wall, 1), "eval_s": round(evals, 1),
             "train_s": round(train, 1), "eval_share": round(evals / wall, 3),
-            "env_steps_per_s": round(steps * len(seeds) / wall)}
+            "env_steps_per_s": round(steps * len(seeds) / wall), "seeds": len(seeds),
+            "hardware": _hardware(folder), "starts": _starts(folder)}
+
+
+def _hardware(folder: Path) -> str:
+    path = stored(folder / "config.json")
+    try:
+        conf = json.loads(read_text(path)) if path is not None else {}
+    except json.JSONDecodeError:
+        raise SystemExit(f"error: {path} is not JSON (a damaged config.json)") from None
+    return (conf.get("hardware") if isinstance(conf, dict) else None) or "not recorded"
+
+
+def _starts(folder: Path) -> int | None:
+    """How many `train` processes train.log records (the runner writes a `$ python -m … train …` line
+    before each), None without a train.log."""
+    path = stored(folder / "train.log")
+    if path is None:
+        return None
+    lines = read_text(path).splitlines()
+    return sum(1 for line in lines if line.startswith("$ python -m ") and " train " in line)
 
 
 def _span(text: str) -> tuple[int, int]:
