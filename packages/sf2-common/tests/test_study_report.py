@@ -348,3 +348,58 @@ def test_learning_curves_layout_and_seed_titles_by_hand():
     assert seeds_title({"TD3": 15, "TD3+SF²": 15, "TD3+SPR": 5}) == "n=15 (TD3+SPR: 5)"
     assert seeds_title({"TD3": 5, "TD3+SF²": 15}) == "n=15 (TD3: 5)"
     assert seeds_title({}) == ""
+
+
+CURVES = """
+name = "curves"
+seeds = "0-3"
+tasks = ["A"]
+[report]
+figures = ["curves"]
+{statistic}
+[[methods]]
+label = "TD3"
+name = "td3"
+algo = "td3"
+representation = "none"
+"""
+
+
+@pytest.mark.parametrize("setting,expected", [
+    ("", [0.0, 27.25, 53.75]),                              # default: the mean over the four seeds
+    ('curve_statistic = "median"', [0.0, 4.0, 6.5]),       # paper Fig. 8: (3 + 5) / 2, (4 + 9) / 2
+])
+def test_learning_curves_draw_the_study_statistic(tmp_path, monkeypatch, setting, expected):
+    """The curve of four seeds whose returns at step 100 are 1, 3, 5, 100 and at step 200 2, 4, 9, 200:
+    its line is their mean or median (by hand, above) as `[report] curve_statistic` says, its band the
+    bootstrap interval of that statistic, within the seeds' range; the title names the statistic."""
+    from sf2_common.studies import figures
+
+    drawn = []
+    monkeypatch.setattr(figures, "_save", lambda fig, stem: drawn.append(fig) or {})
+    folder = _study(tmp_path, CURVES.format(statistic=setting))
+    returns = {0: [0, 1, 2], 1: [0, 3, 4], 2: [0, 5, 9], 3: [0, 100, 200]}
+    _write_run(folder.path / "runs" / "A" / "td3", [0, 1, 2, 3], returns)
+    report(folder.path)
+    (fig,) = drawn
+    ax = fig.axes[0]
+    (line,) = ax.get_lines()
+    np.testing.assert_allclose(line.get_ydata(), expected)
+    (band,) = ax.collections
+    ys = band.get_paths()[0].vertices[:, 1]
+    assert ys.min() >= 0.0 and ys.max() <= 200.0
+    statistic = "median" if setting else "mean"
+    assert f"line: {statistic} eval return" in fig._suptitle.get_text()
+    # the same numbers from stats: the median's interval holds the median
+    point, lo, hi = stats.median_interval(np.array([returns[s] for s in range(4)]), resamples=500)
+    np.testing.assert_allclose(point, [0.0, 4.0, 6.5])
+    assert np.all(lo <= point) and np.all(point <= hi)
+
+
+def test_curve_statistic_is_checked(tmp_path):
+    with pytest.raises(StudyError, match=r"curve_statistic = 'iqm' is invalid: one of 'mean', 'median'"):
+        loads(CURVES.format(statistic='curve_statistic = "iqm"'), tmp_path / "s.toml")
+    # below 3 seeds no interval, and no rliable needed: the plain median
+    point, lo, hi = stats.median_interval([[1.0, 2.0], [3.0, 5.0]])
+    np.testing.assert_allclose(point, [2.0, 3.5])
+    assert lo is None and hi is None

@@ -146,7 +146,8 @@ def seeds_title(counts: dict[str, int]) -> str:
 
 def learning_curves(study, data: list, stem: Path) -> dict[str, Path]:
     """data: finished `report.RunData`; one panel per (family, task), `CURVE_COLUMNS` to a row: per method
-    the mean eval return over seeds and its 95% bootstrap band, point by point. The legend names each
+    the mean (or, with the study's `[report] curve_statistic = "median"`, the median: paper Fig. 8) eval
+    return over seeds and its 95% bootstrap band, point by point. The legend names each
     method once per family (one color per method across tasks and families); each panel's title gives its
     seed counts (`seeds_title`), which may differ between tasks while a study is in progress."""
     plt = _plt()
@@ -157,6 +158,8 @@ def learning_curves(study, data: list, stem: Path) -> dict[str, Path]:
     fig, axes = plt.subplots(rows * len(families), cols, squeeze=False,
                              figsize=(3.6 * cols + 2.4, 2.9 * rows * len(families)))
     ns = []
+    statistic = study.report.curve_statistic
+    interval = {"mean": stats.mean_interval, "median": stats.median_interval}[statistic]
     for f, family in enumerate(families):
         panels = [axes[f * rows + i // cols][i % cols] for i in range(rows * cols)]
         handles: dict[str, object] = {}
@@ -164,11 +167,11 @@ def learning_curves(study, data: list, stem: Path) -> dict[str, Path]:
             ax, counts = panels[i], {}
             for d in (d for d in data if d.task == task and d.method.family == family):
                 mat = d.matrix()
-                mean, lo, hi = stats.mean_interval(mat)
+                center, lo, hi = interval(mat)
                 ns.append(mat.shape[0])
                 counts[d.method.label] = mat.shape[0]
                 color = colors(d.method.label)
-                (line,) = ax.plot(d.steps, mean, color=color, lw=1.6)
+                (line,) = ax.plot(d.steps, center, color=color, lw=1.6)
                 handles.setdefault(d.method.label, line)
                 if lo is not None:
                     ax.fill_between(d.steps, lo, hi, color=color, alpha=0.2, lw=0)
@@ -186,8 +189,8 @@ def learning_curves(study, data: list, stem: Path) -> dict[str, Path]:
                  dict(loc="upper left", bbox_to_anchor=(1.02, 1.0)))
         (spare[0] if spare else panels[cols - 1]).legend(list(handles.values()), list(handles), fontsize=8,
                                                          frameon=False, **where)
-    fig.suptitle(f"{study.name}: learning curves (n = seeds)\nline: mean eval return over seeds; band: {_CI} "
-                 f"of the mean at each evaluation" + _seed_note(ns), fontsize=10)
+    fig.suptitle(f"{study.name}: learning curves (n = seeds)\nline: {statistic} eval return over seeds; "
+                 f"band: {_CI} of the {statistic} at each evaluation" + _seed_note(ns), fontsize=10)
     fig.tight_layout()
     return _save(fig, stem)
 

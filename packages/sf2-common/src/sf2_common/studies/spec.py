@@ -31,6 +31,8 @@ anything is compiled. Every problem is a `StudyError` naming the file, the entry
     [report]
     figures = ["aggregate", "curves"]      # default: aggregate, curves, + sweeps / obs_noise if declared
     final_window = 50_000                  # env steps of the "final return" mean in sweep plots
+    curve_statistic = "median"             # the learning curves' line and band: "mean" (default) or
+                                           # "median" over seeds (paper Fig. 8 draws the median)
     [[claims]]                             # a paper claim the report checks (claims.py)
     text = "Fig. 7: SF² above vanilla TD3"
     method = "td3-sf2"
@@ -84,7 +86,8 @@ RUN_NEUTRAL = ("description", "report", "claims")
 _METHOD = ("label", "name", "algo", "representation", "overrides")
 _SWEEP = ("field", "values", "title", "methods")
 _EVALUATION = ("obs_noise", "checkpoints", "episodes", "deterministic")
-_REPORT = ("figures", "final_window")
+_REPORT = ("figures", "final_window", "curve_statistic")
+CURVE_STATISTICS = ("mean", "median")   # over seeds at each evaluation (figures.learning_curves)
 DEFAULT_FINAL_WINDOW = 50_000   # paper §4.3: "the mean episode return over the final 50k steps"
 
 
@@ -127,6 +130,7 @@ class ReportSettings:
     figures: tuple[str, ...]
     final_window: int
     sweeps: tuple[tuple[str, str], ...]     # (field, title) in file order
+    curve_statistic: str = "mean"           # `CURVE_STATISTICS`
 
 
 @dataclasses.dataclass(frozen=True)
@@ -491,7 +495,11 @@ def _report(table, where: str, sweeps, evaluation) -> ReportSettings:
     window = table.get("final_window", DEFAULT_FINAL_WINDOW)
     if isinstance(window, bool) or not isinstance(window, int) or window < 0:
         raise StudyError(f"{where}: report.final_window = {window!r} is invalid: an int >= 0 (env steps)")
-    return ReportSettings(tuple(figures), window, tuple(sweeps))
+    statistic = table.get("curve_statistic", "mean")
+    if statistic not in CURVE_STATISTICS:
+        raise StudyError(f"{where}: report.curve_statistic = {statistic!r} is invalid: one of "
+                         f"{', '.join(repr(s) for s in CURVE_STATISTICS)}")
+    return ReportSettings(tuple(figures), window, tuple(sweeps), statistic)
 
 
 # ------------------------------------------------------------------------------------------- resolution

@@ -27,7 +27,8 @@ import numpy as np
 
 __all__ = [
     "MIN_SEEDS", "RESAMPLES", "CONFIDENCE", "SEED", "METRICS", "auc", "final_window_mean",
-    "normalize_by_task", "aggregate", "aggregate_intervals", "mean_interval", "iqm_interval",
+    "normalize_by_task", "aggregate", "aggregate_intervals", "mean_interval", "median_interval",
+    "iqm_interval",
     "informative", "require_rliable", "STATISTICS", "difference_interval", "probability_of_improvement",
 ]
 
@@ -147,12 +148,13 @@ def _per_column(values, fn_name: str, resamples: int, seed: int):
     v = np.asarray(values, dtype=float)
     if v.ndim == 1:
         v = v[:, None]
-    if fn_name == "mean" and not informative(v.shape[0]):
-        return v.mean(axis=0), None, None     # no rliable needed (a trainer's plot of 1 or 2 seeds)
+    plain = {"mean": np.mean, "median": np.median}.get(fn_name)
+    if plain is not None and not informative(v.shape[0]):
+        return plain(v, axis=0), None, None     # no rliable needed (a trainer's plot of 1 or 2 seeds)
     library, metrics = require_rliable()
-    if fn_name == "mean":
+    if plain is not None:
         def fn(x):
-            return np.mean(x, axis=0)
+            return plain(x, axis=0)
     else:
         def fn(x):  # rliable's IQM of each column's seeds
             return np.array([metrics.aggregate_iqm(x[:, j]) for j in range(x.shape[1])])
@@ -171,6 +173,12 @@ def mean_interval(values, resamples: int = RESAMPLES, seed: int = SEED):
     (each column resampled over seeds; a learning curve's band point by point). lower = upper = None
     below `MIN_SEEDS` seeds."""
     return _per_column(values, "mean", resamples, seed)
+
+
+def median_interval(values, resamples: int = RESAMPLES, seed: int = SEED):
+    """Like `mean_interval` for the median over seeds (np.median of each column: the mean of the two
+    middle seeds for an even count), the statistic of the paper's learning curves (Fig. 8)."""
+    return _per_column(values, "median", resamples, seed)
 
 
 def iqm_interval(values, resamples: int = RESAMPLES, seed: int = SEED):
