@@ -222,7 +222,8 @@ def test_report_joins_groups_and_flags_unequal_seeds(tmp_path):
            "TD3+SF² 2)" in summary
     # per-task table: seeds present of the study's; wall time summed over the groups (10 s + 20 s)
     assert "| B | TD3+SF² | 2 of 4 |" in summary and "| A | TD3+SF² | 4 | " in summary
-    assert "| 30s |" in summary
+    assert "| 30s |" in summary and "| env steps | wall time, runs summed |" in summary
+    assert "Wall time (per task): the wall times of the method's finished runs on that task" in summary
     # the aggregate: every method of the family on the seeds all of them finished on both tasks, 0-1.
     # TD3+SF²: (v − 1)/11 on A and (v − 1)/5 on B for v = 3, 6: per-task means 3.5/11 and 3.5/5, median =
     # mean of the two: (3.5/11 + 3.5/5)/2. TD3: v = 1, 2: per-task means 0.5/11 and 0.5/5.
