@@ -21,6 +21,7 @@ import json
 import sys
 from pathlib import Path
 
+from sf2_common.agents.runfolder import RunFolder, RunFolderError
 from sf2_common.fileio import read_text, stored
 
 FIELDS = ("run", "epochs", "wall_s", "eval_s", "train_s", "eval_share", "env_steps_per_s", "seeds",
@@ -54,18 +55,17 @@ def measure(folder: Path, span: tuple[int, int] | None = None) -> dict:
 
 
 def _hardware(folder: Path) -> str:
-    path = stored(folder / "config.json")
     try:
-        conf = json.loads(read_text(path)) if path is not None else {}
-    except json.JSONDecodeError:
-        raise SystemExit(f"error: {path} is not JSON (a damaged config.json)") from None
-    return (conf.get("hardware") if isinstance(conf, dict) else None) or "not recorded"
+        conf = RunFolder(folder).read_config() or {}
+    except RunFolderError as err:
+        raise SystemExit(f"error: {err}") from None
+    return conf.get("hardware") or "not recorded"
 
 
 def _starts(folder: Path) -> int | None:
     """How many `train` processes train.log records (the runner writes a `$ python -m … train …` line
     before each), None without a train.log."""
-    path = stored(folder / "train.log")
+    path = stored(RunFolder(folder).log_path)
     if path is None:
         return None
     lines = read_text(path).splitlines()

@@ -285,12 +285,17 @@ def test_eval_share_of_a_run_folder(tmp_path):
     assert eval_share.measure(tmp_path, (1, 2)) == got
     # seeds, the GPU and the train processes: from config.json and train.log, "not recorded" / None without
     assert (got["seeds"], got["hardware"], got["starts"]) == (2, "not recorded", None)
-    (tmp_path / "config.json").write_text(json.dumps({"config": {}, "hardware": "NVIDIA H200"}))
+    conf = {"config": {}, "seeds": [0, 1], "hardware": "NVIDIA H200"}
+    (tmp_path / "config.json").write_text(json.dumps(conf))
     (tmp_path / "train.log").write_text("\n$ python -m sf2_jax.cli train --task T --out x   # 1\nepoch 3\n"
                                         "$ python -m sf2_jax.cli eval x --save   # 2\n"
                                         "$ python -m sf2_jax.cli train --task T --out x   # 3\nresuming\n")
     got = eval_share.measure(tmp_path)
     assert (got["seeds"], got["hardware"], got["starts"]) == (2, "NVIDIA H200", 2)
+    # a damaged config.json is named (RunFolder's check), not read as "not recorded"
+    (tmp_path / "config.json").write_text('{"config": {')
+    with pytest.raises(SystemExit, match=r"config.json is not valid JSON"):
+        eval_share.measure(tmp_path)
     with pytest.raises(SystemExit, match="no metrics.jsonl"):
         eval_share.measure(tmp_path / "missing")
 

@@ -403,3 +403,7 @@ def test_curve_statistic_is_checked(tmp_path):
     point, lo, hi = stats.median_interval([[1.0, 2.0], [3.0, 5.0]])
     np.testing.assert_allclose(point, [2.0, 3.5])
     assert lo is None and hi is None
+    # the one entry point the figures use: the same numbers, and an unknown statistic named
+    assert stats.column_interval([[1.0, 2.0], [3.0, 5.0]], "median")[0].tolist() == [2.0, 3.5]
+    with pytest.raises(ValueError, match="statistic 'mode': one of mean, median, iqm"):
+        stats.column_interval([[1.0]], "mode")

@@ -159,7 +159,6 @@ def learning_curves(study, data: list, stem: Path) -> dict[str, Path]:
                              figsize=(3.6 * cols + 2.4, 2.9 * rows * len(families)))
     ns = []
     statistic = study.report.curve_statistic
-    interval = {"mean": stats.mean_interval, "median": stats.median_interval}[statistic]
     for f, family in enumerate(families):
         panels = [axes[f * rows + i // cols][i % cols] for i in range(rows * cols)]
         handles: dict[str, object] = {}
@@ -167,7 +166,7 @@ def learning_curves(study, data: list, stem: Path) -> dict[str, Path]:
             ax, counts = panels[i], {}
             for d in (d for d in data if d.task == task and d.method.family == family):
                 mat = d.matrix()
-                center, lo, hi = interval(mat)
+                center, lo, hi = stats.column_interval(mat, statistic)
                 ns.append(mat.shape[0])
                 counts[d.method.label] = mat.shape[0]
                 color = colors(d.method.label)

@@ -28,7 +28,7 @@ import numpy as np
 __all__ = [
     "MIN_SEEDS", "RESAMPLES", "CONFIDENCE", "SEED", "METRICS", "auc", "final_window_mean",
     "normalize_by_task", "aggregate", "aggregate_intervals", "mean_interval", "median_interval",
-    "iqm_interval",
+    "iqm_interval", "column_interval", "COLUMN_STATISTICS",
     "informative", "require_rliable", "STATISTICS", "difference_interval", "probability_of_improvement",
 ]
 
@@ -37,6 +37,7 @@ RESAMPLES = 5000       # paper §4.2: "95th percentiles confidence intervals com
 CONFIDENCE = 0.95
 SEED = 0
 METRICS = ("Median", "IQM", "Mean", "Optimality Gap")
+COLUMN_STATISTICS = ("mean", "median", "iqm")   # over seeds, per column (`column_interval`)
 STATISTICS = {"IQM": "aggregate_iqm", "Median": "aggregate_median", "Mean": "aggregate_mean"}  # of a claim
 STUDIES_EXTRA = 'pip install "packages/sf2-common[studies]"'
 
@@ -142,6 +143,14 @@ def aggregate_intervals(score_dict: dict, resamples: int = RESAMPLES, seed: int 
                                                   confidence_interval_size=CONFIDENCE)
         points[name], intervals[name] = p[name], i[name]
     return points, intervals
+
+
+def column_interval(values, statistic: str = "mean", resamples: int = RESAMPLES, seed: int = SEED):
+    """values (n_seeds,) or (n_seeds, n_points) → (statistic over seeds of each column, lower, upper), the
+    statistic one of `COLUMN_STATISTICS` (`mean_interval`, `median_interval`, `iqm_interval`)."""
+    if statistic not in COLUMN_STATISTICS:
+        raise ValueError(f"statistic {statistic!r}: one of {', '.join(COLUMN_STATISTICS)}")
+    return _per_column(values, statistic, resamples, seed)
 
 
 def _per_column(values, fn_name: str, resamples: int, seed: int):
