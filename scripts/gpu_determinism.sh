@@ -13,29 +13,40 @@
 #                         on the same host does.
 #
 #   bash scripts/gpu_determinism.sh [train options]
-#   # default: --task AcrobotSwingup --algo td3 --repr sf2 --config paper --seeds 0-4 --set num_timesteps=200000
+#   # default: --task AcrobotSwingup --algo td3 --repr sf2 --config paper --seeds 0-4 --set num_timesteps=100000
 #
-# Writes $OUT/determinism.tar.gz (the run folders without checkpoints, the logs, compare.md). On the CPU it
-# shows identical runs throughout (checked 2026-11-25 with a `quick` config: the mechanics only).
+# With two or more GPUs visible the two runs of the default and of the deterministic pair run at once, one
+# per GPU (two hosts' worth; the cached pair stays one after the other on GPU 0, since the second reads the
+# first's cache). A 200k-step run took 122–136 s on an H200 (2026-11-26), so six of them one after the
+# other outlast a 10-minute command: that command was cut after four, before any verdict. Now each pair's
+# verdict (compare.md) and $OUT/determinism.tar.gz (the run folders without checkpoints, the logs,
+# compare.md) are written as soon as the pair ends, so a cut command keeps the pairs that finished. On the
+# CPU it shows identical runs throughout (checked 2026-11-25 with a `quick` config: the mechanics only).
 set -uo pipefail
 args=("$@")
 if [ ${#args[@]} -eq 0 ]; then
-  args=(--task AcrobotSwingup --algo td3 --repr sf2 --config paper --seeds 0-4 --set num_timesteps=200000)
+  args=(--task AcrobotSwingup --algo td3 --repr sf2 --config paper --seeds 0-4 --set num_timesteps=100000)
 fi
 source scripts/gpu_env.sh || exit 1
-out=/tmp/determinism; rm -rf "$out"; mkdir -p "$out"
+out=/tmp/determinism; rm -rf "$out"; mkdir -p "$out" "$OUT"
 flag=--xla_gpu_deterministic_ops=true
-for run in default-1 default-2 deterministic-1 deterministic-2 cached-1 cached-2; do
-  flags=${XLA_FLAGS:-}; cache=""
+gpus=$(nvidia-smi -L 2>/dev/null | grep -c '^GPU ')
+if [ -n "${CUDA_VISIBLE_DEVICES:-}" ]; then gpus=$(tr ',' '\n' <<< "$CUDA_VISIBLE_DEVICES" | grep -c .); fi
+first_gpu=${CUDA_VISIBLE_DEVICES:-0}; first_gpu=${first_gpu%%,*}; second_gpu=$(cut -d, -f2 <<< "${CUDA_VISIBLE_DEVICES:-0,1}")
+
+train() {  # train RUN [GPU]: one process, its wall time appended to times.txt
+  local run=$1 flags=${XLA_FLAGS:-} cache="" start
   case $run in deterministic-*) flags="$flags $flag" ;; cached-*) cache=$out/cache ;; esac
   start=$(date +%s.%N)
-  XLA_FLAGS="$flags" python3 -m sf2_jax.cli train "${args[@]}" --out "$out/$run" --no-progress \
-    --compile-cache "$cache" \
+  CUDA_VISIBLE_DEVICES=${2:-$first_gpu} XLA_FLAGS="$flags" python3 -m sf2_jax.cli train "${args[@]}" \
+    --out "$out/$run" --no-progress --compile-cache "$cache" \
     > "$out/$run.log" 2>&1 || { echo "$run failed:"; tail -5 "$out/$run.log"; }
-  echo "$run: $(python3 -c "print(f'{$(date +%s.%N) - $start:.1f}')") s (XLA_FLAGS='${flags# }', compilation cache '${cache}')" \
+  echo "$run: $(python3 -c "print(f'{$(date +%s.%N) - $start:.1f}')") s (XLA_FLAGS='${flags# }', compilation cache '${cache}', GPU ${2:-$first_gpu})" \
     | tee -a "$out/times.txt"
-done
-python3 - "$out" <<'PY' | tee "$out/compare.md"
+}
+
+compare() {  # the verdict of every pair whose runs both ended, then the archive
+python3 - "$out" <<'PY' > "$out/compare.md"
 import sys
 from pathlib import Path
 
@@ -43,10 +54,11 @@ from sf2_common.agents.hostloop import WALL_FIELDS
 from sf2_common.agents.runfolder import RunFolder
 
 out = Path(sys.argv[1])
+ended = {line.split(":")[0] for line in (out / "times.txt").read_text().splitlines()}
 
 
 def learned(name):
-    if not (out / name).is_dir():
+    if name not in ended or not (out / name).is_dir():
         return {}
     rows = RunFolder(out / name).read_rows(strict=True)
     return {(r["epoch"], r["seed"]): {k: v for k, v in r.items() if k not in WALL_FIELDS} for r in rows}
@@ -57,6 +69,9 @@ print("Wall times (process start to end, compilation included):\n")
 print("".join(f"- {line}\n" for line in (out / "times.txt").read_text().splitlines()))
 for a, b in (("default-1", "default-2"), ("deterministic-1", "deterministic-2"), ("cached-1", "cached-2"),
              ("default-1", "deterministic-1")):
+    if a not in ended or b not in ended:
+        print(f"- {a} against {b}: not run (yet)")
+        continue
     x, y = learned(a), learned(b)
     if not x or not y:
         print(f"- {a} against {b}: not comparable, {a if not x else b} wrote no metrics (see its .log)")
@@ -68,6 +83,18 @@ for a, b in (("default-1", "default-2"), ("deterministic-1", "deterministic-2"),
                "differ; first at epoch {0[0]} seed {0[1]}: {1} {2!r} vs {3!r}".format(*first))
     print(f"- {a} against {b}: {verdict}")
 PY
-mkdir -p "$OUT"
-tar czf "$OUT/determinism.tar.gz" -C "$out" --exclude=checkpoints --exclude=final --exclude='*.npz' \
-  --exclude=cache .
+  grep -- "- .* against " "$out/compare.md"
+  tar czf "$OUT/determinism.tar.gz" -C "$out" --exclude=checkpoints --exclude=final --exclude='*.npz' \
+    --exclude=cache .
+}
+
+for kind in default deterministic; do
+  if [ "$gpus" -ge 2 ]; then
+    train "$kind-1" "$first_gpu" & train "$kind-2" "$second_gpu"; wait
+  else
+    train "$kind-1"; train "$kind-2"
+  fi
+  echo "after the $kind pair:"; compare
+done
+train cached-1; train cached-2
+echo "after the cached pair:"; compare
