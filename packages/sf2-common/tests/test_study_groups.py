@@ -143,7 +143,7 @@ def test_plan_and_dry_run_per_group(tmp_path, monkeypatch, capsys):
     backend = runner.Backend("sf2-fake", "jax", "fake", _make, lambda cfg, seeds: cfg)
     args = argparse.Namespace(file=str(study.path), out=str(folder.path), tasks="A", methods=None,
                               seeds="0-9", workers=None, ray=None, dry_run=True, no_progress=True,
-                              finish_within=None)
+                              finish_within=None, forecast_from=[])
     assert commands._run(backend, args, "cmd") == 0
     out = capsys.readouterr().out.splitlines()
     assert "4 run(s) selected of 12; seed groups 0-4, 5-9" in out[0]
@@ -158,6 +158,46 @@ def test_plan_and_dry_run_per_group(tmp_path, monkeypatch, capsys):
                        "step of the 4 finished run(s) here)"]
     with pytest.raises(StudyError, match="--seeds 20: no seed group"):
         commands._run(backend, argparse.Namespace(**{**vars(args), "seeds": "20"}), "cmd")
+
+
+def test_forecast_from_another_study(tmp_path, monkeypatch, capsys):
+    """A new study (SAC) has no finished run to forecast from; `--forecast-from` lends it another study's
+    (TD3) finished runs, read only. Its methods have no runs there, so each job takes the slowest finished
+    run of its task (runner.Forecast, preference 4) at its seed count: TD3 took 10 s and TD3+SF² 20 s a
+    budget of 5 seeds on task A, so every SAC job of 5 seeds on A is forecast 20 s."""
+    other = _load(tmp_path)
+    other_folder = StudyFolder(tmp_path / "td3-study")
+    other_runs = _resolve(other, monkeypatch)
+    other_folder.open(other, "jax", other_runs)
+    for run in other_runs:
+        if run.task == "A" and run.seeds[0] == 0:
+            _fabricate(other_folder.path_of(run), run, run.seeds, last_epoch=2,
+                       walltime=10.0 if run.folder == "td3" else 20.0)
+    before = {f: f.read_bytes() for f in other_folder.path.rglob("*") if f.is_file()}
+    sac = _load(tmp_path, STUDY.replace('"groups"', '"sac-groups"').replace('"td3"', '"sac"')
+                .replace('"TD3', '"SAC'))
+    sac.path.rename(tmp_path / "sac.toml")
+    backend = runner.Backend("sf2-fake", "jax", "fake", _make, lambda cfg, seeds: cfg)
+    args = argparse.Namespace(file=str(tmp_path / "sac.toml"), out=str(tmp_path / "sac-study"), tasks="A",
+                              methods=None, seeds="0-4", workers=None, ray=None, dry_run=True,
+                              no_progress=True, finish_within=None, forecast_from=[])
+    assert commands._run(backend, args, "cmd") == 0
+    alone = capsys.readouterr().out.splitlines()
+    assert len(alone) == 3 and not any("≈" in line or "estimate" in line for line in alone)
+    lend = argparse.Namespace(**{**vars(args), "forecast_from": [str(other_folder.path)]})
+    assert commands._run(backend, lend, "cmd") == 0
+    lent = capsys.readouterr().out.splitlines()
+    assert [line.split(":")[0] for line in lent[1:3]] == ["  new      A/sac/seeds-0-4 (≈ 20s)",
+                                                          "  new      A/sac-sf2/seeds-0-4 (≈ 20s)"]
+    assert lent[3] == ("estimate: 2 run(s) to do ≈ 40s of training on one worker (at the wall time per env "
+                       f"step of the 2 finished run(s) here and in {other_folder.path})")
+    assert {f: f.read_bytes() for f in other_folder.path.rglob("*") if f.is_file()} == before
+    # what is not another study's folder is refused by name, nothing run
+    for bad, match in ((tmp_path / "nowhere", "--forecast-from .*nowhere: no such folder"),
+                       (tmp_path / "sac-study", "is the study folder being run"),
+                       (tmp_path, "is not a study folder")):
+        with pytest.raises(StudyError, match=match):
+            commands._run(backend, argparse.Namespace(**{**vars(args), "forecast_from": [str(bad)]}), "cmd")
 
 
 REPORT = """

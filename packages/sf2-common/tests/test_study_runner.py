@@ -176,8 +176,10 @@ def test_forecast_scales_rates_between_seed_counts(tmp_path):
     A/q with 5 seeds at 0.2, B/m with 5 at 0.04. The only measured 5 -> 10 ratio is A/m's 0.7, so A/q at 10
     seeds forecasts 0.2 x 0.7 = 0.14 and B/m at 10 seeds 0.04 x 0.7 = 0.028; A/m at 10 seeds uses its own
     0.07. No run measures 5 -> 2 or 5 -> 20: 2 seeds scale by 5/2 (B/m: 0.1, a run no longer than its
-    5-seed run), 20 by 1 (B/m: 0.04, as if the time doubled with the seeds). A task with no finished run
-    (C, 10 seeds): the slowest of all scaled to 10 seeds, A/q's 0.14."""
+    5-seed run), 20 by 1 (B/m: 0.04, as if the time doubled with the seeds). A new method on B at 10 seeds
+    (B/q): B's slowest run, none of 10 seeds, so B/m's 0.04 scaled, 0.028. A task with no finished run (C):
+    the slowest run of all with its seed count, A/m's 0.07 at 10 seeds and A/q's 0.2 at 5 (not A/q's 0.2
+    scaled to 10 by the largest ratio, 0.14: runs of its own seed count come first)."""
     from types import SimpleNamespace
 
     def job(task, name, seeds, total=1000, wall=None):
@@ -193,7 +195,8 @@ def test_forecast_scales_rates_between_seed_counts(tmp_path):
                                 job("A", "q", 5, wall=200.0), job("B", "m", 5, wall=40.0)])
     assert forecast.scale(5, 10) == pytest.approx(0.7)
     expected = {("A", "q", 10): 0.14, ("B", "m", 10): 0.028, ("A", "m", 10): 0.07, ("A", "m", 5): 0.1,
-                ("B", "m", 2): 0.1, ("B", "m", 20): 0.04, ("C", "m", 10): 0.14}
+                ("B", "m", 2): 0.1, ("B", "m", 20): 0.04, ("B", "q", 10): 0.028, ("C", "m", 10): 0.07,
+                ("C", "m", 5): 0.2}
     for (task, name, seeds), rate in expected.items():
         assert forecast.seconds(job(task, name, seeds)) == pytest.approx(1000 * rate), (task, name, seeds)
 

@@ -2,7 +2,7 @@
 `main`):
 
     PROG study run FILE --out DIR [--tasks A,B] [--methods m1,m2] [--seeds 0-4] [--workers N] [--ray ADDRESS]
-                   [--finish-within SECONDS] [--dry-run]
+                   [--finish-within SECONDS] [--forecast-from DIR] [--dry-run]
     PROG study report DIR [--out REPORT_DIR]
     PROG study merge SOURCE... --into DIR [--partial]
     PROG study compress DIR
@@ -52,6 +52,10 @@ def add_parser(sub, prog: str) -> None:
                    help="start a run only if the forecast from the finished runs' rates ends it within "
                    "SECONDS from now (e.g. the time left on a leased machine); runs started are never "
                    "stopped")
+    r.add_argument("--forecast-from", metavar="DIR", action="append", default=[],
+                   help="another study folder whose finished runs also feed the forecasts (--dry-run, "
+                   "--finish-within), e.g. results/fig7-td3 for fig7-sac's first runs, which have no "
+                   "finished run of their own to forecast from; read only (repeatable)")
     r.add_argument("--ray", metavar="ADDRESS", default=None,
                    help="dispatch each run as a Ray task to this cluster ('local': start one here, 'auto')")
     r.add_argument("--ray-gpus", type=float, default=1.0,
@@ -148,8 +152,10 @@ def _run(backend, args, command: str) -> int:
     folder = StudyFolder(args.out)
     folder.check(study, backend.name)
     jobs, done = runner.plan(study, folder, selected)
-    # Forecasts (the dry run's estimate, --finish-within) draw on every finished run of the folder.
+    # Forecasts (the dry run's estimate, --finish-within) draw on every finished run of the folder, and of
+    # the --forecast-from folders.
     history = done if len(selected) == len(runs) else runner.plan(study, folder, runs)[1]
+    history = history + _finished_elsewhere(backend, args.forecast_from, folder)
     if args.dry_run:
         groups = study.select_groups(args.seeds)
         print(f"{study.name} ({study.path}) → {folder.path}: {len(selected)} run(s) selected of {len(runs)}"
@@ -163,7 +169,8 @@ def _run(backend, args, command: str) -> int:
             eta = f" (≈ {duration(forecast.seconds(job))})" if forecast.known else ""
             steps = " ; ".join(f"{backend.prog} {' '.join(c)}" for c in job.commands)
             print(f"  {state:8} {job.name}{eta}: {steps}")
-        total = runner.estimate(history, jobs, forecast)
+        where = "here" + "".join(f" and in {p}" for p in args.forecast_from)
+        total = runner.estimate(history, jobs, forecast, where)
         if total:
             print(total)
         return 0
@@ -186,6 +193,26 @@ def _run(backend, args, command: str) -> int:
         print(f"  FAILED {name} (exit status {rc}): see {log}", file=sys.stderr)
     print(f"report: {backend.prog} study report {folder.path}")
     return 0 if outcome.ok else 1
+
+
+def _finished_elsewhere(backend, paths, folder) -> list:
+    """The finished runs (`runner.Job`s) of the study folders `paths` (--forecast-from), read only; a path
+    that is not a study folder, or is the folder being run, is refused by name."""
+    from . import runner
+    from .folder import StudyFolder
+
+    jobs = []
+    for path in paths:
+        other = StudyFolder(path)
+        if other.path.resolve() == folder.path.resolve():
+            raise StudyError(f"--forecast-from {path} is the study folder being run (--out): its finished "
+                             "runs are already the forecast's; give another study's folder")
+        if not other.path.is_dir():
+            raise StudyError(f"--forecast-from {path}: no such folder; give a study folder that `study run` "
+                             "or `study merge` wrote (e.g. results/fig7-td3)")
+        study = other.load_study()
+        jobs += runner.plan(study, other, _resolve(backend, study))[1]
+    return jobs
 
 
 def _resolve(backend, study):

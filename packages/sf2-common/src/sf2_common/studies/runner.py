@@ -118,7 +118,11 @@ class Forecast:
        times the largest ratio of the job's method to it over the other tasks where both finished runs of
        that many seeds (the largest such estimate over the task's other methods);
     3. the job's own runs of other seed counts, scaled (below);
-    4. the slowest finished run of its task (scaled to its seeds); without one, the slowest of all.
+    4. the slowest finished run of its task with its number of seeds, else of any number scaled to its
+       seeds; without a run of its task, the same over all tasks. Runs of its own seed count come
+       first because `scale` takes the largest ratio between seed counts, which runs that shared their
+       GPU inflate: fig7-sac's first runs forecast from fig7-td3's (`study run --forecast-from`) came
+       out 3.4x the slowest 5-seed run of their task (AcrobotSwingup 14 m 37 s against 4 m 15 s).
     2 before 3: a first 10-seed run of a method is then forecast from 10-seed runs on its own task, not from
     its own 5-seed runs, some of which shared their GPU with other runs and took 2-3x their cost (results/
     fig7-td3/README.md "Cost per run"): CartpoleSwingupSparse TD3+SF² at 10 seeds, 14 m 21 s by 3 and 6 m
@@ -191,8 +195,10 @@ class Forecast:
         if mine:
             scaled = [r * self.scale(m, seeds) for m, r in mine]
             return sum(scaled) / len(scaled)
-        same_task = [r * self.scale(m, seeds) for (t, _), v in self.rates.items() if t == task for m, r in v]
-        return max(same_task or [r * self.scale(m, seeds) for v in self.rates.values() for m, r in v])
+        pool = ([(m, r) for (t, _), v in self.rates.items() if t == task for m, r in v]
+                or [(m, r) for v in self.rates.values() for m, r in v])
+        exact = [r for m, r in pool if m == seeds]
+        return max(exact) if exact else max(r * self.scale(m, seeds) for m, r in pool)
 
     def seconds(self, job: Job) -> float:
         return (job.total_steps - job.done_steps) * self.rate(job.run.task, job.run.folder, _seed_count(job))
@@ -202,9 +208,11 @@ def _seed_count(job: Job) -> int:
     return len(getattr(job.run, "seeds", None) or (0,))
 
 
-def estimate(done: list[Job], todo: list[Job], forecast: Forecast | None = None) -> str | None:
+def estimate(done: list[Job], todo: list[Job], forecast: Forecast | None = None,
+             where: str = "here") -> str | None:
     """A dry run's forecast of the training time left (`Forecast`, of `done` unless given), summed as if one
-    worker ran every job. None without a finished run or without a job."""
+    worker ran every job; `where` says whose finished runs the rates are. None without a finished run or
+    without a job."""
     forecast = Forecast(done) if forecast is None else forecast
     if not forecast.known or not todo:
         return None
@@ -212,7 +220,7 @@ def estimate(done: list[Job], todo: list[Job], forecast: Forecast | None = None)
     guessed = sorted({j.run.task for j in todo if not forecast.has_task(j.run.task)})
     finished = sum(len(v) for v in forecast.rates.values())
     return (f"estimate: {len(todo)} run(s) to do ≈ {duration(seconds)} of training on one worker (at the "
-            f"wall time per env step of the {finished} finished run(s) here"
+            f"wall time per env step of the {finished} finished run(s) {where}"
             + (f"; {', '.join(guessed)}: no finished run yet, the slowest" if guessed else "") + ")")
 
 
