@@ -27,7 +27,7 @@ import numpy as np
 
 __all__ = [
     "MIN_SEEDS", "RESAMPLES", "CONFIDENCE", "SEED", "METRICS", "auc", "final_window_mean",
-    "normalize_by_task", "aggregate", "aggregate_intervals", "mean_interval", "median_interval",
+    "normalize_by_task", "aggregate", "aggregate_intervals", "mean_interval",
     "iqm_interval", "column_interval", "COLUMN_STATISTICS",
     "informative", "require_rliable", "STATISTICS", "difference_interval", "probability_of_improvement",
 ]
@@ -147,7 +147,9 @@ def aggregate_intervals(score_dict: dict, resamples: int = RESAMPLES, seed: int 
 
 def column_interval(values, statistic: str = "mean", resamples: int = RESAMPLES, seed: int = SEED):
     """values (n_seeds,) or (n_seeds, n_points) → (statistic over seeds of each column, lower, upper), the
-    statistic one of `COLUMN_STATISTICS` (`mean_interval`, `median_interval`, `iqm_interval`)."""
+    statistic one of `COLUMN_STATISTICS` (as `mean_interval` and `iqm_interval`; "median": np.median of each
+    column, the mean of the two middle seeds for an even count, the statistic of the paper's learning
+    curves, Fig. 8)."""
     if statistic not in COLUMN_STATISTICS:
         raise ValueError(f"statistic {statistic!r}: one of {', '.join(COLUMN_STATISTICS)}")
     return _per_column(values, statistic, resamples, seed)
@@ -182,12 +184,6 @@ def mean_interval(values, resamples: int = RESAMPLES, seed: int = SEED):
     (each column resampled over seeds; a learning curve's band point by point). lower = upper = None
     below `MIN_SEEDS` seeds."""
     return _per_column(values, "mean", resamples, seed)
-
-
-def median_interval(values, resamples: int = RESAMPLES, seed: int = SEED):
-    """Like `mean_interval` for the median over seeds (np.median of each column: the mean of the two
-    middle seeds for an even count), the statistic of the paper's learning curves (Fig. 8)."""
-    return _per_column(values, "median", resamples, seed)
 
 
 def iqm_interval(values, resamples: int = RESAMPLES, seed: int = SEED):
