@@ -12,8 +12,12 @@
 #                         second loads the first's compiled, autotuned program, as a run resumed or repeated
 #                         on the same host does.
 #
-#   bash scripts/gpu_determinism.sh [train options]
-#   # default: --task AcrobotSwingup --algo td3 --repr sf2 --config paper --seeds 0-4 --set num_timesteps=100000
+#   bash scripts/gpu_determinism.sh [default] [deterministic] [cached] [-- train options]
+#   # pairs: all three unless named; train options by default
+#   #   --task AcrobotSwingup --algo td3 --repr sf2 --config paper --seeds 0-4 --set num_timesteps=100000
+#
+# Answered on H200s (2026-11-26): the default pair differs from the first SGD epoch, the deterministic and
+# the cached pairs are identical to the bit (bench/results/h200/26-determinism, h200x2/27-determinism).
 #
 # With two or more GPUs visible the two runs of the default and of the deterministic pair run at once, one
 # per GPU (two hosts' worth; the cached pair stays one after the other on GPU 0, since the second reads the
@@ -23,6 +27,17 @@
 # compare.md) are written as soon as the pair ends, so a cut command keeps the pairs that finished. On the
 # CPU it shows identical runs throughout (checked 2026-11-25 with a `quick` config: the mechanics only).
 set -uo pipefail
+pairs=()
+while [ $# -gt 0 ] && [[ "$1" != -* ]]; do   # pair names first, then train options (after -- or as they come)
+  case $1 in
+    default|deterministic|cached) pairs+=("$1") ;;
+    *) echo "gpu_determinism.sh: unknown pair '$1' (choose from: default, deterministic, cached; train options after --)" >&2
+       exit 2 ;;
+  esac
+  shift
+done
+[ "${1:-}" = "--" ] && shift
+[ ${#pairs[@]} -eq 0 ] && pairs=(default deterministic cached)
 args=("$@")
 if [ ${#args[@]} -eq 0 ]; then
   args=(--task AcrobotSwingup --algo td3 --repr sf2 --config paper --seeds 0-4 --set num_timesteps=100000)
@@ -88,13 +103,12 @@ PY
     --exclude=cache .
 }
 
-for kind in default deterministic; do
-  if [ "$gpus" -ge 2 ]; then
+touch "$out/times.txt"
+for kind in "${pairs[@]}"; do
+  if [ "$kind" != cached ] && [ "$gpus" -ge 2 ]; then
     train "$kind-1" "$first_gpu" & train "$kind-2" "$second_gpu"; wait
-  else
+  else   # the cached pair stays one after the other: the second reads the first's cache
     train "$kind-1"; train "$kind-2"
   fi
   echo "after the $kind pair:"; compare
 done
-train cached-1; train cached-2
-echo "after the cached pair:"; compare
