@@ -323,3 +323,17 @@ def test_hardware_names_the_accelerators_or_the_cpu(monkeypatch):
     assert hostloop.hardware(["A", "B", "A"]) == "2 x A, B"
     monkeypatch.setattr(hostloop, "cpu_model", lambda: "Test CPU 9000")
     assert hostloop.hardware([]) == "CPU (Test CPU 9000)"
+
+
+def test_numerics_environment_keeps_the_variables_that_change_the_numbers():
+    """config.json's `environment`: only the NUMERICS_ENV variables, only when set to something; train.log's
+    line names them, or says that none is set."""
+    env = {"XLA_FLAGS": "--xla_gpu_deterministic_ops=true", "HOME": "/root", "NVIDIA_TF32_OVERRIDE": "0",
+           "CUBLAS_WORKSPACE_CONFIG": ""}
+    assert hostloop.numerics_environment(env) == {"XLA_FLAGS": "--xla_gpu_deterministic_ops=true",
+                                                  "NVIDIA_TF32_OVERRIDE": "0"}
+    assert hostloop.numerics_environment({"HOME": "/root"}) == {}
+    assert hostloop.environment_line({"XLA_FLAGS": "--xla_gpu_deterministic_ops=true"}) == \
+        "environment: XLA_FLAGS='--xla_gpu_deterministic_ops=true'"
+    assert hostloop.environment_line({}) == \
+        "environment: none of XLA_FLAGS, NVIDIA_TF32_OVERRIDE, CUBLAS_WORKSPACE_CONFIG set"

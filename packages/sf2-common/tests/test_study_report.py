@@ -30,7 +30,8 @@ def _study(tmp_path, text):
     return folder
 
 
-def _write_run(path, seeds, returns, steps=STEPS, walltime=12.0, last_epoch=None, noise=None, hardware=None):
+def _write_run(path, seeds, returns, steps=STEPS, walltime=12.0, last_epoch=None, noise=None, hardware=None,
+               environment=None):
     """A run folder as the trainers write it: config.json (schedule.num_epochs, `hardware` unless None, as
     before run folders named it) and one metrics row per evaluation and seed; `returns[seed]` is the
     eval-return curve at `steps`."""
@@ -39,6 +40,8 @@ def _write_run(path, seeds, returns, steps=STEPS, walltime=12.0, last_epoch=None
     conf = {"config": {}, "seeds": seeds, "schedule": {"num_epochs": epochs}}
     if hardware is not None:
         conf["hardware"] = hardware
+    if environment is not None:
+        conf["environment"] = environment
     (path / "config.json").write_text(json.dumps(conf))
     rows = [{"epoch": e, "seed": s, "env_steps": steps[e], "eval_return": float(returns[s][e]),
              "walltime": walltime * e / epochs}
@@ -102,6 +105,7 @@ def test_report_numbers_by_hand_and_by_rliable(tmp_path):
     # the five finished runs (SAC on B is not) by their config.json's hardware: three on A, two on B
     assert ("Hardware of the finished run folders (their config.json): NVIDIA H100 80GB HBM3: 3 runs; not "
             "recorded (trained before run folders named it): 2 runs.") in summary
+    assert "Their environment" not in summary   # no run recorded one
     # TD3's normalized scores are s/13 on both tasks: per-task means 1.5/13 (median, mean); the pooled
     # 0 0 1 1 2 2 3 3 trimmed by 2 at each end: IQM 1.5/13; optimality gap 1 − 1.5/13.
     td3 = np.array([[s / 13, s / 13] for s in seeds])
@@ -406,3 +410,21 @@ def test_curve_statistic_is_checked(tmp_path):
     # an unknown statistic is named
     with pytest.raises(ValueError, match="statistic 'mode': one of mean, median, iqm"):
         stats.column_interval([[1.0]], "mode")
+
+
+def test_report_counts_the_environments_that_change_the_numbers(tmp_path):
+    """Once a finished run's config.json records an environment variable that changes the numbers
+    (hostloop.numerics_environment, e.g. XLA's deterministic GPU ops), the summary counts the runs per
+    environment: here 2 with the flag (TD3 and TD3+SF² on A), 1 with none (SAC on A), 3 that predate the
+    record (task B)."""
+    folder = _study(tmp_path, FAMILY)
+    flag = {"XLA_FLAGS": "--xla_gpu_deterministic_ops=true"}
+    for task in ("A", "B"):
+        for m in BASE:
+            env = None if task == "B" else (flag if m != "sac" else {})
+            _write_run(folder.run_path(task, m), [0, 1, 2, 3], {s: [0.0, s, s] for s in range(4)},
+                       environment=env)
+    summary = report(folder.path)["summary.md"].read_text()
+    assert ("Their environment (config.json's \"environment\"): not recorded (trained before run folders "
+            "named it): 3 runs; XLA_FLAGS='--xla_gpu_deterministic_ops=true': 2 runs; none of XLA_FLAGS, "
+            "NVIDIA_TF32_OVERRIDE, CUBLAS_WORKSPACE_CONFIG set: 1 run.") in summary, summary

@@ -288,12 +288,15 @@ def check_cli_resume(main, args, out, capfd, resumed_from: str, reference_rows) 
     assert re.search(rf"\| {walltime:.0f} s\n", captured.out), captured.out
     # the hardware of the first session is in config.json, each of the three sessions named it in train.log
     # (the killed one, the resume, the "complete" one); these tests run on the CPU
-    from sf2_common.agents.hostloop import hardware
+    from sf2_common.agents.hostloop import environment_line, hardware, numerics_environment
 
     run = RunFolder(out)
     assert run.read_config()["hardware"] == hardware([])
     log = run.log_path.read_text()
     assert log.count(f" hardware: {hardware([])}\n") == 3, log
+    # and the environment variables that change the numbers (XLA_FLAGS, ...), as this process has them
+    assert run.read_config()["environment"] == numerics_environment()
+    assert log.count(f" {environment_line(numerics_environment())}\n") == 3, log
     return rows
 
 

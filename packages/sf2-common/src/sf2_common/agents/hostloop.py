@@ -30,6 +30,7 @@ from .runlog import library_log
 __all__ = [
     "WALL_FIELDS", "TrainingDiverged", "Session", "BatchedEvaluation", "run_epochs", "diverged_message",
     "row_metrics", "make_row", "write_curve", "call_hook", "versions", "hardware", "cpu_model",
+    "numerics_environment", "environment_line",
     "progress_bar", "NoBar", "run_title",
 ]
 
@@ -142,6 +143,28 @@ def hardware(accelerators: Iterable[str]) -> str:
     if not counts:
         return f"CPU ({cpu_model()})"
     return ", ".join(name if n == 1 else f"{n} x {name}" for name, n in counts.items())
+
+
+# Environment variables that change a run's numbers on a GPU without changing its config.
+NUMERICS_ENV = ("XLA_FLAGS", "NVIDIA_TF32_OVERRIDE", "CUBLAS_WORKSPACE_CONFIG")
+
+
+def numerics_environment(environ=None) -> dict:
+    """{name: value} of the `NUMERICS_ENV` variables set (non-empty) in `environ` (default: this process's):
+    XLA_FLAGS (`--xla_gpu_deterministic_ops=true` makes GPU runs repeat bit for bit and changes their
+    numbers: bench/results/h200x2/27-determinism/README.md), NVIDIA_TF32_OVERRIDE (TF32 in cuBLAS),
+    CUBLAS_WORKSPACE_CONFIG (torch's deterministic cuBLAS). config.json keeps them as "environment", so a run
+    folder says how it was trained, and train.log names them each session (`environment_line`)."""
+    import os
+
+    environ = os.environ if environ is None else environ
+    return {name: environ[name] for name in NUMERICS_ENV if environ.get(name)}
+
+
+def environment_line(env: dict) -> str:
+    """train.log's line for `numerics_environment()`'s result, e.g. "environment: XLA_FLAGS='...'"."""
+    return "environment: " + (", ".join(f"{k}={v!r}" for k, v in env.items()) if env else "none of "
+                              + ", ".join(NUMERICS_ENV) + " set")
 
 
 class Session(Protocol):

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sf2_common.agents.hostloop import environment_line
 from sf2_common.agents.plotting import curves
 from sf2_common.agents.runfolder import RunFolder, RunFolderError
 
@@ -47,6 +48,7 @@ class GroupData:
     finished: bool
     progress: str                     # "partial (epoch 3 of 5)" or "not started" for an incomplete run
     hardware: str = ""                # config.json's "hardware" (its first session's), "" if not recorded
+    environment: str | None = None    # config.json's "environment" as train.log writes it, None if not recorded
 
 
 @dataclasses.dataclass
@@ -99,7 +101,9 @@ def _group(seeds, path: Path):
         raise StudyError(_damaged(err, path)) from None
     noise = None if data is None else data["results"]
     wall = max((r.get("walltime", 0.0) for r in rows), default=0.0)
-    group = GroupData(tuple(seeds), path, finished, progress, str(conf.get("hardware", "")))
+    env = conf.get("environment")
+    group = GroupData(tuple(seeds), path, finished, progress, str(conf.get("hardware", "")),
+                      environment_line(env).removeprefix("environment: ") if isinstance(env, dict) else None)
     return group, steps, per_seed, wall, noise
 
 
@@ -562,17 +566,26 @@ def _md_incomplete(study: Study, data: list[RunData]) -> list[str]:
 
 def _md_hardware(data: list[RunData]) -> list[str]:
     """What the finished run folders trained on (config.json's "hardware", the first session's), counted:
-    wall times, and so the per-task table's, are those of that hardware."""
+    wall times, and so the per-task table's, are those of that hardware; and, once any run set one, the
+    environment variables that change the numbers (config.json's "environment")."""
     unknown = "not recorded (trained before run folders named it)"
     counts = Counter(g.hardware or unknown for d in data for g in d.groups if g.finished)
     if not counts:
         return []
     if list(counts) == [unknown]:
-        return [f"Hardware: not recorded in the config.json of the {counts[unknown]} finished run folder(s) "
-                f"(they trained before run folders named it).", ""]
-    parts = [f"{name}: {n} run{'s' * (n > 1)}" for name, n in counts.most_common()]
-    return [f"Hardware of the finished run folders (their config.json): {'; '.join(parts)}. Wall times are "
-            f"those of that hardware.", ""]
+        lines = [f"Hardware: not recorded in the config.json of the {counts[unknown]} finished run folder(s) "
+                 f"(they trained before run folders named it)."]
+    else:
+        parts = [f"{name}: {n} run{'s' * (n > 1)}" for name, n in counts.most_common()]
+        lines = [f"Hardware of the finished run folders (their config.json): {'; '.join(parts)}. Wall times "
+                 f"are those of that hardware."]
+    # The environment variables that change the numbers (hostloop.numerics_environment), once any run set one:
+    # e.g. XLA_FLAGS=--xla_gpu_deterministic_ops=true, under which GPU runs repeat bit for bit.
+    envs = Counter(g.environment for d in data for g in d.groups if g.finished)
+    if any(e and not e.startswith("none of ") for e in envs):
+        parts = [f"{e if e is not None else unknown}: {n} run{'s' * (n > 1)}" for e, n in envs.most_common()]
+        lines.append(f"Their environment (config.json's \"environment\"): {'; '.join(parts)}.")
+    return lines + [""]
 
 
 def _md_commands(folder: StudyFolder, command: str | None) -> list[str]:

@@ -371,11 +371,13 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
     existing = run.check_compatible(cfg.to_dict(), seeds)
     sched = configs.schedule(cfg)
     hardware = _hardware(len(seeds))
+    env = hostloop.numerics_environment()
     if not existing:
         run.write_config({"config": cfg.to_dict(), "seeds": list(seeds),
                           "schedule": dataclasses.asdict(sched), "label": _label(cfg),
-                          "versions": _versions(), "hardware": hardware})
+                          "versions": _versions(), "hardware": hardware, "environment": env})
     run.log(f"hardware: {hardware}")
+    run.log(hostloop.environment_line(env))
     program = get_program(cfg)
     note = device_note(len(seeds))
     if note:

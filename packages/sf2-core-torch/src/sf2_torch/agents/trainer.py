@@ -340,13 +340,15 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
     sched = common_configs.schedule(cfg)
     program = get_program(cfg)
     hardware = _hardware(program.device)
+    env = hostloop.numerics_environment()
     if not existing:
         run.write_config({"config": cfg.to_dict(), "seeds": list(seeds),
                           "schedule": dataclasses.asdict(sched), "label": _label(cfg),
                           "versions": _versions(), "framework": "torch",
-                          "device": str(program.device), "hardware": hardware,
+                          "device": str(program.device), "hardware": hardware, "environment": env,
                           "compile_mode": program.compile_mode, "cudagraphs": program.cudagraphs})
     run.log(f"hardware: {hardware}")
+    run.log(hostloop.environment_line(env))
     ckpt = Checkpointer(run.checkpoint_dir, keep=cfg.keep_checkpoints)
     title = hostloop.run_title(_label(cfg), cfg.task, seeds)
     state = program.init(seeds)
