@@ -48,7 +48,7 @@ class GroupData:
     finished: bool
     progress: str                     # "partial (epoch 3 of 5)" or "not started" for an incomplete run
     hardware: str = ""                # config.json's "hardware" (its first session's), "" if not recorded
-    environment: str | None = None    # config.json's "environment" as train.log writes it, None if not recorded
+    environment: str | None = None    # config.json's "environment" as train.log words it (None: not recorded)
 
 
 @dataclasses.dataclass
