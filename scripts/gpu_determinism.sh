@@ -65,18 +65,15 @@ python3 - "$out" <<'PY' > "$out/compare.md"
 import sys
 from pathlib import Path
 
-from sf2_common.agents.hostloop import WALL_FIELDS
 from sf2_common.agents.runfolder import RunFolder
+from sf2_common.studies.merge import rows_difference
 
 out = Path(sys.argv[1])
 ended = {line.split(":")[0] for line in (out / "times.txt").read_text().splitlines()}
 
 
-def learned(name):
-    if name not in ended or not (out / name).is_dir():
-        return {}
-    rows = RunFolder(out / name).read_rows(strict=True)
-    return {(r["epoch"], r["seed"]): {k: v for k, v in r.items() if k not in WALL_FIELDS} for r in rows}
+def rows(name):
+    return RunFolder(out / name).read_rows(strict=True) if (out / name).is_dir() else []
 
 
 print("# Determinism of GPU training runs (scripts/gpu_determinism.sh)\n")
@@ -87,15 +84,13 @@ for a, b in (("default-1", "default-2"), ("deterministic-1", "deterministic-2"),
     if a not in ended or b not in ended:
         print(f"- {a} against {b}: not run (yet)")
         continue
-    x, y = learned(a), learned(b)
+    x, y = rows(a), rows(b)
     if not x or not y:
         print(f"- {a} against {b}: not comparable, {a if not x else b} wrote no metrics (see its .log)")
         continue
-    first = next(((k, f, x[k].get(f), y.get(k, {}).get(f)) for k in sorted(set(x) | set(y))
-                  for f in sorted(set(x.get(k, {})) | set(y.get(k, {})))
-                  if x.get(k, {}).get(f) != y.get(k, {}).get(f)), None)
-    verdict = ("identical learned values ({} rows)".format(len(x)) if first is None else
-               "differ; first at epoch {0[0]} seed {0[1]}: {1} {2!r} vs {3!r}".format(*first))
+    diff = rows_difference(x, y)   # the study merge's comparison: learned values before timing
+    verdict = (f"identical learned values ({len(x)} rows)" if diff is None or diff.startswith("equal learned")
+               else f"differ; first at {diff}")
     print(f"- {a} against {b}: {verdict}")
 PY
   grep -- "- .* against " "$out/compare.md"

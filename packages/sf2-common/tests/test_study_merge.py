@@ -418,3 +418,20 @@ def test_keep_reruns_puts_a_differing_finished_run_beside_dest_and_merges_the_re
     fourth = _source(tmp_path, "fourth", runs_of, finished=["A/td3/seeds-0-1"], ret=0.75)
     with pytest.raises(StudyError, match="--keep-reruns"):
         _merge([fourth], dest, runs_of)
+
+
+def test_rows_difference_names_a_learned_value_before_timing():
+    """merge.rows_difference (the merge's refusal, scripts/gpu_determinism.sh's verdicts): None for equal
+    rows in any order; a learned value of a later row before a timing field of an earlier one; timing only
+    said as such; a row only one side has."""
+    from sf2_common.studies.merge import rows_difference
+
+    a = [{"epoch": 0, "seed": 0, "eval_return": 1.0, "walltime": 1.0},
+         {"epoch": 1, "seed": 0, "eval_return": 2.0, "walltime": 2.0}]
+    assert rows_difference(a, list(reversed(a))) is None
+    timed = [dict(r, walltime=r["walltime"] + 5) for r in a]
+    assert rows_difference(a, timed) == "equal learned values, only timing differs; first epoch 0 seed 0: " \
+        "walltime 1.0 vs 6.0"
+    learned = [timed[0], dict(timed[1], eval_return=3.0)]
+    assert rows_difference(a, learned) == "epoch 1 seed 0: eval_return 2.0 vs 3.0"
+    assert rows_difference(a, a[:1]) == "epoch 1 seed 0: a row in one only"

@@ -57,7 +57,7 @@ from sf2_common.fileio import GZ, atomic_write, compress, stored
 from .folder import OBS_NOISE, StudyFolder, read_obs_noise
 from .spec import Run, Study, StudyError, loads, only_adds, same_runs, seeds_text
 
-__all__ = ["KEPT", "Outcome", "merge"]
+__all__ = ["KEPT", "Outcome", "merge", "rows_difference"]
 
 KEPT = (RunFolder.CONFIG, RunFolder.METRICS, RunFolder.LOG, OBS_NOISE)
 COMPRESSED = (RunFolder.METRICS, OBS_NOISE)   # DEST keeps these gzip-compressed (sf2_common.fileio)
@@ -361,11 +361,18 @@ def _key_rows(rows: list[dict]) -> list[str]:
 
 
 def _difference(a: _Side, b: _Side) -> str:
-    """The first row where two finished runs' metrics differ, naming a learning value (return, loss) before
-    a timing field: two hosts' runs of one config differ in timing always, and on GPUs in their values
-    too (the compiled program's algorithm choices differ between hosts: results/fig7-td3/README.md)."""
-    ra = {(r["epoch"], r["seed"]): r for r in a.rows}
-    rb = {(r["epoch"], r["seed"]): r for r in b.rows}
+    """Why two finished runs are not the same: their metrics (`rows_difference`), else obs_noise.json."""
+    return rows_difference(a.rows, b.rows) or "their obs_noise.json results differ"
+
+
+def rows_difference(a: list[dict], b: list[dict]) -> str | None:
+    """The first (epoch, seed) row where two runs' metrics differ, naming a learned value (return, loss)
+    before a timing field ("epoch 9 seed 0: actor_loss 0.5345 vs 0.5334"; "equal learned values, only timing
+    differs; first ..." when only timing does), None when every row is equal. Two hosts' runs of one config
+    differ in timing always, and on GPUs in their values too unless XLA's deterministic ops are on
+    (results/fig7-td3/README.md; scripts/gpu_determinism.sh compares its pairs with this)."""
+    ra = {(r["epoch"], r["seed"]): r for r in a}
+    rb = {(r["epoch"], r["seed"]): r for r in b}
     timing = None
     for key in sorted(set(ra) | set(rb)):
         x, y = ra.get(key), rb.get(key)
@@ -380,7 +387,7 @@ def _difference(a: _Side, b: _Side) -> str:
             timing = f"{where}: {fields[0]} {x.get(fields[0])!r} vs {y.get(fields[0])!r}"
     if timing is not None:
         return f"equal learned values, only timing differs; first {timing}"
-    return "their obs_noise.json results differ"
+    return None
 
 
 def _rerun_target(dest: StudyFolder, run: Run, side: _Side, planned: dict[Path, _Side]) -> Path | None:
