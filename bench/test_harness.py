@@ -327,3 +327,37 @@ def test_throughput_config_times_only_whole_sgd_epochs():
     per = sched.env_steps_per_epoch
     assert sched.num_epochs == warm + 3
     assert (warm - 1) * per <= sched.prefill_env_steps < warm * per   # the first SGD step is in the warm-up
+
+
+# ----------------------------------------------------------------------------- forecast_check
+def test_forecast_check_against_hand_derived_forecasts(tmp_path):
+    """Finished runs of 1,000 env steps, 5 seeds each: A/m 100 s (0.1 s per env step), A/q 200 s, B/m 50 s.
+    Checking A/q and B/m leaves A/m alone to forecast from (runner.Forecast's preference 4: the slowest
+    run of the task, else of all): A/q 0.1 x 1000 = 100 s (took 200: ratio 2.0), B/m (no other run of B)
+    100 s (took 50: 0.5). Sums 200 s forecast against 250 s taken (1.25x); median of the ratios 1.25."""
+    from types import SimpleNamespace
+
+    from sf2_common.studies import runner
+    from sf2_common.studies.spec import StudyError
+
+    from bench import forecast_check
+
+    def job(task, name, wall):
+        path = tmp_path / task / name
+        path.mkdir(parents=True)
+        (path / "metrics.jsonl").write_text(json.dumps({"epoch": 1, "seed": 0, "env_steps": 1000,
+                                                        "walltime": wall}) + "\n")
+        run = SimpleNamespace(task=task, folder=name, rel=name, seeds=tuple(range(5)))
+        return runner.Job(run, path, [], 1000, 1000)
+
+    history = [job("A", "m", 100.0), job("A", "q", 200.0), job("B", "m", 50.0)]
+    rows = forecast_check.check(history, history[1:])
+    assert [(r["run"], r["seeds"], r["forecast_s"], r["actual_s"], r["ratio"]) for r in rows] == [
+        ("A/q", 5, 100.0, 200.0, 2.0), ("B/m", 5, 100.0, 50.0, 0.5)]
+    assert forecast_check.summary(rows) == (
+        "2 run(s): forecast 3.3 min in all, took 4.2 min (1.25x); actual / forecast per run: min 0.50, "
+        "median 1.25, max 2.00; 1 took longer than forecast")
+    with pytest.raises(StudyError, match="no finished run outside --runs"):
+        forecast_check.check(history, history)
+    # a folder that is not a study folder is named, exit status 2, no traceback
+    assert forecast_check.main([str(tmp_path / "nope"), "--runs", str(tmp_path / "A" / "m")]) == 2

@@ -198,21 +198,30 @@ def _run(backend, args, command: str) -> int:
 def _finished_elsewhere(backend, paths, folder) -> list:
     """The finished runs (`runner.Job`s) of the study folders `paths` (--forecast-from), read only; a path
     that is not a study folder, or is the folder being run, is refused by name."""
-    from . import runner
     from .folder import StudyFolder
 
     jobs = []
     for path in paths:
-        other = StudyFolder(path)
-        if other.path.resolve() == folder.path.resolve():
+        if StudyFolder(path).path.resolve() == folder.path.resolve():
             raise StudyError(f"--forecast-from {path} is the study folder being run (--out): its finished "
                              "runs are already the forecast's; give another study's folder")
-        if not other.path.is_dir():
-            raise StudyError(f"--forecast-from {path}: no such folder; give a study folder that `study run` "
-                             "or `study merge` wrote (e.g. results/fig7-td3)")
-        study = other.load_study()
-        jobs += runner.plan(study, other, _resolve(backend, study))[1]
+        jobs += finished_runs(backend, path, "--forecast-from")
     return jobs
+
+
+def finished_runs(backend, path, what: str = "study folder") -> list:
+    """The finished runs (`runner.Job`s) of the study folder `path`, read only (`--forecast-from`,
+    bench/forecast_check.py); a path that is not a folder is refused by name (`what`: the option that
+    gave it)."""
+    from . import runner
+    from .folder import StudyFolder
+
+    other = StudyFolder(path)
+    if not other.path.is_dir():
+        raise StudyError(f"{what} {path}: no such folder; give a study folder that `study run` "
+                         "or `study merge` wrote (e.g. results/fig7-td3)")
+    study = other.load_study()
+    return runner.plan(study, other, _resolve(backend, study))[1]
 
 
 def _resolve(backend, study):

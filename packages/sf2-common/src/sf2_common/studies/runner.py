@@ -146,8 +146,13 @@ class Forecast:
         for job in done:
             self.add(job)
 
+    @staticmethod
+    def wall(job: Job) -> float:
+        """A finished job's wall time: its metrics rows' largest `walltime` (restarts included), 0 without."""
+        return max((r.get("walltime", 0.0) for r in RunFolder(job.path).read_rows()), default=0.0)
+
     def add(self, job: Job) -> None:
-        wall = max((r.get("walltime", 0.0) for r in RunFolder(job.path).read_rows()), default=0.0)
+        wall = self.wall(job)
         if wall > 0 and job.total_steps > 0:
             self.rates.setdefault((job.run.task, job.run.folder), []).append(
                 (_seed_count(job), wall / job.total_steps))

@@ -1,0 +1,92 @@
+"""How close the study runner's forecasts come to the wall times runs took.
+
+    python -m bench.forecast_check results/fig7-td3 results/fig7-sac \\
+        --runs results/fig7-sac/runs/AcrobotSwingup/*/seeds-* [--markdown]
+
+The runs named by `--runs` (finished run folders inside the study folders given) are forecast as the
+runner would have forecast them before any of them ran (`study run --dry-run`, `--finish-within`,
+`--forecast-from`): from every *other* finished run of those study folders, by
+sf2_common/studies/runner.py `Forecast`. Per run: the forecast, the wall time it took (its last metrics
+row's `walltime`, restarts included, as `Forecast` reads it) and their ratio; then the sums and the spread
+of the ratios. A ratio above 1 is a run that took longer than forecast: one `--finish-within` could have
+started too late. results/fig7-sac/README.md "Cost per run" uses it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+from pathlib import Path
+
+from sf2_common.studies import runner
+from sf2_common.studies.spec import StudyError
+
+FIELDS = ("run", "seeds", "forecast_s", "actual_s", "ratio")
+
+
+def check(history: list[runner.Job], targets: list[runner.Job]) -> list[dict]:
+    """One row of FIELDS per target job, forecast from `history` (the targets themselves left out of it) as
+    a job with none of its env steps done."""
+    names = {t.path.resolve() for t in targets}
+    forecast = runner.Forecast([j for j in history if j.path.resolve() not in names])
+    if not forecast.known:
+        raise StudyError("no finished run outside --runs to forecast from: give more study folders or "
+                         "fewer --runs")
+    rows = []
+    for job in targets:
+        predicted = forecast.seconds(runner.Job(job.run, job.path, [], job.total_steps, 0))
+        actual = runner.Forecast.wall(job)
+        rows.append({"run": job.name, "seeds": len(getattr(job.run, "seeds", None) or (0,)),
+                     "forecast_s": round(predicted, 1), "actual_s": round(actual, 1),
+                     "ratio": round(actual / predicted, 3)})
+    return rows
+
+
+def summary(rows: list[dict]) -> str:
+    """The sums and the spread of the ratios (actual / forecast) of `check`'s rows."""
+    ratios = [r["ratio"] for r in rows]
+    forecast, actual = sum(r["forecast_s"] for r in rows), sum(r["actual_s"] for r in rows)
+    return (f"{len(rows)} run(s): forecast {forecast / 60:.1f} min in all, took {actual / 60:.1f} min "
+            f"({actual / forecast:.2f}x); actual / forecast per run: min {min(ratios):.2f}, median "
+            f"{statistics.median(ratios):.2f}, max {max(ratios):.2f}; "
+            f"{sum(x > 1 for x in ratios)} took longer than forecast")
+
+
+def main(argv=None) -> int:
+    from sf2_common.studies import commands
+    from sf2_jax.cli import FRAMEWORK
+
+    parser = argparse.ArgumentParser(prog="python -m bench.forecast_check",
+                                     description=__doc__.split("\n")[0])
+    parser.add_argument("studies", nargs="+", type=Path, help="study folders (their finished runs)")
+    parser.add_argument("--runs", nargs="+", type=Path, required=True,
+                        help="finished run folders of those studies to forecast from all the others")
+    parser.add_argument("--markdown", action="store_true", help="a Markdown table instead of JSON lines")
+    args = parser.parse_args(argv)
+    try:
+        backend = commands.backend(FRAMEWORK)
+        history = [j for s in args.studies for j in commands.finished_runs(backend, s, "study folder")]
+        by_path = {j.path.resolve(): j for j in history}
+        missing = [str(p) for p in args.runs if p.resolve() not in by_path]
+        if missing:
+            raise StudyError(f"--runs: not a finished run of {', '.join(map(str, args.studies))}: "
+                             f"{', '.join(missing)}")
+        rows = check(history, [by_path[p.resolve()] for p in args.runs])
+    except StudyError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    if args.markdown:
+        print("| " + " | ".join(FIELDS) + " |\n|" + "---|" * len(FIELDS))
+        for r in rows:
+            print("| " + " | ".join(str(r[k]) for k in FIELDS) + " |")
+    else:
+        for r in rows:
+            print(json.dumps(r))
+    print(summary(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
