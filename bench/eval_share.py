@@ -24,6 +24,8 @@ from pathlib import Path
 from sf2_common.agents.runfolder import RunFolder, RunFolderError
 from sf2_common.fileio import read_text, stored
 
+from .report import print_rows
+
 FIELDS = ("run", "epochs", "wall_s", "eval_s", "train_s", "eval_share", "env_steps_per_s", "seeds",
           "hardware", "starts")
 
@@ -90,13 +92,7 @@ def main(argv=None) -> int:
     parser.add_argument("--markdown", action="store_true", help="a Markdown table instead of JSON lines")
     args = parser.parse_args(argv)
     rows = [measure(f, args.epochs) for f in args.folders]
-    if args.markdown:
-        print("| " + " | ".join(FIELDS) + " |\n|" + "---|" * len(FIELDS))
-        for r in rows:
-            print("| " + " | ".join(str(r[k]) for k in FIELDS) + " |")
-    else:
-        for r in rows:
-            print(json.dumps(r))
+    print_rows(rows, FIELDS, args.markdown)
     return 0
 
 

@@ -15,13 +15,14 @@ started too late. results/fig7-sac/README.md "Cost per run" uses it.
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import sys
 from pathlib import Path
 
 from sf2_common.studies import runner
 from sf2_common.studies.spec import StudyError
+
+from .report import print_rows
 
 FIELDS = ("run", "seeds", "forecast_s", "actual_s", "ratio")
 
@@ -77,13 +78,7 @@ def main(argv=None) -> int:
     except StudyError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    if args.markdown:
-        print("| " + " | ".join(FIELDS) + " |\n|" + "---|" * len(FIELDS))
-        for r in rows:
-            print("| " + " | ".join(str(r[k]) for k in FIELDS) + " |")
-    else:
-        for r in rows:
-            print(json.dumps(r))
+    print_rows(rows, FIELDS, args.markdown)
     print(summary(rows))
     return 0
 

@@ -47,6 +47,18 @@ def _fmt_csv(v):
     return v
 
 
+def print_rows(rows: list[dict], fields: tuple[str, ...], markdown: bool) -> None:
+    """`rows` on stdout: one JSON object per line, or (`markdown`) a Markdown table of `fields`
+    (bench.eval_share, bench.forecast_check)."""
+    if markdown:
+        print("| " + " | ".join(fields) + " |\n|" + "---|" * len(fields))
+        for r in rows:
+            print("| " + " | ".join(str(r[k]) for k in fields) + " |")
+    else:
+        for r in rows:
+            print(json.dumps(r))
+
+
 def read_csv(path: Path) -> list[dict]:
     rows = []
     with open(path) as f:
