@@ -169,6 +169,22 @@ def test_dry_run_estimate_from_the_finished_runs(tmp_path):
         "estimate: 4 run(s) to do ≈ 15m00s of training on one worker (at the wall time per env step of the 3 "
         "finished run(s) here; C: no finished run yet, the slowest)")
     assert runner.estimate([], todo) is None and runner.estimate(done, []) is None
+    # on 2 workers, in this order (100, 450, 50, 300 s): 100 on w0, 450 on w1, 50 on w0 (free at 100, ends
+    # 150), 300 on w0 (free at 150, ends 450): both end at 450 s
+    assert runner.estimate(done, [again] + todo, workers=2) == (
+        "estimate: 4 run(s) to do ≈ 15m00s of training on one worker, ≈ 7m30s on 2 workers (at the wall time "
+        "per env step of the 3 finished run(s) here; C: no finished run yet, the slowest)")
+
+
+def test_makespan_follows_the_runners_order():
+    """Jobs start in order on the slot that frees first (run_local). 3 workers, jobs 10, 1, 1, 1, 5 s: 10,
+    1 and 1 start at 0; the fourth at 1 (ends 2); the fifth at 1 on the other slot freed then (ends 6): the
+    last ends at 10. In the order 1, 1, 1, 10, 5 the 10 s job starts at 1 (ends 11), the 5 s at 1 (ends 6):
+    11. One worker: the sum, 18; more workers than jobs: the longest, 10."""
+    assert runner.makespan([10, 1, 1, 1, 5], 3) == 10
+    assert runner.makespan([1, 1, 1, 10, 5], 3) == 11
+    assert runner.makespan([10, 1, 1, 1, 5], 1) == 18
+    assert runner.makespan([10, 1, 1, 1, 5], 8) == 10
 
 
 def test_forecast_scales_rates_between_seed_counts(tmp_path):

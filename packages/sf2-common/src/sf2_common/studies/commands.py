@@ -47,7 +47,8 @@ def add_parser(sub, prog: str) -> None:
                    help="only the seed groups wholly inside these seeds (e.g. 0-4; the study file's "
                    "seeds_per_run makes the groups)")
     r.add_argument("--workers", type=int, default=None,
-                   help="runs at a time on this host (default: one per visible GPU, else 1)")
+                   help="runs at a time on this host (default: one per visible GPU, else 1); with "
+                   "--dry-run, the workers its estimate plans for")
     r.add_argument("--finish-within", metavar="SECONDS", type=float, default=None,
                    help="start a run only if the forecast from the finished runs' rates ends it within "
                    "SECONDS from now (e.g. the time left on a leased machine); runs started are never "
@@ -170,7 +171,8 @@ def _run(backend, args, command: str) -> int:
             steps = " ; ".join(f"{backend.prog} {' '.join(c)}" for c in job.commands)
             print(f"  {state:8} {job.name}{eta}: {steps}")
         where = "here" + "".join(f" and in {p}" for p in args.forecast_from)
-        total = runner.estimate(history, jobs, forecast, where)
+        workers = args.workers or len(runner.visible_gpus(base_env)) or 1   # as run_local's slots
+        total = runner.estimate(history, jobs, forecast, where, workers)
         if total:
             print(total)
         return 0

@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import fcntl
 import functools
+import heapq
 import os
 import shutil
 import signal
@@ -38,8 +39,8 @@ from .folder import LOG, StudyFolder
 from .progress import Progress, duration
 from .spec import Run, Study, StudyError
 
-__all__ = ["Backend", "Job", "plan", "Forecast", "estimate", "eval_argv", "child_env", "visible_gpus",
-           "run_local", "Outcome", "LOCK"]
+__all__ = ["Backend", "Job", "plan", "Forecast", "estimate", "makespan", "eval_argv", "child_env",
+           "visible_gpus", "run_local", "Outcome", "LOCK"]
 
 LOCK = ".study-lock"
 
@@ -214,19 +215,30 @@ def _seed_count(job: Job) -> int:
 
 
 def estimate(done: list[Job], todo: list[Job], forecast: Forecast | None = None,
-             where: str = "here") -> str | None:
+             where: str = "here", workers: int = 1) -> str | None:
     """A dry run's forecast of the training time left (`Forecast`, of `done` unless given), summed as if one
-    worker ran every job; `where` says whose finished runs the rates are. None without a finished run or
-    without a job."""
+    worker ran every job, and with `workers` > 1 the time `run_local` would take on that many (`makespan`);
+    `where` says whose finished runs the rates are. None without a finished run or without a job."""
     forecast = Forecast(done) if forecast is None else forecast
     if not forecast.known or not todo:
         return None
-    seconds = sum(forecast.seconds(j) for j in todo)
+    each = [forecast.seconds(j) for j in todo]
     guessed = sorted({j.run.task for j in todo if not forecast.has_task(j.run.task)})
     finished = sum(len(v) for v in forecast.rates.values())
-    return (f"estimate: {len(todo)} run(s) to do ≈ {duration(seconds)} of training on one worker (at the "
-            f"wall time per env step of the {finished} finished run(s) {where}"
+    return (f"estimate: {len(todo)} run(s) to do ≈ {duration(sum(each))} of training on one worker"
+            + (f", ≈ {duration(makespan(each, workers))} on {workers} workers" if workers > 1 else "")
+            + f" (at the wall time per env step of the {finished} finished run(s) {where}"
             + (f"; {', '.join(guessed)}: no finished run yet, the slowest" if guessed else "") + ")")
+
+
+def makespan(seconds: list[float], workers: int) -> float:
+    """When the last of jobs taking `seconds` (in `run_local`'s order) ends on `workers` slots: each job
+    starts, in order, on the slot that frees first, as `run_local` starts them (process starts and
+    compilation are in the jobs' forecasts only as far as the finished runs' wall times hold them)."""
+    free = [0.0] * workers
+    for s in seconds:
+        heapq.heapreplace(free, free[0] + s)
+    return max(free)
 
 
 def child_env(base: dict, **extra) -> dict:
