@@ -79,7 +79,7 @@ def main(argv=None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
     print_rows(rows, FIELDS, args.markdown)
-    print(summary(rows))
+    print(summary(rows), file=sys.stdout if args.markdown else sys.stderr)   # JSON lines stay parseable
     return 0
 
 

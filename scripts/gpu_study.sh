@@ -7,10 +7,10 @@
 #
 #   bash scripts/gpu_study.sh STUDY.toml SECONDS [study run options: --tasks ... --methods ... --seeds ...]
 #
-# On a lease's last command add `--finish-within <about 0.7 x the seconds the lease has left>`: runs forecast
-# to end later are not started (their checkpoints would go back with the host); a run can take up to ~1.4x its
-# forecast (`python -m bench.forecast_check`, results/fig7-sac/README.md "Cost per run"). A study with no finished run of its own
-# (fig7-sac at first) forecasts from another's: `--forecast-from results/fig7-td3` (it travels with the repo).
+# On a lease's last command add `--finish-within <about 0.7 x the seconds the lease has left>`: runs
+# forecast to end later are not started (their checkpoints would go back with the host); a run can take up
+# to ~1.4x its forecast (`python -m bench.forecast_check`, results/fig7-sac/README.md "Cost per run").
+# A study with no finished run of its own (fig7-sac at first) forecasts from another's: `--forecast-from results/fig7-td3` (it travels with the repo).
 #
 # Wheels: .whl-jax (git-excluded), what the host's image lacks for training and evaluation, nothing more:
 #   bash ../shared/device/wheels.sh .whl-jax \
