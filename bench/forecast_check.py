@@ -68,7 +68,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         backend = commands.backend(FRAMEWORK)
-        history = [j for s in args.studies for j in commands.finished_runs(backend, s, "study folder")]
+        history = [j for s in args.studies for j in commands.finished_runs(backend, s)]
         by_path = {j.path.resolve(): j for j in history}
         missing = [str(p) for p in args.runs if p.resolve() not in by_path]
         if missing:

@@ -30,7 +30,7 @@ from .runlog import library_log
 __all__ = [
     "WALL_FIELDS", "TrainingDiverged", "Session", "BatchedEvaluation", "run_epochs", "diverged_message",
     "row_metrics", "make_row", "write_curve", "call_hook", "versions", "hardware", "cpu_model",
-    "numerics_environment", "environment_line",
+    "numerics_environment", "environment_text", "environment_line",
     "progress_bar", "NoBar", "run_title",
 ]
 
@@ -161,10 +161,15 @@ def numerics_environment(environ=None) -> dict:
     return {name: environ[name] for name in NUMERICS_ENV if environ.get(name)}
 
 
+def environment_text(env: dict) -> str:
+    """`numerics_environment()`'s result in words, e.g. "XLA_FLAGS='...'" (train.log, study reports)."""
+    return ", ".join(f"{k}={v!r}" for k, v in env.items()) if env else \
+        "none of " + ", ".join(NUMERICS_ENV) + " set"
+
+
 def environment_line(env: dict) -> str:
     """train.log's line for `numerics_environment()`'s result, e.g. "environment: XLA_FLAGS='...'"."""
-    return "environment: " + (", ".join(f"{k}={v!r}" for k, v in env.items()) if env else "none of "
-                              + ", ".join(NUMERICS_ENV) + " set")
+    return "environment: " + environment_text(env)
 
 
 class Session(Protocol):

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sf2_common.agents.hostloop import environment_line
+from sf2_common.agents.hostloop import environment_text
 from sf2_common.agents.plotting import curves
 from sf2_common.agents.runfolder import RunFolder, RunFolderError
 
@@ -48,7 +48,7 @@ class GroupData:
     finished: bool
     progress: str                     # "partial (epoch 3 of 5)" or "not started" for an incomplete run
     hardware: str = ""                # config.json's "hardware" (its first session's), "" if not recorded
-    environment: str | None = None    # config.json's "environment" as train.log words it (None: not recorded)
+    environment: dict | None = None   # config.json's "environment" (None: not recorded)
 
 
 @dataclasses.dataclass
@@ -103,7 +103,7 @@ def _group(seeds, path: Path):
     wall = max((r.get("walltime", 0.0) for r in rows), default=0.0)
     env = conf.get("environment")
     group = GroupData(tuple(seeds), path, finished, progress, str(conf.get("hardware", "")),
-                      environment_line(env).removeprefix("environment: ") if isinstance(env, dict) else None)
+                      env if isinstance(env, dict) else None)
     return group, steps, per_seed, wall, noise
 
 
@@ -581,9 +581,10 @@ def _md_hardware(data: list[RunData]) -> list[str]:
                  f"are those of that hardware."]
     # The environment variables that change the numbers (hostloop.numerics_environment), once any run set one:
     # e.g. XLA_FLAGS=--xla_gpu_deterministic_ops=true, under which GPU runs repeat bit for bit.
-    envs = Counter(g.environment for d in data for g in d.groups if g.finished)
-    if any(e and not e.startswith("none of ") for e in envs):
-        parts = [f"{e if e is not None else unknown}: {n} run{'s' * (n > 1)}" for e, n in envs.most_common()]
+    envs = [g.environment for d in data for g in d.groups if g.finished]
+    if any(envs):
+        counts = Counter(unknown if e is None else environment_text(e) for e in envs)
+        parts = [f"{e}: {n} run{'s' * (n > 1)}" for e, n in counts.most_common()]
         lines.append(f"Their environment (config.json's \"environment\"): {'; '.join(parts)}.")
     return lines + [""]
 
