@@ -149,8 +149,10 @@ def test_report_and_a_study_folder_that_takes_claims_later(tmp_path):
 
     folder = StudyFolder(tmp_path / "study")
     folder.open(loads(STUDY, tmp_path / "s.toml"), "jax", [])
+    per_task = (CLAIM.replace('text = "SF² above TD3"', 'text = "on each task"')
+                + 'per_task = true\nstatistic = "Mean"\n')
     with_claims = loads(STUDY.replace('name = "claimed"', 'name = "claimed"\ndescription = "now with words"')
-                        + CLAIM, tmp_path / "s.toml")
+                        + CLAIM + per_task, tmp_path / "s.toml")
     folder.open(with_claims, "jax", [])
     assert folder.load_study().claims == with_claims.claims
     with pytest.raises(StudyError, match="differ in seeds"):
@@ -173,8 +175,25 @@ def test_report_and_a_study_folder_that_takes_claims_later(tmp_path):
     assert "Verdict: **supported** (supported 1 of 1 comparison)." in summary
     line = next(x for x in summary.splitlines() if x.startswith("| all 2 tasks | TD3+SF² − TD3 |"))
     assert f"| all | 0-4 | {10 / 14:+.3f} [" in line and line.endswith("| 1.00 | supported |")
-    (row,) = list(csv.DictReader(open(written["claims.csv"])))
-    assert row["verdict"] == "supported" and float(row["difference"]) == pytest.approx(10 / 14)
+    # per task, the same difference in returns: AUC 3(10 + s)/4 − 3s/4 = 7.5 on every seed (10/14 of the
+    # task's AUC range 3 · 14 / 4 = 10.5); the aggregate claim's table has no such column
+    assert "Δ Mean AUC (returns)" in summary and "Δ IQM AUC (returns)" not in summary
+    assert "**Δ AUC (returns)**, for a comparison on one task" in summary
+    line = next(x for x in summary.splitlines() if x.startswith("| T2 | TD3+SF² − TD3 |"))
+    assert f"| all | 0-4 | {10 / 14:+.3f} [" in line and line.endswith("| +7.50 | 1.00 | supported |")
+    aggregate, *each = list(csv.DictReader(open(written["claims.csv"])))
+    assert aggregate["verdict"] == "supported" and float(aggregate["difference"]) == pytest.approx(10 / 14)
+    assert aggregate["difference_auc"] == "" and len(each) == 2
+    assert all(float(r["difference_auc"]) == pytest.approx(7.5) for r in each)
+
+
+def test_a_bound_that_rounds_to_zero_keeps_its_sign():
+    """A verdict rests on the sign of a bound: an upper bound of −0.00045 (contradicted) must not print as
+    −0.000 (results/fig7-sac's CartpoleSwingupSparse, SAC+SF² − SAC)."""
+    assert [claims._num(x) for x in (-0.00045, 0.0003, 0.0, 0.0005, -0.1234, None)] == [
+        "-4.5e-04", "+3.0e-04", "+0.000", "+0.001", "-0.123", "—"]
+    assert [claims._returns(x) for x in (22.98, -1.434, 0.0933, 1.0, 567.5, None)] == [
+        "+23.0", "-1.43", "+0.0933", "+1.00", "+567.5", "—"]
 
 
 def test_observation_noise_claims_compare_each_level(tmp_path, monkeypatch):

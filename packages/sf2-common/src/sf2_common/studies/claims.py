@@ -37,6 +37,13 @@ of the seeds; one smaller than it likely will not be. Checked on results/fig7-td
 comparisons that went from 5 seeds to 15 (their claims.csv in this repository's history): the 15-seed
 half-width was 0.41–1.63× the projection (median 0.95); the five not resolved at 5 seeds split as
 projected: the four with "Δ within" stayed not resolved, the one "Δ beyond" became supported.
+
+How large is a per-task difference? A comparison on one task also gets `difference_auc`, the claim's
+statistic of the AUC itself (return units) of the method minus the other's. Min–max normalization is affine
+per task, so it is `difference` times the task's AUC range and has the same verdict; it tells a difference
+of returns from a difference of failures: results/fig7-sac's CartpoleSwingupSparse, where no SAC-family run
+learned much by 1M steps (the best seed's AUC 12.9 of the 1,000 a run can score), has SAC+SF² − SAC
+−0.111 normalized, contradicted, and −1.43 in returns.
 """
 
 from __future__ import annotations
@@ -51,7 +58,8 @@ __all__ = ["Claim", "Comparison", "parse", "evaluate", "check", "markdown", "csv
 
 VERDICTS = ("supported", "contradicted", "not resolved", "cannot decide")
 CSV_FIELDS = ("claim", "scope", "method", "other", "score", "statistic", "tasks", "missing_tasks", "seeds",
-              "difference", "lower", "upper", "p_improvement", "verdict", "projected_half_width")
+              "difference", "lower", "upper", "p_improvement", "verdict", "projected_half_width",
+              "difference_auc")
 _KEYS = ("text", "method", "above", "tasks", "statistic", "per_task", "score")
 SCORES = ("normalized_auc", "obs_noise")
 
@@ -85,6 +93,7 @@ class Comparison:
     p_improvement: float | None
     verdict: str
     projected: float | None = None   # the interval's half-width projected to the study's seeds (docstring)
+    difference_auc: float | None = None   # the same difference of the AUC in return units (docstring)
     study_seeds: int = 0             # N, the study's number of seeds
 
 
@@ -211,8 +220,29 @@ def evaluate(claim: Claim, study, rows: list[dict], noise_rows=()) -> tuple[str,
     comparisons = [_compare(scope, label[claim.method], label[other], tasks, scored, claim.statistic)
                    for scope, tasks, scored in scopes for other in claim.above]
     comparisons = [dataclasses.replace(c, projected=projected_half_width(c, len(study.seeds)),
-                                       study_seeds=len(study.seeds)) for c in comparisons]
+                                       study_seeds=len(study.seeds),
+                                       difference_auc=difference_auc(c, claim, rows)) for c in comparisons]
     return overall(comparisons), comparisons
+
+
+def difference_auc(c: Comparison, claim: Claim, rows: list[dict]) -> float | None:
+    """`c`'s difference in return units (module docstring): the claim's statistic of the seeds' AUC
+    (report.results_rows' "auc", before normalization) of the claimed method minus the other's, over `c`'s
+    seeds; None unless `c` is a normalized-AUC comparison on one task (`per_task`, or a claim of one task)
+    with an AUC for every seed."""
+    one = claim.per_task or len(claim.tasks) == 1
+    if claim.score != "normalized_auc" or not one or len(c.tasks) != 1 or not c.seeds:
+        return None
+    (task,) = c.tasks
+
+    def auc(label):
+        got = {r["seed"]: r.get("auc") for r in rows if r["method"] == label and r["task"] == task}
+        return [[got.get(s)] for s in c.seeds]
+
+    x, y = auc(c.method), auc(c.other)
+    if any(v[0] is None for v in x + y):
+        return None
+    return stats.difference(x, y, claim.statistic)
 
 
 def projected_half_width(c: Comparison, n_study: int) -> float | None:
@@ -232,7 +262,16 @@ def check(study, rows: list[dict], noise_rows=()) -> list[tuple[Claim, str, list
 
 # ------------------------------------------------------------------------------------------- output
 def _num(x) -> str:
-    return "—" if x is None else f"{x:+.3f}"
+    """Signed, 3 decimals; a nonzero number that would print as ±0.000 in 2 significant digits, so that an
+    interval bound that decides a verdict (e.g. an upper bound of −0.00045: contradicted) shows its sign."""
+    if x is None:
+        return "—"
+    return f"{x:+.1e}" if x and abs(x) < 5e-4 else f"{x:+.3f}"
+
+
+def _returns(x) -> str:
+    """A difference in return units: one decimal from 10 on, else 3 significant digits."""
+    return "—" if x is None else f"{x:+.1f}" if abs(x) >= 10 else f"{x:+#.3g}"
 
 
 def markdown(checked) -> list[str]:
@@ -250,7 +289,13 @@ def markdown(checked) -> list[str]:
              "where a comparison has fewer: its interval's half-width × √(seeds / N), what it would "
              "narrow to if the remaining seeds spread as these do; \"Δ beyond\" means the difference is "
              "larger than it (the rest of the seeds may resolve it), \"Δ within\" smaller (they likely "
-             "will not). A planning figure, not a test (sf2_common/studies/claims.py).", ""]
+             "will not). A planning figure, not a test (sf2_common/studies/claims.py)."
+             + (" **Δ AUC (returns)**, for a comparison on one task: the same statistic's difference of the "
+                "AUC before normalization (the mean return over training). The normalization is per task and "
+                "affine, so the verdict is the same; it shows how large a normalized difference is in "
+                "returns: on a task where every run scored little, min–max scaling spreads small differences "
+                "over [0, 1]." if any(c.difference_auc is not None for *_, comps in checked for c in comps)
+                else ""), ""]
     for i, (claim, verdict, comps) in enumerate(checked, 1):
         counts = ", ".join(f"{v} {n}" for v in VERDICTS if (n := sum(c.verdict == v for c in comps)))
         plural = "s" * (len(comps) > 1)
@@ -258,20 +303,23 @@ def markdown(checked) -> list[str]:
                   f"Verdict: **{verdict}** ({counts} of {len(comps)} comparison{plural}).", ""]
         shown = [c for c in comps if c.seeds]
         project = max((c.study_seeds for c in shown if c.projected is not None), default=0)
+        raw = any(c.difference_auc is not None for c in shown)
         if shown:
             lines += [f"Scores: {claim.scores_what()}.", "",
                       f"| scope | comparison | tasks with both | seeds | Δ {claim.statistic} [95% CI] | "
-                      f"P(claimed > other) | verdict |" + (f" at {project} seeds (projected) |" if project
-                                                           else ""),
-                      "|---|---|---|---|---|---|---|" + ("---|" if project else "")]
+                      + (f"Δ {claim.statistic} AUC (returns) | " if raw else "")
+                      + "P(claimed > other) | verdict |"
+                      + (f" at {project} seeds (projected) |" if project else ""),
+                      "|---|---|---|---|---|---|---|" + "---|" * raw + ("---|" if project else "")]
         for c in shown:
             tasks = f"{len(c.tasks)} of {len(c.tasks) + len(c.missing)} ({', '.join(c.tasks)})" if c.missing \
                 else "all"
             ci = "" if c.lower is None else f" [{_num(c.lower)}, {_num(c.upper)}]"
             p = "—" if c.p_improvement is None else f"{c.p_improvement:.2f}"
             projection = f" {_projection(c)} |" if project else ""
+            returns = f"{_returns(c.difference_auc)} | " if raw else ""
             lines.append(f"| {c.scope} | {c.method} − {c.other} | {tasks} | {seeds_text(c.seeds)} | "
-                         f"{_num(c.difference)}{ci} | {p} | {c.verdict} |{projection}")
+                         f"{_num(c.difference)}{ci} | {returns}{p} | {c.verdict} |{projection}")
         empty = [c for c in comps if not c.seeds]
         if empty:
             whole = [s for s in dict.fromkeys(c.scope for c in comps)
@@ -299,5 +347,5 @@ def csv_rows(checked) -> list[dict]:
                         "missing_tasks": ";".join(c.missing), "seeds": seeds_text(c.seeds) if c.seeds else "",
                         "difference": c.difference, "lower": c.lower, "upper": c.upper,
                         "p_improvement": c.p_improvement, "verdict": c.verdict,
-                        "projected_half_width": c.projected})
+                        "projected_half_width": c.projected, "difference_auc": c.difference_auc})
     return out

@@ -29,7 +29,8 @@ __all__ = [
     "MIN_SEEDS", "RESAMPLES", "CONFIDENCE", "SEED", "METRICS", "auc", "final_window_mean",
     "normalize_by_task", "aggregate", "aggregate_intervals", "mean_interval",
     "iqm_interval", "column_interval", "COLUMN_STATISTICS",
-    "informative", "require_rliable", "STATISTICS", "difference_interval", "probability_of_improvement",
+    "informative", "require_rliable", "STATISTICS", "difference", "difference_interval",
+    "probability_of_improvement",
 ]
 
 MIN_SEEDS = 3          # fewer seeds (per task): no interval (module docstring)
@@ -193,17 +194,24 @@ def iqm_interval(values, resamples: int = RESAMPLES, seed: int = SEED):
 
 
 # ------------------------------------------------------------------------------------------- two methods
+def difference(x, y, statistic: str = "IQM") -> float:
+    """statistic(x) − statistic(y) of scores x (n_x, n_tasks) and y (n_y, n_tasks) (`STATISTICS`: rliable's
+    aggregate IQM, median or mean): `difference_interval`'s point."""
+    _, metrics = require_rliable()
+    agg = getattr(metrics, STATISTICS[statistic])
+    return float(agg(np.asarray(x, dtype=float)) - agg(np.asarray(y, dtype=float)))
+
+
 def difference_interval(x, y, statistic: str = "IQM", resamples: int = RESAMPLES, seed: int = SEED):
     """Normalized scores x (n_x, n_tasks) and y (n_y, n_tasks) of two methods on the same tasks → (point,
     lower, upper) of statistic(x) − statistic(y) (`STATISTICS`: rliable's aggregate IQM, median or mean)
     with its 95% percentile bootstrap interval: rliable's `get_interval_estimates` on the pair, i.e. its
     `StratifiedIndependentBootstrap` (each method's seeds resampled independently within each task).
     lower = upper = None when either method has fewer than `MIN_SEEDS` seeds."""
-    library, metrics = require_rliable()
-    agg = getattr(metrics, STATISTICS[statistic])
+    library, _ = require_rliable()
 
     def fn(a, b):
-        return np.array([agg(a) - agg(b)])
+        return np.array([difference(a, b, statistic)])
 
     x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
     point = float(fn(x, y)[0])
