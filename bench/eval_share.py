@@ -8,7 +8,10 @@ epoch 0 (`eval_seconds` summed; with the batched evaluation each row holds its s
 time, so the sum is the batches' time), the training epochs (`epoch_seconds` summed), the evaluations'
 share, and the run's env steps/s over all seeds; with them the seeds, the GPU (config.json's "hardware",
 that of the run's first start; "not recorded" before run folders named it) and how many times `train`
-started in the folder (train.log: 2 = cut by a time limit and resumed once). docs/physics.md "Evaluation
+started in the folder (train.log: 2 = cut by a time limit and resumed once), and `save_wait_s`, the seconds
+train.log says the run waited for checkpoint writes (Orbax's "Waiting for previous save to complete took X
+seconds" lines, which it writes for waits over 1 s only, so a lower bound; whole runs only: None with
+--epochs or without a train.log; sf2_jax/agents/checkpoint.py). docs/physics.md "Evaluation
 latency" and bench/README.md's per-task rates use it.
 `--epochs A-B`: the same over epochs A+1..B only (wall time from epoch A's row to epoch B's): the rate of a
 stretch of a run, e.g. after the run it shared its GPU with had finished (bench/results/h200/20-runs-per-gpu).
@@ -18,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -27,7 +31,8 @@ from sf2_common.fileio import read_text, stored
 from .report import print_rows
 
 FIELDS = ("run", "epochs", "wall_s", "eval_s", "train_s", "eval_share", "env_steps_per_s", "seeds",
-          "hardware", "starts")
+          "hardware", "starts", "save_wait_s")
+_SAVE_WAIT = re.compile(r"Waiting for previous save to complete took ([0-9.]+) seconds")
 
 
 def measure(folder: Path, span: tuple[int, int] | None = None) -> dict:
@@ -53,7 +58,8 @@ def measure(folder: Path, span: tuple[int, int] | None = None) -> dict:
     return {"run": str(folder), "epochs": f"{a}-{b}", "wall_s": round(wall, 1), "eval_s": round(evals, 1),
             "train_s": round(train, 1), "eval_share": round(evals / wall, 3),
             "env_steps_per_s": round(steps * len(seeds) / wall), "seeds": len(seeds),
-            "hardware": _hardware(folder), "starts": _starts(folder)}
+            "hardware": _hardware(folder), "starts": _starts(folder),
+            "save_wait_s": None if span is not None else _save_waits(folder)}
 
 
 def _hardware(folder: Path) -> str:
@@ -64,14 +70,24 @@ def _hardware(folder: Path) -> str:
     return conf.get("hardware") or "not recorded"
 
 
+def _log(folder: Path) -> str | None:
+    path = stored(RunFolder(folder).log_path)
+    return None if path is None else read_text(path)
+
+
 def _starts(folder: Path) -> int | None:
     """How many `train` processes train.log records (the runner writes a `$ python -m … train …` line
     before each), None without a train.log."""
-    path = stored(RunFolder(folder).log_path)
-    if path is None:
+    text = _log(folder)
+    if text is None:
         return None
-    lines = read_text(path).splitlines()
-    return sum(1 for line in lines if line.startswith("$ python -m ") and " train " in line)
+    return sum(1 for line in text.splitlines() if line.startswith("$ python -m ") and " train " in line)
+
+
+def _save_waits(folder: Path) -> float | None:
+    """The checkpoint waits train.log records, summed (module docstring), None without a train.log."""
+    text = _log(folder)
+    return None if text is None else round(sum(float(x) for x in _SAVE_WAIT.findall(text)), 1)
 
 
 def _span(text: str) -> tuple[int, int]:

@@ -284,14 +284,21 @@ def test_eval_share_of_a_run_folder(tmp_path):
     assert compress(tmp_path / "metrics.jsonl")
     assert eval_share.measure(tmp_path, (1, 2)) == got
     # seeds, the GPU and the train processes: from config.json and train.log, "not recorded" / None without
-    assert (got["seeds"], got["hardware"], got["starts"]) == (2, "not recorded", None)
+    assert (got["seeds"], got["hardware"], got["starts"], got["save_wait_s"]) == (
+        2, "not recorded", None, None)
     conf = {"config": {}, "seeds": [0, 1], "hardware": "NVIDIA H200"}
     (tmp_path / "config.json").write_text(json.dumps(conf))
     (tmp_path / "train.log").write_text("\n$ python -m sf2_jax.cli train --task T --out x   # 1\nepoch 3\n"
                                         "$ python -m sf2_jax.cli eval x --save   # 2\n"
-                                        "$ python -m sf2_jax.cli train --task T --out x   # 3\nresuming\n")
+                                        "$ python -m sf2_jax.cli train --task T --out x   # 3\nresuming\n"
+                                        "2026-11-26 12:49:38 absl WARNING: Waiting for previous save to "
+                                        "complete took 2.853596 seconds. If this number is high, ...\n"
+                                        "12:50:03 absl WARNING: Waiting for previous save to complete "
+                                        "took 3.1 seconds.\n")
     got = eval_share.measure(tmp_path)
     assert (got["seeds"], got["hardware"], got["starts"]) == (2, "NVIDIA H200", 2)
+    # checkpoint waits 2.853596 + 3.1 = 5.95 s (whole runs only)
+    assert got["save_wait_s"] == 6.0 and eval_share.measure(tmp_path, (1, 2))["save_wait_s"] is None
     # a damaged config.json is named (RunFolder's check), not read as "not recorded"
     (tmp_path / "config.json").write_text('{"config": {')
     with pytest.raises(SystemExit, match=r"config.json is not valid JSON"):
