@@ -11,6 +11,7 @@ import re
 import shutil
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from sf2_common.agents.checkpoints import CheckpointDamaged
@@ -102,6 +103,33 @@ def test_a_damaged_config_or_metrics_file_is_an_error_and_changes_nothing(refere
     assert "Nothing was changed" in str(err.value) or "nothing was changed" in str(err.value)
     assert folder_digest(out) == before
     assert get_program.cache_info().misses == misses                      # refused before compiling
+
+
+def test_a_background_save_holds_the_state_it_was_given(reference, tiny_cfg, tmp_path):
+    """The trainer saves with `wait=False`: Orbax writes the files while the next epoch trains, and that
+    epoch's program donates (overwrites) the state's device buffers. The checkpoint must still hold the
+    state as it was when saved, and `finish` write its manifest. (On a GPU, Orbax copies the arrays to the
+    host before `save` returns; on the CPU its host arrays are views of the buffers, and JAX declines to
+    donate a buffer that has a view. Either way the checkpoint is the state that was given.)"""
+    from sf2_common.agents import checkpoints
+
+    state = jax.tree_util.tree_map(jnp.copy, reference.state)   # reference's own state stays as it is
+    # host copies (a CPU device_get is a view, and a buffer with a view is never donated)
+    expected = jax.tree_util.tree_map(lambda x: np.array(x, copy=True), state)
+    ckpt = Checkpointer(tmp_path / "checkpoints")
+    try:
+        ckpt.save(1, state, {"env_steps": 0}, wait=False)
+        numeric = [x for x in jax.tree_util.tree_leaves(state) if jnp.issubdtype(x.dtype, jnp.number)]
+        overwritten = jax.jit(lambda xs: [x + 1 for x in xs], donate_argnums=0)(numeric)
+        jax.block_until_ready(overwritten)
+        ckpt.finish()
+        assert checkpoints.verify(ckpt.path(1), 1)    # complete, with its manifest
+        restored, meta = ckpt.restore(1, get_program(tiny_cfg).abstract_state((0,)))
+    finally:
+        ckpt.close()
+    assert meta["env_steps"] == 0
+    for x, y in zip(jax.tree_util.tree_leaves(expected), jax.tree_util.tree_leaves(restored), strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 
 
 def test_killed_in_the_middle_of_a_save(reference, tiny_cfg, tmp_path):

@@ -430,7 +430,9 @@ class _Session:
         return np.asarray(returns)[: len(epochs)]
 
     def save(self, epoch: int, env_steps: int) -> None:
-        self.ckpt.save(epoch, self.state, {"env_steps": env_steps, "seeds": list(self.seeds)})
+        # written in the background while the next epochs train; the checkpointer completes it before
+        # the next save and on close (checkpoint.py)
+        self.ckpt.save(epoch, self.state, {"env_steps": env_steps, "seeds": list(self.seeds)}, wait=False)
 
     def loss_order(self) -> tuple[str, ...]:
         return self.program.loss_order

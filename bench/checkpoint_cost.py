@@ -1,0 +1,119 @@
+"""What a training checkpoint costs: the time a run waits for `Checkpointer.save`, with the write awaited
+(before 2026-11-26) and in the background (`save(wait=False)`, the trainer's since), and for `restore`.
+
+    python -m bench.checkpoint_cost --task CheetahRun --algo sac --repr none --seeds 10 [--repeats 3]
+
+The state is the `paper` preset's (1M env steps) for that many seeds, built from the program's abstract
+state: float leaves hold random normals, except that each replay buffer (a leaf whose axis 1 is
+`max_replay_size`) is filled only in its first `--fill` of that axis (default 1,001,088 / 4,194,304: the
+end of a 1M-step run; the rest stays zero, as in a run), so the files compress as a real run's last
+checkpoint does. Per repeat: `save` awaited; `save(wait=False)` until it returns (the arrays copied to the
+host) and then `finish` (the rest of the write, which a run overlaps with its next epochs); `restore`.
+Medians over the repeats after one warm-up. A 10-seed CheetahRun run of results/fig7-sac waited 38 s for its
+ten checkpoints (`python -m bench.eval_share`'s `save_wait_s`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import shutil
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from .report import print_rows
+
+FIELDS = ("task", "algo", "repr", "seeds", "state_gb", "save_awaited_s", "save_returns_s", "finish_s",
+          "restore_s", "device")
+
+
+def _state(cfg, seeds: int, fill: float, abstract):
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    used = max(1, round(fill * cfg.max_replay_size))
+
+    def leaf(x):
+        if not jnp.issubdtype(x.dtype, jnp.floating) or math.prod(x.shape) == 0:
+            return jnp.zeros(x.shape, x.dtype)
+        if len(x.shape) >= 2 and x.shape[1] == cfg.max_replay_size:
+            a = np.zeros(x.shape, x.dtype)
+            a[:, :used] = rng.standard_normal((x.shape[0], used, *x.shape[2:]), dtype=np.float32)
+            return jnp.asarray(a)
+        return jnp.asarray(rng.standard_normal(x.shape, dtype=np.float32).astype(x.dtype))
+
+    return jax.tree_util.tree_map(leaf, abstract)
+
+
+def measure(task: str, algo: str, rep: str, seeds: int, repeats: int, fill: float, folder: Path) -> dict:
+    import jax
+    from sf2_common.agents import configs
+    from sf2_jax.agents.checkpoint import Checkpointer
+    from sf2_jax.agents.trainer import get_program
+
+    cfg = configs.make_config("paper", task, algo, rep, {"num_timesteps": 1_000_000})
+    abstract = get_program(cfg).abstract_state(tuple(range(seeds)))
+    state = _state(cfg, seeds, fill, abstract)
+    jax.block_until_ready(state)
+    gb = sum(math.prod(x.shape) * x.dtype.itemsize for x in jax.tree_util.tree_leaves(abstract)) / 1e9
+    times = {k: [] for k in ("save_awaited_s", "save_returns_s", "finish_s", "restore_s")}
+    ckpt = Checkpointer(folder, keep=2)
+    try:
+        for i in range(repeats + 1):   # the first is a warm-up
+            t = time.perf_counter()
+            ckpt.save(2 * i, state, {}, wait=True)
+            awaited = time.perf_counter() - t
+            t = time.perf_counter()
+            ckpt.save(2 * i + 1, state, {}, wait=False)
+            returns = time.perf_counter() - t
+            t = time.perf_counter()
+            ckpt.finish()
+            finish = time.perf_counter() - t
+            t = time.perf_counter()
+            jax.block_until_ready(ckpt.restore(2 * i + 1, abstract)[0])
+            restore = time.perf_counter() - t
+            if i:
+                for k, v in zip(times, (awaited, returns, finish, restore), strict=True):
+                    times[k].append(v)
+    finally:
+        ckpt.close()
+    return {"task": task, "algo": algo, "repr": rep, "seeds": seeds, "state_gb": round(gb, 2),
+            **{k: round(statistics.median(v), 3) for k, v in times.items()},
+            "device": jax.devices()[0].device_kind}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.checkpoint_cost",
+                                     description=__doc__.split("\n")[0])
+    parser.add_argument("--task", default="CheetahRun")
+    parser.add_argument("--algo", default="sac", choices=("td3", "sac"))
+    parser.add_argument("--repr", default="none", dest="rep")
+    parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--fill", type=float, default=1_001_088 / 4_194_304,
+                        help="the filled fraction of each replay buffer (default: the end of a 1M-step run)")
+    parser.add_argument("--dir", type=Path, default=None, help="where to write (default: a temporary folder)")
+    parser.add_argument("--markdown", action="store_true", help="a Markdown table instead of JSON lines")
+    args = parser.parse_args(argv)
+    if args.seeds < 1 or args.repeats < 1 or not 0 < args.fill <= 1:
+        parser.error("--seeds and --repeats are ints >= 1; --fill is in (0, 1]")
+    from sf2_common.errors import ConfigError
+
+    folder = Path(tempfile.mkdtemp(prefix="ckpt-", dir=args.dir))
+    try:
+        row = measure(args.task, args.algo, args.rep, args.seeds, args.repeats, args.fill, folder / "c")
+    except ConfigError as err:   # an unknown task, algorithm or representation: named with the choices
+        parser.error(str(err))
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+    print_rows([row], FIELDS, args.markdown)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
