@@ -131,7 +131,10 @@ class Forecast:
     before them, the forecasts of the five CartpoleBalanceSparse runs of 10 seeds of 2026-11-25 were 19%
     short to 11% long by 2 and 14% short to 6% long by 3, so leave `--finish-within` a margin. The
     largest, not the mean, in 2 and the slowest in 4 because methods differ up to ~4x in cost and
-    `--finish-within` must not start a run the lease's end would cut. The rates are those of the machines
+    `--finish-within` must not start a run the lease's end would cut. Checked (2026-11-26) on results/
+    fig7-sac's 51 runs, each task's runs forecast as if the task had none (from the other tasks and
+    results/fig7-td3): the largest gives 0.64–1.04× the time the runs took per task, no run over 1.07×;
+    medians in its place would give 0.82–1.38×, 11 runs over 1.2×. The rates are those of the machines
     the finished runs ran on; evaluation children ([evaluation]) are not counted. `known` is False without
     any finished run.
 
