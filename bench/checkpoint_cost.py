@@ -30,7 +30,7 @@ FIELDS = ("task", "algo", "repr", "seeds", "state_gb", "save_awaited_s", "save_r
           "restore_s", "device")
 
 
-def _state(cfg, seeds: int, fill: float, abstract):
+def _state(cfg, fill: float, abstract):
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -58,7 +58,7 @@ def measure(task: str, algo: str, rep: str, seeds: int, repeats: int, fill: floa
 
     cfg = configs.make_config("paper", task, algo, rep, {"num_timesteps": 1_000_000})
     abstract = get_program(cfg).abstract_state(tuple(range(seeds)))
-    state = _state(cfg, seeds, fill, abstract)
+    state = _state(cfg, fill, abstract)
     jax.block_until_ready(state)
     gb = sum(math.prod(x.shape) * x.dtype.itemsize for x in jax.tree_util.tree_leaves(abstract)) / 1e9
     times = {k: [] for k in ("save_awaited_s", "save_returns_s", "finish_s", "restore_s")}

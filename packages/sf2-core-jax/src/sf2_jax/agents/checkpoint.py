@@ -7,12 +7,12 @@ empty arrays) are not written (Orbax refuses them) and come from that template. 
 checkpoint into a temporary folder and renames it when complete, so a run killed mid-save leaves the
 previous checkpoint intact. A JSON `meta` item stores the epoch, env steps and the leaf count.
 
-A save returns once the arrays are on the host (Orbax's synchronous device-to-host copy, so the next
-epoch may donate their device buffers) and Orbax writes the files in the background while training goes
-on; the next save, `finish`, `latest`, `all`, `restore` and `close` first wait for it. A 10-seed
-CheetahRun, FishSwim or HopperHop run of fig7-td3 / fig7-sac spent 7.5–9.1% of its wall time waiting for
-its ten checkpoints' writes (2.8–5.4 s each; Orbax's "Waiting for previous save" lines in the runs'
-train.log). A run killed during a write keeps its previous checkpoint (below).
+The trainer's `save(wait=False)` returns once the arrays are on the host (Orbax's synchronous
+device-to-host copy, so the next epoch may donate their device buffers) and Orbax writes the files in the
+background while training goes on; the next save, `finish`, `latest`, `all`, `restore` and `close` first
+wait for it. A 10-seed CheetahRun, FishSwim or HopperHop run of fig7-td3 / fig7-sac spent 7.5–10% of its
+wall time waiting for its ten checkpoints' writes (2.8–5.4 s each; Orbax's "Waiting for previous save"
+lines in the runs' train.log). A run killed during a write keeps its previous checkpoint (below).
 
 Once Orbax has finished, the save writes the checkpoint's file manifest (`sf2_common.agents.checkpoints`);
 `restore` checks it first, so a truncated, garbled or missing file is one `CheckpointDamaged` naming the
