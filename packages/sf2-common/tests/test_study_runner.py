@@ -252,6 +252,35 @@ def test_forecast_prefers_the_same_task_at_the_same_seed_count(tmp_path):
         assert forecast.seconds(job(task, name, seeds)) == pytest.approx(1000 * rate), (task, name, seeds)
 
 
+def test_forecast_caps_a_run_of_fewer_seeds_by_one_of_more(tmp_path):
+    """A run of fewer seeds never takes longer than one of more seeds of its task and method (`Forecast`
+    docstring). 100 env steps per seed. A/m: 5 seeds took 500 s (a shared GPU), 10 seeds 200 s: the
+    5-seed rate 500 / 500 = 1.0 is capped at the 10-seed run's 200 / 1000 x 10 / 5 = 0.4, so another
+    5-seed run of A/m is forecast at 500 x 0.4 = 200 s, the 10-seed run's wall time. B/m: 5 seeds 150 s,
+    10 seeds 200 s, so 0.3 stays (under 0.4). B/q (no run) at 5 seeds is forecast from B/m at 5 seeds times
+    q / m on A (A/q 5 seeds took 100 s: 0.2 / 0.4 = 0.5): 0.3 x 0.5 x 500 = 75 s; uncapped, the ratio
+    would be 0.2 / 1.0 and B/q 30 s. C (no run): the slowest capped 5-seed rate of all, A/m's 0.4 (B/m 0.3,
+    A/q 0.2): 0.4 x 500 = 200 s, not A/m's uncapped 1.0 x 500."""
+    from types import SimpleNamespace
+
+    def job(task, name, seeds, wall=None):
+        path = tmp_path / ("done" if wall is not None else "todo") / task / f"{name}-{seeds}"
+        path.mkdir(parents=True, exist_ok=True)
+        total = 100 * seeds
+        if wall is not None:
+            (path / "metrics.jsonl").write_text(json.dumps({"epoch": 1, "seed": 0, "env_steps": total,
+                                                            "walltime": wall}) + "\n")
+        run = SimpleNamespace(task=task, folder=name, rel=name, seeds=tuple(range(seeds)))
+        return runner.Job(run, path, [], total, total if wall is not None else 0)
+
+    finished = {("A", "m", 5): 500.0, ("A", "m", 10): 200.0, ("A", "q", 5): 100.0,
+                ("B", "m", 5): 150.0, ("B", "m", 10): 200.0}
+    forecast = runner.Forecast([job(t, m, n, wall=w) for (t, m, n), w in finished.items()])
+    expected = {("A", "m", 5): 200.0, ("B", "m", 5): 150.0, ("B", "q", 5): 75.0, ("C", "m", 5): 200.0}
+    for (task, name, seeds), seconds in expected.items():
+        assert forecast.seconds(job(task, name, seeds)) == pytest.approx(seconds), (task, name, seeds)
+
+
 def test_finish_within_starts_only_runs_forecast_to_end_in_time(tmp_path, monkeypatch):
     """Finished runs of 1,000 env steps took 1e6 s on task A (1,000 s per env step) and 0.001 s on B: with
     60 s to go, B's runs start (forecast ≈ 0 s), A's do not, nor C's (no finished run: the slowest rate,

@@ -143,7 +143,16 @@ class Forecast:
     the seeds. A rate measured at k seeds is scaled to n by the largest ratio rate(n) / rate(k) of the
     (task, method) pairs that finished runs of both counts measure; without such a pair, by 1 for n > k (as
     if the time grew with the seeds) and by k / n for n < k (as if it did not shrink): never below the time
-    the run can take."""
+    the run can take.
+
+    Fewer seeds never take longer: a finished run's rate at k seeds is capped at m / k times the rate of a
+    run of the same task and method with m > k seeds (that run's wall time). A run of fewer seeds that took
+    longer shared its GPU or was resumed: fig7-td3's 5-seed runs of TD3 on HopperHop (12 m 20 s against
+    7 m 17 s at 10 seeds) and of TD3+SF² on CheetahRun (19 m 33 s against 7 m 44 s). Through preference 2
+    they forecast fig7-sac's seven 5-seed CheetahRun and HopperHop runs of 2026-11-26 at 2.0-3.8x the time
+    they took; capped, at 1.02-1.61x (`python -m bench.forecast_check results/fig7-td3 results/fig7-sac
+    --runs <that session's 11 runs>`). fig7-sac's 62 runs forecast from fig7-td3's alone (`--runs` all
+    62): time taken 0.74x the forecasts in all (0.59x uncapped), 0.49-1.29x per run (0.21-1.29x)."""
 
     def __init__(self, done: list[Job]):
         self.rates: dict[tuple[str, str], list[tuple[int, float]]] = {}   # (seeds, s per env step)
@@ -176,9 +185,15 @@ class Forecast:
         ratios = [at_n / at_k for at_n, at_k in pairs if at_n is not None and at_k is not None]
         return max(ratios) if ratios else (1.0 if n > k else k / n)
 
+    def _rates(self, task: str, folder: str) -> list[tuple[int, float]]:
+        """(seeds, rate) of (task, folder)'s finished runs, each capped by its runs of more seeds (class
+        docstring)."""
+        runs = self.rates.get((task, folder), [])
+        return [(k, min([r, *(q * m / k for m, q in runs if m > k)])) for k, r in runs]
+
     def _at(self, task: str, folder: str, seeds: int) -> float | None:
         """The mean rate of (task, folder)'s finished runs of `seeds` seeds, or None."""
-        same = [r for m, r in self.rates.get((task, folder), ()) if m == seeds]
+        same = [r for m, r in self._rates(task, folder) if m == seeds]
         return sum(same) / len(same) if same else None
 
     def relative(self, task: str, folder: str, seeds: int) -> float | None:
@@ -200,12 +215,12 @@ class Forecast:
         relative = self.relative(task, folder, seeds)
         if relative is not None:
             return relative
-        mine = self.rates.get((task, folder))
+        mine = self._rates(task, folder)
         if mine:
             scaled = [r * self.scale(m, seeds) for m, r in mine]
             return sum(scaled) / len(scaled)
-        pool = ([(m, r) for (t, _), v in self.rates.items() if t == task for m, r in v]
-                or [(m, r) for v in self.rates.values() for m, r in v])
+        pool = ([(m, r) for t, f in self.rates if t == task for m, r in self._rates(t, f)]
+                or [(m, r) for t, f in self.rates for m, r in self._rates(t, f)])
         exact = [r for m, r in pool if m == seeds]
         return max(exact) if exact else max(r * self.scale(m, seeds) for m, r in pool)
 
