@@ -2,6 +2,7 @@
 (before 2026-11-26) and in the background (`save(wait=False)`, the trainer's since), and for `restore`.
 
     python -m bench.checkpoint_cost --task CheetahRun --algo sac --repr none --seeds 10 [--repeats 3]
+        [--framework jax|torch]
 
 The state is the `paper` preset's (1M env steps) for that many seeds, built from the program's abstract
 state: float leaves hold random normals, except that each replay buffer (a leaf whose axis 1 is
@@ -9,7 +10,10 @@ state: float leaves hold random normals, except that each replay buffer (a leaf 
 end of a 1M-step run; the rest stays zero, as in a run), so the files compress as a real run's last
 checkpoint does. Per repeat: `save` awaited; `save(wait=False)` until it returns (the arrays copied to the
 host) and then `finish` (the rest of the write, which a run overlaps with its next epochs); `restore`.
-Medians over the repeats after one warm-up. A 10-seed CheetahRun run of results/fig7-sac waited 38 s for its
+Medians over the repeats after one warm-up. `--framework torch`: the torch trainer's state
+(`Program.init`, each seed's replay buffer filled as far with random transitions;
+sf2_torch/agents/checkpoint.py, whose `save(wait=False)` copies the state to the host and writes it in a
+thread). A 10-seed CheetahRun run of results/fig7-sac waited 38 s for its
 ten checkpoints (`python -m bench.eval_share`'s `save_wait_s`).
 """
 
@@ -26,8 +30,8 @@ from pathlib import Path
 
 from .report import print_rows
 
-FIELDS = ("task", "algo", "repr", "seeds", "state_gb", "save_awaited_s", "save_returns_s", "finish_s",
-          "restore_s", "device")
+FIELDS = ("framework", "task", "algo", "repr", "seeds", "state_gb", "save_awaited_s", "save_returns_s",
+          "finish_s", "restore_s", "device")
 
 
 def _state(cfg, fill: float, abstract):
@@ -50,6 +54,30 @@ def _state(cfg, fill: float, abstract):
     return jax.tree_util.tree_map(leaf, abstract)
 
 
+def _timings(save, restore, repeats: int) -> dict:
+    """Medians over `repeats` (after one warm-up) of `save(epoch, wait=True)`, of `save(epoch,
+    wait=False)` until it returns and then its `finish`, and of `restore(epoch)`; `save` returns the
+    checkpointer's `finish`."""
+    times = {k: [] for k in ("save_awaited_s", "save_returns_s", "finish_s", "restore_s")}
+    for i in range(repeats + 1):   # the first is a warm-up
+        t = time.perf_counter()
+        save(2 * i, True)
+        awaited = time.perf_counter() - t
+        t = time.perf_counter()
+        finish = save(2 * i + 1, False)
+        returns = time.perf_counter() - t
+        t = time.perf_counter()
+        finish()
+        done = time.perf_counter() - t
+        t = time.perf_counter()
+        restore(2 * i + 1)
+        restored = time.perf_counter() - t
+        if i:
+            for k, v in zip(times, (awaited, returns, done, restored), strict=True):
+                times[k].append(v)
+    return {k: round(statistics.median(v), 3) for k, v in times.items()}
+
+
 def measure(task: str, algo: str, rep: str, seeds: int, repeats: int, fill: float, folder: Path) -> dict:
     import jax
     from sf2_common.agents import configs
@@ -61,30 +89,68 @@ def measure(task: str, algo: str, rep: str, seeds: int, repeats: int, fill: floa
     state = _state(cfg, fill, abstract)
     jax.block_until_ready(state)
     gb = sum(math.prod(x.shape) * x.dtype.itemsize for x in jax.tree_util.tree_leaves(abstract)) / 1e9
-    times = {k: [] for k in ("save_awaited_s", "save_returns_s", "finish_s", "restore_s")}
     ckpt = Checkpointer(folder, keep=2)
+
+    def save(epoch, wait):
+        ckpt.save(epoch, state, {}, wait=wait)
+        return ckpt.finish
+
     try:
-        for i in range(repeats + 1):   # the first is a warm-up
-            t = time.perf_counter()
-            ckpt.save(2 * i, state, {}, wait=True)
-            awaited = time.perf_counter() - t
-            t = time.perf_counter()
-            ckpt.save(2 * i + 1, state, {}, wait=False)
-            returns = time.perf_counter() - t
-            t = time.perf_counter()
-            ckpt.finish()
-            finish = time.perf_counter() - t
-            t = time.perf_counter()
-            jax.block_until_ready(ckpt.restore(2 * i + 1, abstract)[0])
-            restore = time.perf_counter() - t
-            if i:
-                for k, v in zip(times, (awaited, returns, finish, restore), strict=True):
-                    times[k].append(v)
+        times = _timings(save, lambda e: jax.block_until_ready(ckpt.restore(e, abstract)[0]), repeats)
     finally:
         ckpt.close()
-    return {"task": task, "algo": algo, "repr": rep, "seeds": seeds, "state_gb": round(gb, 2),
-            **{k: round(statistics.median(v), 3) for k, v in times.items()},
-            "device": jax.devices()[0].device_kind}
+    return {"framework": "jax", "task": task, "algo": algo, "repr": rep, "seeds": seeds,
+            "state_gb": round(gb, 2), **times, "device": jax.devices()[0].device_kind}
+
+
+def measure_torch(task: str, algo: str, rep: str, seeds: int, repeats: int, fill: float,
+                  folder: Path) -> dict:
+    import numpy as np
+    import torch
+    from sf2_torch.agents import configs
+    from sf2_torch.agents.checkpoint import Checkpointer
+    from sf2_torch.agents.trainer import get_program
+
+    cfg = configs.make_config("paper", task, algo, rep, {"num_timesteps": 1_000_000})
+    program = get_program(cfg)
+    state = program.init(tuple(range(seeds)))
+    actions = torch.zeros(seeds, cfg.num_envs, program.spec.action_size, device=program.device)
+    template = program._env_step(state, actions)[0][:1]     # one transition's keys, shapes and dtypes
+    used, chunk = max(1, round(fill * cfg.max_replay_size)), 65_536
+    gen = torch.Generator(device=program.device).manual_seed(0)
+    for agent in state.agents:
+        for start in range(0, used, chunk):
+            batch = template.expand(min(chunk, used - start)).clone()
+            for x in batch.values(include_nested=True, leaves_only=True):
+                if x.is_floating_point():
+                    x.copy_(torch.randn(x.shape, generator=gen, device=x.device))
+            agent.replay.insert(batch)
+    sd = program.state_dict(state)
+    leaves = state.env.get_state_leaves()
+    gb = (sum(t.numel() * t.element_size() for t in _tensors(sd))
+          + sum(np.asarray(x).nbytes for x in leaves)) / 1e9
+    ckpt = Checkpointer(folder, keep=2)
+
+    def save(epoch, wait):
+        ckpt.save(epoch, sd, leaves, {}, wait=wait)
+        return ckpt.finish
+
+    try:
+        times = _timings(save, lambda e: ckpt.restore(e, map_location=program.device), repeats)
+    finally:
+        ckpt.close()
+    device = torch.cuda.get_device_name() if program.device.type == "cuda" else "cpu"
+    return {"framework": "torch", "task": task, "algo": algo, "repr": rep, "seeds": seeds,
+            "state_gb": round(gb, 2), **times, "device": device}
+
+
+def _tensors(tree):
+    import torch
+
+    if isinstance(tree, torch.Tensor):
+        return [tree]
+    values = tree.values() if isinstance(tree, dict) else tree if isinstance(tree, list | tuple) else ()
+    return [t for v in values for t in _tensors(v)]
 
 
 def main(argv=None) -> int:
@@ -98,6 +164,8 @@ def main(argv=None) -> int:
     parser.add_argument("--fill", type=float, default=1_001_088 / 4_194_304,
                         help="the filled fraction of each replay buffer (default: the end of a 1M-step run)")
     parser.add_argument("--dir", type=Path, default=None, help="where to write (default: a temporary folder)")
+    parser.add_argument("--framework", default="jax", choices=("jax", "torch"),
+                        help="whose trainer state and checkpointer (default: jax)")
     parser.add_argument("--markdown", action="store_true", help="a Markdown table instead of JSON lines")
     args = parser.parse_args(argv)
     if args.seeds < 1 or args.repeats < 1 or not 0 < args.fill <= 1:
@@ -106,7 +174,8 @@ def main(argv=None) -> int:
 
     folder = Path(tempfile.mkdtemp(prefix="ckpt-", dir=args.dir))
     try:
-        row = measure(args.task, args.algo, args.rep, args.seeds, args.repeats, args.fill, folder / "c")
+        run = measure if args.framework == "jax" else measure_torch
+        row = run(args.task, args.algo, args.rep, args.seeds, args.repeats, args.fill, folder / "c")
     except ConfigError as err:   # an unknown task, algorithm or representation: named with the choices
         parser.error(str(err))
     finally:

@@ -368,3 +368,30 @@ def test_forecast_check_against_hand_derived_forecasts(tmp_path):
         forecast_check.check(history, history)
     # a folder that is not a study folder is named, exit status 2, no traceback
     assert forecast_check.main([str(tmp_path / "nope"), "--runs", str(tmp_path / "A" / "m")]) == 2
+
+
+def test_checkpoint_cost_timings_are_medians_after_the_warm_up(monkeypatch):
+    """`checkpoint_cost._timings` on a fake clock: an awaited save takes 10 s, a background save returns
+    after 1 s and its `finish` takes 5 s, a restore 3 s, except in the warm-up (epochs 0 and 1), where each
+    takes 100 s more. Two timed repeats: every median is the steady value, the warm-up left out; the
+    background save's epoch is the one restored (2i + 1)."""
+    from bench import checkpoint_cost
+
+    clock = [0.0]
+    monkeypatch.setattr(checkpoint_cost.time, "perf_counter", lambda: clock[0])
+    restored = []
+
+    def advance(seconds, epoch):
+        clock[0] += seconds + (100.0 if epoch < 2 else 0.0)
+
+    def save(epoch, wait):
+        advance(10.0 if wait else 1.0, epoch)
+        return lambda: advance(5.0, epoch)
+
+    def restore(epoch):
+        restored.append(epoch)
+        advance(3.0, epoch)
+
+    times = checkpoint_cost._timings(save, restore, repeats=2)
+    assert times == {"save_awaited_s": 10.0, "save_returns_s": 1.0, "finish_s": 5.0, "restore_s": 3.0}
+    assert restored == [1, 3, 5]

@@ -65,6 +65,54 @@ def test_each_damaged_checkpoint_file_is_named(reference, tmp_path, name, fault)
     assert err.value.epoch == 3 and err.value.reason.startswith(name), err.value
 
 
+def test_a_background_save_holds_the_state_it_was_given(reference, tiny_cfg, tmp_path):
+    """The trainer saves with `wait=False`: a thread writes the files while the next epoch trains, and
+    that epoch updates the parameters, Adam states, replay buffer and generator in place. The checkpoint
+    must still hold the state as it was when saved (`save` copies it to the host first), and restore it."""
+    import copy
+
+    program = trainer.get_program(tiny_cfg)
+    state = copy.deepcopy(program.state_dict(reference.state))   # reference's own state stays as it is
+    leaves = [np.array(x, copy=True) for x in reference.state.env.get_state_leaves()]
+    expected = {k: np.array(v, copy=True) for k, v in _tensors(state).items()}
+    ckpt = Checkpointer(tmp_path / "checkpoints")
+    try:
+        ckpt.save(1, state, leaves, {"env_steps": 0}, wait=False)
+        for t in _tensors_of(state):
+            t.add_(1) if t.dtype != torch.bool else t.logical_not_()
+        for x in leaves:
+            x[...] = 0
+        ckpt.finish()
+        saved, restored_leaves, meta = ckpt.restore(1)
+    finally:
+        ckpt.close()
+    assert meta["env_steps"] == 0 and expected
+    got = _tensors(saved)
+    assert set(got) == set(expected)
+    for k in expected:
+        np.testing.assert_array_equal(got[k], expected[k], err_msg=k)
+    originals = reference.state.env.get_state_leaves()
+    for x, y in zip(originals, restored_leaves, strict=True):
+        np.testing.assert_array_equal(np.asarray(x), y)
+
+
+def test_a_background_save_that_fails_raises_in_the_caller(tmp_path):
+    """A write that fails in the thread is raised by the next call (`finish` here), not lost."""
+    (tmp_path / "taken").write_text("a file where the checkpoint folder should be")
+    ckpt = Checkpointer(tmp_path / "taken")
+    ckpt.save(1, {"x": torch.zeros(3)}, [np.zeros(2)], {"env_steps": 0}, wait=False)
+    with pytest.raises(OSError):
+        ckpt.finish()
+    ckpt.close()     # the error was raised once; nothing is left to wait for
+
+
+def _tensors_of(tree):
+    if isinstance(tree, torch.Tensor):
+        return [tree]
+    values = tree.values() if isinstance(tree, dict) else tree if isinstance(tree, list | tuple) else ()
+    return [t for v in values for t in _tensors_of(v)]
+
+
 def test_a_damaged_newest_checkpoint_falls_back_to_the_last_good_one(reference, tiny_cfg, tmp_path, capfd):
     out = _copy(reference, tmp_path)
     damage(out / "checkpoints" / "3" / Checkpointer.STATE, "garble")

@@ -11,14 +11,21 @@ The file manifest of `sf2_common.agents.checkpoints` is written into the tempora
 checks it first, so a truncated, garbled or missing file is one `CheckpointDamaged` naming the file (which
 the resume rule of `sf2_common.agents.resume` sets aside), and intact files that do not load are
 `CheckpointMismatch`.
+
+The trainer's `save(wait=False)` returns once the state is copied to the host (tensors to CPU, arrays
+copied, so later in-place updates and the next epochs cannot reach it) and a thread writes the files; the
+next `save`, and `finish`, `all`, `latest`, `restore` and `close`, wait for it (the JAX core's
+`Checkpointer` does the same with Orbax's background writes: sf2_jax/agents/checkpoint.py).
 """
 
 from __future__ import annotations
 
+import copy
 import json
 import os
 import pickle
 import shutil
+import threading
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -40,6 +47,8 @@ class Checkpointer:
     def __init__(self, directory, keep: int = 2):
         self.directory = Path(directory).absolute()
         self.keep = int(keep)
+        self._writer: threading.Thread | None = None
+        self._error: BaseException | None = None
 
     def path(self, epoch: int) -> Path:
         """The folder of checkpoint `epoch`."""
@@ -47,6 +56,10 @@ class Checkpointer:
 
     def all(self) -> list[int]:
         """The epochs of the checkpoint folders on disk now (complete or not: `restore` tells)."""
+        self.finish()
+        return self._on_disk()
+
+    def _on_disk(self) -> list[int]:
         if not self.directory.exists():
             return []
         return sorted(int(p.name) for p in self.directory.iterdir() if p.is_dir() and p.name.isdigit())
@@ -55,8 +68,36 @@ class Checkpointer:
         steps = self.all()
         return steps[-1] if steps else None
 
-    def save(self, epoch: int, state: dict[str, Any], env_leaves: list[np.ndarray], meta: dict) -> None:
-        """Write checkpoint `epoch` (complete on disk when this returns) and drop the oldest ones."""
+    def save(self, epoch: int, state: dict[str, Any], env_leaves: list[np.ndarray], meta: dict,
+             wait: bool = True) -> None:
+        """Write checkpoint `epoch` and drop the oldest ones. With `wait` return when it is complete on
+        disk; without, once `state` and `env_leaves` are copied to the host: a thread writes the files and
+        `finish` (which the next call of any method makes) waits for it and raises what it raised."""
+        self.finish()
+        if wait:
+            self._write(epoch, state, env_leaves, meta)
+            return
+        args = (epoch, _to_host(state), [np.array(x, copy=True) for x in env_leaves], dict(meta))
+        self._writer = threading.Thread(target=self._write_in_background, args=args,
+                                        name=f"checkpoint-{int(epoch)}")
+        self._writer.start()
+
+    def _write_in_background(self, *args) -> None:
+        try:
+            self._write(*args)
+        except BaseException as err:  # raised in the caller's thread by `finish`
+            self._error = err
+
+    def finish(self) -> None:
+        """Wait for a background save (`save(wait=False)`) to be complete on disk; raise its error."""
+        if self._writer is not None:
+            self._writer.join()
+            self._writer = None
+        if self._error is not None:
+            err, self._error = self._error, None
+            raise err
+
+    def _write(self, epoch: int, state: dict[str, Any], env_leaves: list[np.ndarray], meta: dict) -> None:
         self.directory.mkdir(parents=True, exist_ok=True)
         final = self.directory / str(int(epoch))
         tmp = self.directory / f".{int(epoch)}.tmp-{os.getpid()}"
@@ -75,12 +116,13 @@ class Checkpointer:
         if final.exists():
             shutil.rmtree(final)
         os.replace(tmp, final)
-        for old in self.all()[:-self.keep] if self.keep > 0 else []:
+        for old in self._on_disk()[:-self.keep] if self.keep > 0 else []:
             shutil.rmtree(self.directory / str(old), ignore_errors=True)
 
     def restore(self, epoch: int, map_location=None) -> tuple[dict, list[np.ndarray], dict]:
         """(torch state, env arrays, meta) of checkpoint `epoch`. Raises `CheckpointDamaged` if its files
         are not what was written, `CheckpointMismatch` if intact files do not load."""
+        self.finish()
         path = self.path(epoch)
         intact = checkpoints.verify(path, epoch)
         try:
@@ -97,4 +139,22 @@ class Checkpointer:
         return state, leaves, meta
 
     def close(self) -> None:
-        pass
+        self.finish()
+
+
+def _to_host(tree):
+    """A copy of a state dict's tree whose tensors are on the CPU and owned by it (nothing the trainer
+    updates in place afterwards is shared). A dict keeps its type and attributes: a `state_dict`'s
+    `_metadata` (TensorDict's holds each entry's batch size) is what loads it back."""
+    if isinstance(tree, torch.Tensor):
+        return tree.detach().to("cpu", copy=True)
+    if isinstance(tree, np.ndarray):
+        return tree.copy()
+    if isinstance(tree, dict):
+        out = copy.copy(tree)
+        for k, v in tree.items():
+            out[k] = _to_host(v)
+        return out
+    if type(tree) in (list, tuple):
+        return type(tree)(_to_host(v) for v in tree)
+    return copy.deepcopy(tree)

@@ -313,8 +313,10 @@ class TrainResult:
 
 
 def _save(ckpt: Checkpointer, program: Program, state: TrainState, epoch: int, env_steps: int, seeds) -> None:
+    # written in the background while the next epochs train; the checkpointer completes it before the
+    # next save and on close (checkpoint.py)
     ckpt.save(epoch, program.state_dict(state), state.env.get_state_leaves(),
-              {"env_steps": env_steps, "seeds": list(seeds), "framework": "torch"})
+              {"env_steps": env_steps, "seeds": list(seeds), "framework": "torch"}, wait=False)
 
 
 def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = False,
