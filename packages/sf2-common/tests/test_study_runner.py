@@ -5,6 +5,7 @@ when missing."""
 
 from __future__ import annotations
 
+import functools
 import io
 import json
 import re
@@ -187,6 +188,20 @@ def test_makespan_follows_the_runners_order():
     assert runner.makespan([10, 1, 1, 1, 5], 8) == 10
 
 
+def _forecast_job(root, task, name, seeds, total=1000, wall=None):
+    """A `runner.Job` of `seeds` seeds and `total` env steps under `root`: finished in `wall` seconds (its
+    metrics.jsonl says so), or to do without `wall`."""
+    from types import SimpleNamespace
+
+    path = root / ("done" if wall is not None else "todo") / task / f"{name}-{seeds}"
+    path.mkdir(parents=True, exist_ok=True)
+    if wall is not None:
+        (path / "metrics.jsonl").write_text(json.dumps({"epoch": 1, "seed": 0, "env_steps": total,
+                                                        "walltime": wall}) + "\n")
+    run = SimpleNamespace(task=task, folder=name, rel=name, seeds=tuple(range(seeds)))
+    return runner.Job(run, path, [], total, total if wall is not None else 0)
+
+
 def test_forecast_scales_rates_between_seed_counts(tmp_path):
     """Rates in s per env step (all seeds' steps). A/m finished with 5 seeds at 0.1 and with 10 at 0.07;
     A/q with 5 seeds at 0.2, B/m with 5 at 0.04. The only measured 5 -> 10 ratio is A/m's 0.7, so A/q at 10
@@ -196,16 +211,7 @@ def test_forecast_scales_rates_between_seed_counts(tmp_path):
     (B/q): B's slowest run, none of 10 seeds, so B/m's 0.04 scaled, 0.028. A task with no finished run (C):
     the slowest run of all with its seed count, A/m's 0.07 at 10 seeds and A/q's 0.2 at 5 (not A/q's 0.2
     scaled to 10 by the largest ratio, 0.14: runs of its own seed count come first)."""
-    from types import SimpleNamespace
-
-    def job(task, name, seeds, total=1000, wall=None):
-        path = tmp_path / ("done" if wall is not None else "todo") / task / f"{name}-{seeds}"
-        path.mkdir(parents=True)
-        if wall is not None:
-            (path / "metrics.jsonl").write_text(json.dumps({"epoch": 1, "seed": 0, "env_steps": total,
-                                                            "walltime": wall}) + "\n")
-        run = SimpleNamespace(task=task, folder=name, rel=name, seeds=tuple(range(seeds)))
-        return runner.Job(run, path, [], total, total if wall is not None else 0)
+    job = functools.partial(_forecast_job, tmp_path)
 
     forecast = runner.Forecast([job("A", "m", 5, wall=100.0), job("A", "m", 10, wall=70.0),
                                 job("A", "q", 5, wall=200.0), job("B", "m", 5, wall=40.0)])
@@ -230,16 +236,7 @@ def test_forecast_prefers_the_same_task_at_the_same_seed_count(tmp_path):
     sf2 0.045 x 0.008 / 0.012 (C) = 0.03: the larger, 0.03. C/sim @10 (sim never finished anywhere): no
     ratio, C's slowest, 0.012. A/sf2 @20: no run of 20 seeds, so no relative rate: A/sf2 @5 x scale(5, 20)
     = 0.5 x 1."""
-    from types import SimpleNamespace
-
-    def job(task, name, seeds, total=1000, wall=None):
-        path = tmp_path / ("done" if wall is not None else "todo") / task / f"{name}-{seeds}"
-        path.mkdir(parents=True, exist_ok=True)
-        if wall is not None:
-            (path / "metrics.jsonl").write_text(json.dumps({"epoch": 1, "seed": 0, "env_steps": total,
-                                                            "walltime": wall}) + "\n")
-        run = SimpleNamespace(task=task, folder=name, rel=name, seeds=tuple(range(seeds)))
-        return runner.Job(run, path, [], total, total if wall is not None else 0)
+    job = functools.partial(_forecast_job, tmp_path)
 
     finished = {("A", "td3", 10): 20.0, ("A", "sf2", 5): 500.0, ("A", "spr", 10): 10.0,
                 ("B", "td3", 10): 30.0, ("B", "sf2", 10): 45.0, ("B", "sf2", 5): 60.0,
@@ -261,17 +258,8 @@ def test_forecast_caps_a_run_of_fewer_seeds_by_one_of_more(tmp_path):
     q / m on A (A/q 5 seeds took 100 s: 0.2 / 0.4 = 0.5): 0.3 x 0.5 x 500 = 75 s; uncapped, the ratio
     would be 0.2 / 1.0 and B/q 30 s. C (no run): the slowest capped 5-seed rate of all, A/m's 0.4 (B/m 0.3,
     A/q 0.2): 0.4 x 500 = 200 s, not A/m's uncapped 1.0 x 500."""
-    from types import SimpleNamespace
-
     def job(task, name, seeds, wall=None):
-        path = tmp_path / ("done" if wall is not None else "todo") / task / f"{name}-{seeds}"
-        path.mkdir(parents=True, exist_ok=True)
-        total = 100 * seeds
-        if wall is not None:
-            (path / "metrics.jsonl").write_text(json.dumps({"epoch": 1, "seed": 0, "env_steps": total,
-                                                            "walltime": wall}) + "\n")
-        run = SimpleNamespace(task=task, folder=name, rel=name, seeds=tuple(range(seeds)))
-        return runner.Job(run, path, [], total, total if wall is not None else 0)
+        return _forecast_job(tmp_path, task, name, seeds, total=100 * seeds, wall=wall)
 
     finished = {("A", "m", 5): 500.0, ("A", "m", 10): 200.0, ("A", "q", 5): 100.0,
                 ("B", "m", 5): 150.0, ("B", "m", 10): 200.0}
