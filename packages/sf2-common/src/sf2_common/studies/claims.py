@@ -262,8 +262,9 @@ def check(study, rows: list[dict], noise_rows=()) -> list[tuple[Claim, str, list
 
 # ------------------------------------------------------------------------------------------- output
 def _num(x) -> str:
-    """Signed, 3 decimals; a nonzero number that would print as ±0.000 in 2 significant digits, so that an
-    interval bound that decides a verdict (e.g. an upper bound of −0.00045: contradicted) shows its sign."""
+    """Signed, 3 decimals; a nonzero number that would print as ±0.000 gets 2 significant digits instead,
+    so that an interval bound that decides a verdict (e.g. an upper bound of −0.00045: contradicted) shows
+    its sign."""
     if x is None:
         return "—"
     return f"{x:+.1e}" if x and abs(x) < 5e-4 else f"{x:+.3f}"

@@ -197,9 +197,17 @@ def iqm_interval(values, resamples: int = RESAMPLES, seed: int = SEED):
 def difference(x, y, statistic: str = "IQM") -> float:
     """statistic(x) − statistic(y) of scores x (n_x, n_tasks) and y (n_y, n_tasks) (`STATISTICS`: rliable's
     aggregate IQM, median or mean): `difference_interval`'s point."""
+    return float(_difference(_aggregate(statistic), x, y))
+
+
+def _aggregate(statistic: str):
+    """rliable's aggregate function of `statistic` (`STATISTICS`)."""
     _, metrics = require_rliable()
-    agg = getattr(metrics, STATISTICS[statistic])
-    return float(agg(np.asarray(x, dtype=float)) - agg(np.asarray(y, dtype=float)))
+    return getattr(metrics, STATISTICS[statistic])
+
+
+def _difference(agg, x, y):
+    return agg(np.asarray(x, dtype=float)) - agg(np.asarray(y, dtype=float))
 
 
 def difference_interval(x, y, statistic: str = "IQM", resamples: int = RESAMPLES, seed: int = SEED):
@@ -209,9 +217,10 @@ def difference_interval(x, y, statistic: str = "IQM", resamples: int = RESAMPLES
     `StratifiedIndependentBootstrap` (each method's seeds resampled independently within each task).
     lower = upper = None when either method has fewer than `MIN_SEEDS` seeds."""
     library, _ = require_rliable()
+    agg = _aggregate(statistic)    # resolved once: `fn` runs once per bootstrap resample
 
     def fn(a, b):
-        return np.array([difference(a, b, statistic)])
+        return np.array([_difference(agg, a, b)])
 
     x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
     point = float(fn(x, y)[0])
