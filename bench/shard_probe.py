@@ -3,8 +3,10 @@
     SF2_SHARD_SEEDS=1 python -m bench.shard_probe --programs init
     SF2_SHARD_SEEDS=1 python -m bench.shard_probe --programs epoch,evaluate
 
-Issue 12 item 5 (bench/results/h100x2/README.md "23-shard-probe"): on two GPUs the process with
-`SF2_SHARD_SEEDS=1` dies with SIGSEGV inside XLA while compiling its first program, `init`. This builds
+Issue 12 item 5 (bench/results/h100x2/README.md "23-shard-probe", "29-shardy"): on two GPUs the process
+with `SF2_SHARD_SEEDS=1` died with SIGSEGV inside XLA's `shardy-xla` pass while compiling its first
+program, `init`; `Program.mesh` now switches the process to the GSPMD partitioner, and `--shardy` switches
+it back after the mesh is made (the crash's reproduction). This builds
 the `--config` preset's `Program` for one task/algorithm/representation and `--seeds` seeds and runs the
 listed programs with the seeds spread over the "seed" mesh (`Program.mesh`), printing `ok <program>` after
 each: a crash of XLA kills the process, so give each suspect its own process (scripts/gpu_shard_probe.sh).
@@ -24,7 +26,7 @@ PROGRAMS = ("init", "epoch", "evaluate")
 
 
 def probe(task: str, algo: str, rep: str, preset: str, n_seeds: int, programs: tuple[str, ...],
-          overrides: dict, log=print) -> None:
+          overrides: dict, shardy: bool = False, log=print) -> None:
     import jax
     from sf2_common.agents import configs
     from sf2_jax.agents import representations
@@ -38,7 +40,10 @@ def probe(task: str, algo: str, rep: str, preset: str, n_seeds: int, programs: t
     if mesh is None:
         raise SystemExit(f"shard_probe: no seed mesh: needs {SHARD_SEEDS}=1 and several local devices that "
                          f"divide --seeds {n_seeds} (devices: {jax.local_devices()})")
-    log(f"mesh: {n_seeds} seeds over {mesh.devices.size} devices ({', '.join(map(str, mesh.devices.flat))})")
+    if shardy:
+        jax.config.update("jax_use_shardy_partitioner", True)
+    log(f"mesh: {n_seeds} seeds over {mesh.devices.size} devices ({', '.join(map(str, mesh.devices.flat))}), "
+        f"partitioner {'Shardy' if jax.config.jax_use_shardy_partitioner else 'GSPMD'}")
 
     def timed(name, fn):
         t = time.perf_counter()
@@ -69,6 +74,8 @@ def main(argv=None) -> int:
     p.add_argument("--config", default="paper", help="preset (sf2_common.agents.configs)")
     p.add_argument("--seeds", type=int, default=4, help="number of seeds (a multiple of the devices)")
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE")
+    p.add_argument("--shardy", action="store_true",
+                   help="compile with JAX's default Shardy partitioner, not Program.mesh's GSPMD")
     args = p.parse_args(argv)
     programs = tuple(x for x in args.programs.split(",") if x)
     bad = [x for x in programs if x not in PROGRAMS]
@@ -80,7 +87,7 @@ def main(argv=None) -> int:
 
     try:
         overrides = configs.parse_overrides(args.set) if args.set else {}
-        probe(args.task, args.algo, args.rep, args.config, args.seeds, programs, overrides)
+        probe(args.task, args.algo, args.rep, args.config, args.seeds, programs, overrides, args.shardy)
     except configs.ConfigError as err:
         p.error(str(err))
     return 0

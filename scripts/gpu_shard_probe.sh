@@ -5,11 +5,15 @@
 #
 #   bash scripts/gpu_shard_probe.sh flags      a minimal two-device jit, then the trainer's sharded program
 #                                              under XLA flags that each switch one suspect off (measured
-#                                              2026-11-25: every one segfaults in the compile of `init`)
-#   bash scripts/gpu_shard_probe.sh programs   which programs crash (`python -m bench.shard_probe`): init
-#                                              sharded; epoch and evaluate sharded after a one-device init;
-#                                              then init again with XLA's per-pass HLO dump, whose last pass
-#                                              names where the compiler died ($OUT/xla-dump.tar.gz)
+#                                              2026-11-25, under Shardy, before `Program.mesh` picked GSPMD:
+#                                              every one segfaults in the compile of `init`)
+#   bash scripts/gpu_shard_probe.sh programs   each program sharded (`python -m bench.shard_probe`) under the
+#                                              GSPMD partitioner that `Program.mesh` picks: init; epoch and
+#                                              evaluate after a one-device init; then init under JAX's
+#                                              default Shardy partitioner (`--shardy`: the crash, measured
+#                                              2026-11-26, bench/results/h100x2/29-shardy), again with XLA's
+#                                              per-pass HLO dump, whose last pass names where the compiler
+#                                              died ($OUT/xla-dump.tar.gz)
 set -uo pipefail
 mode=${1:?usage: bash scripts/gpu_shard_probe.sh flags|programs}
 source scripts/gpu_env.sh || exit 1
@@ -22,10 +26,11 @@ trainer() {   # trainer ENV... : the throughput bench's 4-seed TD3 program, shar
     --out /tmp/shard-probe 2>&1 | quiet
   echo "exit ${PIPESTATUS[0]}"
 }
-programs() {   # programs LIST [ENV...]
+programs() {   # programs "LIST [--shardy]" [ENV...]
   local list=$1; shift
   echo "== bench.shard_probe --programs $list $*"
-  env "$@" SF2_SHARD_SEEDS=1 timeout 120 python3 -X faulthandler -u -m bench.shard_probe --programs "$list" \
+  # shellcheck disable=SC2086   # $list is the program list and, for the crash, --shardy
+  env "$@" SF2_SHARD_SEEDS=1 timeout 120 python3 -X faulthandler -u -m bench.shard_probe --programs $list \
     --seeds 4 2>&1 | quiet
   echo "exit ${PIPESTATUS[0]}"
 }
@@ -48,8 +53,9 @@ print(jax.devices(), jax.jit(lambda a: (a * 2).sum(axis=1))(x))' 2>&1 | tail -3
     programs init
     programs epoch
     programs evaluate
+    programs "init --shardy"
     dump=/tmp/xla-dump; rm -rf "$dump"
-    programs init XLA_FLAGS="--xla_dump_to=$dump --xla_dump_hlo_module_re=.*_init_one.* --xla_dump_hlo_pass_re=.* --xla_dump_hlo_as_text"
+    programs "init --shardy" XLA_FLAGS="--xla_dump_to=$dump --xla_dump_hlo_module_re=.*_init_one.* --xla_dump_hlo_pass_re=.* --xla_dump_hlo_as_text"
     echo "== the last HLO passes dumped before the crash (newest last)"
     ls -tr "$dump" 2>/dev/null | tail -8
     mkdir -p "$OUT"
