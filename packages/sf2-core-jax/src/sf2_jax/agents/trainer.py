@@ -135,13 +135,13 @@ class Program:
         """The local devices as a one-axis mesh ("seed") when `SF2_SHARD_SEEDS=1` is set, there are several
         devices and they divide `n_seeds` evenly; else None (everything on the default device).
 
-        Opt-in: on two H200s and on two H100s the sharded programs' compile died of a segfault in XLA's
-        `shardy-xla` pass (bench/results/h100x2/29-shardy), while two processes with one GPU each reached
-        2.00x the rate of one (bench/results/h200x2/15-two-gpus). Under the GSPMD partitioner the sharded
-        `init` and `epoch` compile and run on two H100s, so a mesh switches this process to it
-        (`jax_use_shardy_partitioner` off; JAX warns that GSPMD is deprecated). Several GPUs are used by
-        whole runs, one per GPU (`study run`); the sharded program is tested on two CPU devices
-        (tests/agents/test_devices.py)."""
+        Opt-in: on two H100s the sharded programs' compile died of a segfault in XLA's `shardy-xla` pass
+        (bench/results/h100x2/29-shardy; on two H200s the process died without a message), while two
+        processes with one GPU each reached 2.00x the rate of one (bench/results/h200x2/15-two-gpus).
+        Under the GSPMD partitioner the sharded `init` and `epoch` compile and run on two H100s, so a
+        mesh switches this process to it (`jax_use_shardy_partitioner` off; JAX warns that GSPMD is
+        deprecated). Several GPUs are used by whole runs, one per GPU (`study run`); the sharded program
+        is tested on two CPU devices (tests/agents/test_devices.py)."""
         devices = jax.local_devices()
         if os.environ.get(SHARD_SEEDS) != "1" or len(devices) < 2 or n_seeds % len(devices):
             return None
