@@ -7,9 +7,10 @@ once, before the backend starts) trains seeds (0, 1), one per device, for three 
 - a mesh switches the process from the Shardy partitioner to GSPMD (Shardy's pass segfaults on GPUs),
 - every array of the final state is split over both devices (one seed each),
 - the compiled epoch program holds no cross-device collective (nothing crosses devices inside an epoch),
-- each seed's epoch metrics and parameters equal that seed trained alone on one device (here, in this
-  one-device process, through the same `get_program` the other tests use), up to float32 rounding
-  (`test_training.py`'s tolerance for programs of different seed counts).
+- each seed's epoch metrics, parameters and evaluation returns (the sharded `evaluate` program) equal that
+  seed trained and evaluated alone on one device (here, in this one-device process, through the same
+  `get_program` the other tests use), up to float32 rounding (`test_training.py`'s tolerance for programs
+  of different seed counts).
 The child compiles only the two-device program; the one-seed program is this process's.
 """
 
@@ -49,6 +50,7 @@ SCRIPT = textwrap.dedent('''
         state, m, _ = program.epoch(state, epoch)
         arrays.update({f"epoch{epoch}/{k}": np.asarray(v) for k, v in jax.device_get(m).items()})
     arrays.update({f"param{i}": np.asarray(x) for i, x in enumerate(jax.tree_util.tree_leaves(state.params))})
+    arrays["eval_returns"] = np.asarray(program.evaluate(state.params, state.eval_start, (0, 1), EPOCHS[-1]))
     np.savez(sys.argv[2], **arrays)
     devices = sorted({len(x.sharding.device_set) for x in jax.tree_util.tree_leaves(state)})
     hlo = program._program("epoch", 2).lower(state, jnp.int32(0)).compile().as_text()
@@ -69,6 +71,7 @@ def _alone(cfg, seed):
         state, m, _ = program.epoch(state, epoch)
         arrays.update({f"epoch{epoch}/{k}": np.asarray(v) for k, v in jax.device_get(m).items()})
     arrays.update({f"param{i}": np.asarray(x) for i, x in enumerate(jax.tree_util.tree_leaves(state.params))})
+    arrays["eval_returns"] = np.asarray(program.evaluate(state.params, state.eval_start, (seed,), EPOCHS[-1]))
     return arrays
 
 
@@ -90,6 +93,7 @@ def test_seeds_spread_over_two_devices_without_collectives(tiny_cfg, tmp_path):
         alone = _alone(tiny_cfg, seed)
         assert sorted(alone) == sorted(both)
         assert any(k.startswith("epoch3/") for k in alone) and "param0" in alone
+        assert np.all(alone["eval_returns"] > 0), alone["eval_returns"]   # episodes that scored something
         for k, y in alone.items():
             x = both[k][seed]
             if k.startswith("param"):
