@@ -5,8 +5,8 @@
 
 Issue 12 item 5 (bench/results/h100x2/README.md "23-shard-probe", "29-shardy"): on two GPUs the process
 with `SF2_SHARD_SEEDS=1` died with SIGSEGV inside XLA's `shardy-xla` pass while compiling its first
-program, `init`; `Program.mesh` now switches the process to the GSPMD partitioner, and `--shardy` switches
-it back after the mesh is made (the crash's reproduction). This builds
+program, `init`; `Program._program` now builds sharded programs with the GSPMD partitioner, and `--shardy`
+switches back to Shardy once they are built, before they compile (the crash's reproduction). This builds
 the `--config` preset's `Program` for one task/algorithm/representation and `--seeds` seeds and runs the
 listed programs with the seeds spread over the "seed" mesh (`Program.mesh`), printing `ok <program>` after
 each: a crash of XLA kills the process, so give each suspect its own process (scripts/gpu_shard_probe.sh).
@@ -40,7 +40,9 @@ def probe(task: str, algo: str, rep: str, preset: str, n_seeds: int, programs: t
     if mesh is None:
         raise SystemExit(f"shard_probe: no seed mesh: needs {SHARD_SEEDS}=1 and several local devices that "
                          f"divide --seeds {n_seeds} (devices: {jax.local_devices()})")
-    if shardy:
+    if shardy:   # jit reads the partitioner when it compiles: build the programs (GSPMD), then switch back
+        for name in programs:
+            program._program(name, n_seeds)
         jax.config.update("jax_use_shardy_partitioner", True)
     log(f"mesh: {n_seeds} seeds over {mesh.devices.size} devices ({', '.join(map(str, mesh.devices.flat))}), "
         f"partitioner {'Shardy' if jax.config.jax_use_shardy_partitioner else 'GSPMD'}")
@@ -75,7 +77,7 @@ def main(argv=None) -> int:
     p.add_argument("--seeds", type=int, default=4, help="number of seeds (a multiple of the devices)")
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE")
     p.add_argument("--shardy", action="store_true",
-                   help="compile with JAX's default Shardy partitioner, not Program.mesh's GSPMD")
+                   help="compile with JAX's default Shardy partitioner, not Program._program's GSPMD")
     args = p.parse_args(argv)
     programs = tuple(x for x in args.programs.split(",") if x)
     bad = [x for x in programs if x not in PROGRAMS]

@@ -3,8 +3,8 @@
 # (`python -m bench.agent_throughput`), three ways in one command so the ratios share a machine:
 #   one-gpu            N seeds vmapped on GPU 0 alone (CUDA_VISIBLE_DEVICES=0)
 #   two-gpus-sharded   2N seeds in one process: `Program` spreads them over both GPUs (shard_map on "seed";
-#                      SF2_SHARD_SEEDS=1, opt-in;
-#                      compiled with GSPMD: see Program.mesh)
+#                      SF2_SHARD_SEEDS=1, opt-in, compiled with GSPMD:
+#                      see Program.mesh)
 #   two-processes      two processes started together, N seeds each, one per GPU (what the study runner
 #                      does with whole runs); their aggregate is the sum of the two rates
 #

@@ -8,7 +8,7 @@
 #                                              2026-11-25, under Shardy, before `Program.mesh` picked GSPMD:
 #                                              every one segfaults in the compile of `init`)
 #   bash scripts/gpu_shard_probe.sh programs   each program sharded (`python -m bench.shard_probe`) under the
-#                                              GSPMD partitioner that `Program.mesh` picks: init; epoch and
+#                                              GSPMD partitioner that `Program._program` picks: init; epoch and
 #                                              evaluate after a one-device init; then init under JAX's
 #                                              default Shardy partitioner (`--shardy`: the crash, measured
 #                                              2026-11-26, bench/results/h100x2/29-shardy), again with XLA's

@@ -4,7 +4,8 @@
 A subprocess with two host CPU devices (`--xla_force_host_platform_device_count=2`; XLA reads the flag
 once, before the backend starts) trains seeds (0, 1), one per device, for three epochs; the test checks that
 - without `SF2_SHARD_SEEDS=1` two devices give no mesh (the run stays on one device),
-- a mesh switches the process from the Shardy partitioner to GSPMD (Shardy's pass segfaults on GPUs),
+- building a sharded program switches the process from the Shardy partitioner to GSPMD (Shardy's pass
+  segfaults on GPUs),
 - every array of the final state is split over both devices (one seed each),
 - the compiled epoch program holds no cross-device collective (nothing crosses devices inside an epoch),
 - each seed's epoch metrics, parameters and evaluation returns (the sharded `evaluate` program) equal that
@@ -42,10 +43,10 @@ SCRIPT = textwrap.dedent('''
     os.environ.pop("SF2_SHARD_SEEDS")
     assert program.mesh(2) is None          # opt-in only
     os.environ["SF2_SHARD_SEEDS"] = "1"
-    assert jax.config.jax_use_shardy_partitioner     # JAX's default until a mesh is made
     assert program.mesh(2) is not None and program.mesh(3) is None   # 3 seeds do not divide over 2
-    assert not jax.config.jax_use_shardy_partitioner  # a mesh compiles with GSPMD (Program.mesh)
+    assert jax.config.jax_use_shardy_partitioner      # JAX's default: asking for a mesh changes nothing
     state, arrays = program.init((0, 1)), {}
+    assert not jax.config.jax_use_shardy_partitioner  # the sharded programs compile with GSPMD (_program)
     for epoch in EPOCHS:
         state, m, _ = program.epoch(state, epoch)
         arrays.update({f"epoch{epoch}/{k}": np.asarray(v) for k, v in jax.device_get(m).items()})

@@ -138,14 +138,12 @@ class Program:
         Opt-in: on two H100s the sharded programs' compile died of a segfault in XLA's `shardy-xla` pass
         (bench/results/h100x2/29-shardy; on two H200s the process died without a message), while two
         processes with one GPU each reached 2.00x the rate of one (bench/results/h200x2/15-two-gpus).
-        Under the GSPMD partitioner the sharded `init` and `epoch` compile and run on two H100s, so a
-        mesh switches this process to it (`jax_use_shardy_partitioner` off; JAX warns that GSPMD is
-        deprecated). Several GPUs are used by whole runs, one per GPU (`study run`); the sharded program
-        is tested on two CPU devices (tests/agents/test_devices.py)."""
+        Under the GSPMD partitioner the sharded `init` and `epoch` compile and run on two H100s, so
+        `_program` builds sharded programs with it. Several GPUs are used by whole runs, one per GPU
+        (`study run`); the sharded program is tested on two CPU devices (tests/agents/test_devices.py)."""
         devices = jax.local_devices()
         if os.environ.get(SHARD_SEEDS) != "1" or len(devices) < 2 or n_seeds % len(devices):
             return None
-        jax.config.update("jax_use_shardy_partitioner", False)
         return jax.sharding.Mesh(np.array(devices), ("seed",))
 
     def place(self, state):
@@ -169,6 +167,9 @@ class Program:
                            }[name]
             fn = jax.vmap(fn, in_axes=in_axes)
             if mesh is not None:
+                # XLA's Shardy pass segfaults on these programs on GPUs (`mesh`): this process compiles
+                # with GSPMD from here on (jit reads the flag when it compiles; JAX warns it is deprecated)
+                jax.config.update("jax_use_shardy_partitioner", False)
                 seed, whole = jax.sharding.PartitionSpec("seed"), jax.sharding.PartitionSpec()
                 fn = jax.shard_map(fn, mesh=mesh, in_specs=tuple(seed if a == 0 else whole for a in in_axes),
                                    out_specs=seed, check_vma=False)
