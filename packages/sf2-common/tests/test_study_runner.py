@@ -89,6 +89,30 @@ def test_runs_spread_over_visible_gpus_one_each(tmp_path, monkeypatch):
         runner.run_local(study, folder, jobs, done, backend=backend, base_env=env, workers=3, progress=False)
 
 
+def test_runs_begun_start_first(tmp_path, monkeypatch):
+    """A run that an earlier command's time limit cut (config and some evaluation rows in its folder)
+    starts before the new ones; the rest keep the study's order (tasks A, B, C × TD3, SAC). One worker
+    runs them in that order: the child spans say so."""
+    from sf2_common.agents.runfolder import RunFolder
+
+    study, backend, folder, runs = _setup(tmp_path, monkeypatch)
+    cut = runs[4]                                                     # C / SAC: last but one in study order
+    rf = RunFolder(folder.path_of(cut))
+    rf.write_config({"config": cut.config.to_dict(), "seeds": list(cut.seeds)})
+    (rf.path / "metrics.jsonl").write_text(json.dumps({"epoch": 1, "seed": 0, "env_steps": 250}) + "\n")
+    jobs, done = runner.plan(study, folder, runs)
+    assert folder.run_state(cut, study).status == "partial" and not done
+    assert [j.run for j in jobs] == [cut] + [r for r in runs if r is not cut]
+    assert jobs[0].done_steps == 250 and all(j.done_steps == 0 for j in jobs[1:])
+    env = {"PATH": "/usr/bin:/bin", "PYTHONPATH": str(tmp_path) + ":" + ":".join(sys.path),
+           "CUDA_VISIBLE_DEVICES": ""}
+    outcome = runner.run_local(study, folder, jobs, done, backend=backend, base_env=env, progress=False,
+                               poll=0.05)
+    assert outcome.ok
+    starts = [json.loads((j.path / "child.json").read_text())["start"] for j in jobs]
+    assert starts == sorted(starts)
+
+
 def test_visible_gpus():
     assert runner.visible_gpus({"CUDA_VISIBLE_DEVICES": "0,2"}) == ["0", "2"]
     assert runner.visible_gpus({"CUDA_VISIBLE_DEVICES": ""}) == []

@@ -94,7 +94,12 @@ def eval_argv(study: Study, path: Path) -> list[str]:
 
 
 def plan(study: Study, folder: StudyFolder, runs: list[Run]) -> tuple[list[Job], list[Job]]:
-    """(jobs to run, runs already done) of `runs`; raises `StudyError` if a run folder holds another run."""
+    """(jobs to run, runs already done) of `runs`; raises `StudyError` if a run folder holds another run.
+    The jobs keep the study's order, except that runs already begun (partly trained, or trained and not
+    yet evaluated) come first: `run_local` starts them in this order, so a run that a command's time limit
+    cut resumes before new runs take the GPUs. On a leased host whose disk goes back with it, its
+    checkpoints are then not left waiting behind runs that start from zero (results/fig7-sac/README.md,
+    "What remains": a run cut on a four-GPU host must not wait behind four new ones)."""
     todo, done = [], []
     for run in runs:
         folder.check_run(run)
@@ -107,7 +112,7 @@ def plan(study: Study, folder: StudyFolder, runs: list[Run]) -> tuple[list[Job],
             commands.append(eval_argv(study, path))
         job = Job(run, path, commands, state.total_env_steps, state.env_steps)
         (todo if commands else done).append(job)
-    return todo, done
+    return sorted(todo, key=lambda j: j.done_steps == 0), done     # stable: begun first, then study order
 
 
 class Forecast:
