@@ -179,6 +179,36 @@ def test_interim_aggregate_covers_the_tasks_and_seeds_every_method_has(tmp_path)
         "every method of the family on the same tasks and seeds).")
 
 
+def test_interim_aggregate_takes_the_most_tasks_times_seeds(tmp_path):
+    """TD3 and TD3+SF² have seeds 0-3 on A and B; on C TD3+SF² has 0-1 only. The seeds common to all three
+    tasks (0-1) give 3 × 2 = 6 scores a method, A's and B's own (0-3) give 2 × 4 = 8: the aggregate is A and
+    B over seeds 0-3, and C is named as left out for its seeds. TD3 scores 0.1 everywhere, TD3+SF² 0.3:
+    median = IQM = mean = the score, optimality gap 1 − it. A tie (C dropped, B at seeds 0-1: 2 × 2 with
+    the common seeds against A alone, 1 × 4) goes to more tasks: A and B at seeds 0-1."""
+    from sf2_common.studies.report import _md_coverage, aggregate_table
+
+    study = loads(INTERIM, tmp_path / "s.toml")
+    have = {("A", "TD3"): range(4), ("A", "TD3+SF²"): range(4), ("B", "TD3"): range(4),
+            ("B", "TD3+SF²"): range(4), ("C", "TD3"): range(4), ("C", "TD3+SF²"): range(2)}
+    value = {"TD3": 0.1, "TD3+SF²": 0.3}
+    rows = [{"task": t, "method": m, "seed": s, "normalized_auc": value[m]} for (t, m), ss in have.items()
+            for s in ss]
+    table, covers = aggregate_table(study, rows)
+    td3 = covers["TD3"]
+    assert (td3.tasks, td3.seeds, td3.extra_seeds) == (["A", "B"], [0, 1, 2, 3], [])
+    assert td3.left_out == {} and td3.fewer_seeds == {"C": [("TD3+SF²", "0-1")]}
+    for (label, n, points, _), v in zip(table["TD3"], (0.1, 0.3)):
+        assert n == 4 and label == ("TD3" if v == 0.1 else "TD3+SF²")
+        np.testing.assert_allclose(points, [v, v, v, 1 - v])
+    assert _md_coverage(study, td3)[0] == (
+        "**TD3: interim aggregate** over 2 of the study's 3 tasks (A, B), seeds 0-3 (4 of 4): not the "
+        "study's 3-task aggregate. Left out until its seeds catch up (with it, every task would be scored on "
+        "fewer seeds): C (TD3+SF² has seeds 0-1).")
+    tie = [r for r in rows if r["task"] != "C" and not (r["task"] == "B" and r["seed"] > 1)]
+    tied = aggregate_table(study, tie)[1]["TD3"]
+    assert (tied.tasks, tied.seeds, tied.extra_seeds) == (["A", "B"], [0, 1], [2, 3])
+
+
 def test_incomplete_runs_compact(tmp_path):
     """One line for the tasks no method has started, one row per (task, method) elsewhere with its
     unfinished seed groups and their state."""

@@ -10,10 +10,11 @@ normalized per task by the min and max over every finished run and seed of the s
 final evaluation return, the mean return over the final `final_window` env steps, env steps, wall time
 (the run's: its seeds train in one program; with seed groups the seed's group's). Per family (TD3, SAC)
 and method: median, IQM, mean and optimality gap of the normalized AUCs with 95% stratified-bootstrap
-intervals (`stats.aggregate_intervals`), every method of the family on the same tasks and seeds: those
-on which all of them have finished seeds (`aggregate_table`); summary.md says which, so an interim study
-shows an interim aggregate, named as such. The study file's `[[claims]]` get a verdict each (claims.py;
-summary.md and claims.csv). Unfinished runs are listed compactly (`_md_incomplete`).
+intervals (`stats.aggregate_intervals`), every method of the family on the same tasks and seeds: of the
+tasks on which all of them have finished seeds, the tasks × seeds that give the most scores (`coverage`);
+summary.md says which, so an interim study shows an interim aggregate, named as such. The study file's
+`[[claims]]` get a verdict each (claims.py; summary.md and claims.csv). Unfinished runs are listed
+compactly (`_md_incomplete`).
 """
 
 from __future__ import annotations
@@ -206,36 +207,61 @@ def _families(study: Study) -> list[str]:
 
 @dataclasses.dataclass
 class Coverage:
-    """What a family's aggregate covers: the tasks on which every method of the family has finished seeds,
-    and the seeds every one of those methods finished on every one of those tasks."""
+    """What a family's aggregate covers: tasks on which every method of the family has finished seeds, and
+    seeds every one of those methods finished on every one of those tasks (`aggregate_table` says which)."""
 
     family: str
     tasks: list[str]                  # in the aggregate (study order)
     seeds: list[int]                  # in the aggregate
     left_out: dict[str, list[str]]    # task not in it → the family's methods with finished seeds there
     extra_seeds: list[int]            # finished on the covered tasks by some methods only: left out
+    # task every method has finished seeds on, left out because some lack the aggregate's seeds there →
+    # [(method label, the seeds it has there)] of those methods
+    fewer_seeds: dict[str, list[tuple[str, str]]] = dataclasses.field(default_factory=dict)
 
     def complete(self, study: Study) -> bool:
         return len(self.tasks) == len(study.tasks) and list(self.seeds) == sorted(study.seeds)
 
 
+def coverage(family: str, tasks: list[str], methods: list[str], got: dict) -> Coverage:
+    """The tasks and seeds of a family's aggregate from `got` ({(task, method label): {seed: score}} for
+    every task of `tasks`, in study order, and every method label of the family in `methods`). Of the
+    tasks on which every method has finished seeds, each has the seeds all of them finished there (its
+    common seeds); the aggregate takes the seed set S, among the seeds common to all those tasks and each
+    task's own common seeds, that scores the most seeds × tasks (every task whose common seeds include
+    S), ties to more tasks, then to the first candidate. So one method's first seed group on a new task
+    does not cut a study's interim aggregate to that group's seeds on every task (fig7-sac, 2026-11-26:
+    SAC+SPR's seeds 0-4 on HopperHop would have turned 5 tasks × 15 seeds into 6 × 5); the task is left
+    out and named, until its seeds catch up."""
+    common = {t: set.intersection(*(set(got[(t, m)]) for m in methods)) for t in tasks
+              if all(got[(t, m)] for m in methods)}
+    candidates = ([set.intersection(*common.values()), *common.values()] if common else [set()])
+
+    def covered(seeds: set) -> list[str]:
+        return [t for t in common if common[t] >= seeds]
+
+    best = max(candidates, key=lambda c: (len(covered(c)) * len(c), len(covered(c))))
+    chosen = covered(best)
+    left = {t: [m for m in methods if got[(t, m)]] for t in tasks if t not in common}
+    fewer = {t: [(m, seeds_text(sorted(got[(t, m)]))) for m in methods if not set(got[(t, m)]) >= best]
+             for t in common if t not in chosen}
+    union = set().union(*(got[(t, m)] for t in chosen for m in methods))
+    return Coverage(family, chosen, sorted(best), left, sorted(union - best), fewer)
+
+
 def aggregate_table(study: Study, rows: list[dict]):
     """({family: [(method label, n_seeds, points (4,), intervals (2, 4) or None)]}, {family: `Coverage`}).
-    Every method of a family is scored on the same tasks and seeds: the tasks on which each of them has
-    finished seeds, and the seeds common to all of them there (an interim study aggregates what it has;
-    summary.md states the coverage). A family without such a task or seed is left out of the table."""
+    Every method of a family is scored on the same tasks and seeds (`coverage`: an interim study
+    aggregates what it has; summary.md states the coverage). A family without such a task or seed is left
+    out of the table."""
     out, covers = {}, {}
     for family in _families(study):
         methods = [m for m in study.methods if m.family == family]
         got = {(t, m.label): {r["seed"]: r["normalized_auc"] for r in rows
                               if r["method"] == m.label and r["task"] == t}
                for t in study.tasks for m in methods}
-        tasks = [t for t in study.tasks if all(got[(t, m.label)] for m in methods)]
-        sets = [set(got[(t, m.label)]) for t in tasks for m in methods]
-        seeds = sorted(set.intersection(*sets)) if sets else []
-        left = {t: [m.label for m in methods if got[(t, m.label)]] for t in study.tasks if t not in tasks}
-        extra = sorted(set().union(*sets) - set(seeds)) if sets else []
-        covers[family] = Coverage(family, tasks, seeds, left, extra)
+        cover = covers[family] = coverage(family, list(study.tasks), [m.label for m in methods], got)
+        tasks, seeds = cover.tasks, cover.seeds
         if not seeds:
             continue
         scores = {m.label: np.array([[got[(t, m.label)][s] for t in tasks] for s in seeds]) for m in methods}
@@ -249,7 +275,7 @@ def _md_coverage(study: Study, cover: Coverage) -> list[str]:
     n = len(study.tasks)
     if not cover.seeds:
         why = ("no task on which every method has finished seeds" if not cover.tasks else
-               f"no seed finished by every method on every one of {', '.join(cover.tasks)}")
+               f"no seed finished by every method on any one of {', '.join(cover.tasks)}")
         return [f"**{cover.family}**: not aggregated yet ({why}; the aggregate scores every method of the "
                 f"family on the same tasks and seeds).", ""]
     seeds = f"seeds {seeds_text(cover.seeds)} ({len(cover.seeds)} of {len(study.seeds)})"
@@ -263,6 +289,11 @@ def _md_coverage(study: Study, cover: Coverage) -> list[str]:
     idle = [t for t, have in cover.left_out.items() if not have]
     if partly:
         text += " Left out: " + "; ".join(partly) + "."
+    if cover.fewer_seeds:
+        short = [f"{t} ({', '.join(f'{m} has seeds {have}' for m, have in lacking)})"
+                 for t, lacking in cover.fewer_seeds.items()]
+        text += (" Left out until its seeds catch up (with it, every task would be scored on fewer seeds): "
+                 + "; ".join(short) + ".")
     if idle:
         text += f" No finished run yet: {', '.join(idle)}."
     if cover.extra_seeds:
