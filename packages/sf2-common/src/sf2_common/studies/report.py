@@ -208,7 +208,7 @@ def _families(study: Study) -> list[str]:
 @dataclasses.dataclass
 class Coverage:
     """What a family's aggregate covers: tasks on which every method of the family has finished seeds, and
-    seeds every one of those methods finished on every one of those tasks (`aggregate_table` says which)."""
+    seeds every one of those methods finished on every one of those tasks (`coverage` says which)."""
 
     family: str
     tasks: list[str]                  # in the aggregate (study order)

@@ -98,8 +98,9 @@ def plan(study: Study, folder: StudyFolder, runs: list[Run]) -> tuple[list[Job],
     The jobs keep the study's order, except that runs already begun (partly trained, or trained and not
     yet evaluated) come first: `run_local` starts them in this order, so a run that a command's time limit
     cut resumes before new runs take the GPUs. On a leased host whose disk goes back with it, its
-    checkpoints are then not left waiting behind runs that start from zero (results/fig7-sac/README.md,
-    "What remains": a run cut on a four-GPU host must not wait behind four new ones)."""
+    checkpoints are then not left waiting behind runs that start from zero (results/fig7-sac/README.md
+    "Device time", twenty-fourth session: HopperHop SAC+SPR, cut by one command, resumed first in the next
+    instead of behind FishSwim's twelve new runs)."""
     todo, done = [], []
     for run in runs:
         folder.check_run(run)
