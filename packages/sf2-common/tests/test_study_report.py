@@ -209,6 +209,23 @@ def test_interim_aggregate_takes_the_most_tasks_times_seeds(tmp_path):
     assert (tied.tasks, tied.seeds, tied.extra_seeds) == (["A", "B"], [0, 1], [2, 3])
 
 
+def test_provisional_normalization_is_flagged(tmp_path):
+    """Task A has finished runs of all three methods, task B of TD3 only: B's normalization rests on one
+    of the three methods, and summary.md says so for B and not for A; with SAC+SF² and SAC on B the flag
+    goes."""
+    folder = _study(tmp_path, FAMILY)
+    curves = {s: [0, 1 + s, 1 + s] for s in range(4)}
+    for m in ("td3", "td3-sf2", "sac"):
+        _write_run(folder.run_path("A", m), [0, 1, 2, 3], curves)
+    _write_run(folder.run_path("B", "td3"), [0, 1, 2, 3], curves)
+    summary = report(folder.path)["summary.md"].read_text()
+    flag = [line for line in summary.splitlines() if line.startswith("**Provisional normalization**")]
+    assert len(flag) == 1 and flag[0].endswith(": B (1 of 3 methods: TD3).")
+    for m in ("td3-sf2", "sac"):
+        _write_run(folder.run_path("B", m), [0, 1, 2, 3], curves)
+    assert "Provisional normalization" not in report(folder.path)["summary.md"].read_text()
+
+
 def test_incomplete_runs_compact(tmp_path):
     """One line for the tasks no method has started, one row per (task, method) elsewhere with its
     unfinished seed groups and their state."""

@@ -527,7 +527,10 @@ def _md_reruns(found: list, ignored: list[Path], root: Path) -> list[str]:
 
 def _md_seed_counts(study: Study, data: list[RunData]) -> list[str]:
     """Seeds finished per (task, method) of the study's seeds, the missing ones named; a flag where
-    methods of a family have unequal seed counts on a task."""
+    methods of a family have unequal seed counts on a task, and one where a task's normalization rests on
+    some of the study's methods only (fig7-sac, 2026-11-26: SAC+SPR's first seeds on HopperHop raised the
+    task's largest AUC from SAC's best to its own, and SAC+SF² − SAC there went from −0.171 to −0.048 in
+    normalized AUC, −2.95 to −3.46 in returns)."""
     tasks = list(study.tasks)
     lines = ["## Seeds finished per (task, method)", "",
              f"Of the study's {len(study.seeds)} seeds ({seeds_text(study.seeds)}); a run's seeds count "
@@ -553,6 +556,17 @@ def _md_seed_counts(study: Study, data: list[RunData]) -> list[str]:
         lines += ["**Unequal seed counts**: methods are compared at different numbers of seeds on "
                   + "; ".join(unequal) + ". Their intervals and means rest on different seeds; finish the "
                   "missing seed groups before comparing them.", ""]
+    provisional = []
+    for t in tasks:
+        have = [m.label for m in study.methods if by[(t, m.label)].returns]
+        if have and len(have) < len(study.methods):
+            provisional.append(f"{t} ({len(have)} of {len(study.methods)} methods: {', '.join(have)})")
+    if provisional:
+        lines += ["**Provisional normalization**: a task's normalized AUC is scaled by the smallest and "
+                  "largest AUC of every finished run on it, so on a task where some methods have no finished "
+                  "run yet a later run can move that scale: every normalized score there changes, and with "
+                  "them the aggregates and claims that include the task (the order of the methods on it "
+                  "does not): " + "; ".join(provisional) + ".", ""]
     return lines
 
 
