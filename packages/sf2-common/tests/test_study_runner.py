@@ -96,7 +96,8 @@ def test_runs_begun_start_first(tmp_path, monkeypatch):
     from sf2_common.agents.runfolder import RunFolder
 
     study, backend, folder, runs = _setup(tmp_path, monkeypatch)
-    cut = runs[4]                                                     # C / SAC: last but one in study order
+    cut = runs[4]                                                     # C / TD3: last but one in study order
+    assert (cut.task, cut.methods[0].label) == ("C", "TD3")
     rf = RunFolder(folder.path_of(cut))
     rf.write_config({"config": cut.config.to_dict(), "seeds": list(cut.seeds)})
     (rf.path / "metrics.jsonl").write_text(json.dumps({"epoch": 1, "seed": 0, "env_steps": 250}) + "\n")
