@@ -212,6 +212,9 @@ def test_bad_bench_input_exits_2_before_anything_runs(argv, message, tmp_path, c
     ("agent_throughput", ["--reps", "bogus"], "representation = 'bogus' is invalid"),
     ("physics", ["--tasks", "CheetahRun,Nope"], "--tasks: unknown task 'Nope'"),
     ("physics", ["--envs", "128,0"], "each must be >= 1"),
+    ("eval_sensitivity", ["--task", "Nope"], "unknown task 'Nope'"),
+    ("eval_sensitivity", ["--seeds", "3-1"], "seeds '3-1' are invalid"),
+    ("eval_sensitivity", ["--set", "num_eval_envs=0"], "num_eval_envs = 0 is invalid"),
 ])
 def test_bad_throughput_input_exits_2_before_anything_runs(module, argv, message, tmp_path, capsys):
     pytest.importorskip("mujoco_playground", reason="these CLIs validate against the Playground task "
