@@ -435,3 +435,10 @@ def test_rows_difference_names_a_learned_value_before_timing():
     learned = [timed[0], dict(timed[1], eval_return=3.0)]
     assert rows_difference(a, learned) == "epoch 1 seed 0: eval_return 2.0 vs 3.0"
     assert rows_difference(a, a[:1]) == "epoch 1 seed 0: a row in one only"
+    # the same as tuples (merge.first_difference: the report's "Reruns" column)
+    from sf2_common.studies.merge import first_difference
+
+    assert first_difference(a, learned) == (1, 0, "eval_return", 2.0, 3.0)
+    assert first_difference(a, timed) is None and first_difference(a, timed, learned=False) == (
+        0, 0, "walltime", 1.0, 6.0)
+    assert first_difference(a, a[:1]) == (1, 0, None, None, None)

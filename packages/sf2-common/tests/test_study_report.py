@@ -345,7 +345,10 @@ def test_reruns_compared_with_their_runs_by_hand_and_left_out_of_the_results(tmp
     0-3 with curves (0, 1, 1), (0, 2, 2), (0, 1, 1), (0, 2, 2) → AUC 0.75, 1.5, 0.75, 1.5 (mean 1.125). Its
     rerun of seeds 0-1: (0, 3, 3), (0, 2, 2) → 2.25, 1.5: difference +1.5, 0 (mean 0.75; two seeds, no
     interval); the method's mean with the rerun's seeds in place: (2.25 + 1.5 + 0.75 + 1.5) / 4 = 1.5. A
-    second rerun '.2': (0, 1, 1), (0, 0, 0) → 0.75, 0: differences 0, −1.5 (mean −0.75; largest seed 1)."""
+    second rerun '.2': (0, 1, 1), (0, 0, 0) → 0.75, 0: differences 0, −1.5 (mean −0.75; largest seed 1).
+    First difference, the first row in (epoch, seed) order with another learned value: the first rerun's at
+    epoch 1 seed 0 (1 → 3), the second's at epoch 1 seed 1 (2 → 0; seed 0 is equal throughout). On B, TD3
+    seeds 2-3 again with equal returns and another wall time: no learned value differs."""
     import csv as csv_
 
     text = FAMILY.replace('seeds = "0-3"', 'seeds = "0-3"\nseeds_per_run = 2')
@@ -358,22 +361,27 @@ def test_reruns_compared_with_their_runs_by_hand_and_left_out_of_the_results(tmp
     _write_run(folder.rerun_path("A", "td3", (0, 1)), [0, 1], {0: [0, 3, 3], 1: [0, 2, 2]})
     _write_run(folder.rerun_path("A", "td3", (0, 1), 2), [0, 1], {0: [0, 1, 1], 1: [0, 0, 0]})
     _write_run(folder.path / "rerun/A-td3/seeds-7-8", [7, 8], {7: [0, 1, 1], 8: [0, 1, 1]})   # no such run
+    _write_run(folder.rerun_path("B", "td3", (2, 3)), [2, 3], curve, walltime=13.0)
     written = report(folder.path)
     summary = written["summary.md"].read_text()
     part = summary[summary.index("## Reruns"):].splitlines()
     rows = [line for line in part if line.startswith("| A |")]
     assert rows == [
         "| A | TD3 | 0-1 | `rerun/A-td3/seeds-0-1` | 1.125 | 1.875 | 0.750 (n < 3: no CI) | seed 0: 0.750 → "
-        "2.250 | 1.125 → 1.500 (4) |",
+        "2.250 | epoch 1, seed 0: eval_return 1 → 3 | 1.125 → 1.500 (4) |",
         "| A | TD3 | 0-1 | `rerun/A-td3/seeds-0-1.2` | 1.125 | 0.375 | -0.750 (n < 3: no CI) | seed 1: 1.500 "
-        "→ 0.000 | 1.125 → 0.750 (4) |"]
+        "→ 0.000 | epoch 1, seed 1: eval_return 2 → 0 | 1.125 → 0.750 (4) |"]
+    assert [line for line in part if line.startswith("| B |")] == [
+        "| B | TD3 | 2-3 | `rerun/B-td3/seeds-2-3` | 1.125 | 1.125 | 0.000 (n < 3: no CI) | seed 2: 0.750 → "
+        "0.750 | none: equal learned values | 1.125 → 1.125 (4) |"]
     assert "Ignored (under `rerun/` but repeating no finished run of this study): `rerun/A-td3/seeds-7-8`." \
         in part
     with open(written["reruns.csv"]) as f:
         got = [(r["seed"], float(r["auc_run"]), float(r["auc_rerun"]), r["rerun"])
                for r in csv_.DictReader(f)]
     assert got == [("0", 0.75, 2.25, "rerun/A-td3/seeds-0-1"), ("1", 1.5, 1.5, "rerun/A-td3/seeds-0-1"),
-                   ("0", 0.75, 0.75, "rerun/A-td3/seeds-0-1.2"), ("1", 1.5, 0.0, "rerun/A-td3/seeds-0-1.2")]
+                   ("0", 0.75, 0.75, "rerun/A-td3/seeds-0-1.2"), ("1", 1.5, 0.0, "rerun/A-td3/seeds-0-1.2"),
+                   ("2", 0.75, 0.75, "rerun/B-td3/seeds-2-3"), ("3", 1.5, 1.5, "rerun/B-td3/seeds-2-3")]
     # results.csv holds the runs' AUCs only
     with open(written["results.csv"]) as f:
         td3 = [float(r["auc"]) for r in csv_.DictReader(f) if r["task"] == "A" and r["method"] == "TD3"]

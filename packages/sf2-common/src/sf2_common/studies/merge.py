@@ -57,7 +57,7 @@ from sf2_common.fileio import GZ, atomic_write, compress, stored
 from .folder import OBS_NOISE, StudyFolder, read_obs_noise
 from .spec import Run, Study, StudyError, loads, only_adds, same_runs, seeds_text
 
-__all__ = ["KEPT", "Outcome", "merge", "rows_difference"]
+__all__ = ["KEPT", "Outcome", "first_difference", "merge", "rows_difference"]
 
 KEPT = (RunFolder.CONFIG, RunFolder.METRICS, RunFolder.LOG, OBS_NOISE)
 COMPRESSED = (RunFolder.METRICS, OBS_NOISE)   # DEST keeps these gzip-compressed (sf2_common.fileio)
@@ -371,22 +371,35 @@ def rows_difference(a: list[dict], b: list[dict]) -> str | None:
     differs; first ..." when only timing does), None when every row is equal. Two hosts' runs of one config
     differ in timing always, and on GPUs in their values too unless XLA's deterministic ops are on
     (results/fig7-td3/README.md; scripts/gpu_determinism.sh compares its pairs with this)."""
+    first = first_difference(a, b)
+    if first is not None:
+        epoch, seed, field, x, y = first
+        where = f"epoch {epoch} seed {seed}"
+        return f"{where}: a row in one only" if field is None else f"{where}: {field} {x!r} vs {y!r}"
+    timing = first_difference(a, b, learned=False)
+    if timing is not None:
+        epoch, seed, field, x, y = timing
+        return (f"equal learned values, only timing differs; first epoch {epoch} seed {seed}: {field} {x!r} "
+                f"vs {y!r}")
+    return None
+
+
+def first_difference(a: list[dict], b: list[dict], learned: bool = True) -> tuple | None:
+    """(epoch, seed, field, value in a, value in b) of the first row, in (epoch, seed) order, where two runs'
+    metrics differ in a learned value (`learned`; field None: a row in one run only), or else (not
+    `learned`) in a timing field (`WALL_FIELDS`); None when there is none."""
     ra = {(r["epoch"], r["seed"]): r for r in a}
     rb = {(r["epoch"], r["seed"]): r for r in b}
-    timing = None
     for key in sorted(set(ra) | set(rb)):
         x, y = ra.get(key), rb.get(key)
         if x is None or y is None:
-            return f"epoch {key[0]} seed {key[1]}: a row in one only"
-        fields = [k for k in sorted(set(x) | set(y)) if x.get(k) != y.get(k)]
-        learned = [k for k in fields if k not in WALL_FIELDS]
-        where = f"epoch {key[0]} seed {key[1]}"
-        if learned:
-            return f"{where}: {learned[0]} {x.get(learned[0])!r} vs {y.get(learned[0])!r}"
-        if fields and timing is None:
-            timing = f"{where}: {fields[0]} {x.get(fields[0])!r} vs {y.get(fields[0])!r}"
-    if timing is not None:
-        return f"equal learned values, only timing differs; first {timing}"
+            if learned:
+                return (*key, None, None, None)
+            continue
+        fields = [k for k in sorted(set(x) | set(y))
+                  if x.get(k) != y.get(k) and (k in WALL_FIELDS) != learned]
+        if fields:
+            return (*key, fields[0], x.get(fields[0]), y.get(fields[0]))
     return None
 
 

@@ -502,13 +502,16 @@ def _md_reruns(found: list, ignored: list[Path], root: Path) -> list[str]:
              "A rerun repeats a run of `runs/` with its config and seeds (`study merge --keep-reruns` keeps "
              "it in `rerun/`): on GPUs the two differ from the first epoch on, so it is a second draw of the "
              "same seeds. Per seed AUC as above; the difference rerun − run is a mean over the seeds with "
-             "its 95% bootstrap interval; the last column is the method's mean AUC over all its finished "
-             "seeds on the task, as reported and with the rerun's seeds in place of the run's "
-             "(reruns.csv: every seed).", ""]
+             "its 95% bootstrap interval; \"first difference\" is the first metric row, in epoch and seed "
+             "order, where a learned value differs (epoch 0's evaluation: the two processes' evaluation "
+             "programs already rounded differently, bench/eval_sensitivity.py; a later epoch: their "
+             "training did); the last column is the method's mean AUC over all its finished seeds on the "
+             "task, as reported and with the rerun's seeds in place of the run's (reruns.csv: every "
+             "seed).", ""]
     if found:
         lines += ["| task | method | seeds | rerun | AUC run: mean | AUC rerun: mean | rerun − run: mean "
-                  "[95% CI] | largest seed difference | method's AUC (seeds): reported → with the rerun |",
-                  "|---|---|---|---|---|---|---|---|---|"]
+                  "[95% CI] | largest seed difference | first difference | method's AUC (seeds): reported → "
+                  "with the rerun |", "|---|---|---|---|---|---|---|---|---|---|"]
         for r in found:
             diff = stats.mean_interval(r.difference)
             big = int(np.argmax(np.abs(r.difference)))
@@ -516,13 +519,26 @@ def _md_reruns(found: list, ignored: list[Path], root: Path) -> list[str]:
                          f"`{r.path.relative_to(root).as_posix()}` | {_fmt(float(r.auc_run.mean()))} | "
                          f"{_fmt(float(r.auc_rerun.mean()))} | {_with_ci(diff[0][0], *_lohi(diff))} | "
                          f"seed {r.seeds[big]}: {_fmt(float(r.auc_run[big]))} → "
-                         f"{_fmt(float(r.auc_rerun[big]))} | {_fmt(r.method_auc)} → "
+                         f"{_fmt(float(r.auc_rerun[big]))} | {_first_difference(r.first_difference)} | "
+                         f"{_fmt(r.method_auc)} → "
                          f"{_fmt(r.method_auc_rerun)} ({r.method_seeds}) |")
         lines.append("")
     if ignored:
         lines += ["Ignored (under `rerun/` but repeating no finished run of this study): "
                   + ", ".join(f"`{p.relative_to(root).as_posix()}`" for p in ignored) + ".", ""]
     return lines
+
+
+def _first_difference(first: tuple | None) -> str:
+    """A rerun's first differing metric (`reruns.Rerun.first_difference`) as a table cell."""
+    if first is None:
+        return "none: equal learned values"
+    epoch, seed, field, x, y = first
+    if field is None:
+        return f"epoch {epoch}, seed {seed}: a row in one only"
+    def value(v):   # six significant digits: enough to show a difference in the fourth
+        return f"{v:.6g}" if isinstance(v, int | float) else repr(v)
+    return f"epoch {epoch}, seed {seed}: {field} {value(x)} → {value(y)}"
 
 
 def _md_seed_counts(study: Study, data: list[RunData]) -> list[str]:

@@ -21,6 +21,7 @@ from sf2_common.agents.runfolder import RunFolder, RunFolderError
 
 from . import stats
 from .folder import StudyFolder
+from .merge import first_difference
 from .spec import StudyError
 
 __all__ = ["CSV_FIELDS", "Rerun", "collect", "csv_rows"]
@@ -45,6 +46,8 @@ class Rerun:
     method_auc: float           # the method's mean AUC over all its finished seeds on the task (the report's)
     method_auc_rerun: float     # the same with this rerun's seeds in place of the run's
     method_seeds: int
+    first_difference: tuple | None   # (epoch, seed, field, run's value, rerun's) of the first learned
+                                     # value that differs (merge.first_difference); None: none differs
 
     @property
     def difference(self) -> np.ndarray:
@@ -75,9 +78,10 @@ def collect(folder: StudyFolder, data) -> tuple[list[Rerun], list[Path]]:
 def _compare(d, group, path: Path) -> Rerun:
     try:
         rows = RunFolder(path).read_rows(strict=True)
+        run_rows = RunFolder(group.path).read_rows(strict=True)
     except RunFolderError as err:
-        raise StudyError(f"rerun {path}: {err}. Restore the file, or move the folder out of the study "
-                         f"folder") from None
+        raise StudyError(f"rerun {path} or its run {group.path}: {err}. Restore the file, or move the "
+                         f"folder out of the study folder") from None
     steps, per_seed = curves(rows)
     seeds = list(group.seeds)
     if sorted(per_seed) != sorted(seeds):
@@ -89,7 +93,7 @@ def _compare(d, group, path: Path) -> Rerun:
                  np.array([auc[s] for s in seeds]), np.array([auc_rerun[s] for s in seeds]),
                  np.array([d.returns[s][-1] for s in seeds]), np.array([per_seed[s][-1] for s in seeds]),
                  float(np.mean(list(auc.values()))), float(np.mean(list({**auc, **auc_rerun}.values()))),
-                 len(auc))
+                 len(auc), first_difference(run_rows, rows))
 
 
 def csv_rows(reruns: list[Rerun], root: Path) -> list[dict]:
