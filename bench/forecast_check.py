@@ -6,10 +6,11 @@
 The runs named by `--runs` (finished run folders inside the study folders given) are forecast as the
 runner would have forecast them before any of them ran (`study run --dry-run`, `--finish-within`,
 `--forecast-from`): from every *other* finished run of those study folders, by
-sf2_common/studies/runner.py `Forecast`. Per run: the forecast, the wall time it took (its last metrics
-row's `walltime`, restarts included, as `Forecast` reads it) and their ratio; then the sums and the spread
-of the ratios. A ratio above 1 is a run that took longer than forecast: one `--finish-within` could have
-started too late. results/fig7-sac/README.md "Cost per run" uses it.
+sf2_common/studies/runner.py `Forecast`; with `--leave-one-out` each of them from all runs but itself (how
+the forecasts of a study's next runs fare once it has the others). Per run: the forecast, the wall time it
+took (its last metrics row's `walltime`, restarts included, as `Forecast` reads it) and their ratio; then
+the sums and the spread of the ratios. A ratio above 1 is a run that took longer than forecast: one
+`--finish-within` could have started too late. results/fig7-sac/README.md "Cost per run" uses it.
 """
 
 from __future__ import annotations
@@ -27,16 +28,22 @@ from .report import print_rows
 FIELDS = ("run", "seeds", "forecast_s", "actual_s", "ratio")
 
 
-def check(history: list[runner.Job], targets: list[runner.Job]) -> list[dict]:
+def check(history: list[runner.Job], targets: list[runner.Job], each: bool = False) -> list[dict]:
     """One row of FIELDS per target job, forecast from `history` (the targets themselves left out of it) as
-    a job with none of its env steps done."""
-    names = {t.path.resolve() for t in targets}
-    forecast = runner.Forecast([j for j in history if j.path.resolve() not in names])
-    if not forecast.known:
-        raise StudyError("no finished run outside --runs to forecast from: give more study folders or "
-                         "fewer --runs")
+    a job with none of its env steps done. With `each` (leave one out) every target is forecast from all
+    of `history` but itself: how the forecasts of a study's next runs fare, now that it has the others."""
+    def forecast_without(left_out: list[runner.Job]) -> runner.Forecast:
+        names = {t.path.resolve() for t in left_out}
+        forecast = runner.Forecast([j for j in history if j.path.resolve() not in names])
+        if not forecast.known:
+            raise StudyError("no finished run outside --runs to forecast from: give more study folders or "
+                             "fewer --runs")
+        return forecast
+
+    shared = None if each else forecast_without(targets)
     rows = []
     for job in targets:
+        forecast = shared or forecast_without([job])
         predicted = forecast.seconds(runner.Job(job.run, job.path, [], job.total_steps, 0))
         actual = runner.Forecast.wall(job)
         rows.append({"run": job.name, "seeds": len(getattr(job.run, "seeds", None) or (0,)),
@@ -64,6 +71,9 @@ def main(argv=None) -> int:
     parser.add_argument("studies", nargs="+", type=Path, help="study folders (their finished runs)")
     parser.add_argument("--runs", nargs="+", type=Path, required=True,
                         help="finished run folders of those studies to forecast from all the others")
+    parser.add_argument("--leave-one-out", action="store_true",
+                        help="forecast each of --runs from every other finished run (the others of --runs "
+                             "included), not all of them from the runs outside --runs")
     parser.add_argument("--markdown", action="store_true", help="a Markdown table instead of JSON lines")
     args = parser.parse_args(argv)
     try:
@@ -74,7 +84,7 @@ def main(argv=None) -> int:
         if missing:
             raise StudyError(f"--runs: not a finished run of {', '.join(map(str, args.studies))}: "
                              f"{', '.join(missing)}")
-        rows = check(history, [by_path[p.resolve()] for p in args.runs])
+        rows = check(history, [by_path[p.resolve()] for p in args.runs], each=args.leave_one_out)
     except StudyError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

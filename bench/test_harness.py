@@ -369,6 +369,14 @@ def test_forecast_check_against_hand_derived_forecasts(tmp_path):
         "median 1.25, max 2.00; 1 took longer than forecast")
     with pytest.raises(StudyError, match="no finished run outside --runs"):
         forecast_check.check(history, history)
+    # leave one out: A/m from A/q and B/m (preference 4, the slowest run of A: A/q, 0.2 s per env step) 200 s,
+    # A/q from A/m and B/m 100 s as above, B/m from A/m and A/q (no run of B: the slowest of all, A/q) 200 s
+    rows = forecast_check.check(history, history, each=True)
+    assert [(r["run"], r["forecast_s"], r["ratio"]) for r in rows] == [
+        ("A/m", 200.0, 0.5), ("A/q", 100.0, 2.0), ("B/m", 200.0, 0.25)]
+    assert forecast_check.summary(rows) == (
+        "3 run(s): forecast 8.3 min in all, took 5.8 min (0.70x); actual / forecast per run: min 0.25, "
+        "median 0.50, max 2.00; 1 took longer than forecast")
     # a folder that is not a study folder is named, exit status 2, no traceback
     assert forecast_check.main([str(tmp_path / "nope"), "--runs", str(tmp_path / "A" / "m")]) == 2
 

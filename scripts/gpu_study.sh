@@ -9,7 +9,9 @@
 #
 # On a lease's last command add `--finish-within <about 0.7 x the seconds the lease has left>`: runs
 # forecast to end later are not started (their checkpoints would go back with the host); a run can take up
-# to ~1.4x its forecast (`python -m bench.forecast_check`, results/fig7-sac/README.md "Cost per run").
+# to ~1.4x its forecast (`python -m bench.forecast_check`, results/fig7-sac/README.md "Cost per run"; once a
+# study has most of its runs, `--leave-one-out` there shows how its next forecasts fare: fig7-sac's 77 runs,
+# one per GPU, took 0.44-0.93x theirs).
 # A study with no finished run of its own (fig7-sac at first) forecasts from another's: `--forecast-from results/fig7-td3` (it travels with the repo).
 #
 # Wheels: .whl-jax (git-excluded), what the host's image lacks for training and evaluation, nothing more:
