@@ -40,7 +40,7 @@ def measure(task: str, algo: str, rep: str, seeds: tuple[int, ...], overrides: d
     import numpy as np
     from sf2_common.agents import configs
     from sf2_jax.agents import representations
-    from sf2_jax.agents.trainer import Program
+    from sf2_jax.agents.trainer import Program, episode_returns
 
     cfg = configs.make_config("paper", task, algo, rep, overrides)
     configs.validate(cfg, seeds, representations.REGISTRY)
@@ -51,34 +51,22 @@ def measure(task: str, algo: str, rep: str, seeds: tuple[int, ...], overrides: d
     runs = [np.asarray(program.evaluate(p, state.eval_start, seeds, 0))
             for p in (state.params, state.params, one_ulp)]
     n_steps = -(-cfg.episode_length // cfg.action_repeat)
-    shape = (n_steps, *state.eval_start.obs.shape[:2], program.spec.action_size)   # steps, seeds, envs, A
-    actions = jax.random.uniform(jax.random.PRNGKey(0), shape, minval=-1.0, maxval=1.0)
-    open_loop = jax.jit(jax.vmap(functools.partial(_open_loop, program.spec.eval_env), in_axes=(0, 1)))
+    n_envs, n_actions = state.eval_start.obs.shape[1], program.spec.action_size
+
+    def open_loop(start, one_ulp_up: bool):   # one seed's episodes under uniform random actions
+        def act(obs, k):
+            a = jax.random.uniform(k, (n_envs, n_actions), minval=-1.0, maxval=1.0)
+            return jnp.nextafter(a, jnp.inf) if one_ulp_up else a
+        return episode_returns(program.spec.eval_env, start, act, jax.random.PRNGKey(0), n_steps)
+
     with jax.default_matmul_precision("highest"):
-        runs += [np.asarray(open_loop(state.eval_start, a))
-                 for a in (actions, jnp.nextafter(actions, jnp.inf))]
+        runs += [np.asarray(jax.jit(jax.vmap(functools.partial(open_loop, one_ulp_up=up)))(state.eval_start))
+                 for up in (False, True)]
     return [{"task": task, "algo": algo, "representation": rep, "seed": seed, "episode": e,
              "return": float(runs[0][i, e]), "return_repeated": float(runs[1][i, e]),
              "return_one_ulp": float(runs[2][i, e]), "open_loop_return": float(runs[3][i, e]),
              "open_loop_return_one_ulp": float(runs[4][i, e])}
             for i, seed in enumerate(seeds) for e in range(runs[0].shape[1])]
-
-
-def _open_loop(env, start, actions):
-    """Episode returns (envs,) from the start states `start` under `actions` (steps, envs, A), with
-    `Program._eval_one`'s accounting (rewards until an env's episode is done)."""
-    import jax
-    import jax.numpy as jnp
-
-    def step(carry, action):
-        env_state, ret, alive = carry
-        env_state = env.step(env_state, action)
-        ret = ret + env_state.reward.astype(jnp.float32) * alive
-        return (env_state, ret, alive * (1.0 - env_state.done.astype(jnp.float32))), None
-
-    ones = jnp.ones(actions.shape[1], jnp.float32)
-    (_, ret, _), _ = jax.lax.scan(step, (start, 0.0 * ones, ones), actions)
-    return ret
 
 
 def markdown(rows: list[dict], command: str, info: dict) -> str:

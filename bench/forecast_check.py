@@ -43,7 +43,7 @@ def check(history: list[runner.Job], targets: list[runner.Job], each: bool = Fal
     shared = None if each else forecast_without(targets)
     rows = []
     for job in targets:
-        forecast = shared or forecast_without([job])
+        forecast = shared if shared is not None else forecast_without([job])
         predicted = forecast.seconds(runner.Job(job.run, job.path, [], job.total_steps, 0))
         actual = runner.Forecast.wall(job)
         rows.append({"run": job.name, "seeds": len(getattr(job.run, "seeds", None) or (0,)),

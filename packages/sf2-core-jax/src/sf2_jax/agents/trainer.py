@@ -57,9 +57,9 @@ from .algorithms import make_algorithm
 from .checkpoint import Checkpointer
 from .replay import ReplayBuffer
 
-__all__ = ["TrainState", "Program", "get_program", "TrainingDiverged", "TrainResult", "train",
-           "evaluate_checkpoint", "evaluate_checkpoint_noises", "seed_keys", "eval_keys", "acting_params",
-           "flatten_params", "WALL_FIELDS"]
+__all__ = ["TrainState", "Program", "get_program", "episode_returns", "TrainingDiverged", "TrainResult",
+           "train", "evaluate_checkpoint", "evaluate_checkpoint_noises", "seed_keys", "eval_keys",
+           "acting_params", "flatten_params", "WALL_FIELDS"]
 
 EVAL_STREAM = 0x5EED  # eval keys: fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), epoch)
 # WALL_FIELDS, TrainingDiverged and the host loop's framework-free helpers (rows, the NaN guard's
@@ -297,25 +297,33 @@ class Program:
 
     def _eval_one(self, params, eval_start, key, obs_noise: float = 0.0):
         cfg = self.cfg
-        env = self.spec.eval_env
-        n_envs = jax.tree_util.tree_leaves(eval_start)[0].shape[0]
-        n_steps = -(-cfg.episode_length // cfg.action_repeat)
 
-        def step(carry, k):
-            env_state, ret, alive = carry
-            obs = env_state.obs
+        def act(obs, k):
             if obs_noise:   # its own key: the acting noise stays that of the noise-free evaluation
                 obs = obs + obs_noise * jax.random.normal(jax.random.fold_in(k, 1), obs.shape, obs.dtype)
             with self._learner_precision():
-                action = self.algo.act(params, obs, k, cfg.deterministic_eval)
-            env_state = env.step(env_state, action)
-            ret = ret + env_state.reward.astype(jnp.float32) * alive
-            alive = alive * (1.0 - env_state.done.astype(jnp.float32))
-            return (env_state, ret, alive), None
+                return self.algo.act(params, obs, k, cfg.deterministic_eval)
 
-        zeros = jnp.zeros((n_envs,), jnp.float32)
-        (_, ret, _), _ = jax.lax.scan(step, (eval_start, zeros, zeros + 1.0), jax.random.split(key, n_steps))
-        return ret
+        return episode_returns(self.spec.eval_env, eval_start, act, key,
+                               -(-cfg.episode_length // cfg.action_repeat))
+
+
+def episode_returns(env, eval_start, act, key, n_steps: int) -> jax.Array:
+    """Returns (n_envs,) of one episode per env from the start states `eval_start`: `n_steps` steps of
+    `env.step(state, act(obs, k))`, `k` one of `key`'s `n_steps` splits; an env's rewards count until its
+    episode is done. The evaluation of `Program` (`act`: the policy), and of bench/eval_sensitivity.py."""
+    n_envs = jax.tree_util.tree_leaves(eval_start)[0].shape[0]
+
+    def step(carry, k):
+        env_state, ret, alive = carry
+        env_state = env.step(env_state, act(env_state.obs, k))
+        ret = ret + env_state.reward.astype(jnp.float32) * alive
+        alive = alive * (1.0 - env_state.done.astype(jnp.float32))
+        return (env_state, ret, alive), None
+
+    zeros = jnp.zeros((n_envs,), jnp.float32)
+    (_, ret, _), _ = jax.lax.scan(step, (eval_start, zeros, zeros + 1.0), jax.random.split(key, n_steps))
+    return ret
 
 
 @functools.lru_cache(maxsize=8)
