@@ -72,6 +72,10 @@ def default_name() -> str:
     return re.sub(r"[^a-z0-9]+", "-", name).strip("-")[:40] or "machine"
 
 
+ENV_PREFIXES = ("XLA_", "JAX_", "TF_", "CUDA_VISIBLE", "OMP_", "TORCH", "MKL_", "NVIDIA_TF32", "CUBLAS_",
+                "SF2_")
+
+
 def describe(root: str, command: str) -> dict:
     """Everything a reader needs to place the numbers: hardware, versions, precision settings."""
     info = {
@@ -88,8 +92,9 @@ def describe(root: str, command: str) -> dict:
         "load_average": (", ".join(f"{x:.2f}" for x in os.getloadavg()) if hasattr(os, "getloadavg")
                          else "n/a"),
         "versions": {n: _version(n) for n in ("jax", "jaxlib", "flax", "optax", "torch", "numpy")},
-        "env": {k: v for k, v in os.environ.items()
-                if k.startswith(("XLA_", "JAX_", "TF_", "CUDA_VISIBLE", "OMP_", "TORCH", "MKL_"))},
+        # what can change the numbers: XLA and framework flags, TF32 and cuBLAS overrides, devices,
+        # threads, and this project's own switches (SF2_SHARD_SEEDS: seeds sharded over the devices)
+        "env": {k: v for k, v in os.environ.items() if k.startswith(ENV_PREFIXES)},
     }
     try:
         import jax

@@ -406,3 +406,19 @@ def test_checkpoint_cost_timings_are_medians_after_the_warm_up(monkeypatch):
     times = checkpoint_cost._timings(save, restore, repeats=2)
     assert times == {"save_awaited_s": 10.0, "save_returns_s": 1.0, "finish_s": 5.0, "restore_s": 3.0}
     assert restored == [1, 3, 5]
+
+
+def test_machine_records_the_settings_that_change_numbers(monkeypatch):
+    """machine.json names the switches a rate depends on (a sharded run's SF2_SHARD_SEEDS, TF32 and cuBLAS
+    overrides), and leaves the rest of the environment out."""
+    from bench import machine
+
+    monkeypatch.setenv("SF2_SHARD_SEEDS", "1")
+    monkeypatch.setenv("NVIDIA_TF32_OVERRIDE", "0")
+    monkeypatch.setenv("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
+    monkeypatch.setenv("HOME_TEST_NOT_RECORDED", "y")
+    env = machine.describe(".", "python -m bench")["env"]
+    assert env["SF2_SHARD_SEEDS"] == "1"
+    assert env["NVIDIA_TF32_OVERRIDE"] == "0"
+    assert env["CUBLAS_WORKSPACE_CONFIG"] == ":4096:8"
+    assert "HOME_TEST_NOT_RECORDED" not in env
