@@ -483,3 +483,79 @@ def test_report_counts_the_environments_that_change_the_numbers(tmp_path):
     assert ("Their environment (config.json's \"environment\"): not recorded (trained before run folders "
             "named it): 3 runs; XLA_FLAGS='--xla_gpu_deterministic_ops=true': 2 runs; none of XLA_FLAGS, "
             "NVIDIA_TF32_OVERRIDE, CUBLAS_WORKSPACE_CONFIG set: 1 run.") in summary, summary
+
+
+def _family_study(tmp_path, name, family, bases):
+    """A two-task study of one family (vanilla and +SF²) whose seed s of method m scores the curve
+    [0, v, v], v = SCALE[task] · (bases[m] + s), with one claim: SF² above vanilla (IQM)."""
+    low = family.lower()
+    text = f"""
+name = "{name}"
+seeds = "0-3"
+tasks = ["A", "B"]
+[[methods]]
+label = "{family}"
+name = "{low}"
+algo = "{low}"
+representation = "none"
+[[methods]]
+label = "{family}+SF²"
+name = "{low}-sf2"
+algo = "{low}"
+representation = "sf2"
+[[claims]]
+text = "SF² above vanilla"
+method = "{low}-sf2"
+above = ["{low}"]
+"""
+    folder = StudyFolder(tmp_path / name)
+    folder.open(loads(text, tmp_path / f"{name}.toml"), "jax", [], command=f"sf2-jax study run {name}.toml")
+    for task in ("A", "B"):
+        for m, base in bases.items():
+            v = {s: SCALE[task] * (base + s) for s in range(4)}
+            _write_run(folder.run_path(task, f"{low}{m}"), [0, 1, 2, 3], {s: [0.0, v[s], v[s]] for s in v})
+    return folder
+
+
+def test_compare_puts_each_studys_own_numbers_side_by_side(tmp_path):
+    """Study `t` (TD3: vanilla base 0, SF² base 10) and study `s` (SAC: vanilla base 10, SF² base 0). As in
+    test_report_numbers_by_hand_and_by_rliable, every normalized AUC is (base + s)/13, so the IQM over
+    the 4 seeds × 2 tasks is (base + 1.5)/13 and SF² − vanilla is +10/13 = +0.769 in `t` (supported: every
+    SF² score is above every vanilla one) and −10/13 in `s` (contradicted). `compare` shows both on one row,
+    each study's aggregate table as its own report gives it, and one figure with both families."""
+    from sf2_common.studies.compare import compare, kind
+
+    assert (kind("TD3+SF² (γ=0)", "TD3"), kind("SAC", "SAC"), kind("SAC+Sim", "SAC")) == \
+        ("SF² (γ=0)", "vanilla", "Sim")
+    t = _family_study(tmp_path, "t", "TD3", {"": 0.0, "-sf2": 10.0})
+    s = _family_study(tmp_path, "s", "SAC", {"": 10.0, "-sf2": 0.0})
+    written = compare([t.path, s.path], tmp_path / "cmp", command="sf2-jax study compare t s --out cmp")
+    summary = written["summary.md"].read_text()
+    row = next(x for x in summary.splitlines() if x.startswith("| all 2 tasks | SF² − vanilla |"))
+    cells = row.split(" | ")[2:]
+    assert cells[0].startswith(f"+{10 / 13:.3f} [") and cells[0].endswith(": supported"), row
+    assert cells[1].startswith(f"-{10 / 13:.3f} [") and cells[1].endswith(": contradicted |"), row
+    assert "Verdicts: `t` **supported**; `s` **contradicted**." in summary
+    # each study's aggregate line, as its own report writes it: TD3's IQM 1.5/13, SAC's 11.5/13
+    own = {"t": report(t.path)["summary.md"].read_text(), "s": report(s.path)["summary.md"].read_text()}
+    for name, label in (("t", "| TD3 | 4 × 2 |"), ("s", "| SAC | 4 × 2 |")):
+        line = next(x for x in own[name].splitlines() if x.startswith(label))
+        assert line in summary
+    assert f"{1.5 / 13:.3f} [" in next(x for x in own["t"].splitlines() if x.startswith("| TD3 | 4 × 2 |"))
+    assert f"{11.5 / 13:.3f} [" in next(x for x in own["s"].splitlines() if x.startswith("| SAC | 4 × 2 |"))
+    assert written["aggregate.png"].stat().st_size > 1000 and "sf2-jax study compare t s" in summary
+
+
+def test_compare_refuses_one_folder_the_same_study_twice_and_a_file_as_out(tmp_path):
+    from sf2_common.studies.compare import compare
+
+    t = _family_study(tmp_path, "t", "TD3", {"": 0.0, "-sf2": 10.0})
+    with pytest.raises(StudyError, match="two or more study folders; got 1"):
+        compare([t.path], tmp_path / "cmp")
+    with pytest.raises(StudyError, match="the same study twice"):
+        compare([t.path, t.path], tmp_path / "cmp")
+    s = _family_study(tmp_path, "s", "SAC", {"": 10.0, "-sf2": 0.0})
+    (tmp_path / "file").write_text("keep")
+    with pytest.raises(StudyError, match="is a file, not a folder; nothing was written"):
+        compare([t.path, s.path], tmp_path / "file" / "cmp")
+    assert (tmp_path / "file").read_text() == "keep" and not (tmp_path / "cmp").exists()

@@ -9,6 +9,7 @@ framework. One module per job:
 - `robustness`: a run's checkpoints evaluated under observation noise (App. C.2.2)
 - `stats`: AUC, normalization, rliable aggregates and bootstrap intervals (extra `studies`)
 - `report`, `figures`: results.csv, summary.md and the paper's figures
+- `compare`: several studies' aggregates and claim verdicts side by side (`study compare`)
 - `merge`: runs of other study folders or their archives joined into one (`study merge`)
 - `commands`: the `study` subcommand of `sf2-jax` / `sf2-torch`
 

@@ -67,6 +67,13 @@ def add_parser(sub, prog: str) -> None:
     p = ssub.add_parser("report", help="results.csv, summary.md and figures of a study folder")
     p.add_argument("dir", help="study folder")
     p.add_argument("--out", default=None, help="report folder (default: DIR/report)")
+    k = ssub.add_parser("compare", help="several study folders' aggregates and claim verdicts side by side",
+                        description="Write summary.md (each study's aggregate per family and its claims' "
+                        "comparisons, a column per study) and aggregate.png/svg (every family's panels in "
+                        "one figure, as the paper's Fig. 7) into OUT. Each study keeps its own "
+                        "normalization and intervals; nothing is pooled.")
+    k.add_argument("dirs", nargs="+", metavar="DIR", help="study folder (two or more)")
+    k.add_argument("--out", required=True, help="folder for summary.md and the figure")
     g = ssub.add_parser("merge", help="join the runs of study folders or their .tar.gz archives into one "
                         "study folder", description="Copy the finished runs of each SOURCE (a study folder "
                         "or a .tar.gz archive of one, e.g. from scripts/gpu_study.sh) into the study folder "
@@ -120,6 +127,8 @@ def main(fw, args) -> int:
     try:
         if args.study_command == "report":
             return _report(args, command)
+        if args.study_command == "compare":
+            return _compare(args, command)
         if args.study_command == "merge":
             return _merge(backend(fw), args)
         if args.study_command == "compress":
@@ -258,6 +267,14 @@ def _compress(backend, args) -> int:
     names = folder.compress_runs(_resolve(backend, study), study)
     print(f"{folder.path}: compressed the metrics of {len(names)} finished run(s)"
           + ("" if names else " (none was left uncompressed)"))
+    return 0
+
+
+def _compare(args, command: str) -> int:
+    from .compare import compare
+
+    for path in compare(args.dirs, args.out, command).values():
+        print(f"wrote {path}")
     return 0
 
 

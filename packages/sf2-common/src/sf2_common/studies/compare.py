@@ -1,0 +1,130 @@
+"""`study compare`: several study folders' aggregates and claim verdicts side by side, as the paper's Fig. 7
+shows the TD3 and SAC families together (`sf2-jax study compare results/fig7-td3 results/fig7-sac --out
+results/fig7`).
+
+Nothing is pooled across studies: each study's numbers are the ones its own `study report` gives (per-task
+min–max normalization over that study's runs, paper §4.2; rliable intervals over its seeds; its claims'
+verdicts, sf2_common/studies/claims.py). This module reads each folder once with `report`'s functions and
+writes `summary.md` (one aggregate table per family, then one row per comparison with a column per study)
+and `aggregate.png/svg` (one row of panels per family, `figures.aggregate`). Comparisons are matched by the
+claim's position in its study file, its scope and the two methods without their family ("SF² (γ=0.99) −
+vanilla"), so the fig7-td3 and fig7-sac claims meet row by row; one only a study has shows "—" elsewhere.
+"""
+
+from __future__ import annotations
+
+import types
+from pathlib import Path
+
+from . import claims, report
+from .folder import StudyFolder
+from .spec import StudyError
+
+__all__ = ["compare", "kind"]
+
+
+def kind(label: str, family: str) -> str:
+    """A method label without its family: 'TD3+SF² (γ=0)' → 'SF² (γ=0)', 'SAC' → 'vanilla'."""
+    rest = label[len(family):] if label.startswith(family) else label
+    return rest.lstrip("+") or "vanilla"
+
+
+def _read(path):
+    folder = StudyFolder(path)
+    study = folder.load_study()
+    data = report.collect(study, folder)
+    rows = report.results_rows(study, data)
+    table, covers = report.aggregate_table(study, rows)
+    checked = claims.check(study, rows, report.obs_noise_rows(data)) if study.claims else []
+    return study, table, covers, checked
+
+
+def _cell(c: claims.Comparison) -> str:
+    if c.difference is None:
+        return f"— ({c.verdict})"
+    ci = "" if c.lower is None else f" [{claims._num(c.lower)}, {claims._num(c.upper)}]"
+    p = "" if c.p_improvement is None else f", P {c.p_improvement:.2f}"
+    return f"{claims._num(c.difference)}{ci}{p}: {c.verdict}"
+
+
+def compare(paths, out, command: str | None = None) -> dict[str, Path]:
+    """Write summary.md and aggregate.png/svg of the study folders `paths` into `out`; returns {name: path}.
+    Every folder is read (and a damaged one refused, naming it) before anything is written."""
+    from . import figures
+
+    if len(paths) < 2:
+        raise StudyError(f"study compare needs two or more study folders; got {len(paths)}")
+    read = [_read(p) for p in paths]
+    names = [study.name for study, *_ in read]
+    if len(set(names)) < len(names):
+        raise StudyError(f"study compare: the folders hold the same study twice ({', '.join(names)}); "
+                         "compare different studies")
+    out = Path(out)
+    blocking = next((p for p in (out, *out.parents) if p.exists()), None)
+    if blocking is not None and not blocking.is_dir():
+        raise StudyError(f"compare folder {out}: {blocking} is a file, not a folder; nothing was written")
+    out.mkdir(parents=True, exist_ok=True)
+
+    families = [f for _, table, *_ in read for f in table]
+    clash = len(set(families)) < len(families)   # the same family in two studies: name the study too
+    tables, covers = {}, {}
+    md = [f"# Studies compared: {', '.join(f'`{n}`' for n in names)}", ""]
+    if command:
+        md += ["Command:", "", "```", command, "```", ""]
+    md += ["Each study's numbers as its own `study report` gives them (normalization per task over that "
+           "study's runs, intervals over its seeds): nothing is pooled across studies, so compare verdicts "
+           "and orders, and returns rather than normalized scores.", "",
+           "## Aggregate normalized AUC per family (paper Fig. 1 / 7)", ""]
+    for (study, table, cover, _), path in zip(read, paths):
+        md += [f"From `{study.name}` ({path}):", ""]
+        for c in cover.values():
+            md += report._md_coverage(study, c)
+        md += report._md_aggregate(table, {f: len(c.tasks) for f, c in cover.items()})
+        for family, entries in table.items():
+            key = f"{family} ({study.name})" if clash else family
+            tables[key] = entries
+            covers[key] = cover[family]
+    written = {}
+    if tables:
+        tasks = tuple(dict.fromkeys(t for study, *_ in read for t in study.tasks))
+        shown = types.SimpleNamespace(name=" + ".join(names), tasks=tasks)
+        written.update(figures.aggregate(tables, out / "aggregate", shown, covers))
+        md += ["![aggregate](aggregate.png)", ""]
+    md += _md_claims(read)
+    (out / "summary.md").write_text("\n".join(md))
+    written["summary.md"] = out / "summary.md"
+    return written
+
+
+def _md_claims(read) -> list[str]:
+    """One table per claim position: a row per (scope, method kind, other kind), a column per study."""
+    if not any(checked for *_, checked in read):
+        return []
+    names = [study.name for study, *_ in read]
+    lines = ["## The paper's claims, study by study", "",
+             "Each cell: Δ of the claim's statistic (claimed − other) [95% bootstrap CI], rliable's "
+             "P(claimed > other), and the verdict, as each study's report/summary.md gives them; \"—\" "
+             "where a study has no such comparison.", ""]
+    for i in range(max(len(checked) for *_, checked in read)):
+        texts = {study.name: checked[i][0].text for study, *_, checked in read if i < len(checked)}
+        verdicts = {study.name: checked[i][1] for study, *_, checked in read if i < len(checked)}
+        first = next(iter(texts.values()))
+        lines += [f"**Claim {i + 1}** — {first}", ""]
+        other_texts = [f"(In `{n}`: {t})" for n, t in texts.items() if t != first]
+        lines += other_texts + [""] * bool(other_texts)
+        lines += ["Verdicts: " + "; ".join(f"`{n}` **{v}**" for n, v in verdicts.items()) + ".", "",
+                  "| scope | comparison | " + " | ".join(f"`{n}`" for n in names) + " |",
+                  "|---|---|" + "---|" * len(names)]
+        cells: dict[tuple, dict[str, str]] = {}
+        for study, *_, checked in read:
+            if i >= len(checked):
+                continue
+            fams = {m.label: m.family for m in study.methods}
+            for c in checked[i][2]:
+                key = (c.scope, kind(c.method, fams.get(c.method, "")), kind(c.other, fams.get(c.other, "")))
+                cells.setdefault(key, {})[study.name] = _cell(c)
+        for (scope, method, other), by in cells.items():
+            lines.append(f"| {scope} | {method} − {other} | "
+                         + " | ".join(by.get(n, "—") for n in names) + " |")
+        lines.append("")
+    return lines
