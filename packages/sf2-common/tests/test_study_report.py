@@ -543,6 +543,15 @@ def test_compare_puts_each_studys_own_numbers_side_by_side(tmp_path):
         assert line in summary
     assert f"{1.5 / 13:.3f} [" in next(x for x in own["t"].splitlines() if x.startswith("| TD3 | 4 × 2 |"))
     assert f"{11.5 / 13:.3f} [" in next(x for x in own["s"].splitlines() if x.startswith("| SAC | 4 × 2 |"))
+    # per task, in returns: the AUC of seed s is 3v/4, so SF²'s mean on B is 0.75 · 10 · (10 + 1.5) = 86.25
+    # in `t` and 0.75 · 10 · 1.5 = 11.25 in `s`; vanilla's the other way round
+    rows = {tuple(x.split(" | ")[:2]): x for x in summary.splitlines() if x.startswith("| B | ")}
+    def means(row):
+        return [c.split(" [")[0] for c in row.split(" | ")[2:4]]
+
+    assert means(rows[("| B", "SF²")]) == [f"{86.25:.1f}", f"{11.25:.1f}"]
+    assert means(rows[("| B", "vanilla")]) == [f"{11.25:.1f}", f"{86.25:.1f}"]
+    assert rows[("| B", "SF²")].endswith("(4) |")
     assert written["aggregate.png"].stat().st_size > 1000 and "sf2-jax study compare t s" in summary
 
 

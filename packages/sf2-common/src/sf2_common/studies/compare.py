@@ -5,8 +5,9 @@ results/fig7`).
 Nothing is pooled across studies: each study's numbers are the ones its own `study report` gives (per-task
 min–max normalization over that study's runs, paper §4.2; rliable intervals over its seeds; its claims'
 verdicts, sf2_common/studies/claims.py). This module reads each folder once with `report`'s functions and
-writes `summary.md` (one aggregate table per family, then one row per comparison with a column per study)
-and `aggregate.png/svg` (one row of panels per family, `figures.aggregate`). Comparisons are matched by the
+writes `summary.md` (one aggregate table per family, one row per comparison with a column per study, and
+per task each method's AUC in returns, the scale that does compare across studies) and
+`aggregate.png/svg` (one row of panels per family, `figures.aggregate`). Comparisons are matched by the
 claim's position in its study file, its scope and the two methods without their family ("SF² (γ=0.99) −
 vanilla"), so the fig7-td3 and fig7-sac claims meet row by row; one only a study has shows "—" elsewhere.
 """
@@ -16,7 +17,7 @@ from __future__ import annotations
 import types
 from pathlib import Path
 
-from . import claims, report
+from . import claims, report, stats
 from .folder import StudyFolder
 from .spec import StudyError
 
@@ -36,7 +37,7 @@ def _read(path):
     rows = report.results_rows(study, data)
     table, covers = report.aggregate_table(study, rows)
     checked = claims.check(study, rows, report.obs_noise_rows(data)) if study.claims else []
-    return study, table, covers, checked
+    return study, table, covers, checked, rows
 
 
 def _cell(c: claims.Comparison) -> str:
@@ -75,7 +76,7 @@ def compare(paths, out, command: str | None = None) -> dict[str, Path]:
            "study's runs, intervals over its seeds): nothing is pooled across studies, so compare verdicts "
            "and orders, and returns rather than normalized scores.", "",
            "## Aggregate normalized AUC per family (paper Fig. 1 / 7)", ""]
-    for (study, table, cover, _), path in zip(read, paths):
+    for (study, table, cover, *_), path in zip(read, paths):
         md += [f"From `{study.name}` ({path}):", ""]
         for c in cover.values():
             md += report._md_coverage(study, c)
@@ -91,6 +92,7 @@ def compare(paths, out, command: str | None = None) -> dict[str, Path]:
         written.update(figures.aggregate(tables, out / "aggregate", shown, covers))
         md += ["![aggregate](aggregate.png)", ""]
     md += _md_claims(read)
+    md += _md_per_task(read)
     (out / "summary.md").write_text("\n".join(md))
     written["summary.md"] = out / "summary.md"
     return written
@@ -98,16 +100,16 @@ def compare(paths, out, command: str | None = None) -> dict[str, Path]:
 
 def _md_claims(read) -> list[str]:
     """One table per claim position: a row per (scope, method kind, other kind), a column per study."""
-    if not any(checked for *_, checked in read):
+    if not any(checked for *_, checked, _ in read):
         return []
     names = [study.name for study, *_ in read]
     lines = ["## The paper's claims, study by study", "",
              "Each cell: Δ of the claim's statistic (claimed − other) [95% bootstrap CI], rliable's "
              "P(claimed > other), and the verdict, as each study's report/summary.md gives them; \"—\" "
              "where a study has no such comparison.", ""]
-    for i in range(max(len(checked) for *_, checked in read)):
-        texts = {study.name: checked[i][0].text for study, *_, checked in read if i < len(checked)}
-        verdicts = {study.name: checked[i][1] for study, *_, checked in read if i < len(checked)}
+    for i in range(max(len(checked) for *_, checked, _ in read)):
+        texts = {study.name: checked[i][0].text for study, *_, checked, _ in read if i < len(checked)}
+        verdicts = {study.name: checked[i][1] for study, *_, checked, _ in read if i < len(checked)}
         first = next(iter(texts.values()))
         lines += [f"**Claim {i + 1}** — {first}", ""]
         other_texts = [f"(In `{n}`: {t})" for n, t in texts.items() if t != first]
@@ -116,7 +118,7 @@ def _md_claims(read) -> list[str]:
                   "| scope | comparison | " + " | ".join(f"`{n}`" for n in names) + " |",
                   "|---|---|" + "---|" * len(names)]
         cells: dict[tuple, dict[str, str]] = {}
-        for study, *_, checked in read:
+        for study, *_, checked, _ in read:
             if i >= len(checked):
                 continue
             fams = {m.label: m.family for m in study.methods}
@@ -128,3 +130,29 @@ def _md_claims(read) -> list[str]:
                          + " | ".join(by.get(n, "—") for n in names) + " |")
         lines.append("")
     return lines
+
+
+def _md_per_task(read) -> list[str]:
+    """Per task and method (without its family), each study's mean AUC in returns [95% CI] over its
+    finished seeds: the numbers that compare across studies (normalized ones do not)."""
+    names = [study.name for study, *_ in read]
+    cells: dict[tuple, dict[str, str]] = {}
+    for study, *_, rows in read:
+        fams = {m.label: m.family for m in study.methods}
+        for task in study.tasks:
+            for m in study.methods:
+                aucs = [r["auc"] for r in rows if r["task"] == task and r["method"] == m.label]
+                if aucs:
+                    res = stats.mean_interval(aucs)
+                    cell = f"{report._with_ci(res[0][0], *report._lohi(res))} ({len(aucs)})"
+                    cells.setdefault((task, kind(m.label, fams[m.label])), {})[study.name] = cell
+    if not cells:
+        return []
+    lines = ["## Per task: AUC in returns, mean [95% CI] (seeds)", "",
+             "The AUC is the mean evaluation return over training (report/summary.md's definition); unlike "
+             "the normalized AUC it is on the same scale in every study.", "",
+             "| task | method | " + " | ".join(f"`{n}`" for n in names) + " |",
+             "|---|---|" + "---|" * len(names)]
+    for (task, method), by in cells.items():
+        lines.append(f"| {task} | {method} | " + " | ".join(by.get(n, "—") for n in names) + " |")
+    return lines + [""]
