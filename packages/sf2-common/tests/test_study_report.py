@@ -523,10 +523,13 @@ def test_compare_puts_each_studys_own_numbers_side_by_side(tmp_path):
     the 4 seeds × 2 tasks is (base + 1.5)/13 and SF² − vanilla is +10/13 = +0.769 in `t` (supported: every
     SF² score is above every vanilla one) and −10/13 in `s` (contradicted). `compare` shows both on one row,
     each study's aggregate table as its own report gives it, and one figure with both families."""
-    from sf2_common.studies.compare import compare, kind
+    from sf2_common.studies.compare import claim_key, compare, kind
 
     assert (kind("TD3+SF² (γ=0)", "TD3"), kind("SAC", "SAC"), kind("SAC+Sim", "SAC")) == \
         ("SF² (γ=0)", "vanilla", "Sim")
+    # fig7-td3's and fig7-sac's per-task claim differ only by the family's name; another claim stays apart
+    assert claim_key("SF² above vanilla TD3", {"TD3"}) == claim_key("SF² above vanilla SAC", {"SAC"})
+    assert claim_key("SF² above vanilla TD3", {"TD3"}) != claim_key("own Adam above shared", {"TD3"})
     t = _family_study(tmp_path, "t", "TD3", {"": 0.0, "-sf2": 10.0})
     s = _family_study(tmp_path, "s", "SAC", {"": 10.0, "-sf2": 0.0})
     written = compare([t.path, s.path], tmp_path / "cmp", command="sf2-jax study compare t s --out cmp")

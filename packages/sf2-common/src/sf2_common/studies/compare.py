@@ -7,9 +7,10 @@ min–max normalization over that study's runs, paper §4.2; rliable intervals o
 verdicts, sf2_common/studies/claims.py). This module reads each folder once with `report`'s functions and
 writes `summary.md` (one aggregate table per family, one row per comparison with a column per study, and
 per task each method's AUC in returns, the scale that does compare across studies) and
-`aggregate.png/svg` (one row of panels per family, `figures.aggregate`). Comparisons are matched by the
-claim's position in its study file, its scope and the two methods without their family ("SF² (γ=0.99) −
-vanilla"), so the fig7-td3 and fig7-sac claims meet row by row; one only a study has shows "—" elsewhere.
+`aggregate.png/svg` (one row of panels per family, `figures.aggregate`). Claims are matched by
+their text with the family's name blanked (`claim_key`), comparisons by scope and the two methods without
+their family ("SF² (γ=0.99) − vanilla"), so the fig7-td3 and fig7-sac claims meet row by row; a claim or
+comparison only one study has shows "—" in the others' columns.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from . import claims, report, stats
 from .folder import StudyFolder
 from .spec import StudyError
 
-__all__ = ["compare", "kind"]
+__all__ = ["compare", "kind", "claim_key"]
 
 
 def kind(label: str, family: str) -> str:
@@ -98,33 +99,42 @@ def compare(paths, out, command: str | None = None) -> dict[str, Path]:
     return written
 
 
+def claim_key(text: str, families) -> str:
+    """A claim's text with its study's family names blanked, so that fig7-td3's "over vanilla TD3" and
+    fig7-sac's "over vanilla SAC" are the same claim and unrelated claims are not."""
+    for family in sorted(families, key=len, reverse=True):
+        text = text.replace(family, "<family>")
+    return text
+
+
 def _md_claims(read) -> list[str]:
-    """One table per claim position: a row per (scope, method kind, other kind), a column per study."""
-    if not any(checked for *_, checked, _ in read):
-        return []
+    """One table per claim (`claim_key`): a row per (scope, method kind, other kind), a column per study."""
     names = [study.name for study, *_ in read]
+    groups: dict[str, dict[str, tuple]] = {}
+    for study, *_, checked, _ in read:
+        fams = {m.label: m.family for m in study.methods}
+        for entry in checked:
+            groups.setdefault(claim_key(entry[0].text, set(fams.values())), {})[study.name] = (entry, fams)
+    if not groups:
+        return []
     lines = ["## The paper's claims, study by study", "",
              "Each cell: Δ of the claim's statistic (claimed − other) [95% bootstrap CI], rliable's "
              "P(claimed > other), and the verdict, as each study's report/summary.md gives them; \"—\" "
-             "where a study has no such comparison.", ""]
-    for i in range(max(len(checked) for *_, checked, _ in read)):
-        texts = {study.name: checked[i][0].text for study, *_, checked, _ in read if i < len(checked)}
-        verdicts = {study.name: checked[i][1] for study, *_, checked, _ in read if i < len(checked)}
+             "where a study has no such comparison. Claims are matched by their text, the family's name "
+             "aside.", ""]
+    for i, by_study in enumerate(groups.values(), 1):
+        texts = {n: entry[0].text for n, (entry, _) in by_study.items()}
         first = next(iter(texts.values()))
-        lines += [f"**Claim {i + 1}** — {first}", ""]
         other_texts = [f"(In `{n}`: {t})" for n, t in texts.items() if t != first]
-        lines += other_texts + [""] * bool(other_texts)
-        lines += ["Verdicts: " + "; ".join(f"`{n}` **{v}**" for n, v in verdicts.items()) + ".", "",
-                  "| scope | comparison | " + " | ".join(f"`{n}`" for n in names) + " |",
+        lines += [f"**Claim {i}** — {first}", ""] + other_texts + [""] * bool(other_texts)
+        lines += ["Verdicts: " + "; ".join(f"`{n}` **{entry[1]}**" for n, (entry, _) in by_study.items())
+                  + ".", "", "| scope | comparison | " + " | ".join(f"`{n}`" for n in names) + " |",
                   "|---|---|" + "---|" * len(names)]
         cells: dict[tuple, dict[str, str]] = {}
-        for study, *_, checked, _ in read:
-            if i >= len(checked):
-                continue
-            fams = {m.label: m.family for m in study.methods}
-            for c in checked[i][2]:
+        for n, (entry, fams) in by_study.items():
+            for c in entry[2]:
                 key = (c.scope, kind(c.method, fams.get(c.method, "")), kind(c.other, fams.get(c.other, "")))
-                cells.setdefault(key, {})[study.name] = _cell(c)
+                cells.setdefault(key, {})[n] = _cell(c)
         for (scope, method, other), by in cells.items():
             lines.append(f"| {scope} | {method} − {other} | "
                          + " | ".join(by.get(n, "—") for n in names) + " |")
