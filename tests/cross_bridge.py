@@ -130,7 +130,7 @@ def jx(x, dtype):
 
 
 def th(x, dtype):
-    return torch.as_tensor(np.asarray(x), dtype=getattr(torch, dtype))
+    return torch.as_tensor(np.array(x), dtype=getattr(torch, dtype))   # a copy: torch wants writable memory
 
 
 def jbatch(batch, dtype):

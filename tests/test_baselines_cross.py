@@ -404,7 +404,7 @@ def test_agent_sgd_steps(tmp_path, dtype, name, algo):
         w_before = tparams.to_canonical(talg.groups).get("task.w")
         jp, jopt, jm = jstep(jp, jopt, jb, noise, step)
         tb = sf2_torch.losses.Batch(**{k: torch.as_tensor(np.asarray(v), dtype=tdt) for k, v in raw.items()})
-        tm = talg.sgd_step(tb, {k: torch.as_tensor(np.asarray(v)) for k, v in noise.items()}, step)
+        tm = talg.sgd_step(tb, {k: torch.as_tensor(np.array(v)) for k, v in noise.items()}, step)
         jflat, tflat = bj.params.to_canonical(jp), tparams.to_canonical(talg.groups)
         assert set(jflat) == set(tflat)
         for pname in sorted(jflat):

@@ -126,7 +126,7 @@ def test_full_sgd_step(dtype, algo, rep, policy_delay, shared_adam):
         jnoise = jalg.step_noise(jax.random.PRNGKey(step), jb)
         assert list(jnoise) == list(talg.noise_keys())
         jp, jopt, jm = jstep(jp, jopt, jb, jnoise, step)
-        tm = talg.sgd_step(tb, {k: torch.as_tensor(np.asarray(v)) for k, v in jnoise.items()}, step)
+        tm = talg.sgd_step(tb, {k: torch.as_tensor(np.array(v)) for k, v in jnoise.items()}, step)
 
         jflat, tflat = jparams.to_canonical(jp), tparams.to_canonical(talg.groups)
         assert set(jflat) == set(tflat)
