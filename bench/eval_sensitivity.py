@@ -33,24 +33,21 @@ COLUMNS = ["task", "algo", "representation", "seed", "episode", "return", "retur
 DEFAULTS = {"num_eval_envs": "16", "max_replay_size": "16384"}
 
 
-def measure(task: str, algo: str, rep: str, seeds: tuple[int, ...], overrides: dict) -> list[dict]:
-    """Rows of `COLUMNS`: the epoch-0 evaluation's return of every seed and episode, three ways."""
+def measure(cfg, seeds: tuple[int, ...]) -> list[dict]:
+    """Rows of `COLUMNS`: the epoch-0 evaluation's return of every seed and episode, three ways (`cfg`: a
+    validated config)."""
     import jax
     import jax.numpy as jnp
     import numpy as np
-    from sf2_common.agents import configs
-    from sf2_jax.agents import representations
     from sf2_jax.agents.trainer import Program, episode_returns
 
-    cfg = configs.make_config("paper", task, algo, rep, overrides)
-    configs.validate(cfg, seeds, representations.REGISTRY)
     program = Program(cfg)
     state = program.init(seeds)
     one_ulp = jax.tree_util.tree_map(lambda x: jnp.nextafter(x, jnp.inf) if jnp.issubdtype(
         x.dtype, jnp.floating) else x, state.params)
     runs = [np.asarray(program.evaluate(p, state.eval_start, seeds, 0))
             for p in (state.params, state.params, one_ulp)]
-    n_steps = -(-cfg.episode_length // cfg.action_repeat)
+    n_steps = program.sched.eval_actor_steps
     n_envs, n_actions = state.eval_start.obs.shape[1], program.spec.action_size
 
     def open_loop(start, one_ulp_up: bool):   # one seed's episodes under uniform random actions
@@ -62,7 +59,8 @@ def measure(task: str, algo: str, rep: str, seeds: tuple[int, ...], overrides: d
     with jax.default_matmul_precision("highest"):
         runs += [np.asarray(jax.jit(jax.vmap(functools.partial(open_loop, one_ulp_up=up)))(state.eval_start))
                  for up in (False, True)]
-    return [{"task": task, "algo": algo, "representation": rep, "seed": seed, "episode": e,
+    return [{"task": cfg.task, "algo": cfg.algo, "representation": cfg.representation, "seed": seed,
+             "episode": e,
              "return": float(runs[0][i, e]), "return_repeated": float(runs[1][i, e]),
              "return_one_ulp": float(runs[2][i, e]), "open_loop_return": float(runs[3][i, e]),
              "open_loop_return_one_ulp": float(runs[4][i, e])}
@@ -115,7 +113,7 @@ def main(argv=None) -> int:
         configs.validate(cfg, seeds, representations.REGISTRY)
     except ConfigError as err:
         p.error(str(err))
-    rows = measure(args.task, args.algo, args.repr, seeds, overrides)
+    rows = measure(cfg, seeds)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     with open(out / "sensitivity.csv", "w", newline="") as f:

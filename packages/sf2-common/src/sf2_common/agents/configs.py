@@ -301,6 +301,7 @@ class Schedule:
     actor_steps_per_epoch: int
     env_steps_per_epoch: int
     total_env_steps: int            # ≥ num_timesteps
+    eval_actor_steps: int           # ceil(episode_length / action_repeat): one evaluation episode
 
     def env_steps_after(self, epoch: int) -> int:
         """Env steps done once epoch `epoch` ends (0: none)."""
@@ -317,7 +318,8 @@ def schedule(cfg: TrainConfig) -> Schedule:
     epochs = max(cfg.num_evals - 1, 1)
     total_actor = -(-cfg.num_timesteps // per)
     steps = -(-total_actor // epochs)
-    return Schedule(per, prefill, prefill * per, epochs, steps, steps * per, epochs * steps * per)
+    return Schedule(per, prefill, prefill * per, epochs, steps, steps * per, epochs * steps * per,
+                    -(-cfg.episode_length // cfg.action_repeat))
 
 
 # ------------------------------------------------------------------------------------------- validation

@@ -304,8 +304,7 @@ class Program:
             with self._learner_precision():
                 return self.algo.act(params, obs, k, cfg.deterministic_eval)
 
-        return episode_returns(self.spec.eval_env, eval_start, act, key,
-                               -(-cfg.episode_length // cfg.action_repeat))
+        return episode_returns(self.spec.eval_env, eval_start, act, key, self.sched.eval_actor_steps)
 
 
 def episode_returns(env, eval_start, act, key, n_steps: int) -> jax.Array:

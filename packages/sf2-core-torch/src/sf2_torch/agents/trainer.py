@@ -244,7 +244,7 @@ class Program:
             (int(seed) * 1_000_003 + OBS_NOISE_STREAM * 7919 + int(epoch)) % (2**63)) for seed in seeds]
         ret = torch.zeros(s, n, device=self.device)
         alive = torch.ones(s, n, device=self.device)
-        for _ in range(-(-cfg.episode_length // cfg.action_repeat)):
+        for _ in range(self.sched.eval_actor_steps):
             seen = obs
             if obs_noise:
                 seen = obs + obs_noise * torch.stack([torch.randn(obs[i].shape, generator=noise_gens[i],
