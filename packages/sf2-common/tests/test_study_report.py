@@ -523,7 +523,8 @@ def test_compare_puts_each_studys_own_numbers_side_by_side(tmp_path):
     the 4 seeds × 2 tasks is (base + 1.5)/13 and SF² − vanilla is +10/13 = +0.769 in `t` (supported: every
     SF² score is above every vanilla one) and −10/13 in `s` (contradicted). `compare` shows both on one row,
     each study's aggregate table as its own report gives it, and one figure with both families."""
-    from sf2_common.studies.compare import claim_key, compare, kind
+    from sf2_common.studies.compare import claim_key, compare
+    from sf2_common.studies.spec import kind
 
     assert (kind("TD3+SF² (γ=0)", "TD3"), kind("SAC", "SAC"), kind("SAC+Sim", "SAC")) == \
         ("SF² (γ=0)", "vanilla", "Sim")

@@ -22,13 +22,7 @@ from . import claims, report, stats
 from .folder import StudyFolder
 from .spec import StudyError
 
-__all__ = ["compare", "kind", "claim_key"]
-
-
-def kind(label: str, family: str) -> str:
-    """A method label without its family: 'TD3+SF² (γ=0)' → 'SF² (γ=0)', 'SAC' → 'vanilla'."""
-    rest = label[len(family):] if label.startswith(family) else label
-    return rest.lstrip("+") or "vanilla"
+__all__ = ["compare", "claim_key"]
 
 
 def _read(path):
@@ -112,9 +106,10 @@ def _md_claims(read) -> list[str]:
     names = [study.name for study, *_ in read]
     groups: dict[str, dict[str, tuple]] = {}
     for study, *_, checked, _ in read:
-        fams = {m.label: m.family for m in study.methods}
+        kinds = {m.label: m.kind for m in study.methods}
+        families = {m.family for m in study.methods}
         for entry in checked:
-            groups.setdefault(claim_key(entry[0].text, set(fams.values())), {})[study.name] = (entry, fams)
+            groups.setdefault(claim_key(entry[0].text, families), {})[study.name] = (entry, kinds)
     if not groups:
         return []
     lines = ["## The paper's claims, study by study", "",
@@ -131,9 +126,9 @@ def _md_claims(read) -> list[str]:
                   + ".", "", "| scope | comparison | " + " | ".join(f"`{n}`" for n in names) + " |",
                   "|---|---|" + "---|" * len(names)]
         cells: dict[tuple, dict[str, str]] = {}
-        for n, (entry, fams) in by_study.items():
+        for n, (entry, kinds) in by_study.items():
             for c in entry[2]:
-                key = (c.scope, kind(c.method, fams.get(c.method, "")), kind(c.other, fams.get(c.other, "")))
+                key = (c.scope, kinds.get(c.method, c.method), kinds.get(c.other, c.other))
                 cells.setdefault(key, {})[n] = _cell(c)
         for (scope, method, other), by in cells.items():
             lines.append(f"| {scope} | {method} − {other} | "
@@ -148,14 +143,13 @@ def _md_per_task(read) -> list[str]:
     names = [study.name for study, *_ in read]
     cells: dict[tuple, dict[str, str]] = {}
     for study, *_, rows in read:
-        fams = {m.label: m.family for m in study.methods}
         for task in study.tasks:
             for m in study.methods:
                 aucs = [r["auc"] for r in rows if r["task"] == task and r["method"] == m.label]
                 if aucs:
                     res = stats.mean_interval(aucs)
                     cell = f"{report._with_ci(res[0][0], *report._lohi(res))} ({len(aucs)})"
-                    cells.setdefault((task, kind(m.label, fams[m.label])), {})[study.name] = cell
+                    cells.setdefault((task, m.kind), {})[study.name] = cell
     if not cells:
         return []
     lines = ["## Per task: AUC in returns, mean [95% CI] (seeds)", "",

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from . import stats
+from .spec import kind
 
 __all__ = ["aggregate", "learning_curves", "sweeps", "obs_noise", "grid", "seeds_title"]
 
@@ -27,11 +28,10 @@ def _plt():
 
 
 def _kind(label: str) -> str:
-    """The method without its family ('TD3+SF² (γ=0)' → '+SF² (γ=0)'), so both families share colors."""
-    for family in ("TD3", "SAC"):
-        if label.startswith(family):
-            return label[len(family):]
-    return label
+    """The method without its family (`spec.kind`: 'TD3+SF² (γ=0)' → 'SF² (γ=0)'), so both families share
+    colors."""
+    family = next((f for f in ("TD3", "SAC") if label.startswith(f)), "")
+    return kind(label, family)
 
 
 class _Colors:

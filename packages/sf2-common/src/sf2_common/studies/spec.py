@@ -73,7 +73,7 @@ else:  # pragma: no cover - Python 3.10: the backport (a dependency of sf2-commo
 __all__ = [
     "StudyError", "Method", "Evaluation", "ReportSettings", "Study", "Run", "load", "loads", "resolve",
     "select_runs", "same_runs", "only_adds",
-    "slug", "FIGURES", "FRAMEWORKS", "RUN_NEUTRAL",
+    "slug", "kind", "FIGURES", "FRAMEWORKS", "RUN_NEUTRAL",
 ]
 
 FRAMEWORKS = ("jax", "torch")
@@ -102,6 +102,13 @@ def slug(label: str) -> str:
     return re.sub(r"-+", "-", text).strip("-.") or "method"
 
 
+def kind(label: str, family: str) -> str:
+    """A method label without its family: 'TD3+SF² (γ=0)' → 'SF² (γ=0)', 'SAC' → 'vanilla' (what a method
+    is across families: the figures' colors, `study compare`'s rows)."""
+    rest = label[len(family):] if label.startswith(family) else label
+    return rest.lstrip("+") or "vanilla"
+
+
 @dataclasses.dataclass(frozen=True)
 class Method:
     label: str
@@ -115,6 +122,11 @@ class Method:
     def family(self) -> str:
         """'TD3' or 'SAC': the algorithm family the aggregates are grouped by (paper Fig. 1)."""
         return self.algo.upper()
+
+    @property
+    def kind(self) -> str:
+        """The label without the family (`kind`)."""
+        return kind(self.label, self.family)
 
 
 @dataclasses.dataclass(frozen=True)
