@@ -1,13 +1,26 @@
-"""Where the device time of a training epoch goes: a `jax.profiler` trace of the JAX trainer's epochs.
+"""Where the device time of a training epoch goes: a `jax.profiler` trace of the JAX trainer's epochs, or
+(`--framework torch`) a `torch.profiler` trace of the torch trainer's, with its host time per phase.
 
     python -m bench.agent_profile --task AcrobotSwingup --algo td3 --reps none,sf2 --seeds 1,8 \
         --out bench/results/h200/11-agent-profile
+    python -m bench.agent_profile --framework torch --reps sf2 --seeds 1 --out /tmp/torch-profile
 
 Each case builds the trainer's own program (`sf2_jax.agents.trainer.get_program` of the `paper` preset
 with the budget cut so an epoch holds `--actor-steps` actor steps), runs one epoch (compilation and the
 random prefill), then traces `--epochs` epochs with `bench.profile.trace`. Everything is reported per SGD
 step (an actor step = one vectorized env step, a buffer insert, `grad_updates_per_step` batches and SGD
 steps), so kernel counts and device time compare directly with `bench run --profile`'s single updates.
+
+The torch trainer (`sf2_torch.agents.trainer.Program`) runs its epoch as a Python loop over actor steps,
+its seeds one after the other. Its case runs the same epochs twice after the warm-up (the prefill and the
+first SGD step, which compiles the update and captures its CUDA graphs): untraced, with host timers around
+each phase of an actor step (`explore`, `env_step`, `observe` = normalizer update and buffer insert,
+`sample` = buffer draw, `step_noise`, `sgd_step` = the compiled, graph-replayed update): first as the
+trainer runs them (each the host time of the call), then with the device drained before and after each
+phase (each its own host and device time, as if alone); then under `torch.profiler` for the kernels and
+the CUDA runtime and driver calls that can make the host wait. When the phases' host time is close to the
+wall time, the host paces the epoch (or one phase waits for the device: a phase that takes longer as
+trained than alone); when the kernels' busy time is, the device does.
 """
 
 from __future__ import annotations
@@ -35,19 +48,28 @@ class _EpochRunner:
         jax.block_until_ready((self.state, self.means))
 
 
-def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=print) -> dict:
-    import jax
-    from sf2_common.agents import configs
-    from sf2_jax.agents.trainer import get_program
-
-    from .profile import trace
+def _config(task, algo, rep, actor_steps, epochs, overrides, framework="jax"):
+    """The `paper` preset cut so an epoch holds `actor_steps` actor steps (at least the prefill's)."""
+    if framework == "jax":
+        from sf2_common.agents import configs
+    else:
+        from sf2_torch.agents import configs
 
     base = configs.make_config("paper", task, algo, rep, overrides)
     per_actor = base.num_envs * base.action_repeat
     prefill_steps = -(-base.min_replay_size // base.num_envs)
     per_epoch = max(actor_steps, prefill_steps)
-    total = per_epoch * (epochs + 4)
-    cfg = base.replace(num_timesteps=total * per_actor, num_evals=epochs + 5)
+    total = per_epoch * (2 * epochs + 4)
+    return base.replace(num_timesteps=total * per_actor, num_evals=2 * epochs + 5)
+
+
+def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=print) -> dict:
+    import jax
+    from sf2_jax.agents.trainer import get_program
+
+    from .profile import trace
+
+    cfg = _config(task, algo, rep, actor_steps, epochs, overrides)
     seeds = tuple(range(n_seeds))
     program = get_program(cfg)
     state = program.init(seeds)
@@ -59,6 +81,131 @@ def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=p
     return trace(_EpochRunner(program, state, sgd), updates=epochs, label=label)
 
 
+class _PhaseTimer:
+    """Host seconds spent inside wrapped callables, by phase. Unsynchronized (`synced` False): the time the
+    host spends in the call, which includes any wait the call itself makes for work queued before it.
+    Synchronized: the device is drained before the call and after it, so a phase's time is its own host
+    work plus its own device work, as if it ran alone."""
+
+    def __init__(self, sync):
+        self.seconds: dict[str, float] = {}
+        self.sync, self.synced = sync, False
+
+    def wrap(self, phase: str, fn):
+        import time
+
+        def timed(*args, **kwargs):
+            if self.synced:
+                self.sync()
+            t = time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                if self.synced:
+                    self.sync()
+                self.seconds[phase] = self.seconds.get(phase, 0.0) + time.perf_counter() - t
+        return timed
+
+    def take(self, updates: int, wall: float) -> dict:
+        """ms per update of the epochs just run: their wall time, each phase, the rest; then reset."""
+        phases = {k: v / updates * 1e3 for k, v in sorted(self.seconds.items(), key=lambda kv: -kv[1])}
+        out = {"wall_ms": wall / updates * 1e3, "phases_ms": phases,
+               "rest_ms": (wall - sum(self.seconds.values())) / updates * 1e3}
+        self.seconds = {}
+        return out
+
+
+_SYNC_CALLS = ("Synchronize", "cudaMemcpy", "cuMemcpyDtoH", "cuMemcpyHtoD", "cudaStreamWaitEvent",
+               "cuStreamWaitEvent", "cudaGraphLaunch", "cuGraphLaunch")
+
+
+def _runtime_calls(events: list[dict], updates: int) -> list[dict]:
+    """The CUDA runtime and driver calls of a torch.profiler trace (torch's and, through CUPTI, JAX's),
+    per update: those that can make the host wait (synchronizations, blocking copies) and graph launches
+    first, then the costliest others."""
+    by = {}
+    for e in events:
+        if e.get("ph") == "X" and e.get("cat") in ("cuda_runtime", "cuda_driver"):
+            c = by.setdefault(e.get("name", "?"), [0, 0.0])
+            c[0] += 1
+            c[1] += e.get("dur", 0.0)
+    rows = [{"name": k, "count": v[0] / updates, "ms": v[1] / 1e3 / updates} for k, v in by.items()]
+    waits = sorted((r for r in rows if any(w in r["name"] for w in _SYNC_CALLS)), key=lambda r: -r["ms"])
+    rest = sorted((r for r in rows if r not in waits), key=lambda r: -r["ms"])[:6]
+    return waits + rest
+
+
+def profile_torch_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=print) -> dict:
+    """The torch trainer's epochs (module docstring): host time per phase, then a `torch.profiler` trace."""
+    import tempfile
+    import time
+
+    import torch
+    from sf2_torch.agents.trainer import get_program
+
+    from .profile import summarize_kernels
+
+    cfg = _config(task, algo, rep, actor_steps, epochs, overrides, "torch")
+    seeds = tuple(range(n_seeds))
+    program = get_program(cfg)
+    state = program.init(seeds)
+
+    def sync():
+        if torch.cuda.is_available():
+            torch.cuda.synchronize()
+
+    epoch = 1
+    while True:   # the prefill, then the epoch of the first SGD step (its compile and graph capture)
+        state, means, _ = program.epoch(state, epoch)
+        sync()
+        epoch += 1
+        if int(means["sgd_steps"][0]):
+            break
+    sgd = program.sched.actor_steps_per_epoch * cfg.grad_updates_per_step
+    timer = _PhaseTimer(sync)
+    program._env_step = timer.wrap("env_step", program._env_step)
+    program._observe = timer.wrap("observe", program._observe)
+    for ag in state.agents:
+        for phase, obj, name in (("explore", ag.algo, "explore"), ("step_noise", ag.algo, "step_noise"),
+                                 ("sgd_step", ag.algo, "sgd_step"), ("sample", ag.replay, "sample")):
+            setattr(obj, name, timer.wrap(phase, getattr(obj, name)))
+    label = f"{task} {algo}+{rep}, {n_seeds} seed{'s' * (n_seeds > 1)} (torch trainer), per SGD step"
+    log(f"  timing and tracing {label}: 3 × {epochs} epochs of "
+        f"{program.sched.actor_steps_per_epoch} actor steps")
+    updates = epochs * sgd
+    host = {}
+    for synced in (False, True):
+        timer.synced = synced
+        t = time.perf_counter()
+        for _ in range(epochs):
+            state, means, _ = program.epoch(state, epoch)
+            epoch += 1
+        sync()
+        host["synced" if synced else "as trained"] = timer.take(updates, time.perf_counter() - t)
+    timer.synced = False
+    activities = [torch.profiler.ProfilerActivity.CPU]
+    if torch.cuda.is_available():
+        activities.append(torch.profiler.ProfilerActivity.CUDA)
+    t = time.perf_counter()
+    with torch.profiler.profile(activities=activities) as prof:
+        for _ in range(epochs):
+            state, means, _ = program.epoch(state, epoch)
+            epoch += 1
+        sync()
+    traced_wall = time.perf_counter() - t
+    with tempfile.TemporaryDirectory(prefix="sf2prof") as d:
+        path = f"{d}/trace.json"
+        prof.export_chrome_trace(path)
+        with open(path) as f:
+            events = json.load(f)["traceEvents"]
+    kernels = [e for e in events
+               if e.get("ph") == "X" and e.get("cat") in ("kernel", "gpu_memcpy", "gpu_memset")]
+    device = f"GPU {torch.cuda.get_device_name()}" if torch.cuda.is_available() else "CPU"
+    return {"label": label, "updates": updates, "wall_ms_per_update": traced_wall / updates * 1e3,
+            "host": host, "runtime": _runtime_calls(events, updates),
+            "devices": [summarize_kernels(kernels, updates, device)] if kernels else []}
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m bench.agent_profile", description=__doc__.split("\n\n")[0])
     p.add_argument("--task", default="AcrobotSwingup")
@@ -68,6 +215,8 @@ def main(argv=None) -> int:
     p.add_argument("--actor-steps", type=int, default=64, help="actor steps per traced epoch")
     p.add_argument("--epochs", type=int, default=2, help="traced epochs per case")
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE")
+    p.add_argument("--framework", default="jax", choices=("jax", "torch"),
+                   help="whose trainer: jax (jax.profiler) or torch (host phases and torch.profiler)")
     p.add_argument("--out", required=True)
     args = p.parse_args(argv)
     from sf2_common.agents import configs
@@ -82,8 +231,8 @@ def main(argv=None) -> int:
     summaries = []
     for n in (int(x) for x in args.seeds.split(",")):
         for rep in (r for r in args.reps.split(",") if r):
-            summaries.append(profile_case(args.task, args.algo, rep, n, args.actor_steps, args.epochs,
-                                          overrides))
+            case = profile_torch_case if args.framework == "torch" else profile_case
+            summaries.append(case(args.task, args.algo, rep, n, args.actor_steps, args.epochs, overrides))
             (out / "agent_profile.md").write_text(f"Command: `{command}`\n\n" + markdown(summaries))
     (out / "agent_profile.json").write_text(json.dumps(summaries, indent=1))
     (out / "machine.json").write_text(json.dumps(describe(str(Path(__file__).resolve().parents[1]), command),

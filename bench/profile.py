@@ -75,35 +75,40 @@ def trace(runner, updates: int = 10, label: str = "") -> dict:
     for pid in devices:
         ks = [e for e in events if e.get("ph") == "X" and e.get("pid") == pid and "dur" in e
               and not tname.get((pid, e.get("tid")), "").lower().startswith(("python", "tf_xlapjrt"))]
-        if not ks:
-            continue
-        by_name = collections.defaultdict(lambda: [0, 0.0])
-        by_cat = collections.defaultdict(lambda: [0, 0.0])
-        for e in ks:
-            name = e.get("name", "?")
-            hlo = e.get("args", {}).get("hlo_op") or e.get("args", {}).get("long_name") or ""
-            key = f"{name} [{hlo[:60]}]" if hlo and hlo != name else name
-            by_name[key][0] += 1
-            by_name[key][1] += e["dur"]
-            c = by_cat[_category(name)]
-            c[0] += 1
-            c[1] += e["dur"]
-        busy = _union((e["ts"], e["ts"] + e["dur"]) for e in ks) / 1e3 / updates
-        top = sorted(by_name.items(), key=lambda kv: -kv[1][1])[:12]
-        out["devices"].append({
-            "device": pname.get(pid, str(pid)),
-            "kernels_per_update": len(ks) / updates,
-            "busy_ms_per_update": busy,
-            "kernel_ms_per_update": sum(e["dur"] for e in ks) / 1e3 / updates,
-            "by_category": {k: {"count": v[0] / updates, "ms": v[1] / 1e3 / updates}
-                            for k, v in by_cat.items()},
-            "top": [{"name": k, "count": v[0] / updates, "ms": v[1] / 1e3 / updates} for k, v in top],
-        })
+        if ks:
+            out["devices"].append(summarize_kernels(ks, updates, pname.get(pid, str(pid))))
     return out
 
 
+def summarize_kernels(ks: list[dict], updates: int, device: str) -> dict:
+    """Per update: kernels, device-busy time (union of the kernels' intervals), the sum of kernel times,
+    the split by category and the costliest kernels, from trace events with `name`, `ts`, `dur` (µs).
+    Shared by the JAX trace above and the torch trainer's (`bench.agent_profile --framework torch`)."""
+    by_name = collections.defaultdict(lambda: [0, 0.0])
+    by_cat = collections.defaultdict(lambda: [0, 0.0])
+    for e in ks:
+        name = e.get("name", "?")
+        hlo = e.get("args", {}).get("hlo_op") or e.get("args", {}).get("long_name") or ""
+        key = f"{name} [{hlo[:60]}]" if hlo and hlo != name else name
+        by_name[key][0] += 1
+        by_name[key][1] += e["dur"]
+        c = by_cat[_category(name)]
+        c[0] += 1
+        c[1] += e["dur"]
+    busy = _union((e["ts"], e["ts"] + e["dur"]) for e in ks) / 1e3 / updates
+    top = sorted(by_name.items(), key=lambda kv: -kv[1][1])[:12]
+    return {
+        "device": device,
+        "kernels_per_update": len(ks) / updates,
+        "busy_ms_per_update": busy,
+        "kernel_ms_per_update": sum(e["dur"] for e in ks) / 1e3 / updates,
+        "by_category": {k: {"count": v[0] / updates, "ms": v[1] / 1e3 / updates} for k, v in by_cat.items()},
+        "top": [{"name": k, "count": v[0] / updates, "ms": v[1] / 1e3 / updates} for k, v in top],
+    }
+
+
 def markdown(summaries: list[dict]) -> str:
-    out = ["# Device profile of single updates (jax.profiler)", "",
+    out = ["# Device profile (jax.profiler; the torch trainer's: torch.profiler)", "",
            "Per update: wall time (dispatch to completion, traced), kernels launched, device-busy time "
            "(union of kernel intervals) and its split by kernel category; then the costliest kernels.", ""]
     for s in summaries:
@@ -113,6 +118,13 @@ def markdown(summaries: list[dict]) -> str:
             continue
         out.append("")
         out.append(f"wall {s['wall_ms_per_update']:.3f} ms per update (under the profiler)")
+        for how, h in s.get("host", {}).items():   # the torch trainer's phases (bench.agent_profile)
+            out += ["", f"host, untraced epochs {how}: wall {h['wall_ms']:.3f} ms per update; "
+                    + ", ".join(f"{k} {v:.3f} ms" for k, v in h["phases_ms"].items())
+                    + f"; the rest (the trainer's own Python between them) {h['rest_ms']:.3f} ms"]
+        if s.get("runtime"):
+            out += ["", "CUDA runtime/driver calls per update (those that can wait first): "
+                    + ", ".join(f"`{r['name']}` {r['count']:.1f} × / {r['ms']:.3f} ms" for r in s["runtime"])]
         for d in s["devices"]:
             cats = ", ".join(f"{k} {v['count']:.0f} kernels / {v['ms']:.3f} ms"
                              for k, v in sorted(d["by_category"].items(), key=lambda kv: -kv[1]["ms"]))

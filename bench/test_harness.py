@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import time
 
 import numpy as np
 import pytest
@@ -422,3 +423,37 @@ def test_machine_records_the_settings_that_change_numbers(monkeypatch):
     assert env["NVIDIA_TF32_OVERRIDE"] == "0"
     assert env["CUBLAS_WORKSPACE_CONFIG"] == ":4096:8"
     assert "HOME_TEST_NOT_RECORDED" not in env
+
+
+def test_torch_profile_lists_the_calls_that_can_wait_first():
+    """bench.agent_profile's summary of a torch trace's CUDA runtime calls, per update (2 here): the
+    synchronizations first (3 ms over 2 updates = 1.5 ms, 0.5 calls each), then the others."""
+    from bench.agent_profile import _runtime_calls
+
+    events = [{"ph": "X", "cat": "cuda_runtime", "name": "cudaLaunchKernel", "dur": 100.0},
+              {"ph": "X", "cat": "cuda_runtime", "name": "cudaLaunchKernel", "dur": 100.0},
+              {"ph": "X", "cat": "cuda_runtime", "name": "cudaDeviceSynchronize", "dur": 3000.0},
+              {"ph": "X", "cat": "kernel", "name": "gemm", "dur": 5000.0}]
+    rows = _runtime_calls(events, updates=2)
+    assert [(r["name"], r["count"], r["ms"]) for r in rows] == [
+        ("cudaDeviceSynchronize", 0.5, 1.5), ("cudaLaunchKernel", 1.0, 0.1)]
+
+
+def test_torch_profile_phase_timer_splits_the_wall_time():
+    """`_PhaseTimer` adds up each phase's host time; `take` gives ms per update and the rest of the wall
+    time, and starts again from zero; synchronized, it drains the device before and after each call."""
+    from bench.agent_profile import _PhaseTimer
+
+    syncs = []
+    timer = _PhaseTimer(lambda: syncs.append(1))
+    slow = timer.wrap("slow", lambda: time.sleep(0.02))
+    for _ in range(2):
+        slow()
+    assert syncs == []
+    got = timer.take(updates=4, wall=0.1)
+    assert got["wall_ms"] == 25.0
+    assert 10.0 <= got["phases_ms"]["slow"] < 25.0            # 2 × ≥ 20 ms over 4 updates
+    assert abs(got["rest_ms"] - (25.0 - got["phases_ms"]["slow"])) < 1e-9
+    timer.synced = True
+    slow()
+    assert syncs == [1, 1] and timer.take(updates=1, wall=1.0)["phases_ms"]["slow"] >= 20.0
