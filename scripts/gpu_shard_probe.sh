@@ -14,8 +14,13 @@
 #                                              2026-11-26, bench/results/h100x2/29-shardy), again with XLA's
 #                                              per-pass HLO dump, whose last pass names where the compiler
 #                                              died ($OUT/xla-dump.tar.gz)
+#   bash scripts/gpu_shard_probe.sh minimal    `python -m bench.shardy_repro`'s cases, one process each: the
+#                                              operation that the dump's Shardy input holds one custom call
+#                                              for (cuSOLVER's Cholesky, from MJX's env reset) alone under
+#                                              Shardy, inside and outside `shard_map`, its GSPMD and matmul
+#                                              controls, and the env reset itself
 set -uo pipefail
-mode=${1:?usage: bash scripts/gpu_shard_probe.sh flags|programs}
+mode=${1:?usage: bash scripts/gpu_shard_probe.sh flags|programs|minimal}
 source scripts/gpu_env.sh || exit 1
 export XLA_PYTHON_CLIENT_PREALLOCATE=false
 quiet() { grep -v "^WARNING\|warp\|^  File\|^Extension modules" | tail -6; }
@@ -35,6 +40,12 @@ programs() {   # programs "LIST [--shardy]" [ENV...]
   echo "exit ${PIPESTATUS[0]}"
 }
 case $mode in
+  minimal)
+    for c in cholesky-shard-map cholesky-shard-map-gspmd cholesky-jit matmul-shard-map reset-shard-map; do
+      echo "== bench.shardy_repro --case $c"
+      timeout 90 python3 -X faulthandler -u -m bench.shardy_repro --case "$c" 2>&1 | quiet
+      echo "exit ${PIPESTATUS[0]}"
+    done ;;
   flags)
     echo "== minimal: a jitted sum of an array sharded over both GPUs"
     timeout 75 python3 -X faulthandler -c '
@@ -62,5 +73,5 @@ print(jax.devices(), jax.jit(lambda a: (a * 2).sum(axis=1))(x))' 2>&1 | tail -3
     # the module before optimization and the last 20 passes' dumps: enough to bisect, small enough to carry
     (cd "$dump" 2>/dev/null && tar czf "$OUT/xla-dump.tar.gz" $(ls *before_optimizations* 2>/dev/null) \
       $(ls -tr | tail -20)) ;;
-  *) echo "gpu_shard_probe.sh: unknown mode '$mode'; valid: flags, programs" >&2; exit 2 ;;
+  *) echo "gpu_shard_probe.sh: unknown mode '$mode'; valid: flags, programs, minimal" >&2; exit 2 ;;
 esac
