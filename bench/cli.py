@@ -337,8 +337,8 @@ def run(args, out: Path, info: dict, log) -> None:
     else:
         reps = list(_names(args.reps))
     if any(fw.startswith("torch") for fw in frameworks):
-        info["torch_impl"] = ("sf2_torch.agents sgd_step (torch: eager; torch-graphs: + tensordict "
-                              "CudaGraphModule; torch-compile: compile_mode='default'; "
+        info["torch_impl"] = ("sf2_torch.agents sgd_step (torch: eager; torch-graphs: + StepGraph "
+                              "(CUDA graph); torch-compile: compile_mode='default'; "
                               "torch-cudagraphs: both)")
     device = _torch_device(args.device)
     cases = sizes.grid(frameworks, _names(args.algos), reps, tasks, args.size, steps,

@@ -2,11 +2,11 @@
 (`Algorithm.sgd_step`, the step the torch trainer runs; tests/test_step_agents_cross.py proves it equal
 to the JAX agents' step for TD3/SAC × vanilla/SF²).
 
-Frameworks: `torch` = eager; `torch-graphs` = eager + tensordict's `CudaGraphModule` (CUDA only);
-`torch-compile` = `compile_mode="default"` (the loss + gradient parts compiled); `torch-cudagraphs` =
-compiled + CUDA graphs (the torch trainer's default on CUDA). The noise is drawn every update with
-`Algorithm.step_noise` (the thin wrapper the trainer uses), as the JAX step draws inside its jitted
-function. Synchronization: `torch.cuda.synchronize()` on CUDA.
+Frameworks: `torch` = eager; `torch-graphs` = eager + the agents' CUDA graph
+(`sf2_torch.agents.graphs.StepGraph`; CUDA only); `torch-compile` = `compile_mode="default"` (the loss +
+gradient parts compiled); `torch-cudagraphs` = compiled + CUDA graphs (the torch trainer's default on
+CUDA). The noise is drawn every update with `Algorithm.step_noise` (the thin wrapper the trainer uses), as
+the JAX step draws inside its jitted function. Synchronization: `torch.cuda.synchronize()` on CUDA.
 """
 
 from __future__ import annotations

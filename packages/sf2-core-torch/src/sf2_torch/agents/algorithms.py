@@ -42,8 +42,9 @@ each once; AOTAutograd compiles their backward with them, so the compiled code i
 computation. The Adam steps and the target lerps run outside it: dynamo guards on the optimizer object,
 so a compiled `Optimizer.step` recompiles once per parameter group, which buys nothing at these sizes. On
 CUDA (`cudagraphs`) the whole step of each schedule combination (compiled losses, backward, capturable
-Adam, lerps) is captured as one CUDA graph by tensordict's `CudaGraphModule` (it takes the `Batch` and
-the noise dict as they are: pytrees of tensors). The step does no `.item()` and no host synchronization.
+Adam, lerps) is captured as one CUDA graph by `graphs.StepGraph` (it takes the `Batch` and the noise dict
+as they are: pytrees of tensors; unlike tensordict's `CudaGraphModule`, it replays without a device
+synchronization, graphs.py says why). The step does no `.item()` and no host synchronization.
 """
 
 from __future__ import annotations
@@ -58,6 +59,7 @@ from sf2_common.config import SF2Config
 from torch import nn
 
 from sf2_torch import losses, networks
+from sf2_torch.agents.graphs import StepGraph
 
 from .representations import Representation
 
@@ -213,9 +215,7 @@ class Algorithm:
             lerps = self._lerps({**(pairs if q_target else {}), **self.rep.targets()})
             fn = functools.partial(self._step, actor_step=actor_step, skip=skip, lerps=lerps)
             if self.cudagraphs:
-                from tensordict.nn import CudaGraphModule
-
-                fn = CudaGraphModule(fn, warmup=3)
+                fn = StepGraph(fn, warmup=3)
             self._steps[key] = fn
         return fn
 

@@ -1,0 +1,93 @@
+"""One CUDA graph per SGD-step function, replayed without a host synchronization.
+
+`StepGraph(fn)` runs `fn` (a function of pytrees of CUDA tensors, e.g. the `Batch` and the noise dict,
+returning a pytree of tensors, e.g. the metrics) eagerly for `warmup` calls on a side stream (the
+warm-up that `torch.compile` and capturable Adam need before capture), captures it as a
+`torch.cuda.CUDAGraph` at the next call, and from then on copies each call's inputs into the captured
+input tensors and replays the graph, all on the current stream, returning copies of the outputs.
+
+Why not tensordict's `CudaGraphModule` (the torch agents' graph until 2026-11-27): it calls
+`torch.cuda.synchronize` before every replay (tensordict pull request 1026: inputs copied from the host
+with `non_blocking=True` could otherwise be read before they land). In the torch trainer every input of a
+step is already on the device and written on the current stream, so that wait only stalls the host: a
+`torch.profiler` trace of the trainer (AcrobotSwingup TD3+SF², one seed, H100) showed one
+`cudaDeviceSynchronize` of 1.49 ms per SGD step, the host waiting out every step's kernels before it
+could queue the next actor step's env step and buffer work, and the epoch ran at 2.77 ms per SGD step
+against 1.99 ms of kernels (bench/results/h100/37-torch-sync/README.md). Here the inputs are copied on
+the stream the graph replays on, so stream order is the only synchronization needed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import torch
+from torch.utils._pytree import tree_flatten, tree_map, tree_unflatten
+
+__all__ = ["StepGraph"]
+
+
+class StepGraph:
+    """`fn` captured once as a CUDA graph and replayed (module docstring). Every call must pass tensors of
+    the shapes, dtypes and tree structure of the call that was captured; a call that does not raises
+    ValueError naming the difference."""
+
+    def __init__(self, fn: Callable[..., Any], warmup: int = 3):
+        if warmup < 1:
+            raise ValueError(f"warmup = {warmup}: at least one eager call must come before the capture")
+        self.fn, self.warmup = fn, int(warmup)
+        self.calls = 0
+        self.graph: torch.cuda.CUDAGraph | None = None
+        self._inputs: list[torch.Tensor] = []
+        self._spec = None
+        self._out = None
+
+    def __call__(self, *args):
+        leaves, spec = tree_flatten(args)
+        if self.graph is None:
+            if self.calls < self.warmup:
+                self.calls += 1
+                return self._on_side_stream(lambda: self.fn(*args))
+            return self._capture(leaves, spec)
+        self._check(leaves, spec)
+        torch._foreach_copy_(self._inputs, leaves)
+        self.graph.replay()
+        return tree_map(torch.clone, self._out)
+
+    @staticmethod
+    def _on_side_stream(run):
+        """`run()` on a side stream ordered after and before the current one (capture needs its warm-up
+        kept off the default stream: torch.cuda.graphs' notes on whole-network capture)."""
+        side, current = torch.cuda.Stream(), torch.cuda.current_stream()
+        side.wait_stream(current)
+        with torch.cuda.stream(side):
+            out = run()
+        current.wait_stream(side)
+        return out
+
+    def _capture(self, leaves, spec):
+        bad = [i for i, x in enumerate(leaves) if not isinstance(x, torch.Tensor) or x.device.type != "cuda"]
+        if bad:
+            raise ValueError(f"StepGraph captures CUDA tensors only; input leaves {bad} are not")
+        self._inputs = [x.detach().clone() for x in leaves]
+        self._spec = spec
+        args = tree_unflatten(self._inputs, spec)
+        self.graph = torch.cuda.CUDAGraph()
+        # torch.cuda.graph synchronizes the device once as it begins (the warm-up's work and the input
+        # copies have landed) and captures on a stream of its own
+        with torch.cuda.graph(self.graph):
+            self._out = self.fn(*args)
+        self.calls += 1
+        # capture records the kernels without running them: this call's step is the first replay
+        self.graph.replay()
+        return tree_map(torch.clone, self._out)
+
+    def _check(self, leaves, spec):
+        if spec != self._spec or len(leaves) != len(self._inputs):
+            raise ValueError(f"StepGraph: the inputs' structure {spec} differs from the captured one "
+                             f"{self._spec}")
+        for i, (x, y) in enumerate(zip(leaves, self._inputs)):
+            if x.shape != y.shape or x.dtype != y.dtype or x.device != y.device:
+                raise ValueError(f"StepGraph: input leaf {i} is {tuple(x.shape)} {x.dtype} on {x.device}, "
+                                 f"the captured one {tuple(y.shape)} {y.dtype} on {y.device}")

@@ -1,0 +1,120 @@
+"""`sf2_torch.agents.graphs.StepGraph`, the CUDA graph of the torch agents' SGD step: a replay computes what
+the function computes (a toy step with state, then the agents' TD3+SF² and SAC+SF² steps against the same
+algorithm without graphs), each call's inputs are the ones used, outputs are copies, a call of another
+shape is refused, and no replay synchronizes the device (the reason it replaced tensordict's
+`CudaGraphModule`: graphs.py). CUDA graphs need a CUDA device: on a CPU-only host these tests report
+themselves skipped, with that reason, except the argument check; on the GPU host (bench/README.md, "GPU
+recipe") they run with `source scripts/gpu_env.sh && python3 -m pytest
+packages/sf2-core-torch/tests/agents/test_torch_graphs.py`."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from sf2_common.config import SF2Config
+from sf2_torch import losses
+from sf2_torch import params as params_mod
+from sf2_torch.agents import algorithms, representations
+from sf2_torch.agents.graphs import StepGraph
+
+cuda = pytest.mark.skipif(not torch.cuda.is_available(),
+                          reason="CUDA graphs need a CUDA device (the GPU host runs these: docstring)")
+
+
+def test_a_capture_needs_a_warm_up_call():
+    with pytest.raises(ValueError, match="warmup = 0"):
+        StepGraph(lambda x: x, warmup=0)
+
+
+def _toy():
+    """A step with state: w moves by the batch's mean, the output reads the state and the noise."""
+    w = torch.zeros(3, device="cuda")
+
+    def step(batch, noise):
+        w.add_(batch["x"].mean(0))
+        return {"w2": w * 2 + noise["y"], "s": batch["x"].sum()}
+    return w, step
+
+
+@cuda
+def test_replays_compute_the_function_with_each_calls_inputs():
+    w_graph, graphed = _toy()
+    w_eager, eager = _toy()
+    graphed = StepGraph(graphed, warmup=2)
+    g = torch.Generator(device="cuda").manual_seed(0)
+    outs = []
+    for i in range(7):   # 2 warm-up calls, the capture, 4 replays
+        batch = {"x": torch.randn(5, 3, device="cuda", generator=g)}
+        noise = {"y": torch.full((3,), float(i), device="cuda")}
+        got, want = graphed(batch, noise), eager(batch, noise)
+        outs.append(got)
+        torch.testing.assert_close(got, want, rtol=0, atol=0)
+    torch.testing.assert_close(w_graph, w_eager, rtol=0, atol=0)
+    assert graphed.graph is not None and graphed.calls == 3
+    # the outputs are copies: a later replay did not overwrite an earlier call's
+    assert len({float(o["s"]) for o in outs}) == len(outs)
+
+
+@cuda
+def test_a_call_of_another_shape_is_refused():
+    _, step = _toy()
+    graphed = StepGraph(step, warmup=1)
+    for _ in range(2):
+        graphed({"x": torch.ones(5, 3, device="cuda")}, {"y": torch.zeros(3, device="cuda")})
+    with pytest.raises(ValueError, match=r"input leaf 0 is \(4, 3\)"):
+        graphed({"x": torch.ones(4, 3, device="cuda")}, {"y": torch.zeros(3, device="cuda")})
+
+
+D, A, B = 5, 2, 16
+
+
+def _algorithm(name, cudagraphs):
+    """The algorithm as the trainer builds it with graphs (capturable Adam, its learning rate a device
+    tensor); `cudagraphs` False then runs the same optimizers without capture, so only the graph differs."""
+    torch.manual_seed(0)
+    cfg = SF2Config.small(D, A, gamma_su=0.9)
+    algo = algorithms.make_algorithm(name, cfg, representations.get("sf2"), device="cuda", cudagraphs=True)
+    algo.cudagraphs = cudagraphs
+    return algo
+
+
+def _batches(n):
+    g = torch.Generator(device="cuda").manual_seed(1)
+    out = []
+    for _ in range(n):
+        trunc = (torch.rand(B, device="cuda", generator=g) < 0.3).float()
+        out.append(losses.Batch(obs=torch.randn(B, D, device="cuda", generator=g),
+                                action=torch.rand(B, A, device="cuda", generator=g) * 2 - 1,
+                                reward=torch.rand(B, device="cuda", generator=g), discount=1.0 - trunc,
+                                next_obs=torch.randn(B, D, device="cuda", generator=g), truncation=trunc))
+    return out
+
+
+@cuda
+@pytest.mark.parametrize("name", ["td3", "sac"])
+def test_the_agents_graphed_step_is_their_step(name, monkeypatch):
+    """12 SGD steps (TD3: both schedule combinations of the policy delay, each captured after its own 3
+    warm-up calls) with and without CUDA graphs, same batches and noise: the same parameters and metrics,
+    and, once every graph is captured, no `torch.cuda.synchronize` on the way. The tolerance (1e-6) only
+    allows for cuBLAS picking another kernel under capture; replays of the same kernels agree exactly."""
+    plain, graphed = _algorithm(name, False), _algorithm(name, True)
+    steps = 12
+    batches = _batches(steps)
+    syncs, real = [], torch.cuda.synchronize
+
+    def counted(*args, **kwargs):
+        syncs.append(1)
+        return real(*args, **kwargs)
+
+    for i, batch in enumerate(batches):
+        noise = plain.step_noise(torch.Generator(device="cuda").manual_seed(100 + i), batch)
+        if i == steps - 2:   # every schedule combination has been captured by now
+            monkeypatch.setattr(torch.cuda, "synchronize", counted)
+        want = plain.sgd_step(batch, noise, step=i)
+        got = graphed.sgd_step(batch, noise, step=i)
+        torch.testing.assert_close(got, want, rtol=1e-6, atol=1e-6)
+    assert syncs == []
+    a, b = params_mod.to_canonical(plain.groups), params_mod.to_canonical(graphed.groups)
+    assert a.keys() == b.keys()
+    for k in a:
+        torch.testing.assert_close(b[k], a[k], rtol=1e-6, atol=1e-6, msg=lambda m, k=k: f"{k}: {m}")
