@@ -45,7 +45,7 @@ def probe(task: str, algo: str, rep: str, preset: str, n_seeds: int, programs: t
             program._program(name, n_seeds)
         jax.config.update("jax_use_shardy_partitioner", True)
     log(f"mesh: {n_seeds} seeds over {mesh.devices.size} devices ({', '.join(map(str, mesh.devices.flat))}), "
-        f"partitioner {'Shardy' if jax.config.jax_use_shardy_partitioner else 'GSPMD'}")
+        f"partitioner {'Shardy (--shardy)' if shardy else 'GSPMD (Program._program switches to it)'}")
 
     def timed(name, fn):
         t = time.perf_counter()

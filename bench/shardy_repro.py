@@ -16,9 +16,16 @@ here is a few lines of JAX around that one operation, so the one that crashes is
   `Program._program` switches to);
 - `cholesky-jit`: `jit(vmap(cholesky))` of an array sharded over the mesh, no `shard_map`, under Shardy;
 - `matmul-shard-map`: `shard_map` of a batched matmul, no custom call, under Shardy (the control);
-- `reset-shard-map`: `shard_map(vmap(vmap(reset)))` of MuJoCo Playground's AcrobotSwingup (MJX, the trainer's
-  env: Playground's task, Brax's wrappers), `--envs` envs per seed, under Shardy: the trainer's own
-  operation, for when no case above crashes.
+- `reset-shard-map`: `shard_map(vmap(reset))` of MuJoCo Playground's AcrobotSwingup (MJX, the trainer's
+  env: Playground's task, Brax's wrappers), `--envs` envs per seed, its observations out, under Shardy;
+- `reset-state-shard-map`: the same with the whole env state out of the `shard_map`, as the trainer's
+  `init` returns it. The dumped module passes zero-size arrays across the `shard_map` boundary hundreds of
+  times (MJX's state has empty fields for what AcrobotSwingup lacks, e.g. (seeds, envs, 0) contacts);
+- `zero-size-shard-map`: the smallest form of that: a `shard_map` whose input and output include a
+  (seeds, envs, 0) array beside a non-empty one.
+
+On two H100s (2026-11-27, bench/results/h100x2/35-shardy-minimal) the first five cases ran under Shardy
+without a crash; the last two were added after, for the next GPU host.
 
 Prints the case, the devices and `ok` with the result's checksum; exit status 139 is the crash.
 """
@@ -29,7 +36,16 @@ import argparse
 import sys
 
 CASES = ("cholesky-shard-map", "cholesky-shard-map-gspmd", "cholesky-jit", "matmul-shard-map",
-         "reset-shard-map")
+         "reset-shard-map", "reset-state-shard-map", "zero-size-shard-map")
+
+
+def matrices(seeds: int, envs: int, n: int):
+    """The symmetric positive definite inputs (seeds, envs, n, n): A Aᵀ + n I of a seeded normal A."""
+    import jax
+    import jax.numpy as jnp
+
+    a = jax.random.normal(jax.random.PRNGKey(0), (seeds, envs, n, n), jnp.float32)
+    return a @ jnp.swapaxes(a, -1, -2) + n * jnp.eye(n, dtype=jnp.float32)
 
 
 def run(case: str, per_device: int = 1, envs: int = 256, n: int = 2) -> float:
@@ -44,11 +60,10 @@ def run(case: str, per_device: int = 1, envs: int = 256, n: int = 2) -> float:
     jax.config.update("jax_use_shardy_partitioner", not case.endswith("-gspmd"))
     devices = jax.local_devices()
     mesh = Mesh(np.array(devices), ("seed",))
-    a = jax.random.normal(jax.random.PRNGKey(0), (per_device * len(devices), envs, n, n), jnp.float32)
-    spd = a @ jnp.swapaxes(a, -1, -2) + n * jnp.eye(n, dtype=jnp.float32)   # positive definite
+    spd = matrices(per_device * len(devices), envs, n)
     x = jax.device_put(spd, NamedSharding(mesh, P("seed")))
     op = jnp.linalg.cholesky if case.startswith("cholesky") else (lambda m: m @ m)
-    if case == "reset-shard-map":
+    if case.startswith("reset"):
         from mujoco_playground import registry, wrapper
 
         task = registry.load("AcrobotSwingup", config_overrides={"impl": "jax"})
@@ -57,14 +72,23 @@ def run(case: str, per_device: int = 1, envs: int = 256, n: int = 2) -> float:
         x = jax.device_put(keys.reshape(per_device * len(devices), envs, -1), NamedSharding(mesh, P("seed")))
 
         def op(k):
-            return env.reset(k).obs
+            state = env.reset(k)
+            return state if case == "reset-state-shard-map" else state.obs
+    if case == "zero-size-shard-map":
+        empty = jnp.zeros((per_device * len(devices), envs, 0), jnp.float32)
+        x = jax.device_put((spd, empty), NamedSharding(mesh, P("seed")))
+
+        def op(pair):
+            m, e = pair
+            return m * 2.0, e + 1.0
     if case == "cholesky-jit":
         fn = jax.jit(jax.vmap(op))
     else:
         fn = jax.jit(jax.shard_map(jax.vmap(op), mesh=mesh, in_specs=P("seed"), out_specs=P("seed")))
-    print(f"{case}: {len(devices)} devices ({', '.join(map(str, devices))}), input {x.shape}, partitioner "
+    shapes = [leaf.shape for leaf in jax.tree_util.tree_leaves(x)]
+    print(f"{case}: {len(devices)} devices ({', '.join(map(str, devices))}), input {shapes}, partitioner "
           f"{'Shardy' if jax.config.jax_use_shardy_partitioner else 'GSPMD'}", flush=True)
-    out = float(jnp.sum(fn(x)))
+    out = float(sum(jnp.sum(leaf) for leaf in jax.tree_util.tree_leaves(fn(x))))
     print(f"ok {case}: sum {out:.6f}", flush=True)
     return out
 

@@ -457,3 +457,20 @@ def test_torch_profile_phase_timer_splits_the_wall_time():
     timer.synced = True
     slow()
     assert syncs == [1, 1] and timer.take(updates=1, wall=1.0)["phases_ms"]["slow"] >= 20.0
+
+
+def test_shardy_repro_cases_compute_what_they_say():
+    """bench.shardy_repro's cases on this host's devices give the sums of what they compute, derived here
+    with NumPy from the same inputs: the Cholesky factors (under Shardy, GSPMD and without shard_map), M·M,
+    and 2M beside an empty array plus one (whose sum is 0)."""
+    import jax
+
+    from bench import shardy_repro
+
+    m = np.asarray(shardy_repro.matrices(len(jax.local_devices()), 4, 2), dtype=np.float64)
+    for case in ("cholesky-shard-map", "cholesky-shard-map-gspmd", "cholesky-jit"):
+        assert shardy_repro.run(case, envs=4) == pytest.approx(np.linalg.cholesky(m).sum(), rel=1e-5)
+    assert shardy_repro.run("matmul-shard-map", envs=4) == pytest.approx((m @ m).sum(), rel=1e-5)
+    assert shardy_repro.run("zero-size-shard-map", envs=4) == pytest.approx(2 * m.sum(), rel=1e-5)
+    with pytest.raises(SystemExit, match="unknown case 'nope'"):
+        shardy_repro.run("nope")

@@ -41,7 +41,8 @@ programs() {   # programs "LIST [--shardy]" [ENV...]
 }
 case $mode in
   minimal)
-    for c in cholesky-shard-map cholesky-shard-map-gspmd cholesky-jit matmul-shard-map reset-shard-map; do
+    for c in cholesky-shard-map cholesky-shard-map-gspmd cholesky-jit matmul-shard-map reset-shard-map \
+      reset-state-shard-map zero-size-shard-map; do
       echo "== bench.shardy_repro --case $c"
       timeout 90 python3 -X faulthandler -u -m bench.shardy_repro --case "$c" 2>&1 | quiet
       echo "exit ${PIPESTATUS[0]}"
