@@ -138,9 +138,13 @@ class Program:
         Opt-in: on two H100s the sharded programs' compile died of a segfault in XLA's `shardy-xla` pass
         (bench/results/h100x2/29-shardy; on two H200s the process died without a message), while two
         processes with one GPU each reached 2.00x the rate of one (bench/results/h200x2/15-two-gpus).
-        Under the GSPMD partitioner the sharded `init` and `epoch` compile and run on two H100s, so
-        `_program` builds sharded programs with it. Several GPUs are used by whole runs, one per GPU
-        (`study run`); the sharded program is tested on two CPU devices (tests/agents/test_devices.py)."""
+        Under the GSPMD partitioner the sharded programs compile and run, so `_program` builds them with it:
+        on a four-H100 host a `train` with its seeds over two GPUs ran end to end, at 2.07× (TD3+SF²) and
+        2.12× (TD3) one GPU's rate (bench/results/h100x4/31-scaling-sf2, 30-scaling), with numbers that
+        differ from one device's in the last bits from the first evaluation on (32-sharded-learning).
+        Still opt-in until its learning is compared with one device's at full length; several GPUs are
+        used by whole runs, one per GPU (`study run`, 2.00×); the sharded program is tested on two CPU
+        devices (tests/agents/test_devices.py)."""
         devices = jax.local_devices()
         if os.environ.get(SHARD_SEEDS) != "1" or len(devices) < 2 or n_seeds % len(devices):
             return None
