@@ -48,19 +48,20 @@ class _EpochRunner:
         jax.block_until_ready((self.state, self.means))
 
 
-def _config(task, algo, rep, actor_steps, epochs, overrides, framework="jax"):
-    """The `paper` preset cut so an epoch holds `actor_steps` actor steps (at least the prefill's)."""
-    if framework == "jax":
-        from sf2_common.agents import configs
-    else:
-        from sf2_torch.agents import configs
+def _config(task, algo, rep, n_seeds, actor_steps, epochs, overrides, framework="jax"):
+    """The `paper` preset cut so an epoch holds `actor_steps` actor steps (at least the prefill's),
+    validated (`ConfigError` naming the problem)."""
+    from .agent_throughput import framework_configs
 
+    configs, check = framework_configs(framework, tuple(range(n_seeds)))
     base = configs.make_config("paper", task, algo, rep, overrides)
     per_actor = base.num_envs * base.action_repeat
     prefill_steps = -(-base.min_replay_size // base.num_envs)
     per_epoch = max(actor_steps, prefill_steps)
     total = per_epoch * (2 * epochs + 4)
-    return base.replace(num_timesteps=total * per_actor, num_evals=2 * epochs + 5)
+    cfg = base.replace(num_timesteps=total * per_actor, num_evals=2 * epochs + 5)
+    check(cfg)
+    return cfg
 
 
 def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=print) -> dict:
@@ -69,7 +70,7 @@ def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=p
 
     from .profile import trace
 
-    cfg = _config(task, algo, rep, actor_steps, epochs, overrides)
+    cfg = _config(task, algo, rep, n_seeds, actor_steps, epochs, overrides)
     seeds = tuple(range(n_seeds))
     program = get_program(cfg)
     state = program.init(seeds)
@@ -145,7 +146,7 @@ def profile_torch_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides,
 
     from .profile import summarize_kernels
 
-    cfg = _config(task, algo, rep, actor_steps, epochs, overrides, "torch")
+    cfg = _config(task, algo, rep, n_seeds, actor_steps, epochs, overrides, "torch")
     seeds = tuple(range(n_seeds))
     program = get_program(cfg)
     state = program.init(seeds)
@@ -220,20 +221,26 @@ def main(argv=None) -> int:
     p.add_argument("--out", required=True)
     args = p.parse_args(argv)
     from sf2_common.agents import configs
+    from sf2_common.errors import ConfigError
 
     from .machine import describe
     from .profile import markdown
 
-    overrides = configs.parse_overrides(args.set) if args.set else {}
+    try:   # every case's config, before anything is built or written
+        overrides = configs.parse_overrides(args.set) if args.set else {}
+        cases = [(int(x), rep) for x in args.seeds.split(",") for rep in args.reps.split(",") if rep]
+        for n, rep in cases:
+            _config(args.task, args.algo, rep, n, args.actor_steps, args.epochs, overrides, args.framework)
+    except (ConfigError, ValueError) as err:
+        p.error(str(err))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     command = "python -m bench.agent_profile " + " ".join(argv if argv is not None else sys.argv[1:])
     summaries = []
-    for n in (int(x) for x in args.seeds.split(",")):
-        for rep in (r for r in args.reps.split(",") if r):
-            case = profile_torch_case if args.framework == "torch" else profile_case
-            summaries.append(case(args.task, args.algo, rep, n, args.actor_steps, args.epochs, overrides))
-            (out / "agent_profile.md").write_text(f"Command: `{command}`\n\n" + markdown(summaries))
+    case = profile_torch_case if args.framework == "torch" else profile_case
+    for n, rep in cases:
+        summaries.append(case(args.task, args.algo, rep, n, args.actor_steps, args.epochs, overrides))
+        (out / "agent_profile.md").write_text(f"Command: `{command}`\n\n" + markdown(summaries))
     (out / "agent_profile.json").write_text(json.dumps(summaries, indent=1))
     (out / "machine.json").write_text(json.dumps(describe(str(Path(__file__).resolve().parents[1]), command),
                                                  indent=2))

@@ -62,24 +62,27 @@ def warm_up(env_steps: int, epochs: int, prefill_env_steps: int) -> tuple[int, i
     return per_epoch, prefill_env_steps // per_epoch + 1
 
 
+def framework_configs(framework: str, seeds: tuple[int, ...]):
+    """(the framework's configs module, a check raising `ConfigError` for a config of `seeds`): the JAX
+    agents' configs live in sf2-common, the torch agents' add their device and compile fields."""
+    if framework == "jax":
+        from sf2_common.agents import configs
+        from sf2_jax.agents import representations
+
+        return configs, lambda c: configs.validate(c, seeds, representations.REGISTRY)
+    from sf2_torch.agents import configs
+
+    return configs, lambda c: configs.validate(c, seeds)
+
+
 def config_for(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epochs: int, overrides: dict,
                framework: str = "jax"):
     """The `paper` preset's config of one measurement (`warm_up` epochs, then `epochs` timed ones),
     validated (`ConfigError` naming the problem); returns (config, warm-up epochs)."""
     from sf2_common.agents.configs import schedule
 
-    if framework == "jax":
-        from sf2_common.agents import configs
-        from sf2_jax.agents import representations
-
-        def check(c):
-            configs.validate(c, seeds, representations.REGISTRY)
-    else:
-        from sf2_torch.agents import configs
-
-        def check(c):
-            configs.validate(c, seeds)
     seeds = tuple(range(n_seeds))
+    configs, check = framework_configs(framework, seeds)
     prefill = schedule(configs.make_config("paper", task, algo, rep, overrides)).prefill_env_steps
     per_epoch, warm = warm_up(env_steps, epochs, prefill)
     values = {"num_timesteps": per_epoch * (warm + epochs), "num_evals": warm + epochs + 1, **overrides}

@@ -245,6 +245,23 @@ def test_bad_shard_probe_input_exits_2(argv, message, capsys):
     assert exit_.value.code == 2 and message in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("framework", ["jax", "torch"])
+@pytest.mark.parametrize("argv,message", [
+    (["--task", "Nope"], "unknown task 'Nope'"),
+    (["--reps", "bogus"], "representation = 'bogus' is invalid"),
+    (["--seeds", "two"], "invalid literal for int()"),
+])
+def test_bad_agent_profile_input_exits_2_before_writing(framework, argv, message, capsys, tmp_path):
+    pytest.importorskip("mujoco_playground", reason="the profile validates against the Playground task list: "
+                        "install a core's [train] extra")
+    from bench import agent_profile
+
+    with pytest.raises(SystemExit) as exit_:
+        agent_profile.main([*argv, "--framework", framework, "--out", str(tmp_path / "out")])
+    assert exit_.value.code == 2 and message in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
 def test_shard_probe_without_a_mesh_says_what_it_needs(monkeypatch):
     """One device, or SF2_SHARD_SEEDS unset: the probe names what is missing instead of probing nothing.
     (On two host CPU devices it runs every program: packages/sf2-core-jax/tests/agents/test_devices.py
