@@ -64,7 +64,9 @@ def _config(task, algo, rep, n_seeds, actor_steps, epochs, overrides, framework=
     return cfg
 
 
-def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=print) -> dict:
+def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=print, hlo_dump=None) -> dict:
+    """The traced epochs' summary (`bench.profile.trace`); with `hlo_dump` (the folder XLA dumps to, set in
+    `main` before JAX starts) also the epoch's kernels per phase (`bench.hlo_phases`) under "phases"."""
     import jax
     from sf2_jax.agents.trainer import get_program
 
@@ -79,7 +81,15 @@ def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=p
     sgd = program.sched.actor_steps_per_epoch * cfg.grad_updates_per_step
     label = f"{task} {algo}+{rep}, {n_seeds} seed{'s' * (n_seeds > 1)} (vmapped), per SGD step"
     log(f"  tracing {label}: {epochs} epochs of {program.sched.actor_steps_per_epoch} actor steps")
-    return trace(_EpochRunner(program, state, sgd), updates=epochs, label=label)
+    out = trace(_EpochRunner(program, state, sgd), updates=epochs, label=label)
+    if hlo_dump is not None:
+        from . import hlo_phases
+
+        f = hlo_phases.find_module(Path(hlo_dump))   # the newest: this case's epoch program
+        out["phases"] = {**hlo_phases.count(f.read_text(), hlo_phases._phases()), "sgd_steps": sgd,
+                         "file": f.name}
+        f.rename(Path(hlo_dump) / f"case{len(list(Path(hlo_dump).glob('case*')))}-{f.name}")
+    return out
 
 
 class _PhaseTimer:
@@ -218,6 +228,9 @@ def main(argv=None) -> int:
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE")
     p.add_argument("--framework", default="jax", choices=("jax", "torch"),
                    help="whose trainer: jax (jax.profiler) or torch (host phases and torch.profiler)")
+    p.add_argument("--hlo", action="store_true",
+                   help="jax: also count each epoch's compiled kernels per phase (bench.hlo_phases; "
+                        "the optimized HLO is kept in OUT/hlo)")
     p.add_argument("--out", required=True)
     args = p.parse_args(argv)
     from sf2_common.agents import configs
@@ -233,15 +246,33 @@ def main(argv=None) -> int:
             _config(args.task, args.algo, rep, n, args.actor_steps, args.epochs, overrides, args.framework)
     except (ConfigError, ValueError) as err:
         p.error(str(err))
+    if args.hlo and args.framework != "jax":
+        p.error("--hlo counts the JAX trainer's compiled kernels; the torch trainer has no XLA dump")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    hlo_dump = None
+    if args.hlo:   # before JAX starts its backend, which reads XLA_FLAGS once
+        import os
+        import tempfile
+
+        hlo_dump = tempfile.mkdtemp(prefix="sf2hlo")
+        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + f" --xla_dump_to={hlo_dump} "
+                                   "--xla_dump_hlo_as_text --xla_dump_hlo_module_re=.*epoch_one.*").strip()
     command = "python -m bench.agent_profile " + " ".join(argv if argv is not None else sys.argv[1:])
     summaries = []
     case = profile_torch_case if args.framework == "torch" else profile_case
     for n, rep in cases:
-        summaries.append(case(args.task, args.algo, rep, n, args.actor_steps, args.epochs, overrides))
+        extra = {"hlo_dump": hlo_dump} if hlo_dump else {}
+        summaries.append(case(args.task, args.algo, rep, n, args.actor_steps, args.epochs, overrides,
+                              **extra))
         (out / "agent_profile.md").write_text(f"Command: `{command}`\n\n" + markdown(summaries))
     (out / "agent_profile.json").write_text(json.dumps(summaries, indent=1))
+    if hlo_dump:
+        import shutil
+
+        (out / "hlo").mkdir(exist_ok=True)
+        for f in Path(hlo_dump).glob("case*"):
+            shutil.copy(f, out / "hlo" / f.name)
     (out / "machine.json").write_text(json.dumps(describe(str(Path(__file__).resolve().parents[1]), command),
                                                  indent=2))
     print((out / "agent_profile.md").read_text())

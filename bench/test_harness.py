@@ -491,3 +491,83 @@ def test_shardy_repro_cases_compute_what_they_say():
     assert shardy_repro.run("zero-size-shard-map", envs=4) == pytest.approx(2 * m.sum(), rel=1e-5)
     with pytest.raises(SystemExit, match="unknown case 'nope'"):
         shardy_repro.run("nope")
+
+
+_HLO = """HloModule jit__epoch_one, is_scheduled=true
+
+%fused_computation (p0: f32[4]) -> f32[4] {
+  %p0 = f32[4]{0} parameter(0)
+  ROOT %m = f32[4]{0} multiply(%p0, %p0), metadata={op_name="w/critic_grad/mul"}
+}
+
+%body (t: (s32[], f32[4])) -> (s32[], f32[4]) {
+  %t = (s32[], f32[4]{0}) parameter(0)
+  %x = f32[4]{0} get-tuple-element(%t), index=1
+  %f1 = f32[4]{0} fusion(%x), calls=%fused_computation, metadata={op_name="w/sgd/critic_grad/mul"}
+  %f2 = f32[4]{0} fusion(%f1), calls=%fused_computation, metadata={op_name="w/critic_grad/x/policy_adam/add"}
+  %g = f32[4]{0} custom-call(%f2), custom_call_target="__cublas$gemm", metadata={op_name="w/critic_adam/dot"}
+  %c = f32[4]{0} copy(%g), metadata={op_name="w/targets/copy"}
+  %i = s32[] get-tuple-element(%t), index=0
+  ROOT %r = (s32[], f32[4]{0}) tuple(%i, %c)
+}
+
+%cond (t: (s32[], f32[4])) -> pred[] {
+  %t = (s32[], f32[4]{0}) parameter(0)
+  %i = s32[] get-tuple-element(%t), index=0
+  %n = s32[] constant(4)
+  ROOT %lt = pred[] compare(%i, %n), direction=LT
+}
+
+%branch_a (x: f32[4]) -> f32[4] {
+  %x = f32[4]{0} parameter(0)
+  ROOT %e = f32[4]{0} fusion(%x), calls=%fused_computation, metadata={op_name="e/explore/cond/mul"}
+}
+
+%branch_b (x: f32[4]) -> f32[4] {
+  %x = f32[4]{0} parameter(0)
+  ROOT %z = f32[4]{0} fusion(%x), calls=%fused_computation, metadata={op_name="e/zeros"}
+}
+
+ENTRY %main (a: f32[4], p: pred[]) -> f32[4] {
+  %a = f32[4]{0} parameter(0)
+  %p = pred[] parameter(1)
+  %k = s32[] constant(0)
+  %t = (s32[], f32[4]{0}) tuple(%k, %a)
+  %w = (s32[], f32[4]{0}) while(%t), condition=%cond, body=%body, \
+backend_config={"known_trip_count":{"n":"4"}}
+  %y = f32[4]{0} get-tuple-element(%w), index=1
+  ROOT %o = f32[4]{0} conditional(%p, %y, %y), branch_computations={%branch_a, %branch_b}
+}
+"""
+
+
+def test_hlo_phases_counts_kernels_per_phase_weighted_by_trip_counts():
+    """By hand from `_HLO`: the while body runs 4 times (its known trip count) and launches 2 fusions, one
+    cuBLAS call and one copy (the fusions' own computation is no launch of its own; get-tuple-element,
+    tuple, constant and parameter launch nothing). The loop condition's compare is one launch, counted once
+    (the condition is not weighted by the trip count), and each conditional branch's fusion once. A
+    fusion's phase is the last phase its op_name names (`f2`: policy_adam, though critic_grad comes
+    first); the compare and branch_b's fusion name none: (other). All: 4 × 4 + 1 + 1 + 1 = 19 launches,
+    9.5 per SGD step for 2 SGD steps."""
+    from bench import hlo_phases
+
+    phases = ("explore", "critic_grad", "critic_adam", "policy_adam", "targets")
+    got = hlo_phases.count(_HLO, phases)
+    assert got["by_phase"] == {"critic_grad": {"fusion": 4}, "policy_adam": {"fusion": 4},
+                               "critic_adam": {"gemm": 4}, "targets": {"copy": 4},
+                               "explore": {"fusion": 1}, "(other)": {"fusion": 1, "other": 1}}
+    assert got["conditional_branches"] == 2 and got["unknown_trip_count_loops"] == 0
+    table = hlo_phases.markdown(got, phases, sgd_steps=2)
+    assert "| critic_grad | 2.0 | 0.0 | 2.0 |" in table and "| **all** | **9.5** |" in table
+
+
+def test_hlo_phases_refuses_what_is_not_a_dump(tmp_path, capsys):
+    from bench import hlo_phases
+
+    with pytest.raises(SystemExit) as err:
+        hlo_phases.main([str(tmp_path)])
+    assert err.value.code == 2 and "after_optimizations.txt" in capsys.readouterr().err
+    (tmp_path / "x.txt").write_text("not hlo")
+    with pytest.raises(SystemExit):
+        hlo_phases.main([str(tmp_path / "x.txt")])
+    assert "no ENTRY computation" in capsys.readouterr().err

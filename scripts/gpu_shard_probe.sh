@@ -14,7 +14,8 @@
 #                                              2026-11-26, bench/results/h100x2/29-shardy), again with XLA's
 #                                              per-pass HLO dump, whose last pass names where the compiler
 #                                              died ($OUT/xla-dump.tar.gz)
-#   bash scripts/gpu_shard_probe.sh minimal    `python -m bench.shardy_repro`'s cases, one process each: the
+#   bash scripts/gpu_shard_probe.sh minimal [CASE...]
+#                                              `python -m bench.shardy_repro`'s cases, one process each: the
 #                                              operation that the dump's Shardy input holds one custom call
 #                                              for (cuSOLVER's Cholesky, from MJX's env reset) alone under
 #                                              Shardy, inside and outside `shard_map`, its GSPMD and matmul
@@ -41,8 +42,10 @@ programs() {   # programs "LIST [--shardy]" [ENV...]
 }
 case $mode in
   minimal)
-    for c in cholesky-shard-map cholesky-shard-map-gspmd cholesky-jit matmul-shard-map reset-shard-map \
-      reset-state-shard-map zero-size-shard-map; do
+    cases=("${@:2}")   # the cases named after `minimal`, else all of them
+    [ ${#cases[@]} -gt 0 ] || cases=(cholesky-shard-map cholesky-shard-map-gspmd cholesky-jit \
+      matmul-shard-map reset-shard-map reset-state-shard-map zero-size-shard-map)
+    for c in "${cases[@]}"; do
       echo "== bench.shardy_repro --case $c"
       timeout 90 python3 -X faulthandler -u -m bench.shardy_repro --case "$c" 2>&1 | quiet
       echo "exit ${PIPESTATUS[0]}"

@@ -33,6 +33,10 @@ period}) takes its aux Adam step only when `step % period == 0`; on the other st
 whole Adam state (moments and step count) are kept by `jnp.where` on the step, and a `policy_delay` > 1
 skips the policy by `lax.cond` (no Python branch on a traced value, so the step stays one program under
 `jit`, `scan` and the trainer's seed `vmap`).
+
+Profiling: each part of the step is traced under a `jax.named_scope` (`critic_grad`, `critic_adam`,
+`aux_grad`, `aux_adam`, `policy_grad`, `policy_adam`, `targets`; `PHASES`), which names nothing but the
+operations' metadata, so `python -m bench.hlo_phases` counts the compiled step's kernels per part.
 """
 
 from __future__ import annotations
@@ -50,10 +54,13 @@ from sf2_jax import losses, networks
 
 from .representations import Representation
 
-__all__ = ["Algorithm", "TD3", "SAC", "make_algorithm"]
+__all__ = ["Algorithm", "TD3", "SAC", "make_algorithm", "PHASES"]
 
 sg = jax.lax.stop_gradient
 Params = dict[str, Any]
+# the `jax.named_scope`s of one SGD step, in the step's order (module docstring, "Profiling")
+PHASES = ("critic_grad", "critic_adam", "aux_grad", "aux_adam", "policy_grad", "policy_adam", "targets")
+_scope = jax.named_scope
 
 
 def _when(flag, fn: Callable, otherwise: Callable):
@@ -184,29 +191,35 @@ class Algorithm:
         of scalars)."""
         rep, pre = self.rep, params
         # 1. the critic gradient at the pre-step parameters (the policy's: in `policy_step`, also at `pre`)
-        (loss, aux), grads = self._value_and_grad(lambda p: self.critic_loss(p, batch, noise),
-                                                  ("q", *rep.critic_groups), pre)
+        with _scope("critic_grad"):
+            (loss, aux), grads = self._value_and_grad(lambda p: self.critic_loss(p, batch, noise),
+                                                      ("q", *rep.critic_groups), pre)
         metrics = {"critic_loss": loss, "q": aux["q"]}
         # 2. Adam on the critic groups
-        params, opt_state = self._adam_step(params, opt_state, grads)
+        with _scope("critic_adam"):
+            params, opt_state = self._adam_step(params, opt_state, grads)
         # 3. the representation's own loss, on the parameters after step 2
         if rep.aux_groups:
-            next_action = sg(self.aux_next_action(pre, batch, noise))
-            aux_noise = {k: noise[k] for k in rep.noise_keys}
-            (loss, aux), grads = self._value_and_grad(
-                lambda p: rep.aux_loss(p, batch, next_action, aux_noise), rep.aux_groups, params)
+            with _scope("aux_grad"):
+                next_action = sg(self.aux_next_action(pre, batch, noise))
+                aux_noise = {k: noise[k] for k in rep.noise_keys}
+                (loss, aux), grads = self._value_and_grad(
+                    lambda p: rep.aux_loss(p, batch, next_action, aux_noise), rep.aux_groups, params)
             due = {g: step % every == 0 for g, every in rep.aux_every.items()}
-            params, opt_state = self._adam_step(params, opt_state, grads, due, self.aux_states)
+            with _scope("aux_adam"):
+                params, opt_state = self._adam_step(params, opt_state, grads, due, self.aux_states)
             metrics.update({rep.aux_loss_name: loss, **aux})
 
         # 1 and 4: the policy groups' gradients at `pre`, then Adam on them (actor steps only)
         def policy_step():
             grads, out = {}, {}
-            for group, (name, loss_fn) in self.policy_losses(pre, batch, noise).items():
-                (out[name], aux), grad = self._value_and_grad(loss_fn, (group,), pre)
-                grads.update(grad)
-                out.update(aux)
-            return (*self._adam_step(params, opt_state, grads), out)
+            with _scope("policy_grad"):
+                for group, (name, loss_fn) in self.policy_losses(pre, batch, noise).items():
+                    (out[name], aux), grad = self._value_and_grad(loss_fn, (group,), pre)
+                    grads.update(grad)
+                    out.update(aux)
+            with _scope("policy_adam"):
+                return (*self._adam_step(params, opt_state, grads), out)
 
         def no_policy_step():
             zeros = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype),
@@ -221,9 +234,10 @@ class Algorithm:
         pairs = {"target_q": ("q", self.cfg.tau)}
         if "target_policy" in params:
             pairs["target_policy"] = ("policy", self.cfg.tau)
-        moved = _when(self.updates_q_target(step), lambda: self._ema(params, pairs),
-                      lambda: {t: params[t] for t in pairs})
-        return {**params, **moved, **self._ema(params, rep.targets())}, opt_state, metrics
+        with _scope("targets"):
+            moved = _when(self.updates_q_target(step), lambda: self._ema(params, pairs),
+                          lambda: {t: params[t] for t in pairs})
+            return {**params, **moved, **self._ema(params, rep.targets())}, opt_state, metrics
 
     @staticmethod
     def _ema(params, pairs) -> Params:

@@ -23,6 +23,10 @@ the same code path). Per seed:
   host loop uses it (through `_Session.snapshot`) for the epochs between two checkpoints when
   `checkpoint_every` > 1, since an evaluation's ~1000 sequential env steps are bound by latency.
 
+The actor step's parts are traced under `jax.named_scope`s (`ACTOR_PHASES`: `explore`, `env_step`,
+`observe` = normalizer and buffer insert, `sample`, `step_noise`; the SGD step's own in
+`sf2_jax.agents.algorithms.PHASES`), for `python -m bench.hlo_phases`.
+
 The host loop between epochs (`sf2_common.agents.hostloop.run_epochs`, shared with sf2_torch) does
 everything that needs the host: the NaN guard (before anything is written), evaluation rows,
 checkpoints, the progress bar and the learning-curve PNG. Order per epoch: train → NaN guard → evaluate
@@ -56,6 +60,9 @@ from . import envs, representations
 from .algorithms import make_algorithm
 from .checkpoint import Checkpointer
 from .replay import ReplayBuffer
+
+# the `jax.named_scope`s of one actor step (module docstring), in its order
+ACTOR_PHASES = ("explore", "env_step", "observe", "sample", "step_noise")
 
 __all__ = ["TrainState", "Program", "get_program", "episode_returns", "TrainingDiverged", "TrainResult",
            "train", "evaluate_checkpoint", "evaluate_checkpoint_noises", "seed_keys", "eval_keys",
@@ -244,13 +251,15 @@ class Program:
         """`grad_updates_per_step` SGD steps on fresh batches from the buffer."""
         G, B = self.cfg.grad_updates_per_step, self.cfg.batch_size
         k_sample, k_sgd = jax.random.split(key)
-        batches = jax.tree_util.tree_map(lambda x: x.reshape((G, B) + x.shape[1:]),
-                                         self.buffer.sample(state.replay, k_sample, G * B))
+        with jax.named_scope("sample"):
+            batches = jax.tree_util.tree_map(lambda x: x.reshape((G, B) + x.shape[1:]),
+                                             self.buffer.sample(state.replay, k_sample, G * B))
 
         def sgd(carry, xs):
             params, opt_state, step = carry
             batch, k = xs
-            noise = self.algo.step_noise(k, batch)
+            with jax.named_scope("step_noise"):
+                noise = self.algo.step_noise(k, batch)
             with self._learner_precision():
                 params, opt_state, metrics = self.algo.sgd_step(params, opt_state, batch, noise, step)
             return (params, opt_state, step + 1), metrics
@@ -270,15 +279,18 @@ class Program:
             with self._learner_precision():
                 return self.algo.explore(state.params, obs, k_act).astype(jnp.float32)
 
-        action = jax.lax.cond(
-            prefill, lambda: jax.random.uniform(k_act, (cfg.num_envs, A), jnp.float32, -1.0, 1.0), explore)
-        env_state, batch = self._env_step(state.env_state, action)
+        with jax.named_scope("explore"):
+            action = jax.lax.cond(prefill, lambda: jax.random.uniform(k_act, (cfg.num_envs, A), jnp.float32,
+                                                                      -1.0, 1.0), explore)
+        with jax.named_scope("env_step"):
+            env_state, batch = self._env_step(state.env_state, action)
         params = state.params
-        if cfg.normalize_observations:
-            params = {**params, "obs_norm": networks.update_normalizer(params["obs_norm"], batch.obs,
-                                                                       self.sf2)}
-        state = state._replace(params=params, env_state=env_state, key=key,
-                               replay=self.buffer.insert(state.replay, batch),
+        with jax.named_scope("observe"):
+            if cfg.normalize_observations:
+                params = {**params, "obs_norm": networks.update_normalizer(params["obs_norm"], batch.obs,
+                                                                           self.sf2)}
+            replay = self.buffer.insert(state.replay, batch)
+        state = state._replace(params=params, env_state=env_state, key=key, replay=replay,
                                env_steps=state.env_steps + self.sched.env_steps_per_actor_step)
         zeros = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype),
                                        jax.eval_shape(self._sgd_steps, state, k_sgd)[1])

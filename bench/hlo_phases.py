@@ -1,0 +1,192 @@
+"""Kernels per part of the trainer's epoch, counted in its compiled (optimized) HLO.
+
+    python -m bench.hlo_phases DUMP_DIR_OR_FILE [--sgd-steps N] [--json OUT]
+    python -m bench.agent_profile ... --hlo        (dumps the epoch and appends this table)
+
+The JAX trainer traces each part of an actor step and of an SGD step under a `jax.named_scope`
+(`sf2_jax.agents.trainer.ACTOR_PHASES`, `sf2_jax.agents.algorithms.PHASES`); the scope reaches every
+compiled instruction's `metadata={op_name=...}`. This module reads the `*after_optimizations.txt` file of
+the epoch module (XLA's `--xla_dump_to` with `--xla_dump_hlo_as_text`) and counts, per phase, the
+instructions that launch a kernel on a GPU (fusions, library calls such as cuBLAS GEMMs, copies, ...;
+not parameters, tuples, bitcasts, constants or control flow), each weighted by how often it runs in one
+call of the module: the product of the known trip counts (`known_trip_count`) of the while loops around
+it. A conditional's branches are each counted as if they ran once (the prefill/train and policy-delay
+branches of the epoch), and a while loop without a known trip count as if it ran once; both are reported.
+A phase is the last scope of `PHASES` that the op_name names (an instruction of `policy_adam` inside the
+SGD step is `policy_adam`); instructions that name none are `(other)`.
+
+Divided by the epoch's SGD steps (`--sgd-steps`), the counts compare with `bench.agent_profile`'s traced
+kernels per SGD step (`bench/profile.py`), which cannot tell the parts apart inside XLA's command buffers
+(their events name the command buffer, and identical fusions share one kernel name).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import re
+import sys
+from pathlib import Path
+
+# opcodes that launch nothing on the device (or only control the launches of others)
+FREE = frozenset({
+    "parameter", "constant", "get-tuple-element", "tuple", "bitcast", "while", "conditional", "call",
+    "after-all", "add-dependency", "opt-barrier", "partition-id", "replica-id", "domain",
+    "get-dimension-size", "copy-done", "all-reduce-done", "all-gather-done", "collective-permute-done",
+    "send-done", "recv-done", "async-done", "async-update"})
+
+_COMP = re.compile(r"^(ENTRY\s+)?%?([\w.\-]+)\s.*\{\s*$")
+_INSTR = re.compile(r"^\s+(ROOT\s+)?%?([\w.\-]+)\s*=\s*.*?\s([a-z][\w\-]*)\(")
+_OP_NAME = re.compile(r'op_name="([^"]*)"')
+_TRIP = re.compile(r'"known_trip_count":\{"n":"(\d+)"\}')
+_CALLS = re.compile(r"(calls|body|condition|to_apply|branch_computations|called_computations)="
+                    r"(\{[^}]*\}|%?[\w.\-]+)")
+
+
+def _phases() -> tuple[str, ...]:
+    from sf2_jax.agents.algorithms import PHASES
+    from sf2_jax.agents.trainer import ACTOR_PHASES
+
+    return ACTOR_PHASES + PHASES
+
+
+def parse(text: str) -> tuple[dict[str, list[tuple[str, str, str]]], str]:
+    """({computation: [(instruction, opcode, line)]}, entry computation name) of an HLO module's text."""
+    comps: dict[str, list] = {}
+    entry, current = "", None
+    for line in text.splitlines():
+        if current is None:
+            m = _COMP.match(line)
+            if m and not line.startswith("HloModule"):
+                current = m.group(2)
+                comps[current] = []
+                if m.group(1):
+                    entry = current
+            continue
+        if line.startswith("}"):
+            current = None
+            continue
+        m = _INSTR.match(line)
+        if m:
+            comps[current].append((m.group(2), m.group(3), line))
+    if not entry:
+        raise ValueError("no ENTRY computation in the HLO text: not an HLO module dump")
+    return comps, entry
+
+
+def _callees(opcode: str, line: str) -> list[tuple[str, str]]:
+    out = []
+    for key, val in _CALLS.findall(line):
+        for name in val.strip("{}").split(","):
+            name = name.strip().lstrip("%")
+            if name:
+                out.append((key, name))
+    return out
+
+
+def count(text: str, phases: tuple[str, ...]) -> dict:
+    """Kernel launches per phase in one call of the module (module docstring)."""
+    comps, entry = parse(text)
+    fused = {name for instrs in comps.values() for _, op, line in instrs
+             for key, name in _callees(op, line) if op == "fusion" and key == "calls"}
+    weight: dict[str, float] = collections.defaultdict(float)
+    unknown_loops, branches = 0, 0
+    stack = [(entry, 1.0)]
+    while stack:   # each computation's runs per module call; XLA's call graph is a DAG
+        comp, w = stack.pop()
+        weight[comp] += w
+        for _, op, line in comps.get(comp, ()):
+            if op == "fusion":
+                continue
+            for key, callee in _callees(op, line):
+                if callee not in comps or callee in fused:
+                    continue
+                m = w
+                if op == "while" and key == "body":
+                    trip = _TRIP.search(line)
+                    if trip:
+                        m = w * int(trip.group(1))
+                    else:
+                        unknown_loops += 1
+                elif op == "conditional":
+                    branches += 1
+                stack.append((callee, m))
+    by_phase: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
+    for comp, w in weight.items():
+        for _, op, line in comps[comp]:
+            if op in FREE:
+                continue
+            m = _OP_NAME.search(line)
+            path = m.group(1).split("/") if m else []
+            phase = next((p for p in reversed(path) if p in phases), "(other)")
+            by_phase[phase][_kind(op, line)] += w
+    return {"by_phase": {p: dict(c) for p, c in by_phase.items()},
+            "unknown_trip_count_loops": unknown_loops, "conditional_branches": branches}
+
+
+def _kind(op: str, line: str) -> str:
+    if op == "custom-call":
+        return "gemm" if ("gemm" in line or "matmul" in line) else "library"
+    if op == "fusion" and ("gemm" in line or "__triton" in line or "kind=kCustom" in line):
+        return "gemm"
+    if op in ("copy", "copy-start"):
+        return "copy"
+    return "fusion" if op == "fusion" else "other"
+
+
+def find_module(path: Path, module: str = "epoch_one") -> Path:
+    """The optimized-HLO text of `module` in a dump folder (or `path` itself if it is a file)."""
+    if path.is_file():
+        return path
+    files = sorted(f for f in path.glob(f"*{module}*after_optimizations.txt") if "-" not in f.name.split(
+        "after_optimizations")[-1])
+    if not files:
+        raise FileNotFoundError(f"no '*{module}*after_optimizations.txt' in {path} (dump with XLA_FLAGS="
+                                "--xla_dump_to=DIR --xla_dump_hlo_as_text)")
+    return files[-1]
+
+
+def markdown(result: dict, phases: tuple[str, ...], sgd_steps: int = 1) -> str:
+    kinds = ("gemm", "fusion", "copy", "library", "other")
+    rows = ["| phase | kernels | " + " | ".join(kinds) + " |", "|---" * (len(kinds) + 2) + "|"]
+    order = [p for p in phases if p in result["by_phase"]] + [
+        p for p in result["by_phase"] if p not in phases]
+    total = collections.Counter()
+    for p in order:
+        c = result["by_phase"][p]
+        total.update(c)
+        rows.append(f"| {p} | {sum(c.values()) / sgd_steps:.1f} | "
+                    + " | ".join(f"{c.get(k, 0) / sgd_steps:.1f}" for k in kinds) + " |")
+    rows.append(f"| **all** | **{sum(total.values()) / sgd_steps:.1f}** | "
+                + " | ".join(f"{total.get(k, 0) / sgd_steps:.1f}" for k in kinds) + " |")
+    per = "per SGD step" if sgd_steps > 1 else "per call of the module"
+    return "\n".join([
+        f"Kernel launches {per}, by phase (compiled HLO; `python -m bench.hlo_phases`). Conditional branches "
+        f"counted as if each ran: {result['conditional_branches']}; while loops without a known trip count "
+        f"counted once: {result['unknown_trip_count_loops']}.", "", *rows])
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m bench.hlo_phases", description=__doc__.split("\n\n")[0])
+    p.add_argument("path", help="an XLA dump folder or one *after_optimizations.txt file")
+    p.add_argument("--module", default="epoch_one", help="module name to look for in a dump folder")
+    p.add_argument("--sgd-steps", type=int, default=1, help="divide by this (the epoch's SGD steps)")
+    p.add_argument("--json", help="also write the counts here")
+    args = p.parse_args(argv)
+    if args.sgd_steps < 1:
+        p.error(f"--sgd-steps must be >= 1, got {args.sgd_steps}")
+    try:
+        f = find_module(Path(args.path), args.module)
+        result = count(f.read_text(), _phases())
+    except (FileNotFoundError, ValueError) as err:
+        p.error(str(err))
+    print(f"{f}\n\n" + markdown(result, _phases(), args.sgd_steps))
+    if args.json:
+        Path(args.json).write_text(json.dumps({**result, "file": str(f), "sgd_steps": args.sgd_steps},
+                                              indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
