@@ -40,8 +40,8 @@ _COMP = re.compile(r"^(ENTRY\s+)?%?([\w.\-]+)\s.*\{\s*$")
 _INSTR = re.compile(r"^\s+(ROOT\s+)?%?([\w.\-]+)\s*=\s*.*?\s([a-z][\w\-]*)\(")
 _OP_NAME = re.compile(r'op_name="([^"]*)"')
 _TRIP = re.compile(r'"known_trip_count":\{"n":"(\d+)"\}')
-_CALLS = re.compile(r"(calls|body|condition|to_apply|branch_computations|called_computations)="
-                    r"(\{[^}]*\}|%?[\w.\-]+)")
+_CALLS = re.compile(r"(calls|body|condition|to_apply|branch_computations|called_computations|"
+                    r"true_computation|false_computation)=(\{[^}]*\}|%?[\w.\-]+)")
 
 
 def _phases() -> tuple[str, ...]:
@@ -114,25 +114,29 @@ def count(text: str, phases: tuple[str, ...]) -> dict:
                 stack.append((callee, m))
     by_phase: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
     for comp, w in weight.items():
-        for _, op, line in comps[comp]:
+        for name, op, line in comps[comp]:
             if op in FREE:
                 continue
             m = _OP_NAME.search(line)
             path = m.group(1).split("/") if m else []
             phase = next((p for p in reversed(path) if p in phases), "(other)")
-            by_phase[phase][_kind(op, line)] += w
+            by_phase[phase][_kind(op, name, line)] += w
     return {"by_phase": {p: dict(c) for p, c in by_phase.items()},
             "unknown_trip_count_loops": unknown_loops, "conditional_branches": branches}
 
 
-def _kind(op: str, line: str) -> str:
+def _kind(op: str, name: str, line: str) -> str:
+    """gemm (a cuBLAS/cuBLASLt call or an XLA GEMM fusion), fusion, copy, library (other custom calls:
+    cuSOLVER, ...) or other; from the instruction's own name and target, not its operands'."""
     if op == "custom-call":
-        return "gemm" if ("gemm" in line or "matmul" in line) else "library"
-    if op == "fusion" and ("gemm" in line or "__triton" in line or "kind=kCustom" in line):
-        return "gemm"
+        target = re.search(r'custom_call_target="([^"]*)"', line)
+        target = target.group(1) if target else ""
+        return "gemm" if ("gemm" in target or "matmul" in target) else "library"
+    if op == "fusion":
+        return "gemm" if ("gemm" in name or "kind=kCustom" in line) else "fusion"
     if op in ("copy", "copy-start"):
         return "copy"
-    return "fusion" if op == "fusion" else "other"
+    return "other"
 
 
 def find_module(path: Path, module: str = "epoch_one") -> Path:
