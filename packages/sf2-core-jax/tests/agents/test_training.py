@@ -158,3 +158,76 @@ def test_evaluation_under_observation_noise(reference, tmp_path, capsys, monkeyp
     run = tmp_path / "run"
     shutil.copytree(reference.run.path, run)
     check_obs_noise_eval(trainer_module, cli.main, capsys, monkeypatch, run)
+
+
+class _CondProgram:
+    """The plain formulation that `Program._actor_step` replaced (until 2026-11-27): the prefill and
+    training branches as `lax.cond`s, so only the taken one runs."""
+
+    @staticmethod
+    def make(cfg):
+        import jax.numpy as jnp
+        from sf2_jax.agents.trainer import Program
+
+        class CondProgram(Program):
+            def _actor_step(self, state, actor_step):
+                cfg, A = self.cfg, self.spec.action_size
+                prefill = actor_step < self.sched.prefill_actor_steps
+                key, k_act, k_sgd = jax.random.split(state.key, 3)
+                obs = state.env_state.obs
+
+                def explore():
+                    with self._learner_precision():
+                        return self.algo.explore(state.params, obs, k_act).astype(jnp.float32)
+
+                action = jax.lax.cond(prefill, lambda: jax.random.uniform(
+                    k_act, (cfg.num_envs, A), jnp.float32, -1.0, 1.0), explore)
+                env_state, batch = self._env_step(state.env_state, action)
+                params = state.params
+                if cfg.normalize_observations:
+                    from sf2_jax import networks
+                    params = {**params, "obs_norm": networks.update_normalizer(params["obs_norm"], batch.obs,
+                                                                               self.sf2)}
+                state = state._replace(params=params, env_state=env_state, key=key,
+                                       replay=self.buffer.insert(state.replay, batch),
+                                       env_steps=state.env_steps + self.sched.env_steps_per_actor_step)
+                zeros = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype),
+                                               jax.eval_shape(self._sgd_steps, state, k_sgd)[1])
+                state, metrics = jax.lax.cond(prefill, lambda s, k: (s, zeros), self._sgd_steps, state, k_sgd)
+                return state, (metrics, ~prefill)
+
+        return CondProgram(cfg)
+
+
+def test_branchless_actor_step_equals_the_cond_formulation(tiny_cfg):
+    """`Program._actor_step` computes both the prefill's and the training step's action and SGD steps and
+    selects with `jnp.where` (no `lax.cond`, whose GPU form copies every array passing through it). Over
+    epoch 1 (8 prefill actor steps, then 4 training ones: the boundary) and epoch 2, from one initial
+    state, its whole state (parameters, Adam states, SGD count, env state, buffer, key) and epoch means
+    equal the `lax.cond` formulation's: integers (keys, counters, cursors) exactly, floats up to float32
+    rounding (the two programs fuse differently: `test_vmapped_seeds_equal_seeds_one_by_one`'s tolerance),
+    and the SGD count holds only the training steps'."""
+    from sf2_jax.agents.trainer import Program
+
+    seeds = (0, 1)
+    new, old = Program(tiny_cfg), _CondProgram.make(tiny_cfg)
+    assert new.sched.prefill_actor_steps == 8 and new.sched.actor_steps_per_epoch == 12
+    init = new.init(seeds)
+    s_new, s_old = init, jax.tree_util.tree_map(lambda x: x.copy(), init)
+    for epoch in (1, 2):
+        s_new, m_new, _ = new.epoch(s_new, epoch)
+        s_old, m_old, _ = old.epoch(s_old, epoch)
+        for name in m_old:
+            np.testing.assert_allclose(np.asarray(m_new[name]), np.asarray(m_old[name]), rtol=1e-4, atol=1e-5,
+                                       err_msg=f"epoch {epoch} {name}")
+        for (path, a), b in zip(jax.tree_util.tree_leaves_with_path(s_new), jax.tree_util.tree_leaves(s_old),
+                                strict=True):
+            a, b, where = np.asarray(a), np.asarray(b), f"epoch {epoch} {jax.tree_util.keystr(path)}"
+            if np.issubdtype(a.dtype, np.floating):
+                np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5, err_msg=where)
+            else:   # keys, counters, buffer cursors: exact
+                np.testing.assert_array_equal(a, b, err_msg=where)
+        if epoch == 1:
+            assert int(np.asarray(m_new["sgd_steps"]).max()) == 4 * tiny_cfg.grad_updates_per_step
+    # 4 + 12 training actor steps, none of the prefill's SGD steps counted
+    assert np.asarray(s_new.grad_steps).tolist() == [16 * tiny_cfg.grad_updates_per_step] * len(seeds)

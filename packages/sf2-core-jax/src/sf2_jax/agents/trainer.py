@@ -11,9 +11,9 @@ the same code path). Per seed:
   into the training envs and the evaluation start states), an empty buffer.
 - `epoch(state, first_actor_step)` (jitted, the state donated): `lax.scan` over
   `actor_steps_per_epoch` actor steps. The first `prefill_actor_steps` actor steps of the run act
-  uniformly at random and skip the SGD (`lax.cond` on the unbatched step index, so only one branch
-  runs); every later one acts with exploration noise, updates the observation statistics, inserts
-  the transitions, samples `grad_updates_per_step` batches and runs that many SGD steps via
+  uniformly at random and keep the parameters (their SGD steps run and are discarded by `jnp.where`,
+  `_actor_step`); every later one acts with exploration noise, updates the observation statistics,
+  inserts the transitions, samples `grad_updates_per_step` batches and runs that many SGD steps via
   `lax.scan`. It returns the mean of every metric over the epoch's SGD steps and, per metric, the
   index of its first non-finite value. The prefill lives in the epoch program so that the env step
   is compiled once for training (the env dominates compile time on a CPU).
@@ -148,10 +148,13 @@ class Program:
         Under the GSPMD partitioner the sharded programs compile and run, so `_program` builds them with it:
         on a four-H100 host a `train` with its seeds over two GPUs ran end to end, at 2.07× (TD3+SF²) and
         2.12× (TD3) one GPU's rate (bench/results/h100x4/31-scaling-sf2, 30-scaling), with numbers that
-        differ from one device's in the last bits from the first evaluation on (32-sharded-learning).
-        Still opt-in until its learning is compared with one device's at full length; several GPUs are
-        used by whole runs, one per GPU (`study run`, 2.00×); the sharded program is tested on two CPU
-        devices (tests/agents/test_devices.py)."""
+        differ from one device's in the last bits from the first evaluation on (32-sharded-learning). At
+        full length (TD3+SF², AcrobotSwingup, 1M env steps, 8 seeds) its learning is within the spread of two
+        one-device runs (AUC −5.5 [−14.0, +3.0] against one, −4.7 [−14.5, +5.1] against the other, whose
+        own difference is −0.8 [−11.6, +10.1]; 41-sharded-learning). Opt-in all the same: GSPMD is
+        deprecated in JAX and Shardy crashes on a `shard_map` with a zero-size array (40-physics-shardy), and
+        several GPUs are used by whole runs, one per GPU (`study run`, 2.00×); the sharded program is tested
+        on two CPU devices (tests/agents/test_devices.py)."""
         devices = jax.local_devices()
         if os.environ.get(SHARD_SEEDS) != "1" or len(devices) < 2 or n_seeds % len(devices):
             return None
@@ -247,8 +250,12 @@ class Program:
                       truncation=nstate.info["truncation"])
         return nstate, jax.tree_util.tree_map(lambda x: x.astype(jnp.float32), batch)
 
-    def _sgd_steps(self, state: TrainState, key):
-        """`grad_updates_per_step` SGD steps on fresh batches from the buffer."""
+    def _sgd_steps(self, state: TrainState, key, train=True):
+        """`grad_updates_per_step` SGD steps on fresh batches from the buffer; where `train` (a bool scalar)
+        is False each step keeps the parameters, Adam states and SGD count and reports zero metrics (the
+        prefill, `_actor_step`). The selection is inside the scan's body, where XLA fuses it into the
+        Adam and target updates; after the scan it would cost a copy of every array into the loop and a
+        select kernel for each (bench/results/h100x4/38-kernel-phases)."""
         G, B = self.cfg.grad_updates_per_step, self.cfg.batch_size
         k_sample, k_sgd = jax.random.split(key)
         with jax.named_scope("sample"):
@@ -261,27 +268,34 @@ class Program:
             with jax.named_scope("step_noise"):
                 noise = self.algo.step_noise(k, batch)
             with self._learner_precision():
-                params, opt_state, metrics = self.algo.sgd_step(params, opt_state, batch, noise, step)
-            return (params, opt_state, step + 1), metrics
+                new = self.algo.sgd_step(params, opt_state, batch, noise, step)
+            params, opt_state, metrics = jax.tree_util.tree_map(
+                lambda n, o: jnp.where(train, n, o), new, (params, opt_state, jax.tree_util.tree_map(
+                    jnp.zeros_like, new[2])))
+            return (params, opt_state, step + jnp.asarray(train, step.dtype)), metrics
 
         (params, opt_state, grad_steps), metrics = jax.lax.scan(
             sgd, (state.params, state.opt_state, state.grad_steps), (batches, jax.random.split(k_sgd, G)))
         return state._replace(params=params, opt_state=opt_state, grad_steps=grad_steps), metrics
 
     def _actor_step(self, state: TrainState, actor_step):
-        """One actor step; `actor_step` (the run's global index) is unbatched, so the prefill/train
-        `lax.cond`s stay real branches under the seed vmap."""
+        """One actor step. A prefill step (`actor_step`, the run's global index, below
+        `prefill_actor_steps`) acts uniformly at random and leaves the parameters, Adam states and SGD
+        count as they were; a training step acts with `explore` and runs `grad_updates_per_step` SGD steps.
+        Both are computed and the step's kind selects (`jnp.where` on the unbatched flag; the SGD steps'
+        inside their scan, `_sgd_steps`), with no `lax.cond`: on a GPU a conditional copies its predicate
+        to the host and every array that passes through it to new buffers (about 390 copies per actor
+        step of TD3+SF²; bench/results/h100x4/38-kernel-phases), while the prefill's discarded SGD steps
+        cost only the run's first prefill actor steps."""
         cfg, A = self.cfg, self.spec.action_size
         prefill = actor_step < self.sched.prefill_actor_steps
         key, k_act, k_sgd = jax.random.split(state.key, 3)
         obs = state.env_state.obs
-        def explore():
-            with self._learner_precision():
-                return self.algo.explore(state.params, obs, k_act).astype(jnp.float32)
-
         with jax.named_scope("explore"):
-            action = jax.lax.cond(prefill, lambda: jax.random.uniform(k_act, (cfg.num_envs, A), jnp.float32,
-                                                                      -1.0, 1.0), explore)
+            with self._learner_precision():
+                policy_action = self.algo.explore(state.params, obs, k_act).astype(jnp.float32)
+            action = jnp.where(prefill, jax.random.uniform(k_act, (cfg.num_envs, A), jnp.float32, -1.0, 1.0),
+                               policy_action)
         with jax.named_scope("env_step"):
             env_state, batch = self._env_step(state.env_state, action)
         params = state.params
@@ -292,9 +306,7 @@ class Program:
             replay = self.buffer.insert(state.replay, batch)
         state = state._replace(params=params, env_state=env_state, key=key, replay=replay,
                                env_steps=state.env_steps + self.sched.env_steps_per_actor_step)
-        zeros = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype),
-                                       jax.eval_shape(self._sgd_steps, state, k_sgd)[1])
-        state, metrics = jax.lax.cond(prefill, lambda s, k: (s, zeros), self._sgd_steps, state, k_sgd)
+        state, metrics = self._sgd_steps(state, k_sgd, ~prefill)
         return state, (metrics, ~prefill)
 
     def _epoch_one(self, state: TrainState, first_actor_step):
