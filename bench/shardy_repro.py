@@ -25,7 +25,9 @@ here is a few lines of JAX around that one operation, so the one that crashes is
   (seeds, envs, 0) array beside a non-empty one.
 
 On two H100s (2026-11-27, bench/results/h100x2/35-shardy-minimal) the first five cases ran under Shardy
-without a crash; the last two were added after, for the next GPU host.
+without a crash; the last two **crash** (SIGSEGV, bench/results/h100x4/40-physics-shardy): a `shard_map`
+with a zero-size array crossing its boundary is the smallest program found that kills the pass. Keeping the
+trainer's zero-size arrays out of its `shard_map` did not stop its crash (the programs make more inside).
 
 Prints the case, the devices and `ok` with the result's checksum; exit status 139 is the crash.
 """
