@@ -86,7 +86,7 @@ def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=p
         from . import hlo_phases
 
         f = hlo_phases.find_module(Path(hlo_dump))   # the newest: this case's epoch program
-        out["phases"] = {**hlo_phases.count(f.read_text(), hlo_phases._phases()), "sgd_steps": sgd,
+        out["phases"] = {**hlo_phases.count(f.read_text(), hlo_phases.phases()), "sgd_steps": sgd,
                          "file": f.name}
         f.rename(Path(hlo_dump) / f"case{len(list(Path(hlo_dump).glob('case*')))}-{f.name}")
     return out

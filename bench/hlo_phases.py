@@ -44,7 +44,7 @@ _CALLS = re.compile(r"(calls|body|condition|to_apply|branch_computations|called_
                     r"true_computation|false_computation)=(\{[^}]*\}|%?[\w.\-]+)")
 
 
-def _phases() -> tuple[str, ...]:
+def phases() -> tuple[str, ...]:
     from sf2_jax.agents.algorithms import PHASES
     from sf2_jax.agents.trainer import ACTOR_PHASES
 
@@ -182,10 +182,10 @@ def main(argv=None) -> int:
         p.error(f"--sgd-steps must be >= 1, got {args.sgd_steps}")
     try:
         f = find_module(Path(args.path), args.module)
-        result = count(f.read_text(), _phases())
+        result = count(f.read_text(), phases())
     except (FileNotFoundError, ValueError) as err:
         p.error(str(err))
-    print(f"{f}\n\n" + markdown(result, _phases(), args.sgd_steps))
+    print(f"{f}\n\n" + markdown(result, phases(), args.sgd_steps))
     if args.json:
         Path(args.json).write_text(json.dumps({**result, "file": str(f), "sgd_steps": args.sgd_steps},
                                               indent=1))

@@ -134,9 +134,9 @@ def markdown(summaries: list[dict]) -> str:
                     "| kernel [HLO op] | per update | ms per update |", "|---|---|---|"]
             out += [f"| `{t['name'][:110]}` | {t['count']:.0f} | {t['ms']:.4f} |" for t in d["top"]]
         if s.get("phases"):   # bench.agent_profile --hlo
-            from .hlo_phases import _phases
             from .hlo_phases import markdown as phases_markdown
+            from .hlo_phases import phases
 
-            out += ["", phases_markdown(s["phases"], _phases(), s["phases"]["sgd_steps"])]
+            out += ["", phases_markdown(s["phases"], phases(), s["phases"]["sgd_steps"])]
         out.append("")
     return "\n".join(out)

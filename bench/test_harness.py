@@ -262,6 +262,18 @@ def test_bad_agent_profile_input_exits_2_before_writing(framework, argv, message
     assert not (tmp_path / "out").exists()
 
 
+def test_agent_profile_hlo_is_the_jax_trainers(capsys, tmp_path):
+    """`--hlo` counts XLA's compiled kernels: with the torch trainer it exits 2 before writing anything."""
+    pytest.importorskip("mujoco_playground", reason="the profile validates against the Playground task list: "
+                        "install a core's [train] extra")
+    from bench import agent_profile
+
+    with pytest.raises(SystemExit) as exit_:
+        agent_profile.main(["--framework", "torch", "--hlo", "--out", str(tmp_path / "out")])
+    assert exit_.value.code == 2 and "--hlo counts the JAX trainer's" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
 def test_shard_probe_without_a_mesh_says_what_it_needs(monkeypatch):
     """One device, or SF2_SHARD_SEEDS unset: the probe names what is missing instead of probing nothing.
     (On two host CPU devices it runs every program: packages/sf2-core-jax/tests/agents/test_devices.py
