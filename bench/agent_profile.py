@@ -88,7 +88,7 @@ def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=p
         f = hlo_phases.find_module(Path(hlo_dump))   # the newest: this case's epoch program
         out["phases"] = {**hlo_phases.count(f.read_text(), hlo_phases.phases()), "sgd_steps": sgd,
                          "file": f.name}
-        f.rename(Path(hlo_dump) / f"case{len(list(Path(hlo_dump).glob('case*')))}-{f.name}")
+        f.rename(Path(hlo_dump) / f"case-{algo}-{rep}-{n_seeds}seeds-{f.name}")
     return out
 
 
@@ -271,7 +271,7 @@ def main(argv=None) -> int:
         import shutil
 
         (out / "hlo").mkdir(exist_ok=True)
-        for f in Path(hlo_dump).glob("case*"):
+        for f in Path(hlo_dump).glob("case-*"):
             shutil.copy(f, out / "hlo" / f.name)
     (out / "machine.json").write_text(json.dumps(describe(str(Path(__file__).resolve().parents[1]), command),
                                                  indent=2))

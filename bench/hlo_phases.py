@@ -140,15 +140,16 @@ def _kind(op: str, name: str, line: str) -> str:
 
 
 def find_module(path: Path, module: str = "epoch_one") -> Path:
-    """The optimized-HLO text of `module` in a dump folder (or `path` itself if it is a file)."""
+    """The optimized-HLO text of `module` in a dump folder, the most recently written one (or `path`
+    itself if it is a file)."""
     if path.is_file():
         return path
-    files = sorted(f for f in path.glob(f"*{module}*after_optimizations.txt") if "-" not in f.name.split(
-        "after_optimizations")[-1])
+    files = [f for f in path.glob(f"*{module}*after_optimizations.txt")
+             if "-" not in f.name.split("after_optimizations")[-1]]   # not the buffer-assignment reports
     if not files:
         raise FileNotFoundError(f"no '*{module}*after_optimizations.txt' in {path} (dump with XLA_FLAGS="
                                 "--xla_dump_to=DIR --xla_dump_hlo_as_text)")
-    return files[-1]
+    return max(files, key=lambda f: f.stat().st_mtime_ns)   # the newest: the last compiled
 
 
 def markdown(result: dict, phases: tuple[str, ...], sgd_steps: int = 1) -> str:

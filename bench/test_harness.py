@@ -576,6 +576,24 @@ def test_hlo_phases_counts_kernels_per_phase_weighted_by_trip_counts(branches):
     assert "| critic_grad | 2.0 | 0.0 | 2.0 |" in table and "| **all** | **9.5** |" in table
 
 
+def test_hlo_phases_finds_the_newest_epoch_module_of_a_dump(tmp_path):
+    """In a dump folder: the most recently written `*epoch_one*after_optimizations.txt` (whatever its
+    module number), never XLA's buffer-assignment report beside it."""
+    import os
+
+    from bench import hlo_phases
+
+    old, new = tmp_path / "module_9999.jit__epoch_one.after_optimizations.txt", \
+        tmp_path / "module_10000.jit__epoch_one.after_optimizations.txt"
+    report = tmp_path / "module_10000.jit__epoch_one.after_optimizations-buffer-assignment.txt"
+    for i, f in enumerate((old, new, report)):
+        f.write_text(_HLO)
+        os.utime(f, ns=(10**18 + i, 10**18 + i))
+    assert hlo_phases.find_module(tmp_path) == new
+    os.utime(old, ns=(2 * 10**18, 2 * 10**18))
+    assert hlo_phases.find_module(tmp_path) == old
+
+
 def test_hlo_phases_refuses_what_is_not_a_dump(tmp_path, capsys):
     from bench import hlo_phases
 

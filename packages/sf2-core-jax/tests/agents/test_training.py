@@ -160,43 +160,40 @@ def test_evaluation_under_observation_noise(reference, tmp_path, capsys, monkeyp
     check_obs_noise_eval(trainer_module, cli.main, capsys, monkeypatch, run)
 
 
-class _CondProgram:
-    """The plain formulation that `Program._actor_step` replaced (until 2026-11-27): the prefill and
-    training branches as `lax.cond`s, so only the taken one runs."""
+def _cond_program(cfg):
+    """A `Program` with the plain formulation that `Program._actor_step` replaced (until 2026-11-27): the
+    prefill and training branches as `lax.cond`s, so only the taken one runs."""
+    import jax.numpy as jnp
+    from sf2_jax import networks
+    from sf2_jax.agents.trainer import Program
 
-    @staticmethod
-    def make(cfg):
-        import jax.numpy as jnp
-        from sf2_jax.agents.trainer import Program
+    class CondProgram(Program):
+        def _actor_step(self, state, actor_step):
+            cfg, A = self.cfg, self.spec.action_size
+            prefill = actor_step < self.sched.prefill_actor_steps
+            key, k_act, k_sgd = jax.random.split(state.key, 3)
+            obs = state.env_state.obs
 
-        class CondProgram(Program):
-            def _actor_step(self, state, actor_step):
-                cfg, A = self.cfg, self.spec.action_size
-                prefill = actor_step < self.sched.prefill_actor_steps
-                key, k_act, k_sgd = jax.random.split(state.key, 3)
-                obs = state.env_state.obs
+            def explore():
+                with self._learner_precision():
+                    return self.algo.explore(state.params, obs, k_act).astype(jnp.float32)
 
-                def explore():
-                    with self._learner_precision():
-                        return self.algo.explore(state.params, obs, k_act).astype(jnp.float32)
+            action = jax.lax.cond(prefill, lambda: jax.random.uniform(
+                k_act, (cfg.num_envs, A), jnp.float32, -1.0, 1.0), explore)
+            env_state, batch = self._env_step(state.env_state, action)
+            params = state.params
+            if cfg.normalize_observations:
+                params = {**params, "obs_norm": networks.update_normalizer(params["obs_norm"], batch.obs,
+                                                                           self.sf2)}
+            state = state._replace(params=params, env_state=env_state, key=key,
+                                   replay=self.buffer.insert(state.replay, batch),
+                                   env_steps=state.env_steps + self.sched.env_steps_per_actor_step)
+            zeros = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype),
+                                           jax.eval_shape(self._sgd_steps, state, k_sgd)[1])
+            state, metrics = jax.lax.cond(prefill, lambda s, k: (s, zeros), self._sgd_steps, state, k_sgd)
+            return state, (metrics, ~prefill)
 
-                action = jax.lax.cond(prefill, lambda: jax.random.uniform(
-                    k_act, (cfg.num_envs, A), jnp.float32, -1.0, 1.0), explore)
-                env_state, batch = self._env_step(state.env_state, action)
-                params = state.params
-                if cfg.normalize_observations:
-                    from sf2_jax import networks
-                    params = {**params, "obs_norm": networks.update_normalizer(params["obs_norm"], batch.obs,
-                                                                               self.sf2)}
-                state = state._replace(params=params, env_state=env_state, key=key,
-                                       replay=self.buffer.insert(state.replay, batch),
-                                       env_steps=state.env_steps + self.sched.env_steps_per_actor_step)
-                zeros = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype),
-                                               jax.eval_shape(self._sgd_steps, state, k_sgd)[1])
-                state, metrics = jax.lax.cond(prefill, lambda s, k: (s, zeros), self._sgd_steps, state, k_sgd)
-                return state, (metrics, ~prefill)
-
-        return CondProgram(cfg)
+    return CondProgram(cfg)
 
 
 def test_branchless_actor_step_equals_the_cond_formulation(tiny_cfg):
@@ -210,7 +207,7 @@ def test_branchless_actor_step_equals_the_cond_formulation(tiny_cfg):
     from sf2_jax.agents.trainer import Program
 
     seeds = (0, 1)
-    new, old = Program(tiny_cfg), _CondProgram.make(tiny_cfg)
+    new, old = Program(tiny_cfg), _cond_program(tiny_cfg)
     assert new.sched.prefill_actor_steps == 8 and new.sched.actor_steps_per_epoch == 12
     init = new.init(seeds)
     s_new, s_old = init, jax.tree_util.tree_map(lambda x: x.copy(), init)

@@ -60,7 +60,6 @@ sg = jax.lax.stop_gradient
 Params = dict[str, Any]
 # the `jax.named_scope`s of one SGD step, in the step's order (module docstring, "Profiling")
 PHASES = ("critic_grad", "critic_adam", "aux_grad", "aux_adam", "policy_grad", "policy_adam", "targets")
-_scope = jax.named_scope
 
 
 def _when(flag, fn: Callable, otherwise: Callable):
@@ -191,34 +190,34 @@ class Algorithm:
         of scalars)."""
         rep, pre = self.rep, params
         # 1. the critic gradient at the pre-step parameters (the policy's: in `policy_step`, also at `pre`)
-        with _scope("critic_grad"):
+        with jax.named_scope("critic_grad"):
             (loss, aux), grads = self._value_and_grad(lambda p: self.critic_loss(p, batch, noise),
                                                       ("q", *rep.critic_groups), pre)
         metrics = {"critic_loss": loss, "q": aux["q"]}
         # 2. Adam on the critic groups
-        with _scope("critic_adam"):
+        with jax.named_scope("critic_adam"):
             params, opt_state = self._adam_step(params, opt_state, grads)
         # 3. the representation's own loss, on the parameters after step 2
         if rep.aux_groups:
-            with _scope("aux_grad"):
+            with jax.named_scope("aux_grad"):
                 next_action = sg(self.aux_next_action(pre, batch, noise))
                 aux_noise = {k: noise[k] for k in rep.noise_keys}
                 (loss, aux), grads = self._value_and_grad(
                     lambda p: rep.aux_loss(p, batch, next_action, aux_noise), rep.aux_groups, params)
             due = {g: step % every == 0 for g, every in rep.aux_every.items()}
-            with _scope("aux_adam"):
+            with jax.named_scope("aux_adam"):
                 params, opt_state = self._adam_step(params, opt_state, grads, due, self.aux_states)
             metrics.update({rep.aux_loss_name: loss, **aux})
 
         # 1 and 4: the policy groups' gradients at `pre`, then Adam on them (actor steps only)
         def policy_step():
             grads, out = {}, {}
-            with _scope("policy_grad"):
+            with jax.named_scope("policy_grad"):
                 for group, (name, loss_fn) in self.policy_losses(pre, batch, noise).items():
                     (out[name], aux), grad = self._value_and_grad(loss_fn, (group,), pre)
                     grads.update(grad)
                     out.update(aux)
-            with _scope("policy_adam"):
+            with jax.named_scope("policy_adam"):
                 return (*self._adam_step(params, opt_state, grads), out)
 
         def no_policy_step():
@@ -234,7 +233,7 @@ class Algorithm:
         pairs = {"target_q": ("q", self.cfg.tau)}
         if "target_policy" in params:
             pairs["target_policy"] = ("policy", self.cfg.tau)
-        with _scope("targets"):
+        with jax.named_scope("targets"):
             moved = _when(self.updates_q_target(step), lambda: self._ema(params, pairs),
                           lambda: {t: params[t] for t in pairs})
             return {**params, **moved, **self._ema(params, rep.targets())}, opt_state, metrics
