@@ -126,14 +126,18 @@ def count(text: str, phases: tuple[str, ...]) -> dict:
 
 
 def _kind(op: str, name: str, line: str) -> str:
-    """gemm (a cuBLAS/cuBLASLt call or an XLA GEMM fusion), fusion, copy, library (other custom calls:
-    cuSOLVER, ...) or other; from the instruction's own name and target, not its operands'."""
+    """gemm (a cuBLAS/cuBLASLt call or an XLA GEMM fusion: a Triton or cuDNN GEMM, by its fusion kind or
+    name), fusion (the others, Triton's block-level reductions and normalizations too), copy, library
+    (other custom calls: cuSOLVER, ...) or other; from the instruction's own name, target and backend
+    config, not its operands'."""
     if op == "custom-call":
         target = re.search(r'custom_call_target="([^"]*)"', line)
         target = target.group(1) if target else ""
         return "gemm" if ("gemm" in target or "matmul" in target) else "library"
     if op == "fusion":
-        return "gemm" if ("gemm" in name or "kind=kCustom" in line) else "fusion"
+        kind = re.search(r'"fusion_backend_config":\{.*?"kind":"([^"]*)"', line)
+        kind = kind.group(1) if kind else ""
+        return "gemm" if ("gemm" in name or "gemm" in kind or "cudnn" in kind) else "fusion"
     if op in ("copy", "copy-start"):
         return "copy"
     return "other"

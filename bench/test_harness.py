@@ -517,7 +517,12 @@ _HLO = """HloModule jit__epoch_one, is_scheduled=true
   %x = f32[4]{0} get-tuple-element(%t), index=1
   %f1 = f32[4]{0} fusion(%x), calls=%fused_computation, metadata={op_name="w/sgd/critic_grad/mul"}
   %f2 = f32[4]{0} fusion(%f1), calls=%fused_computation, metadata={op_name="w/critic_grad/x/policy_adam/add"}
-  %g = f32[4]{0} custom-call(%f2), custom_call_target="__cublas$gemm", metadata={op_name="w/critic_adam/dot"}
+  %f3 = f32[4]{0} fusion(%f2), calls=%fused_computation, metadata={op_name="w/critic_grad/sum"}, \
+kind=kCustom, \
+backend_config={"fusion_backend_config":{"block_level_fusion_config":{"num_warps":"4"},"kind":"__triton"}}
+  %f4 = f32[4]{0} fusion(%f3), calls=%fused_computation, metadata={op_name="w/critic_adam/dot"}, \
+kind=kCustom, backend_config={"fusion_backend_config":{"kind":"__triton_nested_gemm_fusion"}}
+  %g = f32[4]{0} custom-call(%f4), custom_call_target="__cublas$gemm", metadata={op_name="w/critic_adam/dot"}
   %c = f32[4]{0} copy(%g), metadata={op_name="w/targets/copy"}
   %i = s32[] get-tuple-element(%t), index=0
   ROOT %r = (s32[], f32[4]{0}) tuple(%i, %c)
@@ -556,24 +561,25 @@ backend_config={"known_trip_count":{"n":"4"}}
 @pytest.mark.parametrize("branches", ["branch_computations={%branch_a, %branch_b}",
                                       "true_computation=%branch_a, false_computation=%branch_b"])
 def test_hlo_phases_counts_kernels_per_phase_weighted_by_trip_counts(branches):
-    """By hand from `_HLO`: the while body runs 4 times (its known trip count) and launches 2 fusions, one
+    """By hand from `_HLO`: the while body runs 4 times (its known trip count) and launches 4 fusions, one
     cuBLAS call and one copy (the fusions' own computation is no launch of its own; get-tuple-element,
-    tuple, constant and parameter launch nothing). The loop condition's compare is one launch, counted once
-    (the condition is not weighted by the trip count), and each conditional branch's fusion once. A
-    fusion's phase is the last phase its op_name names (`f2`: policy_adam, though critic_grad comes
-    first); the compare and branch_b's fusion name none: (other). All: 4 × 4 + 1 + 1 + 1 = 19 launches,
-    9.5 per SGD step for 2 SGD steps."""
+    tuple, constant and parameter launch nothing). Of the two Triton fusions (`kind=kCustom`) the
+    block-level reduction `f3` is a fusion and the nested GEMM `f4` a GEMM. The loop condition's compare is
+    one launch, counted once (the condition is not weighted by the trip count), and each conditional
+    branch's fusion once. A fusion's phase is the last phase its op_name names (`f2`: policy_adam, though
+    critic_grad comes first); the compare and branch_b's fusion name none: (other). All: 4 × 6 + 1 + 1 + 1
+    = 27 launches, 13.5 per SGD step for 2 SGD steps."""
     from bench import hlo_phases
 
     phases = ("explore", "critic_grad", "critic_adam", "policy_adam", "targets")
     # the two spellings of a conditional's branches (an index conditional's; the GPU's for a predicate)
     got = hlo_phases.count(_HLO.replace("branch_computations={%branch_a, %branch_b}", branches), phases)
-    assert got["by_phase"] == {"critic_grad": {"fusion": 4}, "policy_adam": {"fusion": 4},
-                               "critic_adam": {"gemm": 4}, "targets": {"copy": 4},
+    assert got["by_phase"] == {"critic_grad": {"fusion": 8}, "policy_adam": {"fusion": 4},
+                               "critic_adam": {"gemm": 8}, "targets": {"copy": 4},
                                "explore": {"fusion": 1}, "(other)": {"fusion": 1, "other": 1}}
     assert got["conditional_branches"] == 2 and got["unknown_trip_count_loops"] == 0
     table = hlo_phases.markdown(got, phases, sgd_steps=2)
-    assert "| critic_grad | 2.0 | 0.0 | 2.0 |" in table and "| **all** | **9.5** |" in table
+    assert "| critic_grad | 4.0 | 0.0 | 4.0 |" in table and "| **all** | **13.5** |" in table
 
 
 def test_hlo_phases_finds_the_newest_epoch_module_of_a_dump(tmp_path):
