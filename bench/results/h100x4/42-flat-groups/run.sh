@@ -1,7 +1,7 @@
 #!/bin/bash
 # Issue 12 item 6: one flat vector per parameter group (agents/flat.py, with flat-groups.patch applied to a332a3a)
-# (old/, `git archive HEAD packages/sf2-core-jax/src`). Four GPUs, one job each; every throughput pair on
-# one GPU, one after the other.
+# against the previous commit (old/, `git archive HEAD packages/sf2-core-jax/src`). Four GPUs, one job each;
+# every throughput pair on one GPU, one after the other.
 source scripts/gpu_env.sh || exit 1
 R=$OUT/r; mkdir -p $R
 OLD=$PWD/old/packages/sf2-core-jax/src
