@@ -79,7 +79,8 @@ def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=p
     state, means, _ = program.epoch(state, 1)
     jax.block_until_ready((state, means))
     sgd = program.sched.actor_steps_per_epoch * cfg.grad_updates_per_step
-    label = f"{task} {algo}+{rep}, {n_seeds} seed{'s' * (n_seeds > 1)} (vmapped), per SGD step"
+    how = "vmapped" if n_seeds > 1 else "no vmap"   # trainer._seed_map
+    label = f"{task} {algo}+{rep}, {n_seeds} seed{'s' * (n_seeds > 1)} ({how}), per SGD step"
     log(f"  tracing {label}: {epochs} epochs of {program.sched.actor_steps_per_epoch} actor steps")
     out = trace(_EpochRunner(program, state, sgd), updates=epochs, label=label)
     if hlo_dump is not None:

@@ -228,3 +228,32 @@ def test_branchless_actor_step_equals_the_cond_formulation(tiny_cfg):
             assert int(np.asarray(m_new["sgd_steps"]).max()) == 4 * tiny_cfg.grad_updates_per_step
     # 4 + 12 training actor steps, none of the prefill's SGD steps counted
     assert np.asarray(s_new.grad_steps).tolist() == [16 * tiny_cfg.grad_updates_per_step] * len(seeds)
+
+
+def test_one_seed_program_without_vmap_equals_the_vmapped_one(tiny_cfg, monkeypatch):
+    """At one seed the programs run the per-seed functions on the seed's slice instead of under `jax.vmap`
+    (`trainer._seed_map`). From one initial state, over epoch 1 (prefill and training steps) and epoch 2,
+    the state and epoch means equal those of the vmapped one-seed programs: integers (keys, counters, buffer
+    cursors) exactly, floats to float32 rounding (`test_branchless_actor_step_equals_the_cond_formulation`'s
+    tolerance)."""
+    import sf2_jax.agents.trainer as trainer
+
+    new, old = trainer.Program(tiny_cfg), trainer.Program(tiny_cfg)
+    s_new = new.init((0,))
+    s_old = jax.tree_util.tree_map(lambda x: x.copy(), s_new)
+    for epoch in (1, 2):
+        s_new, m_new, _ = new.epoch(s_new, epoch)
+        with monkeypatch.context() as m:
+            m.setattr(trainer, "_seed_map", lambda fn, in_axes, n: jax.vmap(fn, in_axes=in_axes))
+            s_old, m_old, _ = old.epoch(s_old, epoch)
+        for name in m_old:
+            np.testing.assert_allclose(np.asarray(m_new[name]), np.asarray(m_old[name]), rtol=1e-4, atol=1e-5,
+                                       err_msg=f"epoch {epoch} {name}")
+        for (path, a), b in zip(jax.tree_util.tree_leaves_with_path(s_new), jax.tree_util.tree_leaves(s_old),
+                                strict=True):
+            a, b, where = np.asarray(a), np.asarray(b), f"epoch {epoch} {jax.tree_util.keystr(path)}"
+            assert a.shape == b.shape and a.shape[:1] == (1,), where
+            if np.issubdtype(a.dtype, np.floating):
+                np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5, err_msg=where)
+            else:
+                np.testing.assert_array_equal(a, b, err_msg=where)

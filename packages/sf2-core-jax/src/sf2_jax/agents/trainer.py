@@ -1,8 +1,8 @@
 """The one off-policy training loop (Brax style, current JAX), for every algorithm × representation.
 
 A `Program` is everything compiled for one `TrainConfig`; all of it is `vmap`ped over seeds, so
-`--seeds 0-3` trains four independent agents in one jitted program (a single seed is a vmap of one,
-the same code path). Per seed:
+`--seeds 0-3` trains four independent agents in one jitted program (a single seed runs the same per-seed
+functions without the vmap, `_seed_map`). Per seed:
 
 - state: parameters, Adam states, the vectorized env state, the replay buffer, a PRNG key, counters,
   and the start states of the evaluation envs; the running observation statistics are the
@@ -169,17 +169,18 @@ class Program:
         return jax.device_put(state, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("seed")))
 
     def _program(self, name: str, n_seeds: int, obs_noise: float = 0.0):
-        """The jitted, seed-vmapped program `name` ("init", "epoch", "evaluate"). With several local
-        devices that divide the seeds evenly it is a `shard_map` over the "seed" axis: every device runs
-        the vmapped program on its own seeds, so nothing crosses devices inside an epoch (docs/core-
+        """The jitted program `name` ("init", "epoch", "evaluate") over the seed axis (`_seed_map`). With
+        several local devices that divide the seeds evenly it is a `shard_map` over the "seed" axis: every
+        device runs that program on its own seeds, so nothing crosses devices inside an epoch (docs/core-
         contract.md "Agents"; the seeds' numbers are those of one device up to float rounding)."""
         mesh = self.mesh(n_seeds)
-        key = (name, obs_noise, mesh is not None)
+        per_device = n_seeds // (mesh.devices.size if mesh is not None else 1)
+        key = (name, obs_noise, mesh is not None, per_device == 1)
         if key not in self._programs:
             fn, in_axes = {"init": (self._init_one, (0,)), "epoch": (self._epoch_one, (0, None)),
                            "evaluate": (functools.partial(self._eval_one, obs_noise=obs_noise), (0, 0, 0))
                            }[name]
-            fn = jax.vmap(fn, in_axes=in_axes)
+            fn = _seed_map(fn, in_axes, per_device)
             if mesh is not None:
                 # XLA's Shardy pass segfaults on these programs on GPUs (`mesh`): this process compiles
                 # with GSPMD from here on (jit reads the flag when it compiles; JAX warns it is deprecated)
@@ -351,6 +352,23 @@ def episode_returns(env, eval_start, act, key, n_steps: int) -> jax.Array:
     zeros = jnp.zeros((n_envs,), jnp.float32)
     (_, ret, _), _ = jax.lax.scan(step, (eval_start, zeros, zeros + 1.0), jax.random.split(key, n_steps))
     return ret
+
+
+def _seed_map(fn, in_axes, n_seeds: int):
+    """`fn` over the seed axis (axis 0 of the arguments whose `in_axes` entry is 0, and of every output):
+    `jax.vmap`, except at one seed, where `fn` runs on the seed's slice and the axis is added back outside.
+    The same operations; but under a vmap of one seed XLA lays the GEMMs' outputs out column-major on a GPU,
+    so that every LayerNorm is a chain of column reductions instead of one or two Triton kernels
+    (bench/results/h100x4/43-sharded-profile)."""
+    if n_seeds != 1:
+        return jax.vmap(fn, in_axes=in_axes)
+
+    def one(*args):
+        args = [jax.tree_util.tree_map(lambda x: x[0], a) if axis == 0 else a
+                for a, axis in zip(args, in_axes, strict=True)]
+        return jax.tree_util.tree_map(lambda x: x[None], fn(*args))
+
+    return functools.wraps(fn)(one)   # the compiled module keeps fn's name (bench.hlo_phases finds it by it)
 
 
 @functools.lru_cache(maxsize=8)
