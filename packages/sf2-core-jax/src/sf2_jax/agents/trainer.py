@@ -254,9 +254,10 @@ class Program:
     def _sgd_steps(self, state: TrainState, key, train=True):
         """`grad_updates_per_step` SGD steps on fresh batches from the buffer; where `train` (a bool scalar)
         is False each step keeps the parameters, Adam states and SGD count and reports zero metrics (the
-        prefill, `_actor_step`). The selection is inside the scan's body, where XLA fuses it into the
-        Adam and target updates; after the scan it would cost a copy of every array into the loop and a
-        select kernel for each (bench/results/h100x4/38-kernel-phases)."""
+        prefill, `_actor_step`). The selection is inside the scan's body, where XLA fuses most of it into
+        the Adam and target updates (at one seed 57 select kernels per SGD step remain, which cost under 1%
+        of the rate: bench/results/h200x2/47-seeds-and-selects); after the scan it would cost a copy of every
+        array into the loop and a select kernel for each (bench/results/h100x4/38-kernel-phases)."""
         G, B = self.cfg.grad_updates_per_step, self.cfg.batch_size
         k_sample, k_sgd = jax.random.split(key)
         with jax.named_scope("sample"):
