@@ -196,6 +196,24 @@ def _cond_program(cfg):
     return CondProgram(cfg)
 
 
+def _assert_same_epoch(epoch, new, old):
+    """Two programs' (state, epoch means) after `epoch`: equal shapes, integers (keys, counters, buffer
+    cursors) exactly, floats up to float32 rounding (two programs fuse differently:
+    `test_vmapped_seeds_equal_seeds_one_by_one`'s tolerance)."""
+    (s_new, m_new), (s_old, m_old) = new, old
+    for name in m_old:
+        np.testing.assert_allclose(np.asarray(m_new[name]), np.asarray(m_old[name]), rtol=1e-4, atol=1e-5,
+                                   err_msg=f"epoch {epoch} {name}")
+    for (path, a), b in zip(jax.tree_util.tree_leaves_with_path(s_new), jax.tree_util.tree_leaves(s_old),
+                            strict=True):
+        a, b, where = np.asarray(a), np.asarray(b), f"epoch {epoch} {jax.tree_util.keystr(path)}"
+        assert a.shape == b.shape, where
+        if np.issubdtype(a.dtype, np.floating):
+            np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5, err_msg=where)
+        else:
+            np.testing.assert_array_equal(a, b, err_msg=where)
+
+
 def test_branchless_actor_step_equals_the_cond_formulation(tiny_cfg):
     """`Program._actor_step` computes both the prefill's and the training step's action and SGD steps and
     selects with `jnp.where` (no `lax.cond`, whose GPU form copies every array passing through it). Over
@@ -214,16 +232,7 @@ def test_branchless_actor_step_equals_the_cond_formulation(tiny_cfg):
     for epoch in (1, 2):
         s_new, m_new, _ = new.epoch(s_new, epoch)
         s_old, m_old, _ = old.epoch(s_old, epoch)
-        for name in m_old:
-            np.testing.assert_allclose(np.asarray(m_new[name]), np.asarray(m_old[name]), rtol=1e-4, atol=1e-5,
-                                       err_msg=f"epoch {epoch} {name}")
-        for (path, a), b in zip(jax.tree_util.tree_leaves_with_path(s_new), jax.tree_util.tree_leaves(s_old),
-                                strict=True):
-            a, b, where = np.asarray(a), np.asarray(b), f"epoch {epoch} {jax.tree_util.keystr(path)}"
-            if np.issubdtype(a.dtype, np.floating):
-                np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5, err_msg=where)
-            else:   # keys, counters, buffer cursors: exact
-                np.testing.assert_array_equal(a, b, err_msg=where)
+        _assert_same_epoch(epoch, (s_new, m_new), (s_old, m_old))
         if epoch == 1:
             assert int(np.asarray(m_new["sgd_steps"]).max()) == 4 * tiny_cfg.grad_updates_per_step
     # 4 + 12 training actor steps, none of the prefill's SGD steps counted
@@ -246,14 +255,5 @@ def test_one_seed_program_without_vmap_equals_the_vmapped_one(tiny_cfg, monkeypa
         with monkeypatch.context() as m:
             m.setattr(trainer, "_seed_map", lambda fn, in_axes, n: jax.vmap(fn, in_axes=in_axes))
             s_old, m_old, _ = old.epoch(s_old, epoch)
-        for name in m_old:
-            np.testing.assert_allclose(np.asarray(m_new[name]), np.asarray(m_old[name]), rtol=1e-4, atol=1e-5,
-                                       err_msg=f"epoch {epoch} {name}")
-        for (path, a), b in zip(jax.tree_util.tree_leaves_with_path(s_new), jax.tree_util.tree_leaves(s_old),
-                                strict=True):
-            a, b, where = np.asarray(a), np.asarray(b), f"epoch {epoch} {jax.tree_util.keystr(path)}"
-            assert a.shape == b.shape and a.shape[:1] == (1,), where
-            if np.issubdtype(a.dtype, np.floating):
-                np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5, err_msg=where)
-            else:
-                np.testing.assert_array_equal(a, b, err_msg=where)
+        assert all(x.shape[:1] == (1,) for x in jax.tree_util.tree_leaves(s_new))   # the seed axis kept
+        _assert_same_epoch(epoch, (s_new, m_new), (s_old, m_old))
