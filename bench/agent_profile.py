@@ -234,14 +234,14 @@ def main(argv=None) -> int:
                         "the optimized HLO is kept in OUT/hlo)")
     p.add_argument("--out", required=True)
     args = p.parse_args(argv)
-    from sf2_common.agents import configs
     from sf2_common.errors import ConfigError
 
+    from .agent_throughput import parse_sets
     from .machine import describe
     from .profile import markdown
 
     try:   # every case's config, before anything is built or written
-        overrides = configs.parse_overrides(args.set) if args.set else {}
+        overrides = parse_sets(args.set, [args.framework])
         cases = [(int(x), rep) for x in args.seeds.split(",") for rep in args.reps.split(",") if rep]
         for n, rep in cases:
             _config(args.task, args.algo, rep, n, args.actor_steps, args.epochs, overrides, args.framework)

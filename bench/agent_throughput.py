@@ -75,6 +75,31 @@ def framework_configs(framework: str, seeds: tuple[int, ...]):
     return configs, lambda c: configs.validate(c, seeds)
 
 
+def parse_sets(items, frameworks) -> dict:
+    """`--set FIELD=VALUE` items typed by the configs of `frameworks`: the shared fields, and with the torch
+    framework alone also the torch trainer's own (`sf2_torch.agents.configs.TORCH_FIELDS`: device, compile,
+    cudagraphs). Raises `ConfigError` naming the field and the valid ones."""
+    from sf2_common.agents import configs
+    from sf2_common.errors import ConfigError
+
+    if not items:
+        return {}
+    if set(frameworks) == {"torch"}:
+        return configs.parse_overrides(items, framework_configs("torch", (0,))[0].TrainConfig)
+    try:
+        return configs.parse_overrides(items)
+    except ConfigError as err:
+        try:
+            from sf2_torch.agents.configs import TORCH_FIELDS
+        except ImportError:
+            raise err from None
+        names = {item.split("=", 1)[0].strip().replace("-", "_") for item in items}
+        if names & set(TORCH_FIELDS):
+            raise ConfigError(f"{err} (the torch trainer's fields {', '.join(TORCH_FIELDS)} need the torch "
+                              "framework alone)") from None
+        raise
+
+
 def config_for(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epochs: int, overrides: dict,
                framework: str = "jax"):
     """The `paper` preset's config of one measurement (`warm_up` epochs, then `epochs` timed ones),
@@ -201,7 +226,6 @@ def main(argv=None) -> int:
                    help="override a config field of the paper preset (repeatable)")
     p.add_argument("--out", required=True, help="folder for throughput.csv / throughput.md / machine.json")
     args = p.parse_args(argv)
-    from sf2_common.agents import configs
     from sf2_common.errors import ConfigError
 
     from .machine import describe
@@ -219,7 +243,7 @@ def main(argv=None) -> int:
     if args.epochs < 1 or args.env_steps < 1:
         p.error(f"--epochs {args.epochs}, --env-steps {args.env_steps}: each must be >= 1")
     try:
-        overrides = configs.parse_overrides(args.set) if args.set else {}
+        overrides = parse_sets(args.set, args.frameworks)
         for task, fw, prec, algo, rep in itertools.product(args.tasks, args.frameworks, args.precisions,
                                                            args.algos, args.reps):
             config_for(task, algo, rep, max(seed_counts), args.env_steps, args.epochs,

@@ -211,6 +211,8 @@ def test_bad_bench_input_exits_2_before_anything_runs(argv, message, tmp_path, c
     ("agent_throughput", ["--tasks", "Nope"], "unknown task 'Nope'"),
     ("agent_throughput", ["--precisions", "fp8"], "learner_precision = 'fp8' is invalid"),
     ("agent_throughput", ["--reps", "bogus"], "representation = 'bogus' is invalid"),
+    ("agent_throughput", ["--set", "compile=off"], "unknown config field 'compile'"),
+    ("agent_throughput", ["--frameworks", "torch", "--set", "compile=fast"], "compile = 'fast' is invalid"),
     ("physics", ["--tasks", "CheetahRun,Nope"], "--tasks: unknown task 'Nope'"),
     ("physics", ["--envs", "128,0"], "each must be >= 1"),
     ("eval_sensitivity", ["--task", "Nope"], "unknown task 'Nope'"),
@@ -610,3 +612,19 @@ def test_hlo_phases_refuses_what_is_not_a_dump(tmp_path, capsys):
     with pytest.raises(SystemExit):
         hlo_phases.main([str(tmp_path / "x.txt")])
     assert "no ENTRY computation" in capsys.readouterr().err
+
+
+def test_set_takes_the_torch_trainers_fields_with_the_torch_framework_alone():
+    """`--set compile=…` (a field of the torch trainer only) is typed by the torch config with `--frameworks
+    torch`; with the JAX trainer too it is refused, naming the torch fields and what they need."""
+    pytest.importorskip("sf2_torch", reason="the torch trainer's config: install the torch core")
+    from sf2_common.errors import ConfigError
+
+    from bench.agent_throughput import parse_sets
+
+    items = ["compile=max-autotune-no-cudagraphs", "batch_size=64"]
+    assert parse_sets(items, ["torch"]) == {"compile": "max-autotune-no-cudagraphs", "batch_size": 64}
+    assert parse_sets(["batch_size=64"], ["jax", "torch"]) == {"batch_size": 64}
+    assert parse_sets([], ["jax"]) == {}
+    with pytest.raises(ConfigError, match=r"unknown config field 'compile'.*need the torch framework alone"):
+        parse_sets(items, ["jax", "torch"])
