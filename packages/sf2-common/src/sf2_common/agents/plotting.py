@@ -120,7 +120,7 @@ def plot_learning_curve(rows: list[dict], path, title: str) -> None:
     ax.set_ylabel("eval return")
     ax.set_title(title)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="best")   # named: matplotlib warns of its cost only when defaulted
     fig.tight_layout()
     tmp = Path(path).with_name(Path(path).stem + ".tmp.png")
     fig.savefig(tmp, dpi=100)
@@ -190,7 +190,7 @@ def plot_runs(run_dirs, path) -> list[dict]:
         ax.set_xlabel("env steps")
         ax.set_ylabel("eval return")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=8, loc="best")
     caption = ("line: mean eval return over seeds; band: 95% bootstrap CI of the mean (rliable, 5000 "
                "resamples), drawn only with >= 3 seeds")
     # wrapped to the figure's width (about 12 characters of 9-point text per inch), so one panel keeps it

@@ -227,7 +227,7 @@ def sweeps(study, points: dict, stem: Path) -> dict[str, Path]:
         ax.set_title(titles.get(field, field), fontsize=10)
         ax.set_xlabel(field)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=8, loc="best")   # named: matplotlib warns of its cost only when defaulted
     axes[0][0].set_ylabel(f"mean eval return, final {study.report.final_window:,} env steps")
     fig.suptitle(f"{study.name}: mean over seeds; error bar: {_CI} of the mean" + _seed_note(ns),
                  fontsize=10)
