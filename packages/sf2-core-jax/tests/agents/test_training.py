@@ -247,13 +247,16 @@ def test_one_seed_program_without_vmap_equals_the_vmapped_one(tiny_cfg, monkeypa
     tolerance); and the program XLA receives has fewer products with a batch dimension (the seed axis's)."""
     import sf2_jax.agents.trainer as trainer
 
+    def vmapped(fn, in_axes, n_seeds):   # the programs as before `_seed_map`: a vmap at any seed count
+        return jax.vmap(fn, in_axes=in_axes)
+
     new, old = trainer.Program(tiny_cfg), trainer.Program(tiny_cfg)
     s_new = new.init((0,))
     s_old = jax.tree_util.tree_map(lambda x: x.copy(), s_new)
     for epoch in (1, 2):
         s_new, m_new, _ = new.epoch(s_new, epoch)
         with monkeypatch.context() as m:
-            m.setattr(trainer, "_seed_map", lambda fn, in_axes, n: jax.vmap(fn, in_axes=in_axes))
+            m.setattr(trainer, "_seed_map", vmapped)
             s_old, m_old, _ = old.epoch(s_old, epoch)
         assert all(x.shape[:1] == (1,) for x in jax.tree_util.tree_leaves(s_new))   # the seed axis kept
         _assert_same_epoch(epoch, (s_new, m_new), (s_old, m_old))
@@ -263,7 +266,7 @@ def test_one_seed_program_without_vmap_equals_the_vmapped_one(tiny_cfg, monkeypa
         return sum("batching_dims" in line for line in text.splitlines() if "dot_general" in line)
 
     with monkeypatch.context() as m:
-        m.setattr(trainer, "_seed_map", lambda fn, in_axes, n: jax.vmap(fn, in_axes=in_axes))
+        m.setattr(trainer, "_seed_map", vmapped)
         vmapped = batched_products(old)
     # without the vmap only the flow loss's own batched products remain (53 lines against 117 for this
     # config on the CPU, 2026-11-27)
