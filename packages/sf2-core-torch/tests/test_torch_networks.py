@@ -84,6 +84,26 @@ def test_numpy_reference_forward(td3_nets):
     np.testing.assert_allclose(networks.td3_action(td3_nets, batch.obs).detach().numpy(), pol, rtol=1e-12)
 
 
+def test_twin_q_one_product_equals_two_heads(td3_nets):
+    """TwinQ's one product (both hidden layers as one GEMM, both output layers as one row sum) against the
+    plain `cat([head_0(f), head_1(f)])`: values and the gradients of every head parameter and of the
+    features, float64."""
+    f = torch.randn(B, td3_nets.cfg.feature_size, dtype=torch.float64, requires_grad=True)
+    weight = torch.randn(B, 2, dtype=torch.float64)
+    q = td3_nets.q
+    fast = q(f)
+    plain = torch.cat([q.head_0(f), q.head_1(f)], dim=-1)
+    torch.testing.assert_close(fast, plain, rtol=1e-12, atol=1e-12)
+    inputs = [f, *q.parameters()]
+    g_fast = torch.autograd.grad((fast * weight).sum(), inputs)
+    g_plain = torch.autograd.grad((plain * weight).sum(), inputs)
+    for name, a, b in zip(["features", *dict(q.named_parameters())], g_fast, g_plain):
+        assert a.shape == b.shape, name
+        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12, msg=name)
+    with pytest.raises(ShapeError, match="feature_size"):
+        q(f[:, :-1])
+
+
 def test_flow_time_embedding_formula():
     k = torch.tensor([0.0, 0.25, 0.7, 1.0], dtype=torch.float64)
     out = networks.flow_time_embedding(k, 6).numpy()

@@ -229,7 +229,17 @@ class QHead(MLP):
 
 
 class TwinQ(nn.Module):
-    """Two independent heads `head_0`, `head_1` on ψ features; `forward(features)` → (B, 2)."""
+    """Two independent heads `head_0`, `head_1` on ψ features; `forward(features)` → (B, 2).
+
+    Both heads read the same features, so `forward` evaluates them as one product: the hidden layers'
+    weights stacked to (2·q_hidden_size, F) make one GEMM (forward, and one each for the weight and the
+    input gradient), and the two output layers, Dense(q_hidden_size → 1) each, are one elementwise product
+    and row sum. Each head's parameters stay its own (`head_j.dense_i`, the canonical names), and the values
+    are `torch.cat([head_0(features), head_1(features)], -1)` up to float rounding
+    (packages/sf2-core-torch/tests/test_torch_networks.py). torch.compile does not merge the two heads'
+    products by itself; merging them took the torch trainer's GEMM launches per SGD step from 123 to 104
+    and its one-seed rate up by 6.6% (bench/results/h200x2/50-torch-step/README.md).
+    """
 
     def __init__(self, cfg: SF2Config, **kw) -> None:
         super().__init__()
@@ -239,7 +249,13 @@ class TwinQ(nn.Module):
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
         _check_last("features", features, self.feature_size, "feature_size")
-        return torch.cat([self.head_0(features), self.head_1(features)], dim=-1)
+        h0, h1 = self.head_0, self.head_1
+        weight = torch.cat([h0.dense_0.weight, h1.dense_0.weight])            # (2·H_q, F)
+        bias = torch.cat([h0.dense_0.bias, h1.dense_0.bias])
+        hidden = F.relu(F.linear(features, weight, bias)).unflatten(-1, (2, -1))   # (..., 2, H_q)
+        out_weight = torch.cat([h0.dense_1.weight, h1.dense_1.weight])       # (2, H_q)
+        out_bias = torch.cat([h0.dense_1.bias, h1.dense_1.bias])             # (2,)
+        return (hidden * out_weight).sum(-1) + out_bias
 
 
 class TD3Policy(MLP):

@@ -257,6 +257,33 @@ def test_state_dict_round_trip(shared_adam):
     assert all(np.array_equal(a[n], b[n]) for n in a)
 
 
+@pytest.mark.parametrize("name,shared_adam", [("td3", True), ("sac", False)])
+def test_compiled_updates_path_equals_optimizer_step(name, shared_adam, monkeypatch):
+    """The updates `compile_mode` compiles on CUDA, run uncompiled (torch.compile stubbed to return them):
+    Adam through `_adam_steps` on the lists `_adam_inputs` gathers (each optimizer's first step eager, which
+    creates its state) and the target lerps through `_move_targets` give, bit for bit, the parameters,
+    every Adam state and the metrics of `optimizer.step()` and the plain foreach lerps, over three steps
+    (an actor step and a step without, for TD3; SAC's log α has its own learning rate and ε)."""
+    plain, fast = _algo(name, shared_adam=shared_adam), _algo(name, shared_adam=shared_adam)
+    monkeypatch.setattr(torch, "compile", lambda fn, **kw: fn)
+    fast.compile_updates = True   # what `compile_mode` sets on CUDA
+    calls = []
+    monkeypatch.setattr(algorithms, "_adam_steps",
+                        lambda inputs, f=algorithms._adam_steps: (calls.append(len(inputs)), f(inputs)))
+    for i in range(3):
+        batch = _batch(i)
+        noise = _noise(plain, batch, i)
+        m1, m2 = plain.sgd_step(batch, noise, i), fast.sgd_step(batch, noise, i)
+        assert all(torch.equal(m1[k], m2[k]) for k in m1)
+    assert calls, "the functional Adam path never ran"
+    a, b = _flat(plain), _flat(fast)
+    assert all(np.array_equal(a[n], b[n]) for n in a)
+    for g, opt in plain.optimizers.items():
+        for p1, p2 in zip(opt.param_groups[0]["params"], fast.optimizers[g].param_groups[0]["params"]):
+            s1, s2 = opt.state[p1], fast.optimizers[g].state[p2]
+            assert all(torch.equal(s1[k], s2[k]) for k in ("step", "exp_avg", "exp_avg_sq")), g
+
+
 @pytest.mark.skipif(not os.environ.get("SF2_TORCH_SLOW"), reason="torch.compile takes minutes on a small "
                     "CPU; set SF2_TORCH_SLOW=1")
 @pytest.mark.parametrize("name", ["td3", "sac"])

@@ -39,8 +39,13 @@ own step function, so nothing in a step branches on a device value.
 
 Compilation: `torch.compile` (`compile_mode`) compiles the loss parts, `_critic`, `_policy` and `_aux`,
 each once; AOTAutograd compiles their backward with them, so the compiled code is the loss + gradient
-computation. The Adam steps and the target lerps run outside it: dynamo guards on the optimizer object,
-so a compiled `Optimizer.step` recompiles once per parameter group, which buys nothing at these sizes. On
+computation. On CUDA the Adam steps of each stage (the critic groups, the aux groups, the policy groups)
+and the target lerps are compiled too (`compile_updates`), as two functions of lists of tensors,
+`_adam_steps` (torch's functional foreach Adam, capturable) and `_move_targets`, so one program per stage
+serves every seed's agent: Inductor turns their foreach ops into a few Triton kernels. Eager, the fused Adam
+is one launch per group, and its 5 launches took 0.183 ms of a 1.345 ms SGD step at the paper preset
+(bench/results/h200x2/48-torch-profile/README.md), several times what its memory traffic needs; the compiled
+updates: bench/results/h200x2/50-torch-step/README.md. On the CPU they stay eager (foreach). On
 CUDA (`cudagraphs`) the whole step of each schedule combination (compiled losses, backward, capturable
 Adam, lerps) is captured as one CUDA graph by `graphs.StepGraph` (it takes the `Batch` and the noise dict
 as they are: pytrees of tensors; unlike tensordict's `CudaGraphModule`, it replays without a device
@@ -57,6 +62,7 @@ import torch
 from sf2_common.agents.registry import aux_states, check_aux_every
 from sf2_common.config import SF2Config
 from torch import nn
+from torch.optim.adam import adam as functional_adam
 
 from sf2_torch import losses, networks
 from sf2_torch.agents.graphs import StepGraph
@@ -89,11 +95,14 @@ class Algorithm:
         self.groups: dict[str, nn.Module | nn.Parameter] = {
             n: getattr(self.nets, n) for n in core if hasattr(self.nets, n)}
         self.groups.update(self.rep.init(self.nets))
-        self.optimizers = {g: self._make_adam(g, bool(cudagraphs)) for g in self.trained_groups()}
-        self.aux_states = aux_states(cfg, self.rep)   # {aux group: its optimizer's name in optimizers}
-        self.optimizers.update({state: self._make_adam(g, bool(cudagraphs))
-                                for g, state in self.aux_states.items() if state != g})
         self.compile_mode = compile_mode
+        # the Adam steps and target lerps compiled too (`_update`): on CUDA, where they pay
+        self.compile_updates = compile_mode is not None and self.device.type == "cuda"
+        capturable = bool(cudagraphs) or self.compile_updates
+        self.optimizers = {g: self._make_adam(g, capturable) for g in self.trained_groups()}
+        self.aux_states = aux_states(cfg, self.rep)   # {aux group: its optimizer's name in optimizers}
+        self.optimizers.update({state: self._make_adam(g, capturable)
+                                for g, state in self.aux_states.items() if state != g})
         self.cudagraphs = bool(cudagraphs)
         self._steps: dict[tuple, Any] = {}
         self._compiled: dict[str, Any] = {}
@@ -113,8 +122,9 @@ class Algorithm:
         eps = 1e-8 if group == "log_alpha" else cfg.adam_eps
         if capturable:
             lr = torch.tensor(lr, device=self.device)
-        # CUDA: the fused kernel (one launch per group, also under CUDA-graph capture); elsewhere foreach
-        fused = self.device.type == "cuda"
+        # eager on CUDA: the fused kernel (one launch per group, also under CUDA-graph capture); compiled
+        # (`_adam`) and elsewhere: foreach (torch.compile traces torch's foreach Adam)
+        fused = self.device.type == "cuda" and not self.compile_updates
         return torch.optim.Adam(self._params((group,)), lr=lr, eps=eps, capturable=capturable,
                                 fused=True if fused else None, foreach=None if fused else True)
 
@@ -136,7 +146,16 @@ class Algorithm:
             else:
                 v.load_state_dict(state["groups"][g])
         for g, o in self.optimizers.items():
+            (group,) = o.param_groups
+            flags = {k: group[k] for k in ("capturable", "fused", "foreach")}
             o.load_state_dict(state["optimizers"][g])
+            # this agent's Adam implementation, whichever wrote the checkpoint: torch's load_state_dict takes
+            # the saved flags (a run with compiled updates resumes a checkpoint of a fused Adam) and puts the
+            # step counts where those flags keep them (on the device when capturable or fused, else the CPU)
+            o.param_groups[0].update(flags)
+            device = self.device if flags["capturable"] or flags["fused"] else torch.device("cpu")
+            for s in o.state.values():
+                s["step"] = s["step"].to(device=device, dtype=torch.float32)
 
     # ------------------------------------------------------------------ acting (overridden)
     @torch.no_grad()
@@ -249,9 +268,8 @@ class Algorithm:
         if "log_alpha" in self.groups:  # SAC's temperature after this step
             metrics["alpha"] = torch.exp(self.groups["log_alpha"].detach())
         # 5. targets
-        with torch.no_grad():
-            for tau, targets, online in lerps:
-                torch._foreach_lerp_(targets, online, tau)
+        if lerps:
+            self._update("_move_targets", _move_targets)(lerps)
         return metrics
 
     # the parts of the step, compiled by `_part`
@@ -291,8 +309,24 @@ class Algorithm:
             p.grad = None
 
     def _adam(self, groups) -> None:
-        for g in groups:
-            self.optimizers[g].step()
+        optimizers = [self.optimizers[g] for g in groups]
+        if not self.compile_updates or not all(o.state for o in optimizers):
+            for optimizer in optimizers:   # eager; an optimizer's first step also creates its state
+                optimizer.step()
+        elif optimizers:
+            self._update("_adam_steps", _adam_steps)([_adam_inputs(o) for o in optimizers])
+
+    def _update(self, name: str, fn):
+        """`_adam_steps` or `_move_targets`, `torch.compile`d when `compile_updates` (module docstring,
+        "Compilation": with `compile_mode` on CUDA). Their inputs are lists of tensors, so one program serves
+        every seed's agent whose tensors have the same shapes (`dynamic=False`: each keeps its exact
+        shapes)."""
+        if not self.compile_updates:
+            return fn
+        compiled = self._compiled.get(name)
+        if compiled is None:
+            compiled = self._compiled[name] = torch.compile(fn, dynamic=False)
+        return compiled
 
     def _lerps(self, pairs: dict[str, tuple[str, float]]) -> list[tuple[float, list, list]]:
         """[(τ, target tensors, online tensors)] of `pairs` = {target: (online, τ)}, one entry per rate."""
@@ -301,6 +335,35 @@ class Algorithm:
             by_rate[float(tau)][0].extend(self._params((target,)))
             by_rate[float(tau)][1].extend(self._params((online,)))
         return [(tau, t, o) for tau, (t, o) in by_rate.items()]
+
+
+def _adam_inputs(optimizer: torch.optim.Adam) -> tuple[list, list, list, list, list, dict]:
+    """The arguments of torch's functional Adam (`torch.optim.adam.adam`) that `optimizer.step()` would pass
+    it (after its first step has created the state): params that have a gradient, their gradients, first and
+    second moments and step counts, and the group's hyperparameters."""
+    (group,) = optimizer.param_groups
+    params = [p for p in group["params"] if p.grad is not None]
+    state = [optimizer.state[p] for p in params]
+    beta1, beta2 = group["betas"]
+    hyper = {"lr": group["lr"], "beta1": beta1, "beta2": beta2, "eps": group["eps"],
+             "weight_decay": group["weight_decay"], "amsgrad": group["amsgrad"],
+             "maximize": group["maximize"], "capturable": group["capturable"]}
+    return (params, [p.grad for p in params], [s["exp_avg"] for s in state],
+            [s["exp_avg_sq"] for s in state], [s["step"] for s in state], hyper)
+
+
+@torch.no_grad()
+def _adam_steps(inputs: list[tuple[list, list, list, list, list, dict]]) -> None:
+    """One Adam step per `_adam_inputs(optimizer)`, in order: torch's own foreach Adam, in place."""
+    for params, grads, exp_avgs, exp_avg_sqs, steps, hyper in inputs:
+        functional_adam(params, grads, exp_avgs, exp_avg_sqs, [], steps, foreach=True, **hyper)
+
+
+@torch.no_grad()
+def _move_targets(lerps: list[tuple[float, list, list]]) -> None:
+    """Each target ← lerp(target, online, τ): one `torch._foreach_lerp_` per rate (`Algorithm._lerps`)."""
+    for tau, targets, online in lerps:
+        torch._foreach_lerp_(targets, online, tau)
 
 
 class TD3(Algorithm):
