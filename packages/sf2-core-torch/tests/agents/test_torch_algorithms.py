@@ -257,6 +257,42 @@ def test_state_dict_round_trip(shared_adam):
     assert all(np.array_equal(a[n], b[n]) for n in a)
 
 
+def test_a_checkpoint_keeps_the_loading_agents_adam_flags():
+    """`load_state_dict` takes the moments and step counts, but keeps the loading agent's Adam flags and
+    learning rate (torch's own `Optimizer.load_state_dict` would take the saved ones: a run with compiled
+    updates, foreach and capturable, resuming a checkpoint of the fused Adam would step it fused; a CPU run
+    resuming a CUDA-graph run's checkpoint would get a tensor learning rate, which foreach Adam refuses
+    without capturable), and puts the step counts where those flags keep them (float32; on the agent's
+    device when capturable or fused). Both ways, and the resumed CPU agent takes the same step."""
+    plain = _algo("td3")
+    plain.sgd_step(_batch(0), _noise(plain, _batch(0)), 0)
+    torch.manual_seed(0)
+    graphed = algorithms.make_algorithm("td3", plain.cfg, representations.get("sf2"), cudagraphs=True)
+    saved = copy.deepcopy(plain.state_dict())
+    for o in saved["optimizers"].values():   # as a fused Adam on another run would have written them
+        o["param_groups"][0].update(fused=True, foreach=None, capturable=False)
+    graphed.load_state_dict(saved)
+    for g, o in graphed.optimizers.items():
+        group = o.param_groups[0]
+        assert (group["capturable"], group["fused"], group["foreach"]) == (True, None, True), g
+        assert torch.is_tensor(group["lr"]), g
+        for p, s in o.state.items():
+            assert s["step"].dtype == torch.float32 and s["step"].device == p.device, g
+        for mine, theirs in zip(group["params"], plain.optimizers[g].param_groups[0]["params"]):
+            torch.testing.assert_close(o.state[mine]["exp_avg"], plain.optimizers[g].state[theirs]["exp_avg"])
+    fresh = _algo("td3")
+    fresh.load_state_dict(graphed.state_dict())
+    for g, o in fresh.optimizers.items():
+        group = o.param_groups[0]
+        assert (group["capturable"], group["fused"], group["foreach"]) == (False, None, True), g
+        assert not torch.is_tensor(group["lr"]), g
+        assert all(s["step"].device.type == "cpu" for s in o.state.values())
+    batch = _batch(1)
+    noise = _noise(plain, batch, 1)
+    m1, m2 = plain.sgd_step(batch, noise, 1), fresh.sgd_step(batch, noise, 1)
+    assert all(torch.equal(m1[k], m2[k]) for k in m1)
+
+
 @pytest.mark.parametrize("name,shared_adam", [("td3", True), ("sac", False)])
 def test_compiled_updates_path_equals_optimizer_step(name, shared_adam, monkeypatch):
     """The updates `compile_mode` compiles on CUDA, run uncompiled (torch.compile stubbed to return them):

@@ -147,11 +147,14 @@ class Algorithm:
                 v.load_state_dict(state["groups"][g])
         for g, o in self.optimizers.items():
             (group,) = o.param_groups
-            flags = {k: group[k] for k in ("capturable", "fused", "foreach")}
+            flags = {k: group[k] for k in ("capturable", "fused", "foreach", "lr")}
             o.load_state_dict(state["optimizers"][g])
             # this agent's Adam implementation, whichever wrote the checkpoint: torch's load_state_dict takes
-            # the saved flags (a run with compiled updates resumes a checkpoint of a fused Adam) and puts the
-            # step counts where those flags keep them (on the device when capturable or fused, else the CPU)
+            # the saved flags and learning rate (a run with compiled updates resuming a checkpoint of a fused
+            # Adam would step it fused; a CPU run resuming a CUDA-graph run's would get a tensor learning
+            # rate, which foreach Adam refuses without capturable). The learning rate is the config's either
+            # way. The step counts go where this agent's flags keep them (its device when capturable or
+            # fused, else the CPU).
             o.param_groups[0].update(flags)
             device = self.device if flags["capturable"] or flags["fused"] else torch.device("cpu")
             for s in o.state.values():
