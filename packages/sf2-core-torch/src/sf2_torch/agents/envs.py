@@ -26,6 +26,15 @@ and runs `vmap(jit(step))`, which re-traces the vmap on every call. The subclass
   evaluation episodes from the same states as the JAX trainer with the same seed.
 - `get_state_leaves()` / `set_state_leaves(leaves)`: the JAX env state as numpy arrays, for checkpoints.
 
+Between steps the env keeps the JAX state *packed* (`StateLayout`): its arrays (182 for AcrobotSwingup) as
+one flat buffer per dtype, which the jitted step unpacks, steps and packs again, returning the transition as
+one (n, D + 3) array [observation | reward | done | truncation]. Calling a jitted function costs host time
+for each array it takes and returns. With the state as it is, the torch trainer's host took 1.276 ms per
+SGD step (AcrobotSwingup, one seed, H200), more than the device's 1.104 ms of work, and the env step was
+0.465 ms of it (bench/results/h200x2/50-torch-step/README.md; packed: h200x2/51-torch-env). Packing is
+exact (concatenations and slices), so the physics is the same
+(packages/sf2-core-torch/tests/agents/test_torch_envs.py steps both ways).
+
 Playground and JAX are imported when an env is built.
 """
 
@@ -69,6 +78,72 @@ class EnvSpec:
     action_size: int
     episode_length: int
     action_repeat: int
+
+
+@dataclass(frozen=True)
+class StateLayout:
+    """How a JAX env state (a pytree) is packed: its leaves grouped by dtype, each group raveled into one
+    flat buffer, in leaf order. `pack`/`unpack` work on JAX arrays (`xp=jax.numpy`, inside jit) and on numpy
+    arrays (`xp=numpy`, checkpoints) alike."""
+
+    treedef: Any
+    shapes: tuple[tuple[int, ...], ...]
+    dtypes: tuple[str, ...]
+
+    @classmethod
+    def of(cls, state) -> StateLayout:
+        import jax
+
+        leaves, treedef = jax.tree_util.tree_flatten(state)
+        return cls(treedef, tuple(tuple(x.shape) for x in leaves), tuple(str(x.dtype) for x in leaves))
+
+    @property
+    def groups(self) -> tuple[str, ...]:
+        return tuple(sorted(set(self.dtypes)))
+
+    def pack(self, leaves, xp) -> tuple:
+        return tuple(xp.concatenate([xp.ravel(x) for x, d in zip(leaves, self.dtypes) if d == g])
+                     for g in self.groups)
+
+    def unpack(self, buffers, xp) -> list:
+        offsets = dict.fromkeys(self.groups, 0)
+        by_group = dict(zip(self.groups, buffers))
+        leaves = []
+        for shape, d in zip(self.shapes, self.dtypes):
+            size = int(np.prod(shape, dtype=np.int64))
+            start = offsets[d]
+            leaves.append(xp.reshape(by_group[d][start:start + size], shape))
+            offsets[d] = start + size
+        return leaves
+
+
+def _transition(state):
+    """[observation | reward | done | truncation] (n, D + 3) float32, one array for one DLPack crossing."""
+    import jax.numpy as jnp
+
+    n = state.obs.shape[0]
+    cols = [state.obs, state.reward, state.done, state.info["truncation"]]
+    return jnp.concatenate([c.reshape(n, -1).astype(jnp.float32) for c in cols], axis=-1)
+
+
+@functools.lru_cache(maxsize=32)
+def _packed_fns(spec: EnvSpec, layout: StateLayout):
+    """(pack, step) of `spec` on states of `layout`, jitted once per task and batch size: `pack(state)` →
+    (buffers, transition); `step(buffers, action)` → (buffers′, transition), the buffers donated."""
+    import jax
+    import jax.numpy as jnp
+
+    def unflatten(buffers):
+        return jax.tree_util.tree_unflatten(layout.treedef, layout.unpack(buffers, jnp))
+
+    def pack(state):
+        return layout.pack(jax.tree_util.tree_leaves(state), jnp), _transition(state)
+
+    def step(buffers, action):
+        action = action.astype(jax.dtypes.canonicalize_dtype(np.float64))
+        return pack(spec.step(unflatten(buffers), action))
+
+    return jax.jit(pack), jax.jit(step, donate_argnums=0)
 
 
 @functools.lru_cache(maxsize=16)
@@ -137,8 +212,8 @@ class PlaygroundEnv(MujocoPlaygroundWrapper):
         import jax
 
         self._key = None
-        self._current_state = None
-        self._treedef = None
+        self._packed = None    # the packed JAX state (module docstring)
+        self._layout: StateLayout | None = None
         self._jax_device = jax.devices("gpu" if self.device.type == "cuda" else "cpu")[0]
 
     def _set_seed(self, seed):
@@ -156,69 +231,67 @@ class PlaygroundEnv(MujocoPlaygroundWrapper):
 
     def _step(self, tensordict):
         action = tensordict.get("action")
-        state = self._spec.step(self._current_state, self._to_jax(action.to(torch.float32)))
-        self._current_state = state
-        return self._outputs(state, with_reward=True)
+        _, step = _packed_fns(self._spec, self._layout)
+        self._packed, transition = step(self._packed, self._to_jax(action.to(torch.float32)))
+        return self._outputs(transition, with_reward=True)
 
     # ---------------------------------------------------------------- helpers
     def reset_from_keys(self, keys) -> TensorDict:
         """Reset every env from explicit JAX PRNG keys (num_envs, 2); returns the reset TensorDict."""
-        self._reset_from(keys)
-        return self._outputs(self._current_state, with_reward=False)
+        return self._reset_from(keys)
 
     def _reset_from(self, keys):
         import jax
 
         keys = jax.device_put(keys, self._jax_device)  # committed, like every later input
         state = self._spec.reset(keys)
-        self._current_state = state
-        self._treedef = jax.tree_util.tree_structure(state)
-        return self._outputs(state, with_reward=False)
+        self._layout = StateLayout.of(state)
+        pack, _ = _packed_fns(self._spec, self._layout)
+        self._packed, transition = pack(state)
+        return self._outputs(transition, with_reward=False)
 
     def _to_jax(self, t: torch.Tensor):
-        """`t` as a JAX array of JAX's default float width: MJX builds its state in float64 when
-        `jax_enable_x64` is on (a float32 action would then break its `lax.scan` carry)."""
+        """`t` as a JAX array (the jitted step casts it to JAX's default float width: MJX builds its
+        state in float64 when `jax_enable_x64` is on, and a float32 action would then break its `lax.scan`
+        carry)."""
         import jax
 
         if t.device.type == "cuda":
-            x = jax.dlpack.from_dlpack(t.contiguous())
-        else:
-            x = jax.device_put(t.detach().contiguous().numpy(), self._jax_device)
-        return x.astype(jax.dtypes.canonicalize_dtype(np.float64))
+            return jax.dlpack.from_dlpack(t.contiguous())
+        return jax.device_put(t.detach().contiguous().numpy(), self._jax_device)
 
-    def _to_torch(self, x) -> torch.Tensor:
-        return torch.from_dlpack(x).to(self.device)
-
-    def _outputs(self, state, with_reward: bool):
-        n = (*self.batch_size, 1)
-        done = self._to_torch(state.done).view(n) > 0.5
-        trunc = self._to_torch(state.info["truncation"]).view(n) > 0.5
-        out = {"observation": self._to_torch(state.obs).to(torch.float32).clone(),
-               "done": done, "terminated": done & ~trunc, "truncated": trunc}
+    def _outputs(self, transition, with_reward: bool):
+        """The TensorDict of one `_transition` array (copied out of JAX's buffer)."""
+        n, d = (*self.batch_size, 1), self._spec.obs_size
+        t = torch.from_dlpack(transition).to(self.device)
+        done, trunc = t[:, d + 1:d + 2] > 0.5, t[:, d + 2:d + 3] > 0.5
+        out = {"observation": t[:, :d].clone(), "done": done.view(n), "terminated": (done & ~trunc).view(n),
+               "truncated": trunc.view(n)}
         if with_reward:
-            out["reward"] = self._to_torch(state.reward).to(torch.float32).view(n).clone()
+            out["reward"] = t[:, d:d + 1].clone().view(n)
         return TensorDict._new_unsafe(source=out, batch_size=self.batch_size, device=self.device)
 
     def get_state_leaves(self) -> list[np.ndarray]:
-        import jax
-
-        return [np.asarray(x) for x in jax.tree_util.tree_leaves(self._current_state)]
+        if self._layout is None:
+            raise RuntimeError("reset the env once before reading its state")
+        # copies: the next step donates the buffers, and a checkpoint is written while the next epochs train
+        return [np.array(x) for x in self._layout.unpack([np.asarray(b) for b in self._packed], np)]
 
     def set_state_leaves(self, leaves) -> None:
         import jax
 
-        if self._treedef is None:
+        if self._layout is None:
             raise RuntimeError("reset the env once before restoring its state")
-        template = jax.tree_util.tree_leaves(self._current_state)
-        if len(template) != len(leaves):
-            raise ValueError(f"env state has {len(template)} arrays, got {len(leaves)}")
+        layout = self._layout
+        if len(layout.shapes) != len(leaves):
+            raise ValueError(f"env state has {len(layout.shapes)} arrays, got {len(leaves)}")
         arrays = []
-        for t, x in zip(template, leaves):
+        for shape, dtype, x in zip(layout.shapes, layout.dtypes, leaves):
             x = np.asarray(x)
-            if x.shape != t.shape or x.dtype != t.dtype:
-                raise ValueError(f"env state array {x.shape} {x.dtype} does not fit {t.shape} {t.dtype}")
-            arrays.append(jax.device_put(x, self._jax_device))
-        self._current_state = jax.tree_util.tree_unflatten(self._treedef, arrays)
+            if x.shape != shape or str(x.dtype) != dtype:
+                raise ValueError(f"env state array {x.shape} {x.dtype} does not fit {shape} {dtype}")
+            arrays.append(x)
+        self._packed = tuple(jax.device_put(b, self._jax_device) for b in layout.pack(arrays, np))
 
     def __repr__(self) -> str:
         return (f"PlaygroundEnv(task={self._spec.task!r}, num_envs={self.batch_size.numel()}, "

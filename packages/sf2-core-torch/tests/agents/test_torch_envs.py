@@ -1,0 +1,80 @@
+"""The torch trainer's env keeps the JAX state packed (sf2_torch/agents/envs.py, module docstring): stepping
+it gives, bit for bit, what stepping the plain JAX state with the same jitted step gives, across episode
+ends (auto-reset, truncation); its state leaves are the plain state's, copies that later steps do not
+change, and restore into another env exactly; a leaf that does not fit is refused with its shapes."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+import torch
+from sf2_torch.agents import envs
+from tensordict import TensorDict
+
+TASK, EPISODE, N = "CartpoleBalance", 7, 4   # 7-step episodes: three episode ends in 20 steps
+
+
+def _actions(steps):
+    g = torch.Generator().manual_seed(0)
+    return [torch.rand(N, 1, generator=g) * 2 - 1 for _ in range(steps)]
+
+
+def _keys():
+    return jax.random.split(jax.random.PRNGKey(3), N)
+
+
+def _step(env, obs, action):
+    return env.step(TensorDict({"observation": obs, "action": action}, batch_size=[N])).get("next")
+
+
+def test_the_packed_state_steps_as_the_plain_state():
+    env = envs.make_env(TASK, EPISODE, 1, N)
+    spec = envs.env_spec(TASK, EPISODE, 1)
+    obs = env.reset_from_keys(_keys()).get("observation")
+    state = spec.reset(jax.device_put(_keys(), jax.devices("cpu")[0]))
+    np.testing.assert_array_equal(obs.numpy(), np.asarray(state.obs, np.float32))
+    ends = 0
+    for action in _actions(20):
+        nxt = _step(env, obs, action)
+        state = spec.step(state, jax.numpy.asarray(action.numpy()))
+        obs = nxt.get("observation")
+        np.testing.assert_array_equal(obs.numpy(), np.asarray(state.obs, np.float32))
+        np.testing.assert_array_equal(nxt.get("reward").numpy()[:, 0], np.asarray(state.reward, np.float32))
+        done, trunc = np.asarray(state.done) > 0.5, np.asarray(state.info["truncation"]) > 0.5
+        np.testing.assert_array_equal(nxt.get("done").numpy()[:, 0], done)
+        np.testing.assert_array_equal(nxt.get("truncated").numpy()[:, 0], trunc)
+        np.testing.assert_array_equal(nxt.get("terminated").numpy()[:, 0], done & ~trunc)
+        ends += int(trunc.any())
+    assert ends == 2   # episodes ended at steps 7 and 14 (truncated: the time limit)
+    leaves = env.get_state_leaves()
+    plain = jax.tree_util.tree_leaves(state)
+    assert len(leaves) == len(plain)
+    for a, b in zip(leaves, plain):
+        assert a.shape == b.shape and a.dtype == b.dtype
+        np.testing.assert_array_equal(a, np.asarray(b))
+
+
+def test_state_leaves_are_copies_and_restore_exactly():
+    env, other = envs.make_env(TASK, EPISODE, 1, N), envs.make_env(TASK, EPISODE, 1, N)
+    obs = env.reset_from_keys(_keys()).get("observation")
+    other.reset_from_keys(jax.random.split(jax.random.PRNGKey(9), N))
+    actions = _actions(10)
+    for action in actions[:5]:
+        obs = _step(env, obs, action).get("observation")
+    leaves = env.get_state_leaves()
+    kept = [x.copy() for x in leaves]
+    other.set_state_leaves(leaves)
+    obs_other = obs.clone()
+    for action in actions[5:]:
+        a, b = _step(env, obs, action), _step(other, obs_other, action)
+        obs, obs_other = a.get("observation"), b.get("observation")
+        for key in ("observation", "reward", "done", "truncated"):
+            assert torch.equal(a.get(key), b.get(key)), key
+    assert all(np.array_equal(x, y) for x, y in zip(leaves, kept))   # not moved by the later steps
+    bad = list(leaves)
+    bad[1] = np.zeros((3, *bad[1].shape), bad[1].dtype)
+    with pytest.raises(ValueError, match="does not fit"):
+        other.set_state_leaves(bad)
+    with pytest.raises(ValueError, match=f"has {len(leaves)} arrays, got {len(leaves) - 1}"):
+        other.set_state_leaves(leaves[:-1])
