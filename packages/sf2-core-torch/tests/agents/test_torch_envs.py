@@ -25,26 +25,37 @@ def _keys():
 
 
 def _step(env, obs, action):
-    return env.step(TensorDict({"observation": obs, "action": action}, batch_size=[N])).get("next")
+    return env.step(TensorDict({"observation": obs, "action": action}, batch_size=[N],
+                               device=obs.device)).get("next")
 
 
-def test_the_packed_state_steps_as_the_plain_state():
-    env = envs.make_env(TASK, EPISODE, 1, N)
+def _np(t):
+    return t.cpu().numpy()
+
+
+_CUDA = pytest.mark.skipif(not torch.cuda.is_available(),
+                           reason="needs a CUDA device (the GPU host runs it: bench/README.md)")
+
+
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=_CUDA)])
+def test_the_packed_state_steps_as_the_plain_state(device):
+    env = envs.make_env(TASK, EPISODE, 1, N, device)
     spec = envs.env_spec(TASK, EPISODE, 1)
+    jax_device = jax.devices("gpu" if device == "cuda" else "cpu")[0]
     obs = env.reset_from_keys(_keys()).get("observation")
-    state = spec.reset(jax.device_put(_keys(), jax.devices("cpu")[0]))
-    np.testing.assert_array_equal(obs.numpy(), np.asarray(state.obs, np.float32))
+    state = spec.reset(jax.device_put(_keys(), jax_device))
+    np.testing.assert_array_equal(_np(obs), np.asarray(state.obs, np.float32))
     ends = 0
     for action in _actions(20):
-        nxt = _step(env, obs, action)
-        state = spec.step(state, jax.numpy.asarray(action.numpy()))
+        nxt = _step(env, obs, action.to(device))
+        state = spec.step(state, jax.device_put(action.numpy(), jax_device))
         obs = nxt.get("observation")
-        np.testing.assert_array_equal(obs.numpy(), np.asarray(state.obs, np.float32))
-        np.testing.assert_array_equal(nxt.get("reward").numpy()[:, 0], np.asarray(state.reward, np.float32))
+        np.testing.assert_array_equal(_np(obs), np.asarray(state.obs, np.float32))
+        np.testing.assert_array_equal(_np(nxt.get("reward"))[:, 0], np.asarray(state.reward, np.float32))
         done, trunc = np.asarray(state.done) > 0.5, np.asarray(state.info["truncation"]) > 0.5
-        np.testing.assert_array_equal(nxt.get("done").numpy()[:, 0], done)
-        np.testing.assert_array_equal(nxt.get("truncated").numpy()[:, 0], trunc)
-        np.testing.assert_array_equal(nxt.get("terminated").numpy()[:, 0], done & ~trunc)
+        np.testing.assert_array_equal(_np(nxt.get("done"))[:, 0], done)
+        np.testing.assert_array_equal(_np(nxt.get("truncated"))[:, 0], trunc)
+        np.testing.assert_array_equal(_np(nxt.get("terminated"))[:, 0], done & ~trunc)
         ends += int(trunc.any())
     assert ends == 2   # episodes ended at steps 7 and 14 (truncated: the time limit)
     leaves = env.get_state_leaves()
