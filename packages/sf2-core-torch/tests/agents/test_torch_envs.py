@@ -33,8 +33,17 @@ def _np(t):
     return t.cpu().numpy()
 
 
-_CUDA = pytest.mark.skipif(not torch.cuda.is_available(),
-                           reason="needs a CUDA device (the GPU host runs it: bench/README.md)")
+def _jax_gpu() -> bool:
+    try:
+        return bool(jax.devices("gpu"))
+    except RuntimeError:
+        return False
+
+
+_CUDA = pytest.mark.skipif(
+    not (torch.cuda.is_available() and _jax_gpu()),
+    reason="needs a CUDA device for torch and for JAX (the tests' conftest defaults JAX to the CPU: on the "
+           "GPU host run it with JAX_PLATFORMS=cuda,cpu)")
 
 
 @pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=_CUDA)])
