@@ -267,7 +267,7 @@ def test_one_seed_program_without_vmap_equals_the_vmapped_one(tiny_cfg, monkeypa
 
     with monkeypatch.context() as m:
         m.setattr(trainer, "_seed_map", vmapped)
-        vmapped = batched_products(old)
+        n_vmapped = batched_products(old)
     # without the vmap only the flow loss's own batched products remain (53 lines against 117 for this
     # config on the CPU, 2026-11-27)
-    assert batched_products(new) < vmapped
+    assert batched_products(new) < n_vmapped
