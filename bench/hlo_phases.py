@@ -85,22 +85,26 @@ def _callees(opcode: str, line: str) -> list[tuple[str, str]]:
     return out
 
 
-def count(text: str, phases: tuple[str, ...]) -> dict:
-    """Kernel launches per phase in one call of the module (module docstring)."""
-    comps, entry = parse(text)
-    fused = {name for instrs in comps.values() for _, op, line in instrs
-             for key, name in _callees(op, line) if op == "fusion" and key == "calls"}
+def runs(comps: dict, entry: str, into_fusions: bool = False) -> tuple[dict[str, float], int, int]:
+    """({computation: runs per call of the module}, while loops without a known trip count, conditional
+    branches): each computation weighted by the product of the known trip counts of the loops around it, a
+    conditional's branches each as if it ran. `into_fusions`: also the computations fused into a fusion
+    (the instructions a kernel computes, for counting their arithmetic; not their scalar `to_apply`
+    reducers); otherwise fusions are leaves (one kernel each)."""
+    fused = set() if into_fusions else {
+        name for instrs in comps.values() for _, op, line in instrs
+        for key, name in _callees(op, line) if op == "fusion" and key == "calls"}
     weight: dict[str, float] = collections.defaultdict(float)
     unknown_loops, branches = 0, 0
     stack = [(entry, 1.0)]
-    while stack:   # each computation's runs per module call; XLA's call graph is a DAG
+    while stack:   # XLA's call graph is a DAG
         comp, w = stack.pop()
         weight[comp] += w
         for _, op, line in comps.get(comp, ()):
-            if op == "fusion":
+            if op == "fusion" and not into_fusions:
                 continue
             for key, callee in _callees(op, line):
-                if callee not in comps or callee in fused:
+                if callee not in comps or callee in fused or (into_fusions and key == "to_apply"):
                     continue
                 m = w
                 if op == "while" and key == "body":
@@ -112,20 +116,40 @@ def count(text: str, phases: tuple[str, ...]) -> dict:
                 elif op == "conditional":
                     branches += 1
                 stack.append((callee, m))
+    return weight, unknown_loops, branches
+
+
+_WRAPPED = re.compile(r"^[\w.\-]+\((.*)\)$")
+
+
+def phase_of(line: str, phases: tuple[str, ...], default: str = "(other)") -> str:
+    """The last scope of `phases` that an instruction's `op_name` names, else `default`. A transformation
+    wraps the scopes traced under it (`vmap(critic_grad)` in the several-seed program, `jvp(...)`,
+    `transpose(...)`): each path element is unwrapped to its innermost name."""
+    m = _OP_NAME.search(line)
+    path = []
+    for part in m.group(1).split("/") if m else ():
+        while (w := _WRAPPED.match(part)) is not None:
+            part = w.group(1)
+        path.append(part)
+    return next((p for p in reversed(path) if p in phases), default)
+
+
+def count(text: str, phases: tuple[str, ...]) -> dict:
+    """Kernel launches per phase in one call of the module (module docstring)."""
+    comps, entry = parse(text)
+    weight, unknown_loops, branches = runs(comps, entry)
     by_phase: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
     for comp, w in weight.items():
         for name, op, line in comps[comp]:
             if op in FREE:
                 continue
-            m = _OP_NAME.search(line)
-            path = m.group(1).split("/") if m else []
-            phase = next((p for p in reversed(path) if p in phases), "(other)")
-            by_phase[phase][_kind(op, name, line)] += w
+            by_phase[phase_of(line, phases)][kernel_kind(op, name, line)] += w
     return {"by_phase": {p: dict(c) for p, c in by_phase.items()},
             "unknown_trip_count_loops": unknown_loops, "conditional_branches": branches}
 
 
-def _kind(op: str, name: str, line: str) -> str:
+def kernel_kind(op: str, name: str, line: str) -> str:
     """gemm (a cuBLAS/cuBLASLt call or an XLA GEMM fusion: a Triton or cuDNN GEMM, by its fusion kind or
     name), fusion (the others, Triton's block-level reductions and normalizations too), copy, library
     (other custom calls: cuSOLVER, ...) or other; from the instruction's own name, target and backend

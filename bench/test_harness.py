@@ -628,3 +628,115 @@ def test_set_takes_the_torch_trainers_fields_with_the_torch_framework_alone():
     assert parse_sets([], ["jax"]) == {}
     with pytest.raises(ConfigError, match=r"unknown config field 'compile'.*need the torch framework alone"):
         parse_sets(items, ["jax", "torch"])
+
+
+_DOT_HLO = """\
+HloModule m, entry_computation_layout={(f32[8,3]{1,0}, f32[3,5]{1,0})->f32[8,5]{1,0}}
+
+%fused_dot (p0: f32[8,3], p1: f32[3,5]) -> f32[8,5] {
+  %p0 = f32[8,3]{1,0} parameter(0)
+  %p1 = f32[3,5]{1,0} parameter(1)
+  ROOT %d = f32[8,5]{1,0} dot(f32[8,3]{1,0} %p0, f32[3,5]{1,0} %p1), lhs_contracting_dims={1}, \
+rhs_contracting_dims={0}, metadata={op_name="jit(f)/critic_grad/dot_general"}
+}
+
+%body (t: (s32[], f32[8,3])) -> (s32[], f32[8,3]) {
+  %t = (s32[], f32[8,3]{1,0}) parameter(0)
+  %i = s32[] get-tuple-element(%t), index=0
+  %x = f32[8,3]{1,0} get-tuple-element(%t), index=1
+  %w = f32[3,3]{1,0} constant({...})
+  %y = f32[8,3]{1,0} dot(%x, %w), lhs_contracting_dims={1}, rhs_contracting_dims={0}, \
+metadata={op_name="jit(f)/targets/dot_general"}
+  ROOT %r = (s32[], f32[8,3]{1,0}) tuple(%i, %y)
+}
+
+%cond (t: (s32[], f32[8,3])) -> pred[] {
+  %t = (s32[], f32[8,3]{1,0}) parameter(0)
+  ROOT %c = pred[] constant(true)
+}
+
+ENTRY %main (a: f32[8,3], b: f32[3,5]) -> f32[8,5] {
+  %a = f32[8,3]{1,0} parameter(0)
+  %b = f32[3,5]{1,0} parameter(1)
+  %k = s32[] constant(0)
+  %t = (s32[], f32[8,3]{1,0}) tuple(%k, %a)
+  %l = (s32[], f32[8,3]{1,0}) while(%t), condition=%cond, body=%body, \
+backend_config={"known_trip_count":{"n":"3"}}
+  %x = f32[8,3]{1,0} get-tuple-element(%l), index=1
+  %o = f32[8,5]{1,0} fusion(%x, %b), kind=kOutput, calls=%fused_dot
+  %c = f32[5,4]{1,0} constant({...})
+  %g = (f32[8,4]{1,0}, s8[64]{0}) custom-call(f32[8,5]{1,0} %o, f32[5,4]{1,0} %c), \
+custom_call_target="__cublas$gemm", backend_config={"gemm_backend_config":{"dot_dimension_numbers":\
+{"lhs_contracting_dimensions":["1"],"rhs_contracting_dimensions":["0"],"lhs_batch_dimensions":[],\
+"rhs_batch_dimensions":[]}}}, metadata={op_name="jit(f)/vmap(policy_grad)/dot_general"}
+  ROOT %r = f32[8,4]{1,0} get-tuple-element(%g), index=0
+}
+"""
+
+
+def test_step_cost_counts_dot_flops_in_fusions_and_loops():
+    """By hand from `_DOT_HLO`: the fused dot (operand types written inline) is 8×5 outputs × 3 products ×
+    2 = 240 flops, once; the loop body's dot (operands named, their shapes looked up) is 8×3 × 3 × 2 = 144
+    flops, run 3 times (the loop's known trip count) = 432; the cuBLAS call (a GPU's library GEMM: its
+    contracting dimension from its backend config, its result the tuple's first element) 8×4 × 5 × 2 = 320.
+    Phases from the op_names (`vmap(policy_grad)` unwrapped)."""
+    from bench import step_cost
+
+    got = step_cost.dot_flops(_DOT_HLO, ("critic_grad", "policy_grad", "targets"))
+    assert got == {"dots": 5.0, "flops": 992.0, "unparsed": 0.0,
+                   "by_phase": {"critic_grad": 240.0, "targets": 432.0, "policy_grad": 320.0}}
+
+
+def test_step_cost_counts_the_dots_of_a_compiled_jax_program():
+    """A real compiled module: (8×3)·(3×5) under `critic_grad` = 2·8·5·3 = 240 flops; (8×5)·(5×4) under
+    `policy_grad` = 2·8·4·5 = 320; a 4-trip `lax.scan` of (8×4)·(4×4) under `targets` = 4 · 2·8·4·4 = 1024."""
+    jax = pytest.importorskip("jax")
+    import jax.numpy as jnp
+
+    from bench import step_cost
+
+    def f(x, w1, w2, w3):
+        with jax.named_scope("critic_grad"):
+            h = jnp.tanh(x @ w1)
+        with jax.named_scope("policy_grad"):
+            y = jnp.tanh(h @ w2)
+        with jax.named_scope("targets"):
+            y, _ = jax.lax.scan(lambda c, _: (jnp.tanh(c @ w3), None), y, None, length=4)
+        return y
+
+    args = [jnp.ones(s, jnp.float32) for s in ((8, 3), (3, 5), (5, 4), (4, 4))]
+    text = jax.jit(f).lower(*args).compile().as_text()
+    got = step_cost.dot_flops(text, ("critic_grad", "policy_grad", "targets"))
+    assert got["by_phase"] == {"critic_grad": 240.0, "policy_grad": 320.0, "targets": 1024.0}
+    assert got["flops"] == 1584.0 and got["dots"] == 6.0
+
+
+def test_step_cost_per_seed_arithmetic_does_not_change_with_the_seed_vmap():
+    """The SGD step vmapped over 3 seeds does 3 times one seed's products: per seed, its dot flops equal
+    the one-seed program's, phase by phase; and the SF² step's products are the vanilla step's plus its
+    flow loss's (`aux_grad`, absent from the vanilla step)."""
+    pytest.importorskip("jax")
+    from sf2_common.agents.configs import make_config
+
+    from bench import step_cost
+
+    cost = {(rep, n): step_cost.step_cost(make_config("quick", "CartpoleBalance", "td3", rep), n)
+            for rep in ("none", "sf2") for n in (1, 3)}
+    for rep in ("none", "sf2"):
+        one, three = cost[(rep, 1)], cost[(rep, 3)]
+        assert three["dot_flops"] == pytest.approx(one["dot_flops"], rel=1e-12)
+        assert three["dot_by_phase"] == pytest.approx(one["dot_by_phase"], rel=1e-12)
+    assert "aux_grad" not in cost[("none", 1)]["dot_by_phase"]
+    assert cost[("sf2", 1)]["dot_by_phase"]["aux_grad"] > 0
+
+
+def test_hlo_phases_unwraps_transformations_around_the_scopes():
+    """`jax.vmap` (the several-seed program) and autodiff wrap each scope traced under them in their
+    name; the phase is still the last scope of the list the path names."""
+    from bench import hlo_phases
+
+    phases = ("critic_grad", "policy_adam")
+    line = 'metadata={op_name="jit(epoch)/vmap(critic_grad)/%s/dot_general"}'
+    assert hlo_phases.phase_of(line % "mlp", phases) == "critic_grad"
+    assert hlo_phases.phase_of(line % "transpose(jvp(policy_adam))", phases) == "policy_adam"
+    assert hlo_phases.phase_of('metadata={op_name="jit(epoch)/vmap(explore)/add"}', phases) == "(other)"
