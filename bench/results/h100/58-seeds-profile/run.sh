@@ -1,6 +1,6 @@
 #!/bin/bash
 # Issue 12 item 4 at today's code: where the device time of a 16-seed epoch goes (GEMMs against fusions), to
-# set beside the compiled step's bytes and flops (../57-step-cost). Code of 0f58ec2. Carried: .whl-jax.
+# set beside the compiled step's bytes and flops (../../h200/57-step-cost). Code of 0f58ec2. Carried: .whl-jax.
 source scripts/gpu_env.sh || exit 1
 R=$OUT/r; mkdir -p $R
 nvidia-smi -L > $R/gpus.txt
