@@ -740,3 +740,68 @@ def test_hlo_phases_unwraps_transformations_around_the_scopes():
     assert hlo_phases.phase_of(line % "mlp", phases) == "critic_grad"
     assert hlo_phases.phase_of(line % "transpose(jvp(policy_adam))", phases) == "policy_adam"
     assert hlo_phases.phase_of('metadata={op_name="jit(epoch)/vmap(explore)/add"}', phases) == "(other)"
+
+
+# ----------------------------------------------------------------------------- issue 12's targets
+_THROUGHPUT_HEADER = ("framework,task,algo,rep,seeds,learner_precision,env_steps_per_epoch,"
+                      "sgd_steps_per_epoch,timed_epochs,warmup_epochs,warmup_s,median_epoch_s,sps_per_seed,sps_total,epoch_s\n")
+
+
+def _throughput_csv(folder, rows):
+    folder.mkdir(parents=True)
+    (folder / "throughput.csv").write_text(_THROUGHPUT_HEADER + "".join(
+        f"{fw},{task},td3,{rep},{seeds},{prec},8064,504,3,2,20.0,0.5,{sps / seeds},{sps},0.5;0.5;0.5\n"
+        for fw, task, rep, seeds, prec, sps in rows))
+
+
+def _physics_csv(folder, rates):
+    folder.mkdir(parents=True)
+    (folder / "physics.csv").write_text(
+        "task,num_envs,steps_per_call,compilations,type_changes,first_call_s,median_call_s,env_steps_per_s,"
+        "call_s,state_checksum\n" + "".join(f"{task},{n},50,1,none,1.0,0.01,{sps},0.01,0x0\n"
+                                             for task, n, sps in rates))
+
+
+def test_targets_from_result_folders(tmp_path):
+    """By hand: physics' lowest task at 1024 envs is HopperHop's 150,000 (its 128-env 9,000 is another
+    row) → reached; the one-seed SF² row at TF32 16,000 → reached; the best several-seed row 48,000 → not
+    reached; no CheetahRun row → not measured; two processes 47,000 + 46,000 = 93,000 against 48,000 on one
+    GPU = 1.9375× → reached; SF²/TD3 in one folder 22,400 / 16,000 = 1.40× (TF32) and 17,000 / 10,000 =
+    1.70× (fp32) → not reached, met at one seed TF32; torch 12,800 against JAX 16,000 in the same process
+    = 0.80× → reached."""
+    from sf2_common.agents.tasks import PAPER_TASKS
+
+    from bench import targets
+
+    acro, tf32, fp32 = "AcrobotSwingup", "tensorfloat32", "highest"
+    _physics_csv(tmp_path / "physics", [(t, 1024, 150_000 if t == "HopperHop" else 10**6)
+                                        for t in PAPER_TASKS] + [("HopperHop", 128, 9_000)])
+    _throughput_csv(tmp_path / "jax-1", [
+        ("jax", acro, "sf2", 1, tf32, 16_000), ("jax", acro, "none", 1, tf32, 22_400),
+        ("jax", acro, "sf2", 1, fp32, 10_000), ("jax", acro, "none", 1, fp32, 17_000),
+        ("torch", acro, "sf2", 1, tf32, 12_800)])
+    _throughput_csv(tmp_path / "jax-16", [("jax", acro, "sf2", 16, tf32, 48_000)])
+    _throughput_csv(tmp_path / "two-gpus-0", [("jax", acro, "sf2", 16, tf32, 47_000)])
+    _throughput_csv(tmp_path / "two-gpus-1", [("jax", acro, "sf2", 16, tf32, 46_000)])
+    rows, physics = targets.read([tmp_path])
+    got = targets.evaluate(rows, physics, PAPER_TASKS, tf32)
+    assert [t.reached for t in got] == [True, True, False, None, True, False, True]
+    assert got[0].measured == "lowest HopperHop 150,000 (7 tasks)"
+    assert got[2].measured.startswith("48,000 at 16 seed(s)")
+    assert got[4].measured.startswith("1.94×: 93,000 on two / 48,000 on one")
+    assert got[5].measured == "1.70× (x1 highest); 1.40× (x1 tensorfloat32); met at x1 tensorfloat32"
+    assert got[6].measured == "0.80× (tensorfloat32, one process)"
+    # a task without its 1024-env row: the physics target is not reached, and says which
+    (tmp_path / "physics" / "physics.csv").unlink()
+    _physics_csv(tmp_path / "physics2", [(t, 1024, 10**6) for t in PAPER_TASKS[1:]])
+    rows, physics = targets.read([tmp_path])
+    first = targets.evaluate(rows, physics, PAPER_TASKS, tf32)[0]
+    assert first.reached is False and first.measured.endswith(f"missing {PAPER_TASKS[0]}")
+
+
+def test_targets_cli_names_a_missing_folder(tmp_path, capsys):
+    from bench import targets
+
+    with pytest.raises(SystemExit) as exc:
+        targets.main([str(tmp_path / "nowhere")])
+    assert exc.value.code == 2 and f"no result folder {tmp_path / 'nowhere'}" in capsys.readouterr().err
