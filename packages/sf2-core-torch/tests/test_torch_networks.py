@@ -104,6 +104,32 @@ def test_twin_q_one_product_equals_two_heads(td3_nets):
         q(f[:, :-1])
 
 
+@pytest.mark.parametrize("layer_norm", [True, False])
+def test_twin_heads_one_program_equals_two_mlps(layer_norm):
+    """`twin_heads` (the vanilla critic's VanillaQ: two 3-hidden-layer MLPs on one input) against the plain
+    `cat([head_0(x), head_1(x)])`: values and the gradients of the input and of every parameter, float64,
+    with LayerNorm (its own weight and bias per head, set away from 1 and 0 so a swap would show) and
+    without, for an input with two leading dimensions."""
+    torch.manual_seed(0)
+    kw = dict(dtype=torch.float64)
+    heads = [networks.MLP(D + A, (16, 12, 12), 1, layer_norm, **kw) for _ in range(2)]
+    with torch.no_grad():
+        for p in (p for h in heads for p in h.parameters()):
+            p.add_(0.1 * torch.randn_like(p))
+    x = torch.randn(3, B, D + A, dtype=torch.float64, requires_grad=True)
+    fast = networks.twin_heads(*heads, x)
+    plain = torch.cat([heads[0](x), heads[1](x)], dim=-1)
+    assert fast.shape == (3, B, 2)
+    torch.testing.assert_close(fast, plain, rtol=1e-12, atol=1e-12)
+    weight = torch.randn(3, B, 2, dtype=torch.float64)
+    inputs = [x, *heads[0].parameters(), *heads[1].parameters()]
+    g_fast = torch.autograd.grad((fast * weight).sum(), inputs)
+    g_plain = torch.autograd.grad((plain * weight).sum(), inputs)
+    for a, b in zip(g_fast, g_plain):
+        assert a.shape == b.shape
+        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12)
+
+
 def test_flow_time_embedding_formula():
     k = torch.tensor([0.0, 0.25, 0.7, 1.0], dtype=torch.float64)
     out = networks.flow_time_embedding(k, 6).numpy()

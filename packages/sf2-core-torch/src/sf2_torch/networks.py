@@ -38,6 +38,7 @@ __all__ = [
     "Zeta",
     "QHead",
     "TwinQ",
+    "twin_heads",
     "TD3Policy",
     "SACPolicy",
     "ObsNormalizer",
@@ -228,18 +229,44 @@ class QHead(MLP):
         super().__init__(cfg.feature_size, (cfg.q_hidden_size,), 1, False, **kw)
 
 
-class TwinQ(nn.Module):
-    """Two independent heads `head_0`, `head_1` on ψ features; `forward(features)` → (B, 2).
+def twin_heads(head_0: MLP, head_1: MLP, x: torch.Tensor) -> torch.Tensor:
+    """`torch.cat([head_0(x), head_1(x)], -1)` of two MLPs of one shape with one output each, as one
+    program: the first layer's two weights stacked make one GEMM on the shared input (forward, and one each
+    for the weight and the input gradient); each later hidden layer is one batched product over the two
+    heads (`torch.baddbmm`); the LayerNorms normalize both heads at once and scale by each head's own
+    weight and bias; the two output layers are one elementwise product and row sum. Each head's parameters
+    stay its own (`head_j.dense_i`, `head_j.layer_norm_i`: the canonical names), and the values equal the
+    plain `cat` up to float rounding (packages/sf2-core-torch/tests/test_torch_networks.py). torch.compile
+    does not merge two modules' products by itself; merging the twin Q heads took the torch trainer's GEMM
+    launches per SGD step from 123 to 104 and its one-seed rate up by 6.6%
+    (bench/results/h200x2/50-torch-step/README.md)."""
+    if head_0.num_hidden == 0:
+        return torch.cat([head_0(x), head_1(x)], dim=-1)
 
-    Both heads read the same features, so `forward` evaluates them as one product: the hidden layers'
-    weights stacked to (2·q_hidden_size, F) make one GEMM (forward, and one each for the weight and the
-    input gradient), and the two output layers, Dense(q_hidden_size → 1) each, are one elementwise product
-    and row sum. Each head's parameters stay its own (`head_j.dense_i`, the canonical names), and the values
-    are `torch.cat([head_0(features), head_1(features)], -1)` up to float rounding
-    (packages/sf2-core-torch/tests/test_torch_networks.py). torch.compile does not merge the two heads'
-    products by itself; merging them took the torch trainer's GEMM launches per SGD step from 123 to 104
-    and its one-seed rate up by 6.6% (bench/results/h200x2/50-torch-step/README.md).
-    """
+    def pair(layer: str, name: str) -> torch.Tensor:
+        return torch.stack([getattr(getattr(head_0, layer), name), getattr(getattr(head_1, layer), name)])
+
+    lead, x = x.shape[:-1], x.reshape(-1, x.shape[-1])
+    h = x
+    for i in range(head_0.num_hidden):
+        weight, bias = pair(f"dense_{i}", "weight"), pair(f"dense_{i}", "bias")   # (2, out, in), (2, out)
+        if i == 0:   # one GEMM on the shared input, viewed (2, N, out)
+            h = F.linear(x, weight.flatten(0, 1), bias.flatten()).unflatten(-1, (2, -1)).transpose(0, 1)
+        else:
+            h = torch.baddbmm(bias.unsqueeze(1), h, weight.transpose(1, 2))
+        h = F.relu(h)
+        if head_0.layer_norm:
+            norm = getattr(head_0, f"layer_norm_{i}")
+            h = (F.layer_norm(h, h.shape[-1:], eps=norm.eps) * pair(f"layer_norm_{i}", "weight").unsqueeze(1)
+                 + pair(f"layer_norm_{i}", "bias").unsqueeze(1))
+    last = f"dense_{head_0.num_hidden}"
+    out = (h * pair(last, "weight")).sum(-1) + pair(last, "bias")               # (2, N)
+    return out.transpose(0, 1).reshape(*lead, 2)
+
+
+class TwinQ(nn.Module):
+    """Two independent heads `head_0`, `head_1` on ψ features; `forward(features)` → (B, 2), both heads
+    as one product (`twin_heads`)."""
 
     def __init__(self, cfg: SF2Config, **kw) -> None:
         super().__init__()
@@ -249,13 +276,7 @@ class TwinQ(nn.Module):
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
         _check_last("features", features, self.feature_size, "feature_size")
-        h0, h1 = self.head_0, self.head_1
-        weight = torch.cat([h0.dense_0.weight, h1.dense_0.weight])            # (2·H_q, F)
-        bias = torch.cat([h0.dense_0.bias, h1.dense_0.bias])
-        hidden = F.relu(F.linear(features, weight, bias)).unflatten(-1, (2, -1))   # (..., 2, H_q)
-        out_weight = torch.cat([h0.dense_1.weight, h1.dense_1.weight])       # (2, H_q)
-        out_bias = torch.cat([h0.dense_1.bias, h1.dense_1.bias])             # (2,)
-        return (hidden * out_weight).sum(-1) + out_bias
+        return twin_heads(self.head_0, self.head_1, features)
 
 
 class TD3Policy(MLP):

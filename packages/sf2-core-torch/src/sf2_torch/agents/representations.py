@@ -105,7 +105,7 @@ def _frozen_copy(module: nn.Module) -> nn.Module:
 class VanillaQ(nn.Module):
     """Twin Q(s, a): two heads `head_0`, `head_1`, each the core `MLP(hidden_sizes → 1)` with LayerNorm,
     on concat[normalize(s), a] (Brax's Q network with `q_network_layer_norm=True`, as the authors ran
-    vanilla TD3 and SAC)."""
+    vanilla TD3 and SAC); `forward` evaluates both as one program (`networks.twin_heads`)."""
 
     def __init__(self, cfg: SF2Config, **kw):
         super().__init__()
@@ -114,7 +114,7 @@ class VanillaQ(nn.Module):
         self.head_1 = networks.MLP(n_in, cfg.hidden_sizes, 1, cfg.layer_norm, **kw)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return torch.cat([self.head_0(x), self.head_1(x)], dim=-1)
+        return networks.twin_heads(self.head_0, self.head_1, x)
 
 
 @register
