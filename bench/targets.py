@@ -30,6 +30,7 @@ from pathlib import Path
 PHYSICS_MIN, ONE_SEED_MIN, ALL_SEEDS_MIN, CHEETAH_MIN = 100_000, 15_000, 150_000, 50_000
 TWO_GPUS_MIN, SF2_OVER_TD3_MAX, TORCH_OVER_JAX_MIN = 1.9, 1.5, 0.8
 MAX_SEEDS_ONE_GPU = 32
+_WRITER = {"throughput.csv": "bench.agent_throughput", "physics.csv": "bench.physics"}
 
 
 @dataclass(frozen=True)
@@ -62,7 +63,8 @@ class Target:
 
 def read(folders) -> tuple[list[Row], dict[str, tuple[float, str]]]:
     """(throughput rows, {task: (env steps/s at 1024 envs, folder)}) below `folders`. Raises
-    `FileNotFoundError` naming a folder that does not exist or holds neither file."""
+    `FileNotFoundError` naming a folder that does not exist or holds neither file, `ValueError` naming the
+    file and line of a row that is not the bench's."""
     rows, physics = [], {}
     for folder in map(Path, folders):
         if not folder.is_dir():
@@ -72,13 +74,17 @@ def read(folders) -> tuple[list[Row], dict[str, tuple[float, str]]]:
             raise FileNotFoundError(f"{folder} holds no throughput.csv or physics.csv")
         for f in files:
             with f.open(newline="") as fh:
-                for r in csv.DictReader(fh):
-                    if f.name == "physics.csv":
-                        if int(r["num_envs"]) == 1024:
-                            physics[r["task"]] = (float(r["env_steps_per_s"]), str(f.parent))
-                    elif r["algo"] == "td3":
-                        rows.append(Row(str(f.parent), r["framework"], r["task"], r["rep"], int(r["seeds"]),
-                                        r["learner_precision"], float(r["sps_total"])))
+                for line, r in enumerate(csv.DictReader(fh), start=2):
+                    try:
+                        if f.name == "physics.csv":
+                            if int(r["num_envs"]) == 1024:
+                                physics[r["task"]] = (float(r["env_steps_per_s"]), str(f.parent))
+                        elif r["algo"] == "td3":
+                            rows.append(Row(str(f.parent), r["framework"], r["task"], r["rep"],
+                                            int(r["seeds"]), r["learner_precision"], float(r["sps_total"])))
+                    except (KeyError, TypeError, ValueError) as err:
+                        raise ValueError(f"{f}, line {line}: not a row of `python -m {_WRITER[f.name]}` "
+                                         f"({type(err).__name__}: {err})") from None
     return rows, physics
 
 
@@ -199,7 +205,7 @@ def main(argv=None) -> int:
 
     try:
         rows, physics = read(args.folders)
-    except FileNotFoundError as err:
+    except (FileNotFoundError, ValueError) as err:
         p.error(str(err))
     precision = make_config("paper", "AcrobotSwingup").learner_precision
     text = markdown(evaluate(rows, physics, tuple(tasks.PAPER_TASKS), precision))

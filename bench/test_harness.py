@@ -805,3 +805,15 @@ def test_targets_cli_names_a_missing_folder(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         targets.main([str(tmp_path / "nowhere")])
     assert exc.value.code == 2 and f"no result folder {tmp_path / 'nowhere'}" in capsys.readouterr().err
+
+
+def test_targets_names_the_file_and_line_of_a_corrupt_row(tmp_path, capsys):
+    from bench import targets
+
+    _throughput_csv(tmp_path / "jax-1", [("jax", "AcrobotSwingup", "sf2", 1, "tensorfloat32", 16_000)])
+    f = tmp_path / "jax-1" / "throughput.csv"
+    f.write_text(f.read_text().replace("16000", "fast"))
+    with pytest.raises(SystemExit) as exc:
+        targets.main([str(tmp_path)])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and f"{f}, line 2: not a row of `python -m bench.agent_throughput`" in err
