@@ -80,19 +80,15 @@ def step_cost(cfg, n_seeds: int = 1) -> dict:
     """The cost analysis of `cfg`'s SGD step (module docstring), per seed: at `n_seeds` > 1 the step
     `jax.vmap`ped over seeds as the trainer's several-seed program runs it, divided by `n_seeds`."""
     import jax
-    import jax.numpy as jnp
     from sf2_jax.agents.algorithms import PHASES
     from sf2_jax.agents.trainer import Program
-    from sf2_jax.losses import Batch
 
     program = Program(cfg)
     algo, key = program.algo, jax.random.PRNGKey(0)
     params, opt_state = jax.eval_shape(algo.init, key)
-    n, d, a = cfg.batch_size, program.spec.obs_size, program.spec.action_size
-    f32 = jax.ShapeDtypeStruct
-    batch = Batch(obs=f32((n, d), jnp.float32), action=f32((n, a), jnp.float32),
-                  reward=f32((n,), jnp.float32), discount=f32((n,), jnp.float32),
-                  next_obs=f32((n, d), jnp.float32), truncation=f32((n,), jnp.float32))
+    # a batch as the trainer draws it from its replay buffer (shapes only)
+    buffer = program.buffer
+    batch = jax.eval_shape(lambda k: buffer.sample(buffer.init(), k, cfg.batch_size), key)
     noise = jax.eval_shape(algo.step_noise, key, batch)
     step = lambda p, o, b, z: algo.sgd_step(p, o, b, z, 0)   # noqa: E731
     args = (params, opt_state, batch, noise)
