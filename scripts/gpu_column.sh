@@ -4,7 +4,8 @@
 # (`nvidia-h100-x4`, `nvidia-h200-x4`); about 8 minutes. Four lanes at once, each one after the other:
 #   GPU 0  physics of the seven paper tasks at 1024 envs; the JAX trainer at one seed, TD3+SF² and TD3, fp32
 #          and TF32 (one process: the one-seed target and SF²/TD3 at one seed)
-#   GPU 1  the JAX and torch trainers at one seed, TD3+SF², fp32 and TF32 (one process: torch / JAX)
+#   GPU 1  the JAX and torch trainers at one seed, TD3+SF², fp32 and TF32 (one process: torch / JAX); then
+#          TD3 (`none`, the twin critic heads as one program) in both at one seed, TF32
 #   GPU 2  the JAX trainer at 16 seeds, TD3+SF² and TD3, TF32 (all seeds on one GPU, SF²/TD3 at 16 seeds, the
 #          one-GPU reference of the two-GPU row)
 #   GPU 3  CheetahRun TD3+SF² at 8 seeds, TF32
@@ -35,7 +36,7 @@ part() {   # part GPU LIMIT NAME ARGS...: one measurement on one GPU, its log an
 (part 0 200 physics python3 -m bench.physics --tasks all --envs 1024 --repeats 3
  part 0 260 jax-1 $T $A --reps sf2,none --seeds 1 --precisions highest,tensorfloat32; pack) & L0=$!
 (part 1 320 torch-1 $T $A --reps sf2 --seeds 1 --precisions highest,tensorfloat32 --frameworks jax,torch
- pack) & L1=$!
+ part 1 180 torch-td3 $T $A --reps none --seeds 1 --precisions tensorfloat32 --frameworks jax,torch; pack) & L1=$!
 (part 2 200 jax-16 $T $A --reps sf2,none --seeds 16 --precisions tensorfloat32; pack) & L2=$!
 (part 3 220 cheetah-8 $T --tasks CheetahRun --reps sf2 --seeds 8 --precisions tensorfloat32 --env-steps 48000
  pack) & L3=$!
