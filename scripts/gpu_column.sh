@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Issue 12's targets, every row in one command on one host (its "Done means": each figure re-measured in one
 # run per machine kind), then their table (`python -m bench.targets`). Needs four GPUs of one host
-# (`nvidia-h100-x4`, `nvidia-h200-x4`); about 8 minutes. Four lanes at once, each one after the other:
+# (`nvidia-h100-x4`, `nvidia-h200-x4`); 340 s on four H100s (bench/results/h100x4/59-column, 60-column). Four
+# lanes at once, each one after the other:
 #   GPU 0  physics of the seven paper tasks at 1024 envs; the JAX trainer at one seed, TD3+SF² and TD3, fp32
 #          and TF32 (one process: the one-seed target and SF²/TD3 at one seed)
 #   GPU 1  the JAX and torch trainers at one seed, TD3+SF², fp32 and TF32 (one process: torch / JAX); then
