@@ -20,7 +20,9 @@ trainer runs them (each the host time of the call), then with the device drained
 phase (each its own host and device time, as if alone); then under `torch.profiler` for the kernels and
 the CUDA runtime and driver calls that can make the host wait. When the phases' host time is close to the
 wall time, the host paces the epoch (or one phase waits for the device: a phase that takes longer as
-trained than alone); when the kernels' busy time is, the device does.
+trained than alone); when the kernels' busy time is, the device does. Where the device idles, each summary
+says (`bench.profile.idle_gaps`: the gaps between kernels, by the kernels around them and their streams);
+the torch case also writes its trace's device and CUDA API events (`trace-<rep>-x<seeds>.json.gz`).
 """
 
 from __future__ import annotations
@@ -147,8 +149,12 @@ def _runtime_calls(events: list[dict], updates: int) -> list[dict]:
     return waits + rest
 
 
-def profile_torch_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=print) -> dict:
-    """The torch trainer's epochs (module docstring): host time per phase, then a `torch.profiler` trace."""
+def profile_torch_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=print,
+                       events_to=None) -> dict:
+    """The torch trainer's epochs (module docstring): host time per phase, then a `torch.profiler` trace;
+    with `events_to` (a path), the trace's device and CUDA runtime/driver events are also written there
+    (gzipped JSON: what the summary is computed from, for questions it does not answer)."""
+    import gzip
     import tempfile
     import time
 
@@ -210,6 +216,11 @@ def profile_torch_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides,
         prof.export_chrome_trace(path)
         with open(path) as f:
             events = json.load(f)["traceEvents"]
+    if events_to:
+        kept = [e for e in events if e.get("cat") in ("kernel", "gpu_memcpy", "gpu_memset", "cuda_runtime",
+                                                      "cuda_driver")]
+        with gzip.open(events_to, "wt") as f:
+            json.dump(kept, f)
     kernels = [e for e in events
                if e.get("ph") == "X" and e.get("cat") in ("kernel", "gpu_memcpy", "gpu_memset")]
     device = f"GPU {torch.cuda.get_device_name()}" if torch.cuda.is_available() else "CPU"
@@ -264,6 +275,8 @@ def main(argv=None) -> int:
     case = profile_torch_case if args.framework == "torch" else profile_case
     for n, rep in cases:
         extra = {"hlo_dump": hlo_dump} if hlo_dump else {}
+        if args.framework == "torch":
+            extra = {"events_to": out / f"trace-{rep}-x{n}.json.gz"}
         summaries.append(case(args.task, args.algo, rep, n, args.actor_steps, args.epochs, overrides,
                               **extra))
         (out / "agent_profile.md").write_text(f"Command: `{command}`\n\n" + markdown(summaries))

@@ -80,6 +80,35 @@ def trace(runner, updates: int = 10, label: str = "") -> dict:
     return out
 
 
+def idle_gaps(ks: list[dict], updates: int, top: int = 8, width: int = 48) -> dict:
+    """Where the device idles: every interval in which no kernel of `ks` (trace events with `name`, `ts`,
+    `dur` in µs and, in a torch.profiler trace, `args.stream`) runs, attributed to the kernel that ended last
+    before it and the kernel that starts it (names cut to `width` characters, each with its stream). Per
+    update: the idle time, the number of gaps, the share of gaps between two streams, and the `top`
+    transitions by idle time."""
+    def label(e):
+        return f"{e.get('name', '?')[:width]} (stream {e.get('args', {}).get('stream', '?')})"
+
+    by = collections.defaultdict(lambda: [0, 0.0])
+    idle, gaps, cross, last = 0.0, 0, 0.0, None
+    for e in sorted(ks, key=lambda e: e["ts"]):
+        if last is not None and e["ts"] > last["ts"] + last["dur"]:
+            gap = e["ts"] - (last["ts"] + last["dur"])
+            idle, gaps = idle + gap, gaps + 1
+            if last.get("args", {}).get("stream") != e.get("args", {}).get("stream"):
+                cross += gap
+            t = by[(label(last), label(e))]
+            t[0] += 1
+            t[1] += gap
+        if last is None or e["ts"] + e["dur"] > last["ts"] + last["dur"]:
+            last = e
+    rows = sorted(by.items(), key=lambda kv: -kv[1][1])[:top]
+    return {"idle_ms_per_update": idle / 1e3 / updates, "gaps_per_update": gaps / updates,
+            "cross_stream_ms_per_update": cross / 1e3 / updates,
+            "top": [{"after": a, "before": b, "count": v[0] / updates, "ms": v[1] / 1e3 / updates}
+                    for (a, b), v in rows]}
+
+
 def summarize_kernels(ks: list[dict], updates: int, device: str) -> dict:
     """Per update: kernels, device-busy time (union of the kernels' intervals), the sum of kernel times,
     the split by category and the costliest kernels, from trace events with `name`, `ts`, `dur` (µs).
@@ -104,6 +133,7 @@ def summarize_kernels(ks: list[dict], updates: int, device: str) -> dict:
         "kernel_ms_per_update": sum(e["dur"] for e in ks) / 1e3 / updates,
         "by_category": {k: {"count": v[0] / updates, "ms": v[1] / 1e3 / updates} for k, v in by_cat.items()},
         "top": [{"name": k, "count": v[0] / updates, "ms": v[1] / 1e3 / updates} for k, v in top],
+        "idle": idle_gaps(ks, updates),
     }
 
 
@@ -133,6 +163,15 @@ def markdown(summaries: list[dict]) -> str:
                     f"sum of kernel times {d['kernel_ms_per_update']:.3f} ms; {cats}", "",
                     "| kernel [HLO op] | per update | ms per update |", "|---|---|---|"]
             out += [f"| `{t['name'][:110]}` | {t['count']:.0f} | {t['ms']:.4f} |" for t in d["top"]]
+            if d.get("idle"):
+                g = d["idle"]
+                out += ["", f"Device idle between kernels: {g['idle_ms_per_update']:.3f} ms per update in "
+                        f"{g['gaps_per_update']:.1f} gaps, {g['cross_stream_ms_per_update']:.3f} ms of it "
+                        "where the next kernel runs on another stream than the last one; the longest "
+                        "transitions:", "",
+                        "| after | before | gaps per update | idle ms per update |", "|---|---|---|---|"]
+                out += [f"| `{t['after']}` | `{t['before']}` | {t['count']:.2f} | {t['ms']:.4f} |"
+                        for t in g["top"]]
         if s.get("phases"):   # bench.agent_profile --hlo
             from .hlo_phases import markdown as phases_markdown
             from .hlo_phases import phases

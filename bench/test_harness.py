@@ -470,6 +470,26 @@ def test_torch_profile_lists_the_calls_that_can_wait_first():
         ("cudaDeviceSynchronize", 0.5, 1.5), ("cudaLaunchKernel", 1.0, 0.1)]
 
 
+def test_idle_gaps_attributes_each_idle_interval_to_the_kernels_around_it():
+    """bench.profile.idle_gaps on a hand-made trace (µs), 2 updates. Kernels: a [0, 10) stream 7, b [5, 30)
+    stream 7 (inside nothing: it ends last), c [40, 50) stream 9, d [50, 60) stream 9 (no gap), e [62, 70)
+    stream 7, f [100, 101) stream 7. Gaps: b→c 10 µs (streams 7→9), d→e 2 µs (9→7), e→f 30 µs (7→7): idle
+    42 µs = 0.021 ms per update in 1.5 gaps, 12 µs = 0.006 ms of it across streams; the longest first."""
+    from bench.profile import idle_gaps
+
+    def k(name, ts, dur, stream):
+        return {"name": name, "ts": ts, "dur": dur, "args": {"stream": stream}}
+
+    ks = [k("c", 40, 10, 9), k("a", 0, 10, 7), k("b", 5, 25, 7), k("d", 50, 10, 9), k("e", 62, 8, 7),
+          k("f", 100, 1, 7)]
+    g = idle_gaps(ks, updates=2)
+    assert abs(g["idle_ms_per_update"] - 0.021) < 1e-12 and g["gaps_per_update"] == 1.5
+    assert abs(g["cross_stream_ms_per_update"] - 0.006) < 1e-12
+    assert [(t["after"], t["before"], t["count"], t["ms"]) for t in g["top"]] == [
+        ("e (stream 7)", "f (stream 7)", 0.5, 0.015), ("b (stream 7)", "c (stream 9)", 0.5, 0.005),
+        ("d (stream 9)", "e (stream 7)", 0.5, 0.001)]
+
+
 def test_torch_profile_phase_timer_splits_the_wall_time():
     """`_PhaseTimer` adds up each phase's host time; `take` gives ms per update and the rest of the wall
     time, and starts again from zero; synchronized, it drains the device before and after each call."""
