@@ -84,8 +84,8 @@ def idle_gaps(ks: list[dict], updates: int, top: int = 8, width: int = 48) -> di
     """Where the device idles: every interval in which no kernel of `ks` (trace events with `name`, `ts`,
     `dur` in µs and, in a torch.profiler trace, `args.stream`) runs, attributed to the kernel that ended last
     before it and the kernel that starts it (names cut to `width` characters, each with its stream). Per
-    update: the idle time, the number of gaps, the share of gaps between two streams, and the `top`
-    transitions by idle time."""
+    update: the idle time, the number of gaps, the idle time where the two kernels run on different
+    streams, and the `top` transitions by idle time."""
     def label(e):
         return f"{e.get('name', '?')[:width]} (stream {e.get('args', {}).get('stream', '?')})"
 
