@@ -283,3 +283,35 @@ def test_library_noise_goes_to_the_run_log(tmp_path, capfd):
     log = run.log_path.read_text()
     assert "absl WARNING: Waiting for previous save" in log and "RuntimeError: Event loop is closed" in log
     assert sys.unraisablehook is hook and logging.getLogger("absl").propagate
+
+
+def test_the_paper_preset_gives_each_family_its_authors_adam_eps():
+    from sf2_common.agents.configs import make_config
+
+    assert make_config("paper", "CheetahRun", "td3", "sf2").adam_eps == 1e-5
+    assert make_config("paper", "CheetahRun", "sac", "sf2").adam_eps == 1e-8
+    assert make_config("paper", "CheetahRun", "sac", "none").adam_eps == 1e-8
+    assert make_config("quick", "CheetahRun", "sac", "sf2").adam_eps == 1e-5   # the quick preset is ours
+
+
+def test_a_folder_trained_with_a_superseded_preset_value_keeps_it(tmp_path, capsys):
+    from sf2_common.agents.configs import make_config
+
+    now = make_config("paper", "CheetahRun", "sac", "sf2")
+    before = now.replace(adam_eps=1e-5)   # what the paper preset gave SAC when the folder was written
+    run = RunFolder(tmp_path / "run")
+    run.write_config({"config": before.to_dict(), "seeds": [0]})
+    capsys.readouterr()
+    kept = run.keep_trained_values(now)
+    assert kept == before
+    assert "adam_eps = 1e-05 (the preset now gives 1e-08)" in capsys.readouterr().err
+    assert run.check_compatible(now.to_dict(), (0,)) is True    # a study's check of the folder passes too
+    # any other value is another run, and so is TD3's ε in a TD3 folder changed by hand
+    with pytest.raises(RunFolderMismatch, match="adam_eps: 1e-05 .folder. vs 0.001 .now."):
+        run.check_compatible(now.replace(adam_eps=1e-3).to_dict(), (0,))
+    assert run.keep_trained_values(now.replace(adam_eps=1e-3)).adam_eps == 1e-3
+    td3 = RunFolder(tmp_path / "td3")
+    td3.write_config({"config": before.replace(algo="td3").to_dict(), "seeds": [0]})
+    with pytest.raises(RunFolderMismatch, match="adam_eps"):
+        td3.check_compatible(now.replace(algo="td3").to_dict(), (0,))
+    assert RunFolder(tmp_path / "new").keep_trained_values(now) == now

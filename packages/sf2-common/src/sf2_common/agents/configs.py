@@ -13,8 +13,9 @@ Where the `paper` preset follows the authors' code rather than Table 1 (docs/cor
 authors' code"):
 learning_rate 1e-3 (table: 1e-4), tau_zeta 0.05 (table: 0.005), denoising_steps 1 midpoint step = 2
 function evaluations (the table's "2 Function Evaluations"), evaluation with the acting noise
-(Brax's `deterministic_eval=False` default, which the authors kept). Per-task budgets and action repeat
-follow Table 1 (see tasks.py for PendulumSwingup).
+(Brax's `deterministic_eval=False` default, which the authors kept), Adam's ε per family as their trainers
+build it (TD3 1e-5, SAC optax's default 1e-8). Per-task budgets and action repeat follow Table 1 (see
+tasks.py for PendulumSwingup).
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from . import tasks
 __all__ = [
     "TrainConfig", "PRESETS", "ALGOS", "SF2_FIELDS", "make_config", "parse_overrides", "parse_value",
     "parse_seeds", "validate", "Schedule", "schedule", "ConfigError", "bad_field", "LEARNER_PRECISIONS",
-    "ADDED_FIELDS",
+    "ADDED_FIELDS", "PAPER_ADAM_EPS", "SUPERSEDED", "superseded_values",
 ]
 
 ALGOS = ("td3", "sac")
@@ -51,6 +52,13 @@ _SF2_DEFAULTS = {f.name: f.default for f in fields(SF2Config)}
 # (`RunFolder.check_compatible`), so it resumes and joins a study as before.
 ADDED_FIELDS = {name: _SF2_DEFAULTS[name] for name in ("spr_augmentation_std", "shared_adam")}
 SF2_FIELDS = tuple(name for name in _SF2_DEFAULTS if name not in ("obs_size", "action_size"))
+# Adam's ε as the authors' trainers build it: every TD3 optimizer `eps=1e-5`, every SAC optimizer optax's
+# default 1e-8 (the temperature's Adam is 1e-8 in both cores whatever this is).
+PAPER_ADAM_EPS = {"td3": 1e-5, "sac": 1e-8}
+# Preset values that changed after run folders were written: (algo, field) -> (old value, new value). A
+# folder whose config holds the old value where the preset now gives the new one holds the same run and
+# resumes with its own value (`superseded_values`). The `paper` preset gave SAC TD3's ε until 0.2.0.
+SUPERSEDED = {("sac", "adam_eps"): (1e-5, PAPER_ADAM_EPS["sac"])}
 
 
 @dataclass(frozen=True)
@@ -143,7 +151,15 @@ class TrainConfig:
 
 
 # ------------------------------------------------------------------------------------------- presets
-def _paper(task: str) -> dict:
+def superseded_values(folder: dict, now: dict) -> dict:
+    """The fields of `SUPERSEDED` in which a run folder's config `folder` holds the old value and the
+    config `now` the new one: {field: the folder's value}. Both are `TrainConfig.to_dict()` forms."""
+    return {field: folder[field] for (algo, field), (old, new) in SUPERSEDED.items()
+            if now.get("algo") == algo == folder.get("algo") and folder.get(field) == old
+            and now.get(field) == new}
+
+
+def _paper(task: str, algo: str) -> dict:
     """Table 1 + the authors' effective settings (the TrainConfig defaults) with the task's budget and
     action repeat. A checkpoint holds the 4M-transition replay buffers (~0.7 GB per seed on CheetahRun),
     so the preset writes one every 10 evaluations.
@@ -152,10 +168,11 @@ def _paper(task: str) -> dict:
     1M env steps, TD3 and TD3+SF² on AcrobotSwingup and CartpoleSwingupSparse, found no difference in
     learning that the seeds resolve and half the wall time (results/precision-td3/README.md)."""
     return dict(num_timesteps=tasks.paper_budget(task), action_repeat=tasks.paper_action_repeat(task),
-                checkpoint_every=10, learner_precision="tensorfloat32")
+                checkpoint_every=10, learner_precision="tensorfloat32",
+                adam_eps=PAPER_ADAM_EPS.get(algo, _SF2_DEFAULTS["adam_eps"]))
 
 
-def _quick(task: str) -> dict:
+def _quick(task: str, algo: str) -> dict:
     """Small networks and budget for a 2-core CPU: TD3+SF² on CartpoleBalance passes 800 in minutes.
 
     On a 2-core CPU an env step costs microseconds and an SGD step milliseconds, so wall time is set
@@ -188,7 +205,7 @@ def make_config(preset: str, task: str, algo: str = "td3", representation: str =
     if preset not in _PRESET_FNS:
         raise ConfigError(f"unknown config preset {preset!r}; valid presets: {', '.join(PRESETS)}")
     tasks.validate_task(task)
-    values = dict(task=task, algo=algo, representation=representation, **_PRESET_FNS[preset](task))
+    values = dict(task=task, algo=algo, representation=representation, **_PRESET_FNS[preset](task, algo))
     for name, value in (overrides or {}).items():
         values[name] = parse_value(name, value, config_class) if isinstance(value, str) else value
     return config_class.from_dict(values)

@@ -28,7 +28,7 @@ from pathlib import Path
 from sf2_common.errors import ConfigError
 from sf2_common.fileio import GZ, atomic_write, expand, read_text, stored
 
-from .configs import ADDED_FIELDS
+from .configs import ADDED_FIELDS, superseded_values
 
 __all__ = ["RunFolder", "RunFolderError", "RunFolderMismatch"]
 
@@ -212,10 +212,12 @@ class RunFolder:
         old = self.preflight()
         if old is None:
             return False
-        # a field the folder's config predates has the value that run trained with (configs.ADDED_FIELDS)
+        # a field the folder's config predates has the value that run trained with (configs.ADDED_FIELDS);
+        # a preset value that changed since the folder was written is the folder's (configs.SUPERSEDED)
         known = {**{k: v for k, v in ADDED_FIELDS.items() if k in config}, **old["config"]}
+        kept = superseded_values(known, config)
         diffs = [f"{k}: {known.get(k)!r} (folder) vs {v!r} (now)"
-                 for k, v in config.items() if known.get(k) != v]
+                 for k, v in config.items() if known.get(k) != v and k not in kept]
         diffs += [f"{k}: missing now" for k in old["config"] if k not in config]
         if list(old.get("seeds", [])) != list(seeds):
             diffs.append(f"seeds: {old.get('seeds')} (folder) vs {list(seeds)} (now)")
@@ -224,6 +226,28 @@ class RunFolder:
                 f"run folder {self.path} holds a different run; differences: " + "; ".join(diffs)
                 + ". Use another --out, or --fresh to overwrite it.")
         return True
+
+    def kept_values(self, config: dict) -> dict:
+        """The fields whose preset value changed since this folder's run was written and that the run
+        keeps (`configs.superseded_values`): {field: the folder's value}; {} for a new folder."""
+        old = self.read_config()
+        return {} if old is None else superseded_values(old["config"], config)
+
+    def keep_trained_values(self, cfg):
+        """`cfg` (a `TrainConfig`) with the values this folder's run keeps (`kept_values`), said in one
+        line; `cfg` itself when there are none or the folder's config cannot be read (`preflight` names
+        that problem)."""
+        try:
+            kept = self.kept_values(cfg.to_dict())
+        except RunFolderError:
+            return cfg
+        if kept:
+            now = cfg.to_dict()
+            self.say(f"{self.path} was trained with " + ", ".join(
+                f"{k} = {v!r} (the preset now gives {now[k]!r})" for k, v in kept.items())
+                + "; it keeps its values (another --out, or --fresh, trains with the preset's)")
+            cfg = cfg.replace(**kept)
+        return cfg
 
     def write_config(self, payload: dict) -> None:
         self.path.mkdir(parents=True, exist_ok=True)

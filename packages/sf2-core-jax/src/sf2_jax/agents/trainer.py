@@ -427,6 +427,7 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
     if fresh:
         run.clear()
     run.check_framework("jax")
+    cfg = run.keep_trained_values(cfg)
     existing = run.check_compatible(cfg.to_dict(), seeds)
     sched = configs.schedule(cfg)
     hardware = _hardware(len(seeds))

@@ -338,6 +338,7 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
     if fresh:
         run.clear()
     run.check_framework("torch")
+    cfg = run.keep_trained_values(cfg)
     existing = run.check_compatible(cfg.to_dict(), seeds)
     sched = common_configs.schedule(cfg)
     program = get_program(cfg)
