@@ -52,5 +52,5 @@ echo "study run exit status $rc after $(( $(date +%s) - start )) s"
 python3 -m sf2_jax.cli study run "$study" --out "$folder" --dry-run "$@" || true
 mkdir -p "$OUT"
 tar czf "$OUT/$name.tar.gz" -C "$folder" --exclude='checkpoints' --exclude='final' --exclude='damaged' \
-  --exclude='*.npz' --exclude='.study-lock' .
+  --exclude='*.npz' --exclude='.study-lock' --exclude='.sf2-lock' .
 exit $rc

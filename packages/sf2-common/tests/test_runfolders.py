@@ -315,3 +315,93 @@ def test_a_folder_trained_with_a_superseded_preset_value_keeps_it(tmp_path, caps
     with pytest.raises(RunFolderMismatch, match="adam_eps"):
         td3.check_compatible(now.replace(algo="td3").to_dict(), (0,))
     assert RunFolder(tmp_path / "new").keep_trained_values(now) == now
+
+
+def test_what_a_rerun_drops_from_metrics_is_said_in_one_line(tmp_path, capsys):
+    """Rows written twice (two writers before the lock) and rows of epochs after the checkpoint resumed from
+    are dropped by the rewrite, and one line says what and how many."""
+    run, ckpt = _run_folder(tmp_path / "twice")
+    run.append_rows(_rows(3))   # every (epoch, seed) twice: 16 lines
+    capsys.readouterr()
+    res = _resume(run, ckpt)
+    err = capsys.readouterr().err
+    assert res.rows == _rows(3) and len(run.metrics_path.read_text().splitlines()) == 8
+    assert f"{run.metrics_path}: 8 of 16 rows dropped (8 duplicate or unreadable); 8 kept" in err
+    late, ckpt2 = _run_folder(tmp_path / "late", epochs=(2,), rows=3)   # killed before checkpoint 3
+    with open(late.metrics_path, "a") as f:
+        f.write('{"epoch": 4, "se')                                    # and mid-write
+    capsys.readouterr()
+    _resume(late, ckpt2)
+    assert f"{late.metrics_path}: 3 of 9 rows dropped (2 of epochs after 2 (they are trained again); 1 " \
+        f"duplicate or unreadable); 6 kept" in capsys.readouterr().err
+    capsys.readouterr()
+    _resume(late, ckpt2)
+    assert "rows dropped" not in capsys.readouterr().err   # nothing to repair: nothing said
+
+
+# ------------------------------------------------------------------------------------------- the lock
+_HOLD = """
+import sys, time
+from sf2_common.agents.lock import FolderLock
+lock = FolderLock(sys.argv[1], "test holder").acquire()
+print("held", flush=True)
+time.sleep(600)
+"""
+
+
+def _holder(folder):
+    import subprocess
+
+    proc = subprocess.Popen([sys.executable, "-c", _HOLD, str(folder)], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().strip() == "held"
+    return proc
+
+
+def test_a_second_writer_is_refused_naming_the_holder_and_a_dead_ones_lock_is_taken_over(tmp_path, capsys):
+    import signal
+    import socket
+
+    from sf2_common.agents.lock import FolderLock, RunFolderBusy, holder_of
+
+    folder = tmp_path / "run"
+    proc = _holder(folder)
+    try:
+        expected = f"pid {proc.pid} on host {socket.gethostname()} (test holder, since "
+        assert holder_of(folder).startswith(expected)
+        with pytest.raises(RunFolderBusy) as err:
+            FolderLock(folder, "sf2-jax train").acquire()
+        assert f"run folder {folder} is in use by {expected}" in str(err.value)
+        assert "nothing was changed" in str(err.value) and isinstance(err.value, RunFolderError)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    assert holder_of(folder) is None   # the kernel released it with the process
+    capsys.readouterr()
+    lock = FolderLock(folder, "sf2-jax train").acquire()
+    err = capsys.readouterr().err
+    assert f"{folder}: taking over the lock of {expected}" in err and err.rstrip().endswith("which is gone")
+    # flock belongs to an open file: this process's own second look sees the lock held, by itself
+    assert holder_of(folder).startswith(f"pid {os.getpid()} on host {socket.gethostname()} (sf2-jax train")
+    lock.release()
+    assert (folder / FolderLock.NAME).read_text() == ""   # a clean release leaves no holder named
+    with FolderLock(folder, "again"):
+        pass
+    assert "taking over" not in capsys.readouterr().err
+
+
+def test_a_child_inherits_its_parents_lock_and_a_missing_folder_is_not_created(tmp_path):
+    import subprocess
+
+    from sf2_common.agents.lock import FolderLock
+
+    folder = tmp_path / "run"
+    with FolderLock(folder, "study run") as lock:
+        child = ("import sys; from sf2_common.agents.lock import FolderLock\n"
+                 "l = FolderLock(sys.argv[1], 'train').acquire(); print(l.owned); l.release()")
+        out = subprocess.run([sys.executable, "-c", child, str(folder)], capture_output=True, text=True,
+                             env={**os.environ, **lock.child_env()}, pass_fds=(lock.fd,))
+        assert out.returncode == 0 and out.stdout.strip() == "False", out.stderr
+        alone = subprocess.run([sys.executable, "-c", child, str(folder)], capture_output=True, text=True)
+        assert alone.returncode != 0 and "is in use by pid" in alone.stderr
+    missing = FolderLock(tmp_path / "missing", "eval --save", create=False).acquire()
+    assert missing.fd is None and not (tmp_path / "missing").exists()

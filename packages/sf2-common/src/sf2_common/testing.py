@@ -7,7 +7,8 @@ checkpoint's save; the run-folder faults of docs/run-folders.md (`damage`, `fold
 from __future__ import annotations
 
 __all__ = ["BAD_TRAIN_INPUTS", "cli_error", "check_cli_misuse", "check_baselines_resolve",
-           "check_paper_preset", "check_cli_eval", "check_obs_noise_eval", "KILL_POINTS", "Killed",
+           "check_paper_preset", "check_cli_eval", "check_two_writers", "check_obs_noise_eval", "KILL_POINTS",
+           "Killed",
            "kill_and_resume", "kill9", "check_cli_resume", "strip_wall", "cli_args", "FAULTS", "damage",
            "folder_digest"]
 
@@ -277,11 +278,15 @@ def check_cli_resume(main, args, out, capfd, resumed_from: str, reference_rows) 
     assert main(args) == 0
     err = capfd.readouterr().err
     assert f"resuming {out} from {resumed_from}" in err, err
+    # the killed process's lock file still names it: taken over, said in one line
+    assert re.search(rf"{out}: taking over the lock of pid \d+ on host .* \(sf2-\w+ train, since .*\), which "
+                     rf"is gone", err), err
     assert "absl" not in err and "Waiting for previous save" not in err
     rows = RunFolder(out).read_rows()
     assert strip_wall(rows) == strip_wall(reference_rows)
     assert main(args) == 0
     captured = capfd.readouterr()
+    assert "taking over" not in captured.err   # a clean exit leaves no stale holder
     walltime = max(r["walltime"] for r in rows)
     assert f"{out}: the run is complete (epoch 3 of 3, 144 env steps, trained in {walltime:.0f} s)" in \
         captured.err
@@ -298,6 +303,43 @@ def check_cli_resume(main, args, out, capfd, resumed_from: str, reference_rows) 
     assert run.read_config()["environment"] == numerics_environment()
     assert log.count(f" {environment_line(numerics_environment())}\n") == 3, log
     return rows
+
+
+def check_two_writers(train, cli_module: str, cfg, out, reference_rows, at=("train", 2)):
+    """Two `train`s on one run folder at once: while `train(cfg, (0,), out)` runs (at the hook point `at`),
+    `python -m cli_module train` on the same folder exits with status 2 naming this process's pid and host,
+    and changes nothing; the first run's rows equal the uninterrupted run's, one line each. Returns the
+    first run's `TrainResult` (the caller checks its checkpoints)."""
+    import os
+    import socket
+    import subprocess
+    import sys
+
+    from sf2_common.agents.runfolder import RunFolder
+
+    second = {}
+
+    def files():   # what the second process could change (checkpoints: the first may be saving one now)
+        return {k: v for k, v in folder_digest(out).items() if not k.startswith("checkpoints/")}
+
+    def hook(event, epoch):
+        if (event, epoch) == at and not second:
+            before = files()
+            second["proc"] = subprocess.run([sys.executable, "-m", cli_module, *cli_args(cfg, out)],
+                                            capture_output=True, text=True, timeout=600)
+            second["unchanged"] = files() == before
+
+    first = train(cfg, (0,), out, progress=False, hook=hook, plot=False)
+    proc = second["proc"]
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    holder = f"pid {os.getpid()} on host {socket.gethostname()} ("
+    assert f"run folder {out} is in use by {holder}" in proc.stderr, proc.stderr[-3000:]
+    assert "Traceback" not in proc.stderr and second["unchanged"]
+    assert strip_wall(first.rows) == strip_wall(reference_rows)
+    lines = [line for line in RunFolder(out).metrics_path.read_text().splitlines() if line.strip()]
+    assert len(lines) == len(reference_rows)
+    assert strip_wall(RunFolder(out).read_rows()) == strip_wall(reference_rows)
+    return first
 
 
 def cli_args(cfg, out, fields_skipped=("task", "algo", "representation")) -> list[str]:

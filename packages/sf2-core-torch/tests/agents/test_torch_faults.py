@@ -15,7 +15,16 @@ import pytest
 import torch
 from sf2_common.agents.checkpoints import CheckpointDamaged
 from sf2_common.agents.runfolder import RunFolderError
-from sf2_common.testing import FAULTS, check_cli_resume, cli_args, damage, folder_digest, kill9, strip_wall
+from sf2_common.testing import (
+    FAULTS,
+    check_cli_resume,
+    check_two_writers,
+    cli_args,
+    damage,
+    folder_digest,
+    kill9,
+    strip_wall,
+)
 from sf2_torch import cli
 from sf2_torch.agents import trainer
 from sf2_torch.agents.checkpoint import Checkpointer
@@ -184,3 +193,14 @@ def test_cli_eval_of_a_damaged_checkpoint_names_the_file(reference, tmp_path, ca
     damage(out / "checkpoints" / "3" / Checkpointer.ENV, "truncate")
     assert cli.main(["eval", str(out)]) == 2
     assert f"checkpoint 3 ({out / 'checkpoints' / '3'}) is damaged: env.npz has" in capsys.readouterr().err
+
+
+def test_two_trains_on_one_folder(reference, tiny_cfg, tmp_path):
+    """One writer per run folder: a second `sf2-torch train` on a folder that a train is writing exits with
+    status 2 naming it, and the first run's rows, checkpoints and state are the uninterrupted run's."""
+    out = tmp_path / "run"
+    first = check_two_writers(train, "sf2_torch.cli", tiny_cfg, out, reference.rows)
+    _assert_same_state(first, reference)
+    again = train(tiny_cfg, (0,), out, progress=False, plot=False)   # checkpoint 3 restores: nothing to train
+    assert again.resumed_from == 3
+    _assert_same_state(again, reference)

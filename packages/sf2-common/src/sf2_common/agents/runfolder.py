@@ -310,12 +310,29 @@ class RunFolder:
             f"deleted?). Nothing was changed; restore it, or pass --fresh to train again from scratch.")
 
     def truncate_rows(self, last_epoch: int) -> list[dict]:
-        """Keep the (deduplicated, well-formed) rows of epochs ≤ `last_epoch`; rewrite atomically."""
-        rows = [r for r in self.read_rows() if r.get("epoch", 1 << 62) <= last_epoch]
+        """Keep the (deduplicated, well-formed) rows of epochs ≤ `last_epoch`; rewrite atomically. What the
+        rewrite drops is said in one line (`say`): rows of later epochs, duplicates, a torn last line."""
+        unique = self.read_rows()
+        rows = [r for r in unique if r.get("epoch", 1 << 62) <= last_epoch]
+        lines = self._line_count()
         self.path.mkdir(parents=True, exist_ok=True)
         expand(self.metrics_path)   # a compressed one becomes plain (and the .gz goes) before the rewrite
         atomic_write(self.metrics_path, "".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
+        if lines > len(rows):
+            later, other = len(unique) - len(rows), lines - len(unique)
+            parts = ([f"{later} of epochs after {last_epoch} (they are trained again)"] if later else []) + \
+                ([f"{other} duplicate or unreadable"] if other else [])
+            self.say(f"{self.metrics_path}: {lines - len(rows)} of {lines} rows dropped "
+                     f"({'; '.join(parts)}); {len(rows)} kept")
         return rows
+
+    def _line_count(self) -> int:
+        """The non-blank lines of metrics.jsonl (or its .gz); 0 if it cannot be read."""
+        path = stored(self.metrics_path)
+        try:
+            return 0 if path is None else sum(1 for line in read_text(path).splitlines() if line.strip())
+        except (OSError, UnicodeDecodeError):
+            return 0
 
     def append_rows(self, rows: list[dict]) -> None:
         expand(self.metrics_path)   # appending continues a compressed file's rows, never a new file

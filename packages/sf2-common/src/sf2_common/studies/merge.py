@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import fcntl
 import json
 import os
 import shutil
@@ -51,6 +50,7 @@ from collections.abc import Callable
 from pathlib import Path, PurePosixPath
 
 from sf2_common.agents.hostloop import WALL_FIELDS
+from sf2_common.agents.lock import FolderLock, holder_of
 from sf2_common.agents.runfolder import RunFolder, RunFolderError, RunFolderMismatch
 from sf2_common.fileio import GZ, atomic_write, compress, stored
 
@@ -63,7 +63,7 @@ KEPT = (RunFolder.CONFIG, RunFolder.METRICS, RunFolder.LOG, OBS_NOISE)
 COMPRESSED = (RunFolder.METRICS, OBS_NOISE)   # DEST keeps these gzip-compressed (sf2_common.fileio)
 _KEPT_NAMES = {*KEPT, *(name + GZ for name in COMPRESSED)}   # a source's, in either form
 _NEVER = {RunFolder.CHECKPOINTS, RunFolder.FINAL, RunFolder.DAMAGED}   # folders never read from a source
-_LOCK = ".study-lock"   # runner.LOCK (not imported: runner pulls in the process machinery)
+_LOCKS = (FolderLock.NAME, ".study-lock")   # the run folder's lock, and the one runners held before it
 
 
 @dataclasses.dataclass
@@ -426,17 +426,10 @@ def _rerun_target(dest: StudyFolder, run: Run, side: _Side, planned: dict[Path, 
 
 
 def _check_not_running(target: Path) -> None:
-    lock = target / _LOCK
-    if not lock.exists():
-        return
-    fd = os.open(lock, os.O_RDWR)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        raise StudyError(f"{target} is being trained by a study runner now ({lock} is held); merge after it "
-                         f"stops; nothing was merged") from None
-    finally:
-        os.close(fd)
+    holder = holder_of(target)
+    if holder is not None:
+        raise StudyError(f"{target} is being written now by {holder}; merge after it stops; nothing was "
+                         f"merged")
 
 
 def _install(source: Path, target: Path) -> Path | None:
@@ -467,7 +460,7 @@ def _install(source: Path, target: Path) -> Path | None:
         raise
     if old is None:
         return None
-    if {p.name for p in old.iterdir()} <= {*_KEPT_NAMES, _LOCK}:
+    if {p.name for p in old.iterdir()} <= {*_KEPT_NAMES, *_LOCKS}:
         shutil.rmtree(old)
         return None
     aside = target.with_name(f"{target.name}.before-merge-{time.strftime('%Y%m%d-%H%M%S')}")

@@ -11,10 +11,12 @@ RUN/obs_noise.json (`--save`): {"settings": {"obs_noise", "checkpoints", "episod
 
 from __future__ import annotations
 
+import contextlib
 import json
 from collections.abc import Callable
 from pathlib import Path
 
+from sf2_common.agents.lock import FolderLock
 from sf2_common.errors import ConfigError
 
 from ..fileio import atomic_write
@@ -97,8 +99,11 @@ def eval_command(evaluate_noises: Callable, args, deterministic: bool | None) ->
         raise ConfigError("--epoch and --obs-noise do not go together: --checkpoints N evaluates the "
                           "latest N")
     noises = parse_noise(args.obs_noise)
-    result = evaluate_obs_noise(evaluate_noises, args.run, noises, args.checkpoints, args.episodes,
-                                deterministic, log=None if args.json else print)
+    # --save writes into the run folder: one writer at a time (sf2_common.agents.lock)
+    with FolderLock(args.run, "eval --save", create=False) if args.save else contextlib.nullcontext():
+        result = evaluate_obs_noise(evaluate_noises, args.run, noises, args.checkpoints, args.episodes,
+                                    deterministic, log=None if args.json else print)
+        path = save(args.run, result) if args.save else None
     if args.json:
         print(json.dumps(result))
     else:
@@ -109,8 +114,6 @@ def eval_command(evaluate_noises: Callable, args, deterministic: bool | None) ->
             cells = [np.mean([np.mean(v) for v in r["returns"].values()])
                      for r in result["results"] if r["noise"] == noise]
             print(f"{noise:>10g} " + " ".join(f"{c:>11.1f}" for c in cells))
-    if args.save:
-        path = save(args.run, result)
-        if not args.json:
-            print(f"wrote {path}")
+    if path is not None and not args.json:
+        print(f"wrote {path}")
     return 0

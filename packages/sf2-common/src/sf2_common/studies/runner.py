@@ -9,9 +9,9 @@ Where the children run: one per visible GPU (CUDA_VISIBLE_DEVICES set to that GP
 never share a GPU's memory), or on a CPU one at a time unless `workers` says more. Never two runs to a GPU:
 they time-slice it, and together made 0.9-1.4x (bench/results/h200x2/README.md "17") and 1.06-1.12x
 (bench/results/h200/20-runs-per-gpu) the rate of one run alone; a GPU's rate grows with the seeds of one
-vmapped program instead. A child dies with
-the runner (Linux: PR_SET_PDEATHSIG), and holds its run folder's lock (`.study-lock`, flock) for as long
-as it lives, so a second runner on the same folder never trains the same run twice at once.
+vmapped program instead. A child dies with the runner (Linux: PR_SET_PDEATHSIG), and holds its run
+folder's lock (`.sf2-lock`, sf2_common.agents.lock) for as long as it lives, so a second runner on the
+same folder never trains the same run twice at once.
 
 Children get PYTHONHASHSEED=0 unless the caller set it: the JAX program of a run depends on Python's
 string hashing (its persistent-compilation-cache key changes from one process to the next otherwise), so
@@ -21,7 +21,6 @@ a fixed seed makes every process of a study compile, and compute, the same progr
 from __future__ import annotations
 
 import dataclasses
-import fcntl
 import functools
 import heapq
 import os
@@ -33,6 +32,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from sf2_common.agents.lock import FolderLock, RunFolderBusy, holder_of
 from sf2_common.agents.runfolder import RunFolder
 
 from .folder import LOG, StudyFolder
@@ -42,7 +42,7 @@ from .spec import Run, Study, StudyError
 __all__ = ["Backend", "Job", "plan", "Forecast", "estimate", "makespan", "eval_argv", "child_env",
            "visible_gpus", "run_local", "Outcome", "LOCK"]
 
-LOCK = ".study-lock"
+LOCK = FolderLock.NAME
 
 
 @dataclasses.dataclass(frozen=True)
@@ -324,16 +324,12 @@ def run_commands(cli_module: str, commands: list[list[str]], env: dict, log: Pat
     return 0
 
 
-def lock(path: Path):
-    """An exclusive flock on the run folder's lock file, or None if another process holds it."""
-    path.mkdir(parents=True, exist_ok=True)
-    fd = os.open(path / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+def lock(path: Path) -> FolderLock | None:
+    """The run folder's lock (`sf2_common.agents.lock`), or None if another process holds it."""
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        os.close(fd)
+        return FolderLock(path, "study run").acquire()
+    except RunFolderBusy:
         return None
-    return fd
 
 
 # ------------------------------------------------------------------------------------------- local runner
@@ -342,7 +338,7 @@ class _Slot:
         self.env, self.label = env, label
         self.job: Job | None = None
         self.proc: subprocess.Popen | None = None
-        self.fd: int | None = None
+        self.fd: FolderLock | None = None
         self.queue: list[list[str]] = []
         self.started = 0.0                     # time.monotonic() when its job started
         self.forecast: float | None = None     # the job's Forecast then (seconds), None without one
@@ -389,7 +385,8 @@ def run_local(study: Study, folder: StudyFolder, jobs: list[Job], done: list[Job
         fd = lock(job.path)
         if fd is None:
             outcome.busy.append(job.name)
-            view.event(f"  {job.name}: skipped, another runner holds {job.path / LOCK}")
+            view.event(f"  {job.name}: skipped, {holder_of(job.path) or 'another process'} holds "
+                       f"{job.path / LOCK}")
             return False
         slot.job, slot.fd, slot.queue = job, fd, list(job.commands)
         slot.started, slot.forecast = time.monotonic(), forecast.seconds(job) if forecast.known else None
@@ -399,10 +396,12 @@ def run_local(study: Study, folder: StudyFolder, jobs: list[Job], done: list[Job
 
     def _next(slot: _Slot) -> None:
         argv = slot.queue.pop(0)
-        slot.proc = spawn(backend.cli_module, argv, slot.env, slot.job.path / LOG, pass_fds=(slot.fd,))
+        # the child inherits the lock: the folder stays locked between a job's commands
+        slot.proc = spawn(backend.cli_module, argv, {**slot.env, **slot.fd.child_env()}, slot.job.path / LOG,
+                          pass_fds=(slot.fd.fd,))
 
     def release(slot: _Slot) -> None:
-        os.close(slot.fd)
+        slot.fd.release()
         slot.job = slot.proc = slot.fd = None
 
     try:

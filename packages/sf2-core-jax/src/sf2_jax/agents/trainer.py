@@ -50,6 +50,7 @@ from sf2_common.agents import configs, hostloop, plotting
 from sf2_common.agents.configs import TrainConfig
 from sf2_common.agents.evaluation import EVAL_KEY_BASE, open_evaluation
 from sf2_common.agents.hostloop import WALL_FIELDS, TrainingDiverged
+from sf2_common.agents.lock import FolderLock
 from sf2_common.agents.resume import resume_run
 from sf2_common.agents.runfolder import RunFolder
 
@@ -424,37 +425,43 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
     seeds = configs.parse_seeds(seeds)
     configs.validate(cfg, seeds, representations.REGISTRY)
     run = RunFolder(out)
-    if fresh:
-        run.clear()
-    run.check_framework("jax")
-    cfg = run.keep_trained_values(cfg)
-    existing = run.check_compatible(cfg.to_dict(), seeds)
-    sched = configs.schedule(cfg)
-    hardware = _hardware(len(seeds))
-    env = hostloop.numerics_environment()
-    if not existing:
-        run.write_config({"config": cfg.to_dict(), "seeds": list(seeds),
-                          "schedule": dataclasses.asdict(sched), "label": _label(cfg),
-                          "versions": _versions(), "hardware": hardware, "environment": env})
-    run.log(f"hardware: {hardware}")
-    run.log(hostloop.environment_line(env))
-    program = get_program(cfg)
-    note = device_note(len(seeds))
-    if note:
-        run.say(note)
-    ckpt = Checkpointer(run.checkpoint_dir, keep=cfg.keep_checkpoints)
-    title = hostloop.run_title(_label(cfg), cfg.task, seeds)
+    run.check_usable()
+    lock = FolderLock(run.path, "sf2-jax train").acquire(say=run.say)   # one writer per run folder
     try:
-        res = resume_run(run, ckpt, lambda e: ckpt.restore(e, program.abstract_state(seeds)), seeds=seeds,
-                         sched=sched, existing=existing, resume=resume)
-        state = None if res.restored is None else program.place(res.restored[0])
-        session = _Session(program, ckpt, run, seeds, state)
-        rows = hostloop.run_epochs(session, cfg=cfg, sched=sched, seeds=seeds, run=run, title=title,
-                                   rows=res.rows, start=res.start, last=res.epoch, walltime=res.walltime,
-                                   progress=progress, hook=hook, stop_after_epoch=stop_after_epoch, plot=plot)
+        if fresh:
+            run.clear()
+        run.check_framework("jax")
+        cfg = run.keep_trained_values(cfg)
+        existing = run.check_compatible(cfg.to_dict(), seeds)
+        sched = configs.schedule(cfg)
+        hardware = _hardware(len(seeds))
+        env = hostloop.numerics_environment()
+        if not existing:
+            run.write_config({"config": cfg.to_dict(), "seeds": list(seeds),
+                              "schedule": dataclasses.asdict(sched), "label": _label(cfg),
+                              "versions": _versions(), "hardware": hardware, "environment": env})
+        run.log(f"hardware: {hardware}")
+        run.log(hostloop.environment_line(env))
+        program = get_program(cfg)
+        note = device_note(len(seeds))
+        if note:
+            run.say(note)
+        ckpt = Checkpointer(run.checkpoint_dir, keep=cfg.keep_checkpoints)
+        title = hostloop.run_title(_label(cfg), cfg.task, seeds)
+        try:
+            res = resume_run(run, ckpt, lambda e: ckpt.restore(e, program.abstract_state(seeds)), seeds=seeds,
+                             sched=sched, existing=existing, resume=resume)
+            state = None if res.restored is None else program.place(res.restored[0])
+            session = _Session(program, ckpt, run, seeds, state)
+            rows = hostloop.run_epochs(session, cfg=cfg, sched=sched, seeds=seeds, run=run, title=title,
+                                       rows=res.rows, start=res.start, last=res.epoch, walltime=res.walltime,
+                                       progress=progress, hook=hook, stop_after_epoch=stop_after_epoch,
+                                       plot=plot)
+        finally:
+            ckpt.close()
+        return TrainResult(run=run, rows=rows, state=session.state, seeds=seeds, resumed_from=res.epoch)
     finally:
-        ckpt.close()
-    return TrainResult(run=run, rows=rows, state=session.state, seeds=seeds, resumed_from=res.epoch)
+        lock.release()
 
 
 class _Session:

@@ -42,6 +42,7 @@ from sf2_common.agents import configs as common_configs
 from sf2_common.agents import hostloop
 from sf2_common.agents.evaluation import EVAL_KEY_BASE, open_evaluation
 from sf2_common.agents.hostloop import WALL_FIELDS, TrainingDiverged
+from sf2_common.agents.lock import FolderLock
 from sf2_common.agents.plotting import method_label
 from sf2_common.agents.resume import resume_run
 from sf2_common.agents.runfolder import RunFolder
@@ -335,41 +336,46 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
     if stop_after_epoch is not None and (not isinstance(stop_after_epoch, int) or stop_after_epoch < 0):
         raise ConfigError(f"stop_after_epoch = {stop_after_epoch!r} is invalid: must be an int >= 0")
     run = RunFolder(out)
-    if fresh:
-        run.clear()
-    run.check_framework("torch")
-    cfg = run.keep_trained_values(cfg)
-    existing = run.check_compatible(cfg.to_dict(), seeds)
-    sched = common_configs.schedule(cfg)
-    program = get_program(cfg)
-    hardware = _hardware(program.device)
-    env = hostloop.numerics_environment()
-    if not existing:
-        run.write_config({"config": cfg.to_dict(), "seeds": list(seeds),
-                          "schedule": dataclasses.asdict(sched), "label": _label(cfg),
-                          "versions": _versions(), "framework": "torch",
-                          "device": str(program.device), "hardware": hardware, "environment": env,
-                          "compile_mode": program.compile_mode, "cudagraphs": program.cudagraphs})
-    run.log(f"hardware: {hardware}")
-    run.log(hostloop.environment_line(env))
-    ckpt = Checkpointer(run.checkpoint_dir, keep=cfg.keep_checkpoints)
-    title = hostloop.run_title(_label(cfg), cfg.task, seeds)
-    state = program.init(seeds)
-
-    def restore(epoch: int) -> dict:
-        saved, leaves, meta = ckpt.restore(epoch, map_location=program.device)
-        program.load_state_dict(state, saved, leaves)
-        return meta
-
+    run.check_usable()
+    lock = FolderLock(run.path, "sf2-torch train").acquire(say=run.say)   # one writer per run folder
     try:
-        res = resume_run(run, ckpt, restore, seeds=seeds, sched=sched, existing=existing, resume=resume)
-        rows = hostloop.run_epochs(_Session(program, ckpt, run, state), cfg=cfg, sched=sched, seeds=seeds,
-                                   run=run, title=title, rows=res.rows, start=res.start, last=res.epoch,
-                                   walltime=res.walltime, progress=progress, hook=hook,
-                                   stop_after_epoch=stop_after_epoch, plot=plot)
+        if fresh:
+            run.clear()
+        run.check_framework("torch")
+        cfg = run.keep_trained_values(cfg)
+        existing = run.check_compatible(cfg.to_dict(), seeds)
+        sched = common_configs.schedule(cfg)
+        program = get_program(cfg)
+        hardware = _hardware(program.device)
+        env = hostloop.numerics_environment()
+        if not existing:
+            run.write_config({"config": cfg.to_dict(), "seeds": list(seeds),
+                              "schedule": dataclasses.asdict(sched), "label": _label(cfg),
+                              "versions": _versions(), "framework": "torch",
+                              "device": str(program.device), "hardware": hardware, "environment": env,
+                              "compile_mode": program.compile_mode, "cudagraphs": program.cudagraphs})
+        run.log(f"hardware: {hardware}")
+        run.log(hostloop.environment_line(env))
+        ckpt = Checkpointer(run.checkpoint_dir, keep=cfg.keep_checkpoints)
+        title = hostloop.run_title(_label(cfg), cfg.task, seeds)
+        state = program.init(seeds)
+
+        def restore(epoch: int) -> dict:
+            saved, leaves, meta = ckpt.restore(epoch, map_location=program.device)
+            program.load_state_dict(state, saved, leaves)
+            return meta
+
+        try:
+            res = resume_run(run, ckpt, restore, seeds=seeds, sched=sched, existing=existing, resume=resume)
+            rows = hostloop.run_epochs(_Session(program, ckpt, run, state), cfg=cfg, sched=sched, seeds=seeds,
+                                       run=run, title=title, rows=res.rows, start=res.start, last=res.epoch,
+                                       walltime=res.walltime, progress=progress, hook=hook,
+                                       stop_after_epoch=stop_after_epoch, plot=plot)
+        finally:
+            ckpt.close()
+        return TrainResult(run=run, rows=rows, state=state, seeds=seeds, resumed_from=res.epoch)
     finally:
-        ckpt.close()
-    return TrainResult(run=run, rows=rows, state=state, seeds=seeds, resumed_from=res.epoch)
+        lock.release()
 
 
 class _Session:
