@@ -60,9 +60,9 @@ def remote_job(cli_module: str, commands: list[list[str]], study_dir: str, study
     if fd is None:   # another runner trains this folder now
         return {"rc": BUSY, "shared": shared_fs, "files": {}}
     try:
-        rc = run_commands(cli_module, argvs, child_env(dict(os.environ)), out / LOG)
+        rc = run_commands(cli_module, argvs, child_env(dict(os.environ)), out / LOG, fd)
     finally:
-        os.close(fd)
+        fd.release()
     files = {}
     if not shared_fs:
         names = RETURNED if rc == 0 else (LOG,)

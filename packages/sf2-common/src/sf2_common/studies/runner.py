@@ -315,10 +315,11 @@ def spawn(cli_module: str, argv: list[str], env: dict, log: Path, pass_fds=()) -
                                 preexec_fn=functools.partial(_die_with_parent, os.getpid(), _prctl()))
 
 
-def run_commands(cli_module: str, commands: list[list[str]], env: dict, log: Path) -> int:
-    """Run a job's children one after the other (stop at the first failure); the exit status."""
+def run_commands(cli_module: str, commands: list[list[str]], env: dict, log: Path, held: FolderLock) -> int:
+    """Run a job's children one after the other (stop at the first failure), each inheriting the run
+    folder's lock `held`; the exit status."""
     for argv in commands:
-        rc = spawn(cli_module, argv, env, log).wait()
+        rc = spawn(cli_module, argv, {**env, **held.child_env()}, log, pass_fds=(held.fd,)).wait()
         if rc != 0:
             return rc
     return 0
