@@ -8,7 +8,7 @@ import no framework.
     PROG train --task CartpoleBalance --algo td3 --repr sf2,none,sim --config quick --seeds 0-1 --out runs/cmp
     PROG eval runs/cp [--epoch N] [--episodes 20] [--stochastic]
     PROG plot runs/cmp/td3-sf2 runs/cmp/td3-none --out curves.png
-    PROG study run studies/fig7-td3.toml --out results/fig7-td3    (sf2_common.studies.commands)
+    PROG study run studies/fig7-td3.toml --out results/fig7-td3    (sf2_studies.commands)
     PROG study report results/fig7-td3
     PROG tasks
 
@@ -30,12 +30,13 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from sf2_studies import commands as study_commands
+
 from sf2_common.agents import configs, plotting
 from sf2_common.agents.hostloop import TrainingDiverged
 from sf2_common.agents.registry import Registry
 from sf2_common.agents.runfolder import RunFolder
 from sf2_common.errors import ConfigError
-from sf2_common.studies import commands as study_commands
 
 __all__ = ["Framework", "build_parser", "main", "print_table", "expand_runs"]
 
@@ -225,7 +226,7 @@ def _eval(fw: Framework, args) -> int:
     _setup_jax(fw.compile_cache())
     deterministic = True if args.deterministic else (False if args.stochastic else None)
     if args.obs_noise is not None:
-        from sf2_common.studies import robustness
+        from sf2_studies import robustness
 
         return robustness.eval_command(fw.evaluate_checkpoint_noises, args, deterministic)
     res = fw.evaluate_checkpoint(args.run, epoch=args.epoch, num_eval_envs=args.episodes,

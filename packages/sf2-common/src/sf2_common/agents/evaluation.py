@@ -13,8 +13,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from sf2_studies.robustness import check_obs_noise
+
 from sf2_common.errors import ConfigError
-from sf2_common.studies.robustness import check_obs_noise
 
 from .runfolder import RunFolder, framework_of
 

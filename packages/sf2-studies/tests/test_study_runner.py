@@ -14,8 +14,8 @@ import textwrap
 
 import pytest
 from sf2_common.agents.configs import TrainConfig
-from sf2_common.studies import runner, spec
-from sf2_common.studies.folder import StudyFolder
+from sf2_studies import runner, spec
+from sf2_studies.folder import StudyFolder
 
 FAKE_CLI = textwrap.dedent('''
     """Stands in for `python -m sf2_jax.cli train ... --out DIR`: records its GPU and its time span."""
@@ -121,13 +121,13 @@ def test_visible_gpus():
 
 
 def test_missing_extras_are_named(monkeypatch):
-    from sf2_common.studies import rayrun, stats
+    from sf2_studies import rayrun, stats
 
     monkeypatch.setitem(sys.modules, "ray", None)
-    with pytest.raises(ImportError, match=r'pip install "packages/sf2-common\[ray\]"'):
+    with pytest.raises(ImportError, match=r'pip install "packages/sf2-studies\[ray\]"'):
         rayrun._ray()
     monkeypatch.setitem(sys.modules, "rliable", None)
-    with pytest.raises(ImportError, match=r'pip install "packages/sf2-common\[studies\]"'):
+    with pytest.raises(ImportError, match=r'pip install packages/sf2-studies'):
         stats.require_rliable()
 
 
@@ -148,7 +148,7 @@ def test_ray_task_on_a_host_without_the_study_folder(tmp_path, monkeypatch):
     """A Ray task whose node does not see the study folder (no study.json with the driver's id there)
     trains in its scratch folder and returns the run folder's files but its checkpoints; the driver
     writes them into the study folder (rayrun.remote_job and rayrun.land, without Ray itself)."""
-    from sf2_common.studies import rayrun
+    from sf2_studies import rayrun
 
     (tmp_path / "fake_sf2_train.py").write_text(FAKE_TRAIN)
     monkeypatch.syspath_prepend(str(tmp_path))

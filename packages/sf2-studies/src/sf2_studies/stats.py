@@ -16,7 +16,7 @@ Reproducibility: rliable's `StratifiedBootstrap` draws its indices from NumPy's 
 (`np.random.choice`, not the `random_state` it accepts), so every interval here is computed under a
 fixed global seed (`SEED`), restored afterwards.
 
-rliable is the `studies` extra of sf2-common (`pip install "packages/sf2-common[studies]"`).
+rliable is a dependency of sf2-studies (`pip install packages/sf2-studies`).
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ SEED = 0
 METRICS = ("Median", "IQM", "Mean", "Optimality Gap")
 COLUMN_STATISTICS = ("mean", "median", "iqm")   # over seeds, per column (`column_interval`)
 STATISTICS = {"IQM": "aggregate_iqm", "Median": "aggregate_median", "Mean": "aggregate_mean"}  # of a claim
-STUDIES_EXTRA = 'pip install "packages/sf2-common[studies]"'
+STUDIES_EXTRA = "pip install packages/sf2-studies"
 
 
 def require_rliable():

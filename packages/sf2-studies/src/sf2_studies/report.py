@@ -25,7 +25,6 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
-
 from sf2_common.agents.hostloop import environment_text
 from sf2_common.agents.plotting import curves
 from sf2_common.agents.runfolder import RunFolder, RunFolderError

@@ -1,4 +1,4 @@
-"""sf2_common.studies.stats: the numbers of the paper's protocol (§4.2) against values derived by hand and
+"""sf2_studies.stats: the numbers of the paper's protocol (§4.2) against values derived by hand and
 against rliable's own functions."""
 
 from __future__ import annotations
@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-pytest.importorskip("rliable", reason="the studies extra: pip install packages/sf2-common[studies]")
+pytest.importorskip("rliable", reason="sf2-studies' dependencies: pip install packages/sf2-studies")
 
 from rliable import library, metrics  # noqa: E402
-from sf2_common.studies import stats  # noqa: E402
+from sf2_studies import stats  # noqa: E402
 
 
 def test_auc_of_known_curves():

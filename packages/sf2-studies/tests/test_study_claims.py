@@ -1,4 +1,4 @@
-"""A study file's `[[claims]]` (sf2_common.studies.claims): parsed with errors that name the valid choices,
+"""A study file's `[[claims]]` (sf2_studies.claims): parsed with errors that name the valid choices,
 checked with verdicts on scores whose outcome is derived by hand, the difference interval and probability
 of improvement against rliable's own functions, and a study folder that takes claims added later."""
 
@@ -10,12 +10,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-pytest.importorskip("rliable", reason="the studies extra: pip install packages/sf2-common[studies]")
+pytest.importorskip("rliable", reason="sf2-studies' dependencies: pip install packages/sf2-studies")
 
 from rliable import library, metrics  # noqa: E402
-from sf2_common.studies import claims, stats  # noqa: E402
-from sf2_common.studies.folder import StudyFolder  # noqa: E402
-from sf2_common.studies.spec import StudyError, loads  # noqa: E402
+from sf2_studies import claims, stats  # noqa: E402
+from sf2_studies.folder import StudyFolder  # noqa: E402
+from sf2_studies.spec import StudyError, loads  # noqa: E402
 
 STUDY = """
 name = "claimed"
@@ -145,7 +145,7 @@ def test_report_and_a_study_folder_that_takes_claims_later(tmp_path):
     file that changes a run (its seeds) is still refused, the copy unchanged."""
     import json
 
-    from sf2_common.studies.report import report
+    from sf2_studies.report import report
 
     folder = StudyFolder(tmp_path / "study")
     folder.open(loads(STUDY, tmp_path / "s.toml"), "jax", [])

@@ -1,4 +1,4 @@
-"""`study merge` (sf2_common.studies.merge): runs of study folders and their .tar.gz archives joined into one
+"""`study merge` (sf2_studies.merge): runs of study folders and their .tar.gz archives joined into one
 study folder. No framework: configs are sf2_common's `TrainConfig`, run folders are fabricated as the
 trainer leaves them (config.json, metrics.jsonl, train.log, plus what a merge must never copy:
 checkpoints/, final/*.npz, learning_curve.png)."""
@@ -14,11 +14,11 @@ from sf2_common.agents import tasks as task_table
 from sf2_common.agents.configs import TrainConfig, schedule
 from sf2_common.agents.runfolder import RunFolder, RunFolderError
 from sf2_common.fileio import read_text
-from sf2_common.studies import merge as merging
-from sf2_common.studies import spec
-from sf2_common.studies.folder import StudyFolder
-from sf2_common.studies.spec import StudyError
 from sf2_common.testing import folder_digest
+from sf2_studies import merge as merging
+from sf2_studies import spec
+from sf2_studies.folder import StudyFolder
+from sf2_studies.spec import StudyError
 
 STUDY = """
 name = "merging"
@@ -238,7 +238,7 @@ def test_wrong_source_is_refused_with_dest_unchanged(tmp_path, runs_of):
         _merge([src], dest, runs_of)
     assert folder_digest(dest) == before
     # a damaged study.json, in a source or in DEST: named, with the remedy; nothing written
-    from sf2_common.studies.report import report
+    from sf2_studies.report import report
 
     for content in ("{", "[1, 2]"):
         (src / "study.json").write_text(content)
@@ -359,7 +359,7 @@ def test_compressed_runs_read_merge_and_resume_as_plain_ones(tmp_path, runs_of):
 def test_evaluated_runs_stay_done_when_their_obs_noise_is_compressed(tmp_path, runs_of):
     """With an [evaluation], a run is done once obs_noise.json holds the study's settings; compressed (by
     `study compress` here, by the merge in DEST) it stays done, and DEST keeps it compressed."""
-    from sf2_common.studies.folder import evaluation_settings
+    from sf2_studies.folder import evaluation_settings
 
     src = _source(tmp_path, "gpu", runs_of, finished=["A/td3/seeds-0-1"],
                   text=STUDY + "[evaluation]\nobs_noise = [0.0, 0.1]\n")
@@ -424,7 +424,7 @@ def test_rows_difference_names_a_learned_value_before_timing():
     """merge.rows_difference (the merge's refusal, scripts/gpu_determinism.sh's verdicts): None for equal
     rows in any order; a learned value of a later row before a timing field of an earlier one; timing only
     said as such; a row only one side has."""
-    from sf2_common.studies.merge import rows_difference
+    from sf2_studies.merge import rows_difference
 
     a = [{"epoch": 0, "seed": 0, "eval_return": 1.0, "walltime": 1.0},
          {"epoch": 1, "seed": 0, "eval_return": 2.0, "walltime": 2.0}]
@@ -436,7 +436,7 @@ def test_rows_difference_names_a_learned_value_before_timing():
     assert rows_difference(a, learned) == "epoch 1 seed 0: eval_return 2.0 vs 3.0"
     assert rows_difference(a, a[:1]) == "epoch 1 seed 0: a row in one only"
     # the same as tuples (merge.first_difference: the report's "Reruns" column)
-    from sf2_common.studies.merge import first_difference
+    from sf2_studies.merge import first_difference
 
     assert first_difference(a, learned) == (1, 0, "eval_return", 2.0, 3.0)
     assert first_difference(a, timed) is None and first_difference(a, timed, learned=False) == (

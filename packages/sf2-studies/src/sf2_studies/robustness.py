@@ -18,8 +18,8 @@ from pathlib import Path
 
 from sf2_common.agents.lock import FolderLock
 from sf2_common.errors import ConfigError
+from sf2_common.fileio import atomic_write
 
-from ..fileio import atomic_write
 from .folder import OBS_NOISE
 
 __all__ = ["check_obs_noise", "parse_noise", "evaluate_obs_noise", "save", "eval_command"]

@@ -1,4 +1,4 @@
-"""`study report` (sf2_common.studies.report) on synthetic run folders whose numbers are derived by hand:
+"""`study report` (sf2_studies.report) on synthetic run folders whose numbers are derived by hand:
 AUC, per-task normalization, the aggregates against rliable's own functions, the final-window mean of a
 sweep, the observation-noise AUC, and "no interval" below 3 seeds."""
 
@@ -10,15 +10,15 @@ import json
 import numpy as np
 import pytest
 
-pytest.importorskip("rliable", reason="the studies extra: pip install packages/sf2-common[studies]")
-pytest.importorskip("matplotlib", reason="the studies extra: pip install packages/sf2-common[studies]")
+pytest.importorskip("rliable", reason="sf2-studies' dependencies: pip install packages/sf2-studies")
+pytest.importorskip("matplotlib", reason="sf2-studies' dependencies: pip install packages/sf2-studies")
 
 from rliable import library, metrics  # noqa: E402
 from sf2_common.fileio import compress  # noqa: E402
-from sf2_common.studies import stats  # noqa: E402
-from sf2_common.studies.folder import StudyFolder  # noqa: E402
-from sf2_common.studies.report import report  # noqa: E402
-from sf2_common.studies.spec import StudyError, loads  # noqa: E402
+from sf2_studies import stats  # noqa: E402
+from sf2_studies.folder import StudyFolder  # noqa: E402
+from sf2_studies.report import report  # noqa: E402
+from sf2_studies.spec import StudyError, loads  # noqa: E402
 
 STEPS = [0, 100, 200]
 
@@ -152,7 +152,7 @@ def test_interim_aggregate_covers_the_tasks_and_seeds_every_method_has(tmp_path)
     is aggregated on A alone (B lacks TD3+SF², C lacks TD3) over the seeds both have there, 1-2: TD3 scores
     0.1 s → 0.1, 0.2; TD3+SF² 0.2 + 0.1 s → 0.3, 0.4. Two seeds: no interval; median = mean = IQM (nothing
     trimmed of 2) = the pair's mean, optimality gap 1 − mean. SAC: no aggregate."""
-    from sf2_common.studies.report import _md_coverage, aggregate_table
+    from sf2_studies.report import _md_coverage, aggregate_table
 
     study = loads(INTERIM, tmp_path / "s.toml")
     rows = ([{"task": "A", "method": "TD3", "seed": s, "normalized_auc": 0.1 * s} for s in (0, 1, 2)]
@@ -185,7 +185,7 @@ def test_interim_aggregate_takes_the_most_tasks_times_seeds(tmp_path):
     B over seeds 0-3, and C is named as left out for its seeds. TD3 scores 0.1 everywhere, TD3+SF² 0.3:
     median = IQM = mean = the score, optimality gap 1 − it. A tie (C dropped, B at seeds 0-1: 2 × 2 with
     the common seeds against A alone, 1 × 4) goes to more tasks: A and B at seeds 0-1."""
-    from sf2_common.studies.report import _md_coverage, aggregate_table
+    from sf2_studies.report import _md_coverage, aggregate_table
 
     study = loads(INTERIM, tmp_path / "s.toml")
     have = {("A", "TD3"): range(4), ("A", "TD3+SF²"): range(4), ("B", "TD3"): range(4),
@@ -305,7 +305,7 @@ def test_a_damaged_run_file_stops_the_report_naming_it(tmp_path):
     """A finished run whose metrics.jsonl.gz is cut (a bad copy), whose metrics.jsonl has a line that is no
     row in the middle (an edit), or whose obs_noise.json is not JSON is never reported as unfinished or
     left out silently: `StudyError` naming the file and the choices, and no report file is written."""
-    from sf2_common.studies.spec import StudyError
+    from sf2_studies.spec import StudyError
 
     folder = _study(tmp_path, SWEEP)
     for name in ("td3-sf2-tau-zeta-0.01", "td3-sf2-tau-zeta-0.1"):
@@ -396,7 +396,7 @@ def test_reruns_compared_with_their_runs_by_hand_and_left_out_of_the_results(tmp
 
 
 def test_learning_curves_layout_and_seed_titles_by_hand():
-    from sf2_common.studies.figures import grid, seeds_title
+    from sf2_studies.figures import grid, seeds_title
 
     # seven tasks at four to a row: two rows (4 + 3, the eighth panel holds the legend); three tasks: one row
     assert grid(7) == (2, 4) and grid(8) == (2, 4) and grid(9) == (3, 4)
@@ -432,7 +432,7 @@ def test_learning_curves_draw_the_study_statistic(tmp_path, monkeypatch, setting
     """The curve of four seeds whose returns at step 100 are 1, 3, 5, 100 and at step 200 2, 4, 9, 200:
     its line is their mean or median (by hand, above) as `[report] curve_statistic` says, its band the
     bootstrap interval of that statistic, within the seeds' range; the title names the statistic."""
-    from sf2_common.studies import figures
+    from sf2_studies import figures
 
     drawn = []
     monkeypatch.setattr(figures, "_save", lambda fig, stem: drawn.append(fig) or {})
@@ -523,8 +523,8 @@ def test_compare_puts_each_studys_own_numbers_side_by_side(tmp_path):
     the 4 seeds × 2 tasks is (base + 1.5)/13 and SF² − vanilla is +10/13 = +0.769 in `t` (supported: every
     SF² score is above every vanilla one) and −10/13 in `s` (contradicted). `compare` shows both on one row,
     each study's aggregate table as its own report gives it, and one figure with both families."""
-    from sf2_common.studies.compare import claim_key, compare
-    from sf2_common.studies.spec import kind
+    from sf2_studies.compare import claim_key, compare
+    from sf2_studies.spec import kind
 
     assert (kind("TD3+SF² (γ=0)", "TD3"), kind("SAC", "SAC"), kind("SAC+Sim", "SAC")) == \
         ("SF² (γ=0)", "vanilla", "Sim")
@@ -560,7 +560,7 @@ def test_compare_puts_each_studys_own_numbers_side_by_side(tmp_path):
 
 
 def test_compare_refuses_one_folder_the_same_study_twice_and_a_file_as_out(tmp_path):
-    from sf2_common.studies.compare import compare
+    from sf2_studies.compare import compare
 
     t = _family_study(tmp_path, "t", "TD3", {"": 0.0, "-sf2": 10.0})
     with pytest.raises(StudyError, match="two or more study folders; got 1"):

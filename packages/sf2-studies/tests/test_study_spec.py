@@ -1,4 +1,4 @@
-"""Study files (sf2_common.studies.spec) and study folders (folder.py) without a framework: the shipped
+"""Study files (sf2_studies.spec) and study folders (folder.py) without a framework: the shipped
 files parse, bad input names the file, the entry and the valid choices, and a study folder made from
 another study file is refused with nothing changed."""
 
@@ -7,9 +7,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from sf2_common.studies import spec
-from sf2_common.studies.folder import StudyFolder
-from sf2_common.studies.spec import StudyError
+from sf2_studies import spec
+from sf2_studies.folder import StudyFolder
+from sf2_studies.spec import StudyError
 
 STUDIES = Path(__file__).resolve().parents[3] / "studies"
 

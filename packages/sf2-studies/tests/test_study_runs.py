@@ -1,8 +1,8 @@
 """`sf2-jax study run` end to end on the CPU with the shipped smoke study (studies/smoke.toml: 2 tasks × 2
 methods × 2 seeds, tiny budget): the local runner, a study folder that merges runs trained elsewhere, a run
 killed with its runner (kill -9) and resumed by the Ray runner on a local CPU-only instance, the report,
-and bad study files refused before anything is compiled. Needs sf2-core-jax[train] and the [studies] and
-[ray] extras of sf2-common: tox -e agents."""
+and bad study files refused before anything is compiled. Needs sf2-core-jax[train] and
+sf2-studies[ray]: tox -e agents."""
 
 from __future__ import annotations
 
@@ -19,13 +19,13 @@ from pathlib import Path
 import pytest
 
 pytest.importorskip("sf2_jax.agents.trainer", reason="needs sf2-core-jax[train] (tox -e agents)")
-pytest.importorskip("rliable", reason="needs sf2-common[studies] (tox -e agents)")
+pytest.importorskip("rliable", reason="needs sf2-studies (tox -e agents)")
 
 from sf2_common.agents.hostloop import WALL_FIELDS  # noqa: E402
-from sf2_common.studies import spec  # noqa: E402
-from sf2_common.studies.folder import StudyFolder  # noqa: E402
-from sf2_common.studies.runner import LOCK, plan  # noqa: E402
 from sf2_jax import cli  # noqa: E402
+from sf2_studies import spec  # noqa: E402
+from sf2_studies.folder import StudyFolder  # noqa: E402
+from sf2_studies.runner import LOCK, plan  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[3]
 SMOKE = ROOT / "studies" / "smoke.toml"
@@ -102,9 +102,9 @@ def test_killed_runner_resumes_through_ray_to_the_same_results(reference, tmp_pa
     study then resumes as Ray tasks on a local CPU-only instance (the node sees the study folder, so the
     task resumes the run in place from its last checkpoint). Every run's rows equal the uninterrupted
     study's, none missing, none duplicated. (A node without the study folder: test_study_runner.py.)"""
-    pytest.importorskip("ray", reason="needs sf2-common[ray] (tox -e agents)")
-    from sf2_common.studies import commands
-    from sf2_common.studies.rayrun import run_ray
+    pytest.importorskip("ray", reason="needs sf2-studies[ray] (tox -e agents)")
+    from sf2_studies import commands
+    from sf2_studies.rayrun import run_ray
 
     out = tmp_path / "study"
     ref = StudyFolder(reference)

@@ -1,4 +1,4 @@
-"""Seed groups (`seeds_per_run` in a study file, sf2_common.studies.spec): the groups and their folders, bad
+"""Seed groups (`seeds_per_run` in a study file, sf2_studies.spec): the groups and their folders, bad
 values refused, one run per (task, method, group) resolved, selected by `--seeds`, planned and listed by
 `study run --dry-run` on their own; the report joins the groups' seeds per (task, method), names the
 missing ones and flags methods compared at unequal seed counts. No framework: configs are
@@ -13,9 +13,9 @@ import json
 import pytest
 from sf2_common.agents import tasks as task_table
 from sf2_common.agents.configs import TrainConfig, schedule
-from sf2_common.studies import commands, runner, spec
-from sf2_common.studies.folder import StudyFolder
-from sf2_common.studies.spec import StudyError
+from sf2_studies import commands, runner, spec
+from sf2_studies.folder import StudyFolder
+from sf2_studies.spec import StudyError
 
 STUDY = """
 name = "groups"
@@ -226,8 +226,8 @@ def test_report_joins_groups_and_flags_unequal_seeds(tmp_path):
     tasks; TD3+SF²'s group 2-3 finishes on A only (on B it stops at epoch 1). On A v runs from 1 (TD3, seed
     0) to 12 (TD3+SF², seed 3): normalized (v − 1) / 11. On B TD3 has v = 1..4 and TD3+SF² (seeds 0-1)
     v = 3, 6: normalized (v − 1) / 5. TD3+SF² enters the aggregate with seeds 0-1 (no interval: n < 3)."""
-    pytest.importorskip("rliable", reason="the studies extra: pip install packages/sf2-common[studies]")
-    from sf2_common.studies.report import report
+    pytest.importorskip("rliable", reason="sf2-studies' dependencies: pip install packages/sf2-studies")
+    from sf2_studies.report import report
 
     study = spec.loads(REPORT, tmp_path / "s.toml")
     folder = StudyFolder(tmp_path / "study")
@@ -318,7 +318,7 @@ def test_a_folder_accepts_other_groups_that_keep_its_runs(tmp_path, monkeypatch,
 def test_merge_takes_a_source_of_other_groups_that_are_still_groups(tmp_path, monkeypatch):
     """`study merge` into a folder whose study lists the groups 0-4, 5-14 takes a source made with groups of
     5 while the source holds run folders of 0-4 only; one of 5-9 makes it refuse, writing nothing."""
-    from sf2_common.studies import merge as merging
+    from sf2_studies import merge as merging
 
     old = _load(tmp_path)
     new = _load(tmp_path, STUDY.replace("seeds_per_run = 5", 'seeds_per_run = ["0-4", "5-14"]'))

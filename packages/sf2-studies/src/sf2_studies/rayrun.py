@@ -1,7 +1,7 @@
 """Running a study's runs on a Ray cluster (`study run --ray ADDRESS`): each run is one Ray task that
 requests `num_gpus` GPUs (default 1; 0 on a CPU-only cluster) and runs the same children as the local
 runner (`python -m <cli> train ...`, then `eval ...`). Ray places, retries and cancels the tasks: there
-is no scheduler of ours. Ray is the `ray` extra of sf2-common (`pip install "packages/sf2-common[ray]"`);
+is no scheduler of ours. Ray is the `ray` extra of sf2-studies (`pip install "packages/sf2-studies[ray]"`);
 every node needs the framework installed as on the driver.
 
 Where a task writes: if the node sees the study folder (a shared file system: the folder's study.json
@@ -19,7 +19,8 @@ import os
 import shutil
 from pathlib import Path
 
-from ..fileio import atomic_write
+from sf2_common.fileio import atomic_write
+
 from .folder import LOG, StudyFolder
 from .progress import Progress
 from .runner import LOCK, Backend, Job, Outcome, child_env, lock, run_commands
@@ -27,7 +28,7 @@ from .spec import Study
 
 __all__ = ["run_ray", "remote_job", "land", "RAY_EXTRA", "RETURNED", "BUSY"]
 
-RAY_EXTRA = 'pip install "packages/sf2-common[ray]"'
+RAY_EXTRA = 'pip install "packages/sf2-studies[ray]"'
 BUSY = 75   # EX_TEMPFAIL: the run folder is locked by another runner
 RETURNED = ("config.json", "metrics.jsonl", "learning_curve.png", "obs_noise.json", LOG)
 
