@@ -1,12 +1,14 @@
-"""Explicit ODE integrators for the bootstrap sample x̂ of SF² (Algorithm 1, lines 6–10).
+"""Fixed-step ODE integration of dx/dk = v(x, k) over flow time, for the bootstrap sample x̂ of SF².
 
-`integrate` solves dx/dk = velocity_fn(x, k) from flow time k = 0 to a per-sample end time `k_end` in
-exactly `steps` equal steps h = k_end / steps (T = `denoising_steps`). The authors' loop runs T + 1 steps,
-the last of zero width; that changes nothing but costs two evaluations, so it is not reproduced.
+`integrate` is Algorithm 1's inner loop (lines 6–10): explicit midpoint (2 evaluations per step) or Euler
+(1 per step) from flow time 0 to a per-sample end time, in exactly `denoising_steps` steps. The authors'
+loop runs one more step of zero width, which changes nothing but costs two evaluations, so it is not
+reproduced. The torch core's `sf2_torch.ode` has the same function, names and messages.
 """
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Callable
 
 import jax.numpy as jnp
@@ -17,27 +19,45 @@ __all__ = ["integrate", "INTEGRATORS"]
 
 
 def integrate(velocity_fn: Callable, x0, k_end, steps: int, method: str = "midpoint"):
-    """Integrate dx/dk = velocity_fn(x, k), x(0) = x0 (B, D), up to k = k_end (B,) in `steps` steps.
+    """Solve dx/dk = velocity_fn(x, k), x(0) = x0, up to flow time k_end in `steps` equal steps.
 
     With h = k_end / steps and k_i = i·h:
-      - "midpoint" (2 evaluations/step, Algorithm 1):
+      - "midpoint" (2 evaluations per step, Algorithm 1):
         x_mid = x + (h/2)·v(x, k_i); x ← x + h·v(x_mid, k_i + h/2)
-      - "euler" (1 evaluation/step): x ← x + h·v(x, k_i)
-    `velocity_fn(x, k)` takes x (B, D) and k (B,). `steps` is a static Python int (the loop is unrolled).
+      - "euler" (1 evaluation per step): x ← x + h·v(x, k_i)
+
+    Args:
+      velocity_fn: v(x, k), taking x (B, D) and k (B,) and returning (B, D).
+      x0: the start point x(0), (B, D).
+      k_end: the end flow time of each sample, (B,), or a scalar for all of them.
+      steps: the number of steps T (`denoising_steps`), a Python int >= 1 (the loop is unrolled).
+      method: one of `INTEGRATORS`, "midpoint" or "euler".
+
+    Returns:
+      x(k_end), (B, D).
+
+    Raises:
+      ConfigError: `method` is not one of `INTEGRATORS`, or `steps` is not an integer >= 1.
+      ShapeError: `k_end` is neither a scalar nor of shape x0.shape[:-1].
     """
     if method not in INTEGRATORS:
-        raise ConfigError(f"integrator method = {method!r} is invalid: must be one of {INTEGRATORS}")
-    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
-        raise ConfigError(f"steps = {steps!r} is invalid: must be a Python int >= 1")
+        raise ConfigError(
+            f"method={method!r} is invalid: must be one of {', '.join(repr(m) for m in INTEGRATORS)}"
+        )
+    if not isinstance(steps, numbers.Integral) or isinstance(steps, bool) or steps < 1:
+        raise ConfigError(f"steps={steps!r} is invalid: must be an integer >= 1")
     x = jnp.asarray(x0)
     k_end = jnp.asarray(k_end)
     if k_end.ndim == 0:
         k_end = jnp.broadcast_to(k_end, x.shape[:-1])
     if k_end.shape != x.shape[:-1]:
-        raise ShapeError(f"k_end: expected shape {x.shape[:-1]} (the batch shape of x0), found {k_end.shape}")
+        raise ShapeError(
+            f"k_end must have shape {tuple(x.shape[:-1])} (one end time per sample of x0), "
+            f"found {tuple(k_end.shape)}"
+        )
     h = k_end / steps
     h_col = h[..., None]
-    for i in range(steps):
+    for i in range(int(steps)):
         k_i = i * h
         if method == "midpoint":
             x_mid = x + (h_col / 2) * velocity_fn(x, k_i)

@@ -1,11 +1,9 @@
-"""Fixed-step ODE integration of dx/dk = v(x, k) from flow time 0 to a per-sample end time.
+"""Fixed-step ODE integration of dx/dk = v(x, k) over flow time, for the bootstrap sample x̂ of SF².
 
-`integrate(velocity_fn, x0, k_end, steps, method)` takes exactly `steps` equal steps h = k_end / steps
-(the authors' loop runs one extra zero-width step, which changes nothing but costs two evaluations), with
-k_i = i·h:
-- "midpoint" (Algorithm 1, 2 evaluations per step): x_mid = x + (h/2)·v(x, k_i); x ← x + h·v(x_mid, k_i + h/2)
-- "euler" (1 evaluation per step): x ← x + h·v(x, k_i)
-`velocity_fn(x, k)` takes x (B, D) and k (B,) and returns (B, D).
+`integrate` is Algorithm 1's inner loop (lines 6–10): explicit midpoint (2 evaluations per step) or Euler
+(1 per step) from flow time 0 to a per-sample end time, in exactly `denoising_steps` steps. The authors'
+loop runs one more step of zero width, which changes nothing but costs two evaluations, so it is not
+reproduced. The JAX core's `sf2_jax.ode` has the same function, names and messages.
 """
 
 from __future__ import annotations
@@ -17,9 +15,7 @@ import torch
 from sf2_common.config import INTEGRATORS
 from sf2_common.errors import ConfigError, ShapeError
 
-__all__ = ["integrate", "METHODS"]
-
-METHODS = INTEGRATORS
+__all__ = ["integrate", "INTEGRATORS"]
 
 
 def integrate(
@@ -29,10 +25,30 @@ def integrate(
     steps: int,
     method: str = "midpoint",
 ) -> torch.Tensor:
-    """x(k_end) for dx/dk = velocity_fn(x, k), x(0) = x0 (B, D); `k_end` (B,) or a scalar."""
-    if method not in METHODS:
+    """Solve dx/dk = velocity_fn(x, k), x(0) = x0, up to flow time k_end in `steps` equal steps.
+
+    With h = k_end / steps and k_i = i·h:
+      - "midpoint" (2 evaluations per step, Algorithm 1):
+        x_mid = x + (h/2)·v(x, k_i); x ← x + h·v(x_mid, k_i + h/2)
+      - "euler" (1 evaluation per step): x ← x + h·v(x, k_i)
+
+    Args:
+      velocity_fn: v(x, k), taking x (B, D) and k (B,) and returning (B, D).
+      x0: the start point x(0), (B, D).
+      k_end: the end flow time of each sample, (B,), or a scalar for all of them.
+      steps: the number of steps T (`denoising_steps`), an integer >= 1.
+      method: one of `INTEGRATORS`, "midpoint" or "euler".
+
+    Returns:
+      x(k_end), (B, D), in x0's dtype and device.
+
+    Raises:
+      ConfigError: `method` is not one of `INTEGRATORS`, or `steps` is not an integer >= 1.
+      ShapeError: `k_end` is neither a scalar nor of shape x0.shape[:-1].
+    """
+    if method not in INTEGRATORS:
         raise ConfigError(
-            f"method={method!r} is invalid: must be one of {', '.join(repr(m) for m in METHODS)}"
+            f"method={method!r} is invalid: must be one of {', '.join(repr(m) for m in INTEGRATORS)}"
         )
     if not isinstance(steps, numbers.Integral) or isinstance(steps, bool) or steps < 1:
         raise ConfigError(f"steps={steps!r} is invalid: must be an integer >= 1")
