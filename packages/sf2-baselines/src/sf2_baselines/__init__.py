@@ -19,7 +19,7 @@ name       method                                                               
 ``--repr sf2``. This top-level module imports neither framework. See README.md for the equations.
 """
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 METHODS = {
     "sim": "Sim (Chua et al., 2024): TD3Sim / SACSim",

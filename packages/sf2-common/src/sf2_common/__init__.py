@@ -7,6 +7,6 @@ Table 1), `agents.registry` (pluggable representations, found by entry points), 
 `sf2-jax` / `sf2-torch` command line, parametrised by a `Framework`). Only numpy is imported eagerly.
 """
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 __all__ = ["__version__"]

@@ -10,7 +10,7 @@ from sf2_common.errors import ConfigError, ParamsError, ShapeError
 
 from sf2_jax import losses, networks, ode, params
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 __all__ = ["SF2Config", "ConfigError", "ShapeError", "ParamsError", "networks", "ode", "losses", "params",
            "__version__"]

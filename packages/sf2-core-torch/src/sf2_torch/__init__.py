@@ -13,7 +13,7 @@ from . import losses, networks, ode, params
 from .losses import Batch
 from .networks import Networks, make_networks
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 __all__ = [
     "SF2Config", "ConfigError", "ShapeError", "ParamsError", "Batch", "Networks", "make_networks",

@@ -15,3 +15,5 @@ framework. One module per job:
 
 Study files of the paper's experiments live in the repository's `studies/` folder.
 """
+
+__version__ = "0.2.0"
