@@ -37,16 +37,15 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     import importlib
 
-    from sf2_common.agents.configs import make_config
     from sf2_common.agents.hostloop import WALL_FIELDS
     from sf2_common.agents.runfolder import RunFolder
     from sf2_common.testing import FAULTS, cli_args, damage, folder_digest, kill9
 
     module = f"sf2_{args.framework}.cli"
     cli = importlib.import_module(module)
-    fw = cli.FRAMEWORK
+    configs = importlib.import_module(f"sf2_{args.framework}.agents.configs")
     extra = {"compile": "off"} if args.framework == "torch" else {}
-    cfg = make_config("quick", "CartpoleBalance", overrides={**TINY, **extra}, config_class=fw.config_class)
+    cfg = configs.make_config("quick", "CartpoleBalance", overrides={**TINY, **extra})
     root = Path(args.out)
     if root.exists():
         raise SystemExit(f"{root} exists; pass a new folder")
@@ -67,7 +66,7 @@ def main(argv=None) -> int:
     rc, _, _ = run(command(root / "reference"))
     assert rc == 0
     reference = strip(RunFolder(root / "reference").read_rows())
-    print(f"| case | exit | what {fw.prog} said | resumed from | rows = uninterrupted | folder unchanged |")
+    print(f"| case | exit | what {cli.PROG} said | resumed from | rows = uninterrupted | folder unchanged |")
     print("|---|---|---|---|---|---|")
 
     def said(err):

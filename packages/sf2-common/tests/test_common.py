@@ -296,10 +296,10 @@ def test_run_epochs_order_resume_and_nan_guard(tmp_path):
 
 
 def test_bootstrap_interval_of_the_mean():
-    """The band (rliable's percentile bootstrap, sf2_common.studies.stats): inside the seeds' range, zero
+    """The band (rliable's percentile bootstrap, sf2_common.agents.stats): inside the seeds' range, zero
     width for equal seeds, for many seeds close to the normal-theory interval mean ± 1.96·s/√n (within 10%
     of its width); none (NaN) below 3 seeds, where it would not be informative."""
-    pytest.importorskip("rliable", reason="the studies extra: pip install packages/sf2-common[studies]")
+    pytest.importorskip("rliable", reason="comes with sf2-studies: pip install packages/sf2-studies")
     mean, lo, hi = plotting.mean_ci([[1.0, 5.0], [3.0, 5.0]])
     np.testing.assert_array_equal(mean, [2.0, 5.0])
     assert np.isnan(lo).all() and np.isnan(hi).all()

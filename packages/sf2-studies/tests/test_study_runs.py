@@ -52,13 +52,13 @@ def _lines(run: Path) -> list[dict]:
 def compile_cache(tmp_path_factory):
     """One JAX compilation cache for this module's runs (the children inherit it): the smoke study's four
     programs compile once and the later runs load them; the user's cache is left alone."""
-    old = os.environ.get(cli.FRAMEWORK.cache_env)
-    os.environ[cli.FRAMEWORK.cache_env] = str(tmp_path_factory.mktemp("xla"))
+    old = os.environ.get(cli.CACHE_ENV)
+    os.environ[cli.CACHE_ENV] = str(tmp_path_factory.mktemp("xla"))
     yield
     if old is None:
-        os.environ.pop(cli.FRAMEWORK.cache_env)
+        os.environ.pop(cli.CACHE_ENV)
     else:
-        os.environ[cli.FRAMEWORK.cache_env] = old
+        os.environ[cli.CACHE_ENV] = old
 
 
 def _main(capsys, *args) -> tuple[str, str]:
@@ -103,7 +103,6 @@ def test_killed_runner_resumes_through_ray_to_the_same_results(reference, tmp_pa
     task resumes the run in place from its last checkpoint). Every run's rows equal the uninterrupted
     study's, none missing, none duplicated. (A node without the study folder: test_study_runner.py.)"""
     pytest.importorskip("ray", reason="needs sf2-studies[ray] (tox -e agents)")
-    from sf2_studies import commands
     from sf2_studies.rayrun import run_ray
 
     out = tmp_path / "study"
@@ -138,7 +137,7 @@ def test_killed_runner_resumes_through_ray_to_the_same_results(reference, tmp_pa
     assert max(r["epoch"] for r in _lines(last)) < EPOCHS
 
     study = spec.load(SMOKE)
-    backend = commands.backend(cli.FRAMEWORK)
+    backend = cli.backend()
     runs = spec.resolve(study, backend.make_config, backend.validate)
     folder.open(study, "jax", runs, command="test")
     jobs, done = plan(study, folder, runs)

@@ -1,21 +1,17 @@
-"""The command line of both cores, written once: `sf2-jax` and `sf2-torch` are this module with a
-`Framework` (the program name, help texts and environment, and the core's functions the commands call:
-its TrainConfig class, validation, training and evaluation). Each core's cli.py builds its `Framework`
-from small functions that import the core's agents only when called, so `PROG --help` and `PROG tasks`
-import no framework.
+"""The pieces of both cores' command lines, `sf2-jax` and `sf2-torch`: each core's cli.py builds its
+parser from these functions and calls its own trainer; commands of other packages (`study`, from
+sf2-studies) come by entry points of the group `sf2.commands`.
 
     PROG train --task CartpoleBalance --algo td3 --repr sf2 --config quick --seeds 0-3 --out runs/cp
     PROG train --task CartpoleBalance --algo td3 --repr sf2,none,sim --config quick --seeds 0-1 --out runs/cmp
-    PROG eval runs/cp [--epoch N] [--episodes 20] [--stochastic]
+    PROG eval runs/cp [--epoch N] [--episodes 20] [--stochastic] [--obs-noise 0,0.1 [--save]]
     PROG plot runs/cmp/td3-sf2 runs/cmp/td3-none --out curves.png
-    PROG study run studies/fig7-td3.toml --out results/fig7-td3    (sf2_studies.commands)
-    PROG study report results/fig7-td3
+    PROG study run studies/fig7-td3.toml --out results/fig7-td3      (with sf2-studies installed)
     PROG tasks
 
-Every `TrainConfig` field can be overridden, either with its own flag (`--batch-size 128`,
-`--hidden-sizes 64,64`) or with `--set batch_size=128` (repeatable). Bad input (unknown task, algo or
-representation, a combination that does not exist, a budget smaller than the prefill, ...) is reported
-before anything is compiled; exit status 2. A NaN/inf loss stops the run with exit status 3.
+Every `TrainConfig` field can be overridden with its own flag (`--batch-size 128`) or `--set
+batch_size=128`. Exit status: 0 done, 2 bad input (reported before anything is compiled, naming the
+problem and the valid choices), 3 a NaN/inf loss stopped training, 130 interrupted.
 """
 
 from __future__ import annotations
@@ -28,65 +24,77 @@ import re
 import sys
 import time
 from collections.abc import Callable
+from importlib import metadata
 from pathlib import Path
-
-from sf2_studies import commands as study_commands
 
 from sf2_common.agents import configs, plotting
 from sf2_common.agents.hostloop import TrainingDiverged
-from sf2_common.agents.registry import Registry
 from sf2_common.agents.runfolder import RunFolder
 from sf2_common.errors import ConfigError
 
-__all__ = ["Framework", "build_parser", "main", "print_table", "expand_runs"]
+__all__ = ["Backend", "COMMANDS_GROUP", "PLUGINS", "compile_cache", "new_parser", "add_train_parser",
+           "add_eval_parser", "add_plot_parser", "add_tasks_parser", "add_shared_parsers", "plugin_commands",
+           "add_plugin_parsers", "resolve_configs", "train_runs", "print_table", "eval_command",
+           "expand_runs", "plot_command", "tasks_command", "join_negative_values", "run"]
 
+COMMANDS_GROUP = "sf2.commands"
+# commands other packages provide: name → how to get them (said when one is asked for and absent)
+PLUGINS = {"study": "the study commands come with sf2-studies: pip install packages/sf2-studies"}
 _RUN_FIELDS_SKIPPED = ("task", "algo", "representation")
 
 
 @dataclasses.dataclass(frozen=True)
-class Framework:
-    """What differs between `sf2-jax` and `sf2-torch`: names and texts, and the core's functions."""
+class Backend:
+    """What a command of another package (`sf2.commands`) gets from the core that runs it."""
 
-    prog: str                     # "sf2-jax"
-    package: str                  # "sf2_jax" (its command line is the module `{package}.cli`)
-    doc: str                      # the CLI module's docstring (its first paragraph is the --help text)
-    seeds_help: str               # how the seeds run
-    cache_env: str                # environment variable of the JAX compilation cache folder
-    config_class: type            # the core's TrainConfig (sf2_common's, or torch's with its run fields)
-    registry: Callable[[], Registry]      # the core's representation registry (names, labels)
-    validate: Callable            # validate(cfg, seeds) -> cfg: everything checkable before building
-    train: Callable               # the core's agents.trainer.train
-    evaluate_checkpoint: Callable  # the core's agents.trainer.evaluate_checkpoint
-    evaluate_checkpoint_noises: Callable  # ... evaluate_checkpoint_noises (several noise stds, one restore)
-    env_defaults: tuple[tuple[str, str], ...] = ()   # environment defaults set before JAX is imported
-
-    def compile_cache(self) -> str:
-        return os.environ.get(self.cache_env, str(Path.home() / ".cache" / self.prog / "xla"))
-
-    def method_label(self, algo: str, representation: str) -> str:
-        return plotting.method_label(algo, representation, self.registry())
+    prog: str                       # "sf2-jax"
+    name: str                       # "jax" (study files' `framework`)
+    cli_module: str                 # "sf2_jax.cli": children run `python -m cli_module train ...`
+    make_config: Callable           # (preset, task, algo, representation, overrides) -> TrainConfig
+    validate: Callable              # (cfg, seeds) -> cfg, raises ConfigError
 
 
-def _field_names(fw: Framework) -> list[str]:
-    return [f.name for f in dataclasses.fields(fw.config_class) if f.name not in _RUN_FIELDS_SKIPPED]
+def compile_cache(prog: str, cache_env: str) -> str:
+    """The folder of JAX's persistent compilation cache: `$cache_env`, else ~/.cache/PROG/xla."""
+    return os.environ.get(cache_env, str(Path.home() / ".cache" / prog / "xla"))
 
 
-def build_parser(fw: Framework) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog=fw.prog, description=fw.doc.split("\n\n")[0],
+def new_parser(prog: str, doc: str):
+    """An argument parser whose description is the first paragraph of `doc`.
+
+    Returns:
+        (parser, its subparsers), where the commands are added.
+    """
+    parser = argparse.ArgumentParser(prog=prog, description=doc.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = parser.add_subparsers(dest="command", required=True)
+    return parser, parser.add_subparsers(dest="command", required=True)
 
+
+def _field_names(config_class) -> list[str]:
+    return [f.name for f in dataclasses.fields(config_class) if f.name not in _RUN_FIELDS_SKIPPED]
+
+
+def add_train_parser(sub, prog: str, config_class, seeds_help: str, cache_env: str) -> None:
+    """Add `train`, with a flag for every field of `config_class`.
+
+    Args:
+        sub: the subparsers of `new_parser`.
+        prog: the program's name.
+        config_class: the core's TrainConfig.
+        seeds_help: how the core runs several seeds.
+        cache_env: the environment variable of the compilation cache folder.
+    """
     t = sub.add_parser("train", help="train one or more methods over several seeds",
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     t.add_argument("--task", required=True, help="Playground DM Control task, e.g. CartpoleBalance "
-                   f"(`{fw.prog} tasks` lists them)")
+                   f"(`{prog} tasks` lists them)")
     t.add_argument("--algo", default="td3", help="td3 or sac")
     t.add_argument("--repr", default="sf2", dest="representation",
                    help="representation: none (vanilla), sf2; with sf2-baselines installed also sim, simlap, "
                    "simlap_authors, spr; a comma list trains each and compares them")
     t.add_argument("--config", default="quick", help="preset: paper (Table 1 + the authors' settings) or "
                    "quick (small networks and budget for a CPU)")
-    t.add_argument("--seeds", default="0", help=f"e.g. 0-3 or 0,2,5; {fw.seeds_help}")
+    t.add_argument("--seeds", default="0", help=f"e.g. 0-3 or 0,2,5; {seeds_help}")
     t.add_argument("--out", required=True, help="run folder (one method) or parent folder (several)")
     t.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="override any config field (repeatable)")
@@ -95,14 +103,17 @@ def build_parser(fw: Framework) -> argparse.ArgumentParser:
                    help="refuse to continue a run folder that holds checkpoints")
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
     t.add_argument("--stop-after-epoch", type=int, default=None, help=argparse.SUPPRESS)
-    t.add_argument("--compile-cache", default=fw.compile_cache(),
+    t.add_argument("--compile-cache", default=compile_cache(prog, cache_env),
                    help="folder for JAX's persistent compilation cache, reused by later runs of the same "
-                   f"config ('' turns it off; env {fw.cache_env})")
+                   f"config ('' turns it off; env {cache_env})")
     fields = t.add_argument_group("config fields (each overrides the preset)")
-    for name in _field_names(fw):
+    for name in _field_names(config_class):
         fields.add_argument(f"--{name.replace('_', '-')}", dest=f"field_{name}", default=None, metavar="V",
                             help=argparse.SUPPRESS if name in ("keep_checkpoints",) else None)
 
+
+def add_eval_parser(sub) -> None:
+    """Add `eval` (a run folder's checkpoint; with `--obs-noise`, under observation noise)."""
     e = sub.add_parser("eval", help="evaluate a run folder's checkpoint")
     e.add_argument("run", help="run folder")
     e.add_argument("--epoch", type=int, default=None, help="checkpoint epoch (default: latest)")
@@ -120,49 +131,101 @@ def build_parser(fw: Framework) -> argparse.ArgumentParser:
     e.add_argument("--save", action="store_true", help="with --obs-noise: write RUN/obs_noise.json (what "
                    "`study report` reads)")
 
+
+def add_plot_parser(sub) -> None:
+    """Add `plot` (learning curves of several run folders)."""
     p = sub.add_parser("plot", help="learning curves of several run folders (mean and 95%% CI per method)")
     p.add_argument("runs", nargs="+", help="run folders (folders holding run folders are expanded)")
     p.add_argument("--out", default="learning_curves.png", help="PNG to write")
 
-    study_commands.add_parser(sub, fw.prog)
+
+def add_tasks_parser(sub) -> None:
+    """Add `tasks` (the task table)."""
     sub.add_parser("tasks", help="list the valid tasks and the paper preset's budget and action repeat")
-    return parser
+
+
+def add_shared_parsers(sub, prog: str) -> None:
+    """Add the commands that take nothing of the core: eval, plot, the plugin commands, tasks."""
+    add_eval_parser(sub)
+    add_plot_parser(sub)
+    add_plugin_parsers(sub, prog)
+    add_tasks_parser(sub)
+
+
+def plugin_commands() -> dict:
+    """The commands installed packages declare in the entry-point group `sf2.commands`.
+
+    Returns:
+        {name: command}, each command with `add_parser(subparsers, prog)` and `main(backend, args) -> int`.
+    """
+    found = {}
+    for ep in metadata.entry_points(group=COMMANDS_GROUP):
+        found.setdefault(ep.name, ep)
+    return {name: ep.load() for name, ep in sorted(found.items())}
+
+
+def add_plugin_parsers(sub, prog: str) -> None:
+    """Add the commands of `plugin_commands()`, and for each of `PLUGINS` that is not installed a command
+    that says how to install it (`run` calls the command the arguments name)."""
+    plugins = plugin_commands()
+    for name, command in plugins.items():
+        command.add_parser(sub, prog)
+        sub.choices[name].set_defaults(sf2_plugin=command)
+    for name in sorted(PLUGINS.keys() - plugins.keys()):
+        missing = sub.add_parser(name, help=f"({PLUGINS[name]})", add_help=False)
+        missing.set_defaults(sf2_missing=PLUGINS[name])
 
 
 # ------------------------------------------------------------------------------------------- train
-def resolve_configs(fw: Framework, args):
-    """All configs of the command, validated; raises ConfigError before anything is compiled."""
-    overrides = configs.parse_overrides(args.set, fw.config_class)
-    for name in _field_names(fw):
+def resolve_configs(args, config_class, make_config: Callable, validate: Callable):
+    """Every config `train`'s arguments ask for, validated before anything is compiled.
+
+    Args:
+        args: the parsed `train` arguments.
+        config_class: the core's TrainConfig.
+        make_config: the core's `make_config(preset, task, algo, representation, overrides)`.
+        validate: the core's `validate(cfg, seeds)`.
+
+    Returns:
+        (configs, one per representation of `--repr`, seeds); raises ConfigError on bad input.
+    """
+    overrides = configs.parse_overrides(args.set, config_class)
+    for name in _field_names(config_class):
         value = getattr(args, f"field_{name}")
         if value is not None:
-            overrides[name] = configs.parse_value(name, value, fw.config_class)
+            overrides[name] = configs.parse_value(name, value, config_class)
     seeds = configs.parse_seeds(args.seeds)
     reps = [r.strip() for r in args.representation.split(",") if r.strip()]
     if not reps:
         raise ConfigError("--repr: give at least one representation, e.g. sf2 or none,sf2")
     if len(set(reps)) != len(reps):
         raise ConfigError(f"--repr {args.representation!r} repeats a representation")
-    cfgs = []
-    for rep in reps:
-        cfg = configs.make_config(args.config, args.task, algo=args.algo, representation=rep,
-                                  overrides=overrides, config_class=fw.config_class)
-        cfgs.append(fw.validate(cfg, seeds))
+    cfgs = [validate(make_config(args.config, args.task, args.algo, rep, overrides), seeds) for rep in reps]
     return cfgs, seeds
 
 
-def _setup_jax(compile_cache: str):
+def _setup_jax(cache: str) -> None:
     """JAX's persistent compilation cache (both cores: the Playground envs are JAX programs)."""
     import jax
 
-    if compile_cache:
-        Path(compile_cache).mkdir(parents=True, exist_ok=True)
-        jax.config.update("jax_compilation_cache_dir", compile_cache)
+    if cache:
+        Path(cache).mkdir(parents=True, exist_ok=True)
+        jax.config.update("jax_compilation_cache_dir", cache)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 
-def _train(fw: Framework, args) -> int:
-    cfgs, seeds = resolve_configs(fw, args)
+def train_runs(args, cfgs, seeds, train: Callable, method_label: Callable) -> int:
+    """Train each config into its run folder, then print the final-return table (`train`).
+
+    Args:
+        args: the parsed `train` arguments.
+        cfgs, seeds: what `resolve_configs` returned.
+        train: the core's `agents.trainer.train`.
+        method_label: (algo, representation) -> the method's label, e.g. "TD3+SF²".
+
+    Returns:
+        The exit status, 0.
+    """
     out = Path(args.out)
     several = len(cfgs) > 1
     plan = [(cfg, out / f"{cfg.algo}-{cfg.representation}" if several else out) for cfg in cfgs]
@@ -175,11 +238,11 @@ def _train(fw: Framework, args) -> int:
     _setup_jax(args.compile_cache)
     folders, seconds = [], {}
     for cfg, folder in plan:
-        label = fw.method_label(cfg.algo, cfg.representation)
+        label = method_label(cfg.algo, cfg.representation)
         print(f"== {label} on {cfg.task}, seeds {','.join(map(str, seeds))} → {folder}", file=sys.stderr)
         t0 = time.time()
-        result = fw.train(cfg, seeds, folder, resume=not args.no_resume, fresh=args.fresh,
-                          progress=not args.no_progress, stop_after_epoch=args.stop_after_epoch)
+        result = train(cfg, seeds, folder, resume=not args.no_resume, fresh=args.fresh,
+                       progress=not args.no_progress, stop_after_epoch=args.stop_after_epoch)
         # the training's own wall time (a rerun of a finished run takes seconds)
         seconds[label] = max((r.get("walltime", 0.0) for r in result.rows), default=time.time() - t0)
         folders.append(folder)
@@ -195,8 +258,8 @@ def _train(fw: Framework, args) -> int:
 
 
 def print_table(table, seconds=None) -> None:
-    """The final-return table of `plotting.final_table` (and the wall time per method, if given): mean
-    over seeds, its 95% bootstrap interval, and each seed's return."""
+    """Print `plotting.final_table`'s rows: mean over seeds, its 95% bootstrap interval, each seed's
+    return, and the wall time per method if `seconds` ({method: seconds}) is given."""
     head = (f"{'task':22} {'method':12} {'seeds':>5} {'env steps':>10} {'final eval return':>18} "
             f"{'95% CI':>17}  per seed")
     if seconds:
@@ -220,16 +283,28 @@ def print_table(table, seconds=None) -> None:
 
 
 # ------------------------------------------------------------------------------------------- eval, plot
-def _eval(fw: Framework, args) -> int:
+def eval_command(args, evaluate_checkpoint: Callable, evaluate_checkpoint_noises: Callable,
+                 cache: str) -> int:
+    """`eval`: print a checkpoint's returns per seed (or as JSON), or run `eval --obs-noise`.
+
+    Args:
+        args: the parsed `eval` arguments.
+        evaluate_checkpoint: the core's `agents.trainer.evaluate_checkpoint`.
+        evaluate_checkpoint_noises: the core's `agents.trainer.evaluate_checkpoint_noises`.
+        cache: the compilation cache folder (`compile_cache`).
+
+    Returns:
+        The exit status, 0.
+    """
     import numpy as np
 
-    _setup_jax(fw.compile_cache())
+    from sf2_common.agents import obsnoise
+
+    _setup_jax(cache)
     deterministic = True if args.deterministic else (False if args.stochastic else None)
     if args.obs_noise is not None:
-        from sf2_studies import robustness
-
-        return robustness.eval_command(fw.evaluate_checkpoint_noises, args, deterministic)
-    res = fw.evaluate_checkpoint(args.run, epoch=args.epoch, num_eval_envs=args.episodes,
+        return obsnoise.eval_command(evaluate_checkpoint_noises, args, deterministic)
+    res = evaluate_checkpoint(args.run, epoch=args.epoch, num_eval_envs=args.episodes,
                               deterministic=deterministic)
     if args.json:
         print(json.dumps(res))
@@ -246,8 +321,6 @@ def _eval(fw: Framework, args) -> int:
 
 def expand_runs(paths) -> list[Path]:
     """Run folders, with folders that hold run folders replaced by those."""
-    from sf2_common.agents.runfolder import RunFolder
-
     out = []
     for p in map(Path, paths):
         if (p / RunFolder.CONFIG).exists():
@@ -259,7 +332,8 @@ def expand_runs(paths) -> list[Path]:
     return out
 
 
-def _plot(fw: Framework, args) -> int:
+def plot_command(args) -> int:
+    """`plot`: the learning curves of run folders and their final-return table; exit status 0."""
     runs = expand_runs(args.runs)
     try:
         table = plotting.plot_runs(runs, args.out)
@@ -270,7 +344,8 @@ def _plot(fw: Framework, args) -> int:
     return 0
 
 
-def _tasks(fw: Framework, args) -> int:
+def tasks_command(args) -> int:
+    """`tasks`: the valid tasks with the paper preset's budget and action repeat; exit status 0."""
     from sf2_common.agents import tasks
 
     print(f"{'task':24} {'paper budget':>12} {'action repeat':>13}  in paper")
@@ -280,9 +355,7 @@ def _tasks(fw: Framework, args) -> int:
     return 0
 
 
-_HANDLERS = {"train": _train, "eval": _eval, "plot": _plot, "study": study_commands.main, "tasks": _tasks}
-
-
+# ------------------------------------------------------------------------------------------- running
 _NEGATIVE = re.compile(r"-(\d|\.\d|inf$|nan$)", re.IGNORECASE)
 
 
@@ -299,28 +372,42 @@ def join_negative_values(argv: list[str]) -> list[str]:
     return out
 
 
-def main(fw: Framework, argv=None) -> int:
-    """Run one command; the exit status: 0 done, 2 bad input (a ConfigError, e.g. a run folder that
-    cannot be used or a checkpoint of another run; an OSError naming the path), 3 training diverged,
-    130 interrupted."""
-    for name, value in fw.env_defaults:
-        os.environ.setdefault(name, value)
+def run(prog: str, parser, commands: dict, backend: Callable, argv=None) -> int:
+    """Parse `argv` (default: sys.argv[1:]) and run its command.
+
+    Args:
+        prog: the program's name, which starts every error message.
+        parser: the core's parser (`new_parser` and the `add_*` functions).
+        commands: {name: handler(args) -> exit status} of the core's own commands.
+        backend: () -> the `Backend` a command of `add_plugin_parsers` gets.
+        argv: the arguments.
+
+    Returns:
+        The exit status: 0 done, 2 bad input (a ConfigError, e.g. a run folder that cannot be used or a
+        checkpoint of another run; an OSError naming the path), 3 training diverged, 130 interrupted.
+    """
     argv = join_negative_values(list(sys.argv[1:] if argv is None else argv))
-    args = build_parser(fw).parse_args(argv)
+    args, unknown = parser.parse_known_args(argv)
+    if unknown and not hasattr(args, "sf2_missing"):
+        parser.parse_args(argv)     # argparse's own message, exit status 2
     args.argv = argv
     try:
-        return _HANDLERS[args.command](fw, args)
+        if hasattr(args, "sf2_missing"):
+            raise ConfigError(args.sf2_missing)
+        if args.command in commands:
+            return commands[args.command](args)
+        return args.sf2_plugin.main(backend(), args)
     except (ConfigError, FileNotFoundError) as err:
-        print(f"{fw.prog} {args.command}: error: {err}", file=sys.stderr)
+        print(f"{prog} {args.command}: error: {err}", file=sys.stderr)
         return 2
     except OSError as err:  # a path that cannot be written or read: the message names it
         where = f"{err.filename}: " if err.filename else ""
-        print(f"{fw.prog} {args.command}: error: {where}{err.strerror or err}", file=sys.stderr)
+        print(f"{prog} {args.command}: error: {where}{err.strerror or err}", file=sys.stderr)
         return 2
     except TrainingDiverged as err:
-        print(f"{fw.prog} {args.command}: {err}", file=sys.stderr)
+        print(f"{prog} {args.command}: {err}", file=sys.stderr)
         return 3
     except KeyboardInterrupt:
-        print(f"{fw.prog} {args.command}: interrupted; rerun the same command to resume from the last "
+        print(f"{prog} {args.command}: interrupted; rerun the same command to resume from the last "
               f"checkpoint", file=sys.stderr)
         return 130

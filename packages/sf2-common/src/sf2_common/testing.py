@@ -1,5 +1,5 @@
 """Helpers for both cores' agent tests: the CLI's bad-input cases (the same flags and messages in
-`sf2-jax` and `sf2-torch`, since both are `sf2_common.cli`) and how a test runs one; the kill-and-resume
+`sf2-jax` and `sf2-torch`, both built from `sf2_common.cli`) and how a test runs one; the kill-and-resume
 protocol (both trainers run `sf2_common.agents.hostloop`, so a kill lands at the same points): in-process
 at the host loop's hook points, and a real `kill -9` of a CLI process (`kill9`), also in the middle of a
 checkpoint's save; the run-folder faults of docs/run-folders.md (`damage`, `folder_digest`)."""
@@ -66,18 +66,16 @@ def check_baselines_resolve(cli, representations, reprs: str) -> None:
     """`--repr <reprs>` (e.g. "sim,spr") selects, for both algorithms, the core's classes: sf2-baselines'
     (entry points of "sf2.representations.<framework>", imported on first use) for sim/simlap/spr, each
     validated like sf2. `cli` is the core's CLI module, `representations` its registry module."""
-    from sf2_common import cli as common_cli
-
     for algo in ("td3", "sac"):
         args = cli.build_parser().parse_args(["train", "--task", "CartpoleBalance", "--algo", algo, "--repr",
                                               reprs, "--seeds", "0-1", "--out", "/nonexistent"])
-        cfgs, seeds = common_cli.resolve_configs(cli.FRAMEWORK, args)
+        cfgs, seeds = cli.resolve_configs(args)
         assert [c.representation for c in cfgs] == reprs.split(",") and seeds == (0, 1)
         for cfg in cfgs:
             cls = representations.get(cfg.representation)
             assert cls.name == cfg.representation and algo in cls.supported_algos
             if cfg.representation not in ("none", "sf2"):
-                framework = cli.FRAMEWORK.package.removeprefix("sf2_")   # "jax" / "torch"
+                framework = cli.backend().name   # "jax" / "torch"
                 assert cls.__module__ == f"sf2_baselines.{framework}.representations"
 
 

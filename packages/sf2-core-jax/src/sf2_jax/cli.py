@@ -11,63 +11,65 @@ Every `TrainConfig` field can be overridden, either with its own flag (`--batch-
 sf2-baselines installed (`pip install packages/sf2-baselines`), sim, simlap, simlap_authors, spr. Bad input
 (unknown task, algo or representation, a combination that does not exist, a budget smaller than the
 prefill, ...) is reported before anything is compiled; exit status 2. A NaN/inf loss stops the run with
-exit status 3. The command line is `sf2_common.cli`, shared with `sf2-torch`.
+exit status 3. `study` comes with sf2-studies. The parts shared with `sf2-torch` are `sf2_common.cli`.
 """
 
 from __future__ import annotations
 
 import sys
 
-from sf2_common import cli as _cli
-from sf2_common.agents import configs
+from sf2_common import cli as common
 
-__all__ = ["main", "build_parser", "FRAMEWORK"]
+from sf2_jax.agents.configs import TrainConfig, make_config, validate
 
+__all__ = ["PROG", "CACHE_ENV", "build_parser", "backend", "resolve_configs", "train", "evaluate", "main"]
 
-# The JAX agents' functions the commands call, imported on first use (`sf2-jax tasks` imports no JAX).
-def _registry():
-    from sf2_jax.agents import representations
-
-    return representations.REGISTRY
-
-
-def _validate(cfg, seeds):
-    return configs.validate(cfg, seeds, _registry())
-
-
-def _train(*args, **kwargs):
-    from sf2_jax.agents.trainer import train
-
-    return train(*args, **kwargs)
-
-
-def _evaluate_checkpoint(*args, **kwargs):
-    from sf2_jax.agents.trainer import evaluate_checkpoint
-
-    return evaluate_checkpoint(*args, **kwargs)
-
-
-def _evaluate_checkpoint_noises(*args, **kwargs):
-    from sf2_jax.agents.trainer import evaluate_checkpoint_noises
-
-    return evaluate_checkpoint_noises(*args, **kwargs)
-
-
-FRAMEWORK = _cli.Framework(
-    prog="sf2-jax", package="sf2_jax", doc=__doc__,
-    seeds_help="all seeds run in one vmapped program", cache_env="SF2_JAX_COMPILE_CACHE",
-    config_class=configs.TrainConfig, registry=_registry, validate=_validate, train=_train,
-    evaluate_checkpoint=_evaluate_checkpoint,
-    evaluate_checkpoint_noises=_evaluate_checkpoint_noises,
-)
+PROG = "sf2-jax"
+CACHE_ENV = "SF2_JAX_COMPILE_CACHE"
 
 
 def build_parser():
-    return _cli.build_parser(FRAMEWORK)
+    """The parser of `sf2-jax`: train (a flag per TrainConfig field), eval, plot, plugins, tasks."""
+    parser, sub = common.new_parser(PROG, __doc__)
+    common.add_train_parser(sub, PROG, TrainConfig, "all seeds run in one vmapped program", CACHE_ENV)
+    common.add_shared_parsers(sub, PROG)
+    return parser
+
+
+def backend() -> common.Backend:
+    """What a plugin command (`study`) gets from this core."""
+    return common.Backend(PROG, "jax", __name__, make_config, validate)
+
+
+def resolve_configs(args):
+    """The configs and seeds of parsed `train` arguments, validated (`sf2_common.cli.resolve_configs`)."""
+    return common.resolve_configs(args, TrainConfig, make_config, validate)
+
+
+def train(args) -> int:
+    """`sf2-jax train`: the JAX trainer on every config of the arguments."""
+    cfgs, seeds = resolve_configs(args)
+    from sf2_common.agents.plotting import method_label
+
+    from sf2_jax.agents import representations
+    from sf2_jax.agents.trainer import train as train_run
+
+    return common.train_runs(args, cfgs, seeds, train_run,
+                             lambda algo, rep: method_label(algo, rep, representations.REGISTRY))
+
+
+def evaluate(args) -> int:
+    """`sf2-jax eval`: a checkpoint of a run folder the JAX trainer wrote."""
+    from sf2_jax.agents import trainer
+
+    return common.eval_command(args, trainer.evaluate_checkpoint, trainer.evaluate_checkpoint_noises,
+                               common.compile_cache(PROG, CACHE_ENV))
 
 
 def main(argv=None) -> int:
-    return _cli.main(FRAMEWORK, argv)
+    """Run one command of `sf2-jax` (`argv`: default sys.argv[1:]); returns the exit status."""
+    commands = {"train": train, "eval": evaluate, "plot": common.plot_command, "tasks": common.tasks_command}
+    return common.run(PROG, build_parser(), commands, backend, argv)
 
 
 if __name__ == "__main__":

@@ -61,7 +61,7 @@ def test_presets():
     quick = configs.make_config("quick", "CartpoleBalance", overrides={"hidden_sizes": "64,64",
                                                                        "deterministic_eval": "false"})
     assert quick.hidden_sizes == (64, 64) and quick.deterministic_eval is False
-    assert cli.FRAMEWORK.validate(quick, "0-3") is quick   # against the JAX agents' representations
+    assert cli.backend().validate(quick, "0-3") is quick   # against the JAX agents' representations
     sf2 = quick.sf2_config(5, 1)
     for name in configs.SF2_FIELDS:
         assert getattr(sf2, name) == getattr(quick, name)

@@ -1,4 +1,4 @@
-"""Studies: the paper's evaluation protocol (§4.2, Appendix C) over tasks × methods × seeds, for either
+"""sf2_studies: the paper's evaluation protocol (§4.2, Appendix C) over tasks × methods × seeds, for either
 framework. One module per job:
 
 - `spec`: study files (TOML), checked before anything is compiled
@@ -6,12 +6,11 @@ framework. One module per job:
 - `runner`: the runs on this host, one child process of the framework's CLI per GPU (or CPU worker)
 - `rayrun`: the runs as Ray tasks on a cluster (extra `ray`)
 - `progress`: the one progress line of a study run
-- `robustness`: a run's checkpoints evaluated under observation noise (App. C.2.2)
-- `stats`: AUC, normalization, rliable aggregates and bootstrap intervals (extra `studies`)
+- `stats`: AUC, normalization, rliable aggregates and bootstrap intervals
 - `report`, `figures`: results.csv, summary.md and the paper's figures
 - `compare`: several studies' aggregates and claim verdicts side by side (`study compare`)
 - `merge`: runs of other study folders or their archives joined into one (`study merge`)
-- `commands`: the `study` subcommand of `sf2-jax` / `sf2-torch`
+- `commands`: the `study` subcommand of `sf2-jax` / `sf2-torch` (entry point group `sf2.commands`)
 
 Study files of the paper's experiments live in the repository's `studies/` folder.
 """

@@ -1,5 +1,6 @@
-"""The `study` subcommand of `sf2-jax` and `sf2-torch` (sf2_common.cli adds it with `add_parser` and calls
-`main`):
+"""The `study` subcommand of `sf2-jax` and `sf2-torch`: `COMMAND`, the entry point `study` of the group
+`sf2.commands`, which each core's command line finds (sf2_common.cli.add_plugin_parsers); it adds its
+parser with `add_parser` and runs with `main(backend, args)`:
 
     PROG study run FILE --out DIR [--tasks A,B] [--methods m1,m2] [--seeds 0-4] [--workers N] [--ray ADDRESS]
                    [--finish-within SECONDS] [--forecast-from DIR] [--dry-run]
@@ -24,13 +25,15 @@ import functools
 import os
 import shlex
 import sys
+import types
 from pathlib import Path
 
+from sf2_common.cli import Backend
+
 from .progress import duration
-from .runner import Backend
 from .spec import StudyError
 
-__all__ = ["add_parser", "main", "backend"]
+__all__ = ["COMMAND", "add_parser", "main", "finished_runs"]
 
 
 def add_parser(sub, prog: str) -> None:
@@ -111,29 +114,28 @@ def _names(text):
     return [x.strip() for x in text.split(",") if x.strip()] if text else None
 
 
-def backend(fw) -> Backend:
-    """The `Backend` of a `sf2_common.cli.Framework`."""
-    from sf2_common.agents.configs import make_config
+def main(backend: Backend, args) -> int:
+    """Run `PROG study ...`.
 
-    return Backend(prog=fw.prog, name=fw.package.removeprefix("sf2_"), cli_module=f"{fw.package}.cli",
-                   make_config=functools.partial(make_config, config_class=fw.config_class),
-                   validate=fw.validate)
+    Args:
+        backend: what the core that runs the command gives (sf2_common.cli.Backend).
+        args: the parsed arguments; `args.argv`, the command's arguments, is recorded in the study folder
+            and summary.md.
 
-
-def main(fw, args) -> int:
-    """Run `PROG study ...` for the `sf2_common.cli.Framework` `fw` (`args.argv`: the command's arguments,
-    recorded in the study folder and summary.md)."""
-    command = " ".join([fw.prog, *map(shlex.quote, getattr(args, "argv", []))])
+    Returns:
+        The exit status: 0 done, 1 a run failed or was held by another runner (`study run`).
+    """
+    command = " ".join([backend.prog, *map(shlex.quote, getattr(args, "argv", []))])
     try:
         if args.study_command == "report":
             return _report(args, command)
         if args.study_command == "compare":
             return _compare(args, command)
         if args.study_command == "merge":
-            return _merge(backend(fw), args)
+            return _merge(backend, args)
         if args.study_command == "compress":
-            return _compress(backend(fw), args)
-        return _run(backend(fw), args, command)
+            return _compress(backend, args)
+        return _run(backend, args, command)
     except ImportError as err:   # an extra that is not installed: the message names it
         raise StudyError(str(err)) from None
 
@@ -285,3 +287,6 @@ def _report(args, command: str) -> int:
     for path in written.values():
         print(f"wrote {path}")
     return 0
+
+
+COMMAND = types.SimpleNamespace(add_parser=add_parser, main=main)

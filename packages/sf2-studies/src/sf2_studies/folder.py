@@ -25,6 +25,7 @@ import time
 import uuid
 from pathlib import Path
 
+from sf2_common.agents.obsnoise import OBS_NOISE
 from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch
 from sf2_common.fileio import atomic_write, compress, read_text, stored
 
@@ -33,7 +34,6 @@ from .spec import Run, Study, StudyError, loads, same_runs, seeds_folder
 __all__ = ["StudyFolder", "RunState", "OBS_NOISE", "LOG", "evaluation_settings", "evaluation_done",
            "read_obs_noise", "command_line"]
 
-OBS_NOISE = "obs_noise.json"
 LOG = "train.log"
 
 

@@ -29,11 +29,11 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 from sf2_common.agents.lock import FolderLock, RunFolderBusy, holder_of
 from sf2_common.agents.runfolder import RunFolder
+from sf2_common.cli import Backend
 
 from .folder import LOG, StudyFolder
 from .progress import Progress, duration
@@ -43,17 +43,6 @@ __all__ = ["Backend", "Job", "plan", "Forecast", "estimate", "makespan", "eval_a
            "visible_gpus", "run_local", "Outcome", "LOCK"]
 
 LOCK = FolderLock.NAME
-
-
-@dataclasses.dataclass(frozen=True)
-class Backend:
-    """What a study needs from a framework (`sf2_common.cli` builds it from its `Framework`)."""
-
-    prog: str                       # "sf2-jax"
-    name: str                       # "jax" (study files' `framework`)
-    cli_module: str                 # "sf2_jax.cli": children run `python -m cli_module train ...`
-    make_config: Callable           # (preset, task, algo, representation, overrides) -> TrainConfig
-    validate: Callable              # (cfg, seeds) -> cfg, raises ConfigError
 
 
 @dataclasses.dataclass

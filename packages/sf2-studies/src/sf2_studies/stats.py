@@ -4,26 +4,26 @@ median, interquartile mean (IQM), mean and optimality gap with 95% stratified-bo
 intervals (5000 resamples). The aggregates and every interval come from rliable (Agarwal et al., 2021;
 `rliable.metrics`, `rliable.library.get_interval_estimates`); this module only arranges the scores.
 
-Intervals are percentile-bootstrap intervals over seeds (within each task: stratified). Below
-`MIN_SEEDS` seeds none is computed: the caller reports "not informative". Why 3: a percentile bootstrap
-of the mean of n seeds has few distinct resamples, and its nominal 95% interval covers the true mean far
-less often. Measured on standard-normal samples (2000 samples per n, 2000 resamples each): coverage 48%
-for n = 2 (the interval is the two seeds' range), 75% for n = 3, 84% for n = 5, 87% for n = 8, 92% for
-n = 15. With 2 seeds the "95% interval" is thus a coin flip; from 3 on it is a (still optimistic)
-interval, which summary.md states next to the seed count.
-
-Reproducibility: rliable's `StratifiedBootstrap` draws its indices from NumPy's global generator
-(`np.random.choice`, not the `random_state` it accepts), so every interval here is computed under a
-fixed global seed (`SEED`), restored afterwards.
-
-rliable is a dependency of sf2-studies (`pip install packages/sf2-studies`).
+Intervals are percentile-bootstrap intervals over seeds (within each task: stratified), none below
+`MIN_SEEDS` seeds (docs/decisions/intervals.md), each under a fixed global seed (`SEED`). The per-column
+intervals and those constants are sf2_common.agents.stats', which a run's table and curve use too.
 """
 
 from __future__ import annotations
 
-import contextlib
-
 import numpy as np
+from sf2_common.agents.stats import (
+    COLUMN_STATISTICS,
+    CONFIDENCE,
+    MIN_SEEDS,
+    RESAMPLES,
+    SEED,
+    column_interval,
+    global_seed,
+    informative,
+    mean_interval,
+    require_rliable,
+)
 
 __all__ = [
     "MIN_SEEDS", "RESAMPLES", "CONFIDENCE", "SEED", "METRICS", "auc", "final_window_mean",
@@ -33,39 +33,8 @@ __all__ = [
     "probability_of_improvement",
 ]
 
-MIN_SEEDS = 3          # fewer seeds (per task): no interval (module docstring)
-RESAMPLES = 5000       # paper §4.2: "95th percentiles confidence intervals computed using 5000 samples"
-CONFIDENCE = 0.95
-SEED = 0
-METRICS = ("Median", "IQM", "Mean", "Optimality Gap")
-COLUMN_STATISTICS = ("mean", "median", "iqm")   # over seeds, per column (`column_interval`)
 STATISTICS = {"IQM": "aggregate_iqm", "Median": "aggregate_median", "Mean": "aggregate_mean"}  # of a claim
-STUDIES_EXTRA = "pip install packages/sf2-studies"
-
-
-def require_rliable():
-    """(rliable.library, rliable.metrics), or ImportError naming the extra that installs them."""
-    try:
-        from rliable import library, metrics
-    except ImportError as err:
-        raise ImportError(f"the study statistics need rliable ({err}); install the studies extra: "
-                          f"{STUDIES_EXTRA}") from err
-    return library, metrics
-
-
-def informative(n_seeds: int) -> bool:
-    """Whether an interval over `n_seeds` seeds is worth printing (module docstring)."""
-    return n_seeds >= MIN_SEEDS
-
-
-@contextlib.contextmanager
-def _global_seed(seed: int):
-    state = np.random.get_state()
-    np.random.seed(seed)
-    try:
-        yield
-    finally:
-        np.random.set_state(state)
+METRICS = ("Median", "IQM", "Mean", "Optimality Gap")
 
 
 # ------------------------------------------------------------------------------------------- per run
@@ -139,58 +108,17 @@ def aggregate_intervals(score_dict: dict, resamples: int = RESAMPLES, seed: int 
         if not informative(scores.shape[0]):
             points[name], intervals[name] = fn(scores), None
             continue
-        with _global_seed(seed):
+        with global_seed(seed):
             p, i = library.get_interval_estimates({name: scores}, fn, reps=resamples,
                                                   confidence_interval_size=CONFIDENCE)
         points[name], intervals[name] = p[name], i[name]
     return points, intervals
 
 
-def column_interval(values, statistic: str = "mean", resamples: int = RESAMPLES, seed: int = SEED):
-    """values (n_seeds,) or (n_seeds, n_points) → (statistic over seeds of each column, lower, upper), the
-    statistic one of `COLUMN_STATISTICS` (as `mean_interval` and `iqm_interval`; "median": np.median of each
-    column, the mean of the two middle seeds for an even count, the statistic of the paper's learning
-    curves, Fig. 8)."""
-    if statistic not in COLUMN_STATISTICS:
-        raise ValueError(f"statistic {statistic!r}: one of {', '.join(COLUMN_STATISTICS)}")
-    return _per_column(values, statistic, resamples, seed)
-
-
-def _per_column(values, fn_name: str, resamples: int, seed: int):
-    v = np.asarray(values, dtype=float)
-    if v.ndim == 1:
-        v = v[:, None]
-    plain = {"mean": np.mean, "median": np.median}.get(fn_name)
-    if plain is not None and not informative(v.shape[0]):
-        return plain(v, axis=0), None, None     # no rliable needed (a trainer's plot of 1 or 2 seeds)
-    library, metrics = require_rliable()
-    if plain is not None:
-        def fn(x):
-            return plain(x, axis=0)
-    else:
-        def fn(x):  # rliable's IQM of each column's seeds
-            return np.array([metrics.aggregate_iqm(x[:, j]) for j in range(x.shape[1])])
-    point = fn(v)
-    if not informative(v.shape[0]):
-        return point, None, None
-    with _global_seed(seed):
-        _, i = library.get_interval_estimates({"x": v}, fn, reps=resamples,
-                                              confidence_interval_size=CONFIDENCE)
-    return point, i["x"][0], i["x"][1]
-
-
-def mean_interval(values, resamples: int = RESAMPLES, seed: int = SEED):
-    """values (n_seeds,) or (n_seeds, n_points) → (mean over seeds, lower, upper): the 95% percentile
-    bootstrap interval of the mean over seeds of each column, via rliable's `get_interval_estimates`
-    (each column resampled over seeds; a learning curve's band point by point). lower = upper = None
-    below `MIN_SEEDS` seeds."""
-    return _per_column(values, "mean", resamples, seed)
-
-
 def iqm_interval(values, resamples: int = RESAMPLES, seed: int = SEED):
     """Like `mean_interval` for the interquartile mean over seeds (rliable's aggregate_iqm: the 25%
     trimmed mean)."""
-    return _per_column(values, "iqm", resamples, seed)
+    return column_interval(values, "iqm", resamples, seed)
 
 
 # ------------------------------------------------------------------------------------------- two methods
@@ -226,7 +154,7 @@ def difference_interval(x, y, statistic: str = "IQM", resamples: int = RESAMPLES
     point = float(fn(x, y)[0])
     if not (informative(x.shape[0]) and informative(y.shape[0])):
         return point, None, None
-    with _global_seed(seed):
+    with global_seed(seed):
         _, i = library.get_interval_estimates({"d": (x, y)}, fn, reps=resamples,
                                               confidence_interval_size=CONFIDENCE)
     return point, float(i["d"][0][0]), float(i["d"][1][0])

@@ -1,21 +1,12 @@
-"""`TrainConfig`: everything one training run needs, the `paper` and `quick` presets, CLI overrides, and
-validation that fails before any compilation with a message naming the field, the value and what is valid.
+"""`TrainConfig`: everything one training run needs, the `paper` and `quick` presets (data: `PRESETS`),
+CLI overrides, and validation that fails before any compilation with a message naming the field, the
+value and what is valid.
 
-Written once for both cores: the JAX agents use this module as it is (its `TrainConfig` is theirs),
-`sf2_torch.agents.configs` subclasses `TrainConfig` with its torch-only run fields. The functions that
-build or parse a config take the class (`config_class`); `validate` takes the framework's representation
-registry (`sf2_common.agents.registry.Registry`).
-
-The SF² network/loss fields are the fields of `sf2_common.config.SF2Config` (same names, same defaults),
-minus `obs_size`/`action_size`, which come from the task. `TrainConfig.sf2_config(obs, act)` builds it.
-
-Where the `paper` preset follows the authors' code rather than Table 1 (docs/core-contract.md, "The
-authors' code"):
-learning_rate 1e-3 (table: 1e-4), tau_zeta 0.05 (table: 0.005), denoising_steps 1 midpoint step = 2
-function evaluations (the table's "2 Function Evaluations"), evaluation with the acting noise
-(Brax's `deterministic_eval=False` default, which the authors kept), Adam's ε per family as their trainers
-build it (TD3 1e-5, SAC optax's default 1e-8). Per-task budgets and action repeat follow Table 1 (see
-tasks.py for PendulumSwingup).
+Written once for both cores: each core's `agents.configs` binds `make_config` and `validate` to its own
+`TrainConfig` (JAX: this one; torch: a subclass with its run fields) and representation registry. The
+SF² network/loss fields are those of `sf2_common.config.SF2Config` (same names and defaults) minus
+`obs_size`/`action_size`, which come from the task. Why the presets hold what they hold:
+docs/decisions/presets.md.
 """
 
 from __future__ import annotations
@@ -35,16 +26,13 @@ from . import tasks
 __all__ = [
     "TrainConfig", "PRESETS", "ALGOS", "SF2_FIELDS", "make_config", "parse_overrides", "parse_value",
     "parse_seeds", "validate", "Schedule", "schedule", "ConfigError", "bad_field", "LEARNER_PRECISIONS",
-    "ADDED_FIELDS", "PAPER_ADAM_EPS", "SUPERSEDED", "superseded_values",
+    "ADDED_FIELDS", "PAPER_ADAM_EPS", "SUPERSEDED", "superseded_values", "TASK_VALUES", "FAMILY_VALUES",
 ]
 
 ALGOS = ("td3", "sac")
-PRESETS = ("paper", "quick")
-# `learner_precision` → what the learner's matmuls compute with (the physics stays fp32 `highest`: TF32
-# inside MJX breaks training, mujoco_playground issue 86). JAX: the `jax.default_matmul_precision` the
-# learner's code is traced under (BF16_BF16_F32: bf16 inputs, fp32 accumulation and output, so parameters,
-# optimizer states and loss reductions stay fp32); torch: TF32 matmuls, or bf16 autocast of the loss and
-# policy forwards. docs/core-contract.md "Precision".
+# `learner_precision` → what the learner's matmuls compute with (the physics stays fp32 `highest`). JAX:
+# the `jax.default_matmul_precision` the learner is traced under (BF16_BF16_F32: bf16 inputs, fp32
+# accumulation and output); torch: TF32 matmuls, or bf16 autocast. docs/core-contract.md "Precision".
 LEARNER_PRECISIONS = {"highest": "highest", "tensorfloat32": "tensorfloat32", "bfloat16": "BF16_BF16_F32"}
 _SF2_DEFAULTS = {f.name: f.default for f in fields(SF2Config)}
 # Fields added after run folders were written, with the value every older run trained with (then a module
@@ -57,8 +45,21 @@ SF2_FIELDS = tuple(name for name in _SF2_DEFAULTS if name not in ("obs_size", "a
 PAPER_ADAM_EPS = {"td3": 1e-5, "sac": 1e-8}
 # Preset values that changed after run folders were written: (algo, field) -> (old value, new value). A
 # folder whose config holds the old value where the preset now gives the new one holds the same run and
-# resumes with its own value (`superseded_values`). The `paper` preset gave SAC TD3's ε until 0.2.0.
+# resumes with its own value (`superseded_values`).
 SUPERSEDED = {("sac", "adam_eps"): (1e-5, PAPER_ADAM_EPS["sac"])}
+# The presets: each one's own field values; then the values it takes per task (`TASK_VALUES`: field →
+# the task table's function of the task) and per algorithm family (`FAMILY_VALUES`: field → {algo:
+# value}); then the overrides. docs/decisions/presets.md says why.
+PRESETS = {
+    "paper": dict(checkpoint_every=10, learner_precision="tensorfloat32"),
+    "quick": dict(num_timesteps=80_000, num_envs=16, num_evals=9, num_eval_envs=10, deterministic_eval=True,
+                  batch_size=128, grad_updates_per_step=8, min_replay_size=4096, max_replay_size=100_000,
+                  feature_size=32, hidden_sizes=(64, 64), q_hidden_size=64, zeta_hidden_sizes=(64, 64),
+                  embedding_size=16, tau=0.02),
+}
+TASK_VALUES = {"paper": {"num_timesteps": tasks.paper_budget, "action_repeat": tasks.paper_action_repeat},
+               "quick": {"action_repeat": tasks.paper_action_repeat}}
+FAMILY_VALUES = {"paper": {"adam_eps": PAPER_ADAM_EPS}}
 
 
 @dataclass(frozen=True)
@@ -159,53 +160,18 @@ def superseded_values(folder: dict, now: dict) -> dict:
             and now.get(field) == new}
 
 
-def _paper(task: str, algo: str) -> dict:
-    """Table 1 + the authors' effective settings (the TrainConfig defaults) with the task's budget and
-    action repeat. A checkpoint holds the 4M-transition replay buffers (~0.7 GB per seed on CheetahRun),
-    so the preset writes one every 10 evaluations.
-
-    The learner's matmuls run in TF32 (the physics stays fp32 `highest`): a paired comparison, 8 seeds,
-    1M env steps, TD3 and TD3+SF² on AcrobotSwingup and CartpoleSwingupSparse, found no difference in
-    learning that the seeds resolve and half the wall time (results/precision-td3/README.md)."""
-    return dict(num_timesteps=tasks.paper_budget(task), action_repeat=tasks.paper_action_repeat(task),
-                checkpoint_every=10, learner_precision="tensorfloat32",
-                adam_eps=PAPER_ADAM_EPS.get(algo, _SF2_DEFAULTS["adam_eps"]))
-
-
-def _quick(task: str, algo: str) -> dict:
-    """Small networks and budget for a 2-core CPU: TD3+SF² on CartpoleBalance passes 800 in minutes.
-
-    On a 2-core CPU an env step costs microseconds and an SGD step milliseconds, so wall time is set
-    by the number of SGD steps and their size. Widths 64 with F = 32 (ζ emits F·D = 160 numbers) and
-    batch 128 make an SF² SGD step ~4x cheaper than widths 128 / batch 256 and are ample for 5-dim
-    observations; 16 envs x 8 updates per actor step (an update-to-data ratio of 1/2; the paper's
-    128 x 8 is 1/16) gives ~40k SGD steps in 80k env steps.
-    tau = 0.02 instead of 0.005 (for both methods; τ_ζ stays 0.05): values propagate through the
-    target networks with a time constant of about 1/(τ(1−γ)) SGD steps, 20k at τ = 0.005, which is the
-    whole quick budget; measured on CartpoleBalance (2 seeds), τ = 0.005 left TD3+SF² at 680/997 after
-    100k env steps, τ = 0.02 reached 891/898 at 30k/40k. Evaluation is deterministic (the paper
-    preset keeps the authors' noisy evaluation)."""
-    return dict(
-        num_timesteps=80_000, action_repeat=tasks.paper_action_repeat(task),
-        num_envs=16, num_evals=9, num_eval_envs=10, deterministic_eval=True,
-        batch_size=128, grad_updates_per_step=8, min_replay_size=4096, max_replay_size=100_000,
-        feature_size=32, hidden_sizes=(64, 64), q_hidden_size=64, zeta_hidden_sizes=(64, 64),
-        embedding_size=16, tau=0.02,
-    )
-
-
-_PRESET_FNS = {"paper": _paper, "quick": _quick}
-
-
 def make_config(preset: str, task: str, algo: str = "td3", representation: str = "sf2",
                 overrides: dict | None = None, *, config_class: type[TrainConfig] = TrainConfig):
     """The `preset` for `task` with `overrides` (field → value, already typed or strings) applied, as a
     `config_class`. Raises `ConfigError` for an unknown preset, task or field; call `validate` for the
     rest."""
-    if preset not in _PRESET_FNS:
+    if preset not in PRESETS:
         raise ConfigError(f"unknown config preset {preset!r}; valid presets: {', '.join(PRESETS)}")
     tasks.validate_task(task)
-    values = dict(task=task, algo=algo, representation=representation, **_PRESET_FNS[preset](task, algo))
+    values = dict(task=task, algo=algo, representation=representation, **PRESETS[preset])
+    values.update({name: value_of(task) for name, value_of in TASK_VALUES.get(preset, {}).items()})
+    values.update({name: by_algo[algo] for name, by_algo in FAMILY_VALUES.get(preset, {}).items()
+                   if algo in by_algo})
     for name, value in (overrides or {}).items():
         values[name] = parse_value(name, value, config_class) if isinstance(value, str) else value
     return config_class.from_dict(values)

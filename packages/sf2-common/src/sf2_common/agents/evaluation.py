@@ -13,17 +13,23 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from sf2_studies.robustness import check_obs_noise
-
 from sf2_common.errors import ConfigError
 
 from .runfolder import RunFolder, framework_of
 
-__all__ = ["EVAL_KEY_BASE", "RunEvaluation", "open_evaluation"]
+__all__ = ["EVAL_KEY_BASE", "RunEvaluation", "open_evaluation", "check_obs_noise"]
 
 # `eval` of checkpoint e draws its noise and fresh start states from the evaluation key of epoch
 # EVAL_KEY_BASE + e; training's own evaluation of epoch e uses e, so `eval` never replays those draws.
 EVAL_KEY_BASE = 10_000
+
+
+def check_obs_noise(value) -> float:
+    """The observation-noise std of an evaluation as a float; `ConfigError` unless a finite number >= 0
+    (both trainers' `evaluate_checkpoint` call this)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < float("inf"):
+        raise ConfigError(f"obs_noise = {value!r} is invalid: a noise std >= 0")
+    return float(value)
 
 
 @dataclass(frozen=True)

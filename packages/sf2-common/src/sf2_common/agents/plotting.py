@@ -1,14 +1,9 @@
 """Learning curves: one run folder (per-seed lines, mean and 95% CI band) and several run folders
-(one line and band per method and task). The band is the 95% percentile-bootstrap confidence interval of
-the mean over seeds, computed by rliable (Agarwal et al. 2021; `sf2_studies.stats.mean_interval`:
-`get_interval_estimates` over the seeds, 5000 resamples under a fixed seed, so plots are reproducible).
-Below `sf2_studies.stats.MIN_SEEDS` (3) seeds there is no band: such an interval is not
-informative (with two seeds it is their range, which covers the mean about half the time; stats.py says
-why), and the plots and tables say so. matplotlib is imported lazily (Agg); rliable only when there are
-enough seeds for an interval.
-
-The same for both cores (`method_label` takes the core's representation registry). A run folder's method
-is the `label` its trainer wrote into config.json, so plotting needs no framework."""
+(one line and band per method and task), and the final-return table. The band is the 95%
+percentile-bootstrap interval of the mean over seeds (`stats.mean_interval`, rliable); below
+`stats.MIN_SEEDS` seeds there is none, and the plots and tables say so. matplotlib is imported lazily
+(Agg); rliable only when there are enough seeds for an interval. A run folder's method is the `label` its
+trainer wrote into config.json, so plotting needs no framework."""
 
 from __future__ import annotations
 
@@ -20,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import stats
 from .runfolder import RunFolder
 
 __all__ = ["method_label", "mean_ci", "band_label", "curves", "plot_learning_curve", "plot_runs",
@@ -42,8 +38,6 @@ def mean_ci(values, resamples: int = BOOTSTRAP_RESAMPLES) -> tuple[np.ndarray, n
     """values (n_seeds, n_points) → mean over seeds, lower, upper of the 95% percentile-bootstrap interval
     of the mean (module docstring); lower = upper = NaN (no interval) below `stats.MIN_SEEDS` seeds, and
     without rliable (a warning names the extra): a finished training's table and curve never fail on it."""
-    from sf2_studies import stats
-
     values = np.asarray(values, dtype=float)
     if stats.informative(values.shape[0]) and _rliable_missing():
         mean = values.mean(axis=0)
@@ -57,8 +51,6 @@ def mean_ci(values, resamples: int = BOOTSTRAP_RESAMPLES) -> tuple[np.ndarray, n
 @functools.cache
 def _rliable_missing() -> str | None:
     """None if rliable imports, else why not (warned once on stderr)."""
-    from sf2_studies import stats
-
     try:
         stats.require_rliable()
     except ImportError as err:
@@ -69,12 +61,10 @@ def _rliable_missing() -> str | None:
 
 def band_label(n_seeds: int) -> str:
     """What a band (or its absence) is, for legends and footnotes."""
-    from sf2_studies import stats
-
     if not stats.informative(n_seeds):
         return f"no CI: n={n_seeds} < {stats.MIN_SEEDS} seeds is not informative"
     if _rliable_missing():
-        return f"no CI: rliable is not installed ({stats.STUDIES_EXTRA})"
+        return f"no CI: rliable is not installed ({stats.RLIABLE_INSTALL})"
     return f"95% bootstrap CI of the mean (n={n_seeds})"
 
 

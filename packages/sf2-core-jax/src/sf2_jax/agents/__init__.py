@@ -18,11 +18,9 @@ from __future__ import annotations
 
 from sf2_common.agents import EXPORTS, lazy_getattr
 
-# TrainConfig, make_config, parse_seeds: sf2_common's (the JAX agents add no fields); a config is checked
-# against this core's representations by `sf2_common.agents.configs.validate(cfg, seeds,
-# representations.REGISTRY)`, which `train` calls.
-_EXPORTS = {**{k: v for k, v in EXPORTS.items() if k != "validate"},
-            **dict.fromkeys(("TrainConfig", "make_config", "parse_seeds"), "sf2_common.agents.configs")}
+# TrainConfig, make_config, validate: this package's `configs` (sf2_common's TrainConfig, bound to the JAX
+# agents' representations); parse_seeds: sf2_common's
+_EXPORTS = {**EXPORTS, "parse_seeds": "sf2_common.agents.configs"}
 
 __all__ = sorted(_EXPORTS)
 

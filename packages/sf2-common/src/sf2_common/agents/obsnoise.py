@@ -1,11 +1,9 @@
-"""A run's checkpoints evaluated with Gaussian noise added to the observations the policy sees (paper
-App. C.2.2, Fig. 9 right): `PROG eval RUN --obs-noise 0,0.05,0.1,0.2 [--checkpoints 5] [--save]`, and
-the [evaluation] of a study file, which `study run` runs after training. Framework-free: it calls the
-framework's `evaluate_checkpoint_noises(run, epoch, num_eval_envs, deterministic, noises)` once per
-checkpoint (one restore of the training state for all σ); the report turns the returns into an AUC over
-the checkpoints per seed and noise level.
-
-RUN/obs_noise.json (`--save`): {"settings": {"obs_noise", "checkpoints", "episodes", "deterministic"},
+"""`PROG eval RUN --obs-noise STDS [--checkpoints N] [--save]`: a run's latest checkpoints evaluated with
+Gaussian noise added to the observations the policy sees (paper App. C.2.2, Fig. 9 right), for either
+core: it calls the core's `evaluate_checkpoint_noises(run, epoch, num_eval_envs, deterministic, noises)`
+once per checkpoint (one restore of the training state for all stds). A study's [evaluation] runs it
+after training, and its report reads RUN/obs_noise.json (`--save`):
+{"settings": {"obs_noise", "checkpoints", "episodes", "deterministic"},
 "results": [{"noise", "epoch", "env_steps", "deterministic", "returns": {seed: [episode returns]}}]}.
 """
 
@@ -16,21 +14,14 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 
-from sf2_common.agents.lock import FolderLock
 from sf2_common.errors import ConfigError
 from sf2_common.fileio import atomic_write
 
-from .folder import OBS_NOISE
+from .lock import FolderLock
 
-__all__ = ["check_obs_noise", "parse_noise", "evaluate_obs_noise", "save", "eval_command"]
+__all__ = ["OBS_NOISE", "parse_noise", "evaluate_obs_noise", "save", "eval_command"]
 
-
-def check_obs_noise(value) -> float:
-    """The observation-noise std of an evaluation as a float; `ConfigError` unless a finite number >= 0
-    (both trainers' `evaluate_checkpoint` call this)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < float("inf"):
-        raise ConfigError(f"obs_noise = {value!r} is invalid: a noise std >= 0")
-    return float(value)
+OBS_NOISE = "obs_noise.json"
 
 
 def parse_noise(text: str) -> tuple[float, ...]:
@@ -74,10 +65,18 @@ def evaluate_obs_noise(evaluate_noises: Callable, run, noises, checkpoints: int 
 
 
 def save(run, result: dict) -> Path:
-    """Write RUN/obs_noise.json: one line per (noise, checkpoint), each episode return with the shortest
-    decimal that gives back its float32 (the env's reward dtype, so nothing is lost): about 1.3 MB for a
-    Fig. 9 run (6 seeds × 5 checkpoints × 4 stds × 1000 episodes), against 3.1 MB indented at full float64
-    repr; a study's folders travel to the GPU host within its 64 MiB (scripts/gpu_study.sh)."""
+    """Write RUN/obs_noise.json, one line per (noise, checkpoint).
+
+    Each episode return is written with the shortest decimal that gives back its float32 (the env's
+    reward dtype, so nothing is lost), which keeps a study's folders small (docs/decisions/obs-noise.md).
+
+    Args:
+        run: the run folder.
+        result: what `evaluate_obs_noise` returned.
+
+    Returns:
+        The path written.
+    """
     import numpy as np
 
     def short(values):
