@@ -6,7 +6,7 @@ representation, and the matrix products' flops per phase.
 For each representation this compiles the algorithm's own `sgd_step` (`sf2_jax.agents.algorithms`) for the
 `paper` preset's shapes (a batch of `batch_size`, the step's noise; with `--seeds N` > 1 `jax.vmap`ped
 over N seeds as the trainer's several-seed program runs it, everything reported per seed), jitted under
-the trainer's precisions (`Program._precision`, `_learner_precision`), from shapes only: nothing runs.
+the trainer's precisions (`Program._physics_precision`, `learner_precision`), from shapes only: nothing runs.
 `step` is the first SGD step, so the step updates the policy (every step at the paper preset's
 `policy_delay` = 1). Reported per SGD step:
 - `flops`, `bytes accessed`, `transcendentals`: XLA's `cost_analysis()` of the step as compiled for the
@@ -95,7 +95,7 @@ def step_cost(cfg, n_seeds: int = 1) -> dict:
     if n_seeds > 1:
         step = jax.vmap(step)
         args = jax.tree.map(lambda x: jax.ShapeDtypeStruct((n_seeds, *x.shape), x.dtype), args)
-    with program._precision(), program._learner_precision():
+    with program._physics_precision(), program.learner_precision():
         compiled = jax.jit(step).lower(*args).compile()
     analysis = compiled.cost_analysis()
     if isinstance(analysis, list | tuple):   # older JAX: one dict per computation

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import pytest
 from sf2_common.agents.configs import TrainConfig
-from sf2_common.agents.evaluation import open_evaluation
+from sf2_common.agents.evaluation import EVAL_KEY_BASE, CheckpointEvaluator, open_evaluation
 from sf2_common.agents.runfolder import RunFolder
 from sf2_common.errors import ConfigError
 from sf2_common.testing import folder_digest
@@ -74,3 +74,64 @@ def test_eval_config_and_results(tmp_path):
     ]
     with pytest.raises(ValueError):   # one result per noise std, never silently fewer
         ev.results(3, {}, [[[1], [2]]], True, [3])
+
+
+class _Checkpointer:
+    """A core's checkpointer as `CheckpointEvaluator` uses it: the epochs on disk, whether it is closed."""
+
+    opened: list = []
+
+    def __init__(self, folder, keep):
+        self.folder, self.keep, self.closed = folder, keep, False
+        _Checkpointer.opened.append(self)
+
+    def all(self):
+        return [1, 3]
+
+    def close(self):
+        self.closed = True
+
+
+def _evaluator(restore=None):
+    def default_restore(ckpt, job):
+        return f"agents of {job.epoch}", {"env_steps": 10 * job.epoch}
+
+    def act(restored, job):
+        assert restored == f"agents of {job.epoch}" and job.key == EVAL_KEY_BASE + job.epoch
+        return [[[noise + i] * (job.episodes or job.cfg.num_eval_envs) for i, _ in enumerate(job.seeds)]
+                for noise in job.noises]
+
+    return CheckpointEvaluator("jax", TrainConfig, _Checkpointer, restore or default_restore, act)
+
+
+def test_checkpoint_evaluator_results_and_closes_its_checkpointer(tmp_path):
+    """The framework-free half of both cores' `evaluate_checkpoint(_noises)`: the chosen checkpoint, the
+    episodes, one result per std; the core's checkpointer is closed on every path, a bad request is refused
+    before anything is restored."""
+    _Checkpointer.opened.clear()
+    run = _run(tmp_path)
+    ev = _evaluator()
+    res = ev.evaluate_checkpoint(run, obs_noise=0.5, deterministic=False)
+    assert res == {"epoch": 3, "env_steps": 30, "returns": {0: [0.5] * 3, 2: [1.5] * 3},
+                   "deterministic": False, "obs_noise": 0.5, "checkpoints": [1, 3]}
+    both = ev.evaluate_checkpoint_noises(run, 1, 2, None, (0.0, 1.0))
+    assert [(r["epoch"], r["obs_noise"], r["returns"][2]) for r in both] == [(1, 0.0, [1.0, 1.0]),
+                                                                               (1, 1.0, [2.0, 2.0])]
+    assert all(c.closed and c.keep == CFG.keep_checkpoints for c in _Checkpointer.opened)
+
+    def refuse(ckpt, job):
+        raise AssertionError("restored a checkpoint of a bad request")
+
+    for kwargs, error in ((dict(epoch=2), FileNotFoundError), (dict(num_eval_envs=0), ConfigError)):
+        _Checkpointer.opened.clear()
+        with pytest.raises(error):
+            _evaluator(refuse).evaluate_checkpoint(run, **kwargs)
+        assert [c.closed for c in _Checkpointer.opened] == [True]
+
+    def broken(ckpt, job):
+        raise ConfigError("checkpoint 3 does not fit this program")
+
+    _Checkpointer.opened.clear()
+    with pytest.raises(ConfigError, match="does not fit"):
+        _evaluator(broken).evaluate_checkpoint(run)
+    assert [c.closed for c in _Checkpointer.opened] == [True]

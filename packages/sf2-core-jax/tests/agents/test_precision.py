@@ -41,7 +41,7 @@ def _precisions(text: str) -> collections.Counter:
 def _epoch_dots(cfg) -> collections.Counter:
     program = get_program(cfg)
     state = program.abstract_state((0,))
-    with program._precision():
+    with program._physics_precision():
         return _precisions(program._program("epoch", 1).lower(state, jnp.int32(0)).as_text())
 
 

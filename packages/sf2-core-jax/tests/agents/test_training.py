@@ -175,7 +175,7 @@ def _cond_program(cfg):
             obs = state.env_state.obs
 
             def explore():
-                with self._learner_precision():
+                with self.learner_precision():
                     return self.algo.explore(state.params, obs, k_act).astype(jnp.float32)
 
             action = jax.lax.cond(prefill, lambda: jax.random.uniform(

@@ -46,7 +46,7 @@ def test_bfloat16_autocasts_the_forwards_and_keeps_fp32_state(tiny_cfg, algo):
                   next_obs=torch.randn(B, D, generator=g),
                   truncation=torch.zeros(B))
     before = {n: p.detach().clone() for n, p in algo.nets.psi.named_parameters()}
-    with program.precision():
+    with program.learner_precision():
         metrics = algo.sgd_step(batch, algo.step_noise(g, batch), step=0)
     hook.remove()
     assert seen and set(seen) == {torch.bfloat16}, seen           # ψ's matmuls ran in bf16

@@ -1,7 +1,8 @@
 """Evaluating a run folder's checkpoint (`sf2-jax eval`, `sf2-torch eval`; observation noise: paper App.
-C.2.2): the framework-free half of both trainers' `evaluate_checkpoint_noises` — which run, which
-checkpoint, how many episodes, and the result each std gives. Restoring the checkpoint and acting are each
-core's own (`sf2_jax.agents.trainer`, `sf2_torch.agents.trainer`).
+C.2.2): the framework-free half of both cores' `evaluate_checkpoint` and `evaluate_checkpoint_noises` —
+which run, which checkpoint, how many episodes, the checkpointer's lifetime and the result each std gives.
+A core supplies the rest as a `CheckpointEvaluator`: its checkpointer, how it restores what acting needs
+and how it acts (`sf2_jax.agents.trainer`, `sf2_torch.agents.trainer`).
 
 Every user mistake here is a `ConfigError` or `FileNotFoundError` naming the folder and the valid choices
 (the CLIs exit with status 2); nothing in the folder is written.
@@ -9,6 +10,8 @@ Every user mistake here is a `ConfigError` or `FileNotFoundError` naming the fol
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -17,7 +20,8 @@ from sf2_common.errors import ConfigError
 
 from .runfolder import RunFolder, framework_of
 
-__all__ = ["EVAL_KEY_BASE", "RunEvaluation", "open_evaluation", "check_obs_noise"]
+__all__ = ["EVAL_KEY_BASE", "RunEvaluation", "open_evaluation", "check_obs_noise", "CheckpointJob",
+           "CheckpointEvaluator"]
 
 # `eval` of checkpoint e draws its noise and fresh start states from the evaluation key of epoch
 # EVAL_KEY_BASE + e; training's own evaluation of epoch e uses e, so `eval` never replays those draws.
@@ -89,3 +93,86 @@ def open_evaluation(out, framework: str, config_class, noises=(0.0,)) -> RunEval
         raise ConfigError(f"{out} was trained by sf2-{framework_of(conf)}; evaluate it with that CLI")
     return RunEvaluation(str(Path(out)), run, config_class.from_dict(conf["config"]), tuple(conf["seeds"]),
                          checked)
+
+
+@dataclass(frozen=True)
+class CheckpointJob:
+    """One checkpoint to evaluate, as a core's `CheckpointEvaluator.restore` and `act` receive it."""
+
+    cfg: Any                      # the run's TrainConfig
+    eval_cfg: Any                 # the config to act with (`RunEvaluation.eval_config`)
+    seeds: tuple[int, ...]
+    epoch: int                    # the checkpoint
+    episodes: int | None          # None: the run's own evaluation start states; else fresh ones per seed
+    key: int                      # the evaluation key's epoch, EVAL_KEY_BASE + epoch
+    noises: tuple[float, ...]     # observation-noise stds, validated, in order
+
+
+@dataclass(frozen=True)
+class CheckpointEvaluator:
+    """A core's half of checkpoint evaluation; its methods are the core's public `evaluate_checkpoint` and
+    `evaluate_checkpoint_noises`.
+
+    `checkpointer(folder, keep)` opens the core's checkpointer (with `all()` and `close()`), which is
+    closed on every path; `restore(checkpointer, job)` returns (what acting needs, the checkpoint's meta);
+    `act(restored, job)` returns one array of episode returns (seeds, episodes) per std of `job.noises`.
+    """
+
+    framework: str                                   # "jax" or "torch"
+    config_class: type
+    checkpointer: Callable[[Path, int], Any]
+    restore: Callable[[Any, CheckpointJob], tuple[Any, dict]]
+    act: Callable[[Any, CheckpointJob], Sequence]
+
+    def evaluate_checkpoint(self, out, epoch: int | None = None, num_eval_envs: int | None = None,
+                            deterministic: bool | None = None, obs_noise: float = 0.0) -> dict:
+        """Evaluate one checkpoint of a run folder, the policy seeing Gaussian observation noise.
+
+        Args:
+          out: the run folder, trained by this core.
+          epoch: the checkpoint to evaluate; None for the latest.
+          num_eval_envs: episodes per seed; None (or the run's own `num_eval_envs`) replays the run's
+            evaluation start states, another number acts on that many fresh start states.
+          deterministic: act with the deterministic policy (True) or the acting one (False); None for the
+            run's `deterministic_eval`.
+          obs_noise: the std of the Gaussian noise added to every observation the policy sees (paper App.
+            C.2.2); 0 is the training's own evaluation.
+
+        Returns:
+          {"epoch", "env_steps", "returns": {seed: [episode returns]}, "deterministic", "obs_noise",
+          "checkpoints": the epochs of the folder's checkpoints}.
+
+        Raises:
+          FileNotFoundError: `out` is not a run folder, or has no checkpoint (`epoch`).
+          ConfigError: another core trained `out`, `obs_noise` < 0, `num_eval_envs` is not an integer >= 1,
+            or the checkpoint does not fit the run's program (`CheckpointMismatch`).
+        """
+        return self.evaluate_checkpoint_noises(out, epoch, num_eval_envs, deterministic, (obs_noise,))[0]
+
+    def evaluate_checkpoint_noises(self, out, epoch: int | None = None, num_eval_envs: int | None = None,
+                                   deterministic: bool | None = None, noises=(0.0,)) -> list[dict]:
+        """Evaluate one checkpoint at several observation-noise stds from one restore of it.
+
+        The checkpoint holds the run's whole training state (replay buffers included), which one
+        `evaluate_checkpoint` per std would read once per std.
+
+        Args:
+          out, epoch, num_eval_envs, deterministic: as `evaluate_checkpoint`'s.
+          noises: the observation-noise stds, each >= 0.
+
+        Returns:
+          One result per std of `noises`, in order, each as `evaluate_checkpoint`'s.
+
+        Raises:
+          FileNotFoundError, ConfigError: as `evaluate_checkpoint`.
+        """
+        ev = open_evaluation(out, self.framework, self.config_class, noises)
+        with contextlib.closing(self.checkpointer(ev.run.checkpoint_dir, ev.cfg.keep_checkpoints)) as ckpt:
+            available = ckpt.all()
+            epoch = ev.checkpoint(available, epoch)
+            job = CheckpointJob(cfg=ev.cfg, eval_cfg=ev.eval_config(deterministic), seeds=ev.seeds,
+                                epoch=epoch, episodes=ev.episodes(num_eval_envs), key=EVAL_KEY_BASE + epoch,
+                                noises=ev.noises)
+            restored, meta = self.restore(ckpt, job)
+        returns = self.act(restored, job)
+        return ev.results(epoch, meta, returns, job.eval_cfg.deterministic_eval, available)

@@ -48,7 +48,7 @@ import jax.numpy as jnp
 import numpy as np
 from sf2_common.agents import configs, hostloop, plotting
 from sf2_common.agents.configs import TrainConfig
-from sf2_common.agents.evaluation import EVAL_KEY_BASE, open_evaluation
+from sf2_common.agents.evaluation import CheckpointEvaluator, CheckpointJob
 from sf2_common.agents.hostloop import WALL_FIELDS, TrainingDiverged
 from sf2_common.agents.lock import FolderLock
 from sf2_common.agents.resume import resume_run
@@ -86,10 +86,14 @@ class TrainState(NamedTuple):
 
 
 def seed_keys(seeds) -> jax.Array:
+    """The root key PRNGKey(s) of every seed, stacked (n_seeds, 2); `init` splits each in three (parameters,
+    env resets, training)."""
     return jnp.stack([jax.random.PRNGKey(s) for s in seeds])
 
 
 def eval_keys(seeds, epoch: int) -> jax.Array:
+    """fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), epoch) of every seed, stacked (n_seeds, 2): the
+    evaluation of `epoch`'s acting noise (and, split, its fresh start states)."""
     return jnp.stack([jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(s), EVAL_STREAM), epoch)
                       for s in seeds])
 
@@ -121,21 +125,22 @@ class Program:
         self._eval_starts = jax.jit(jax.vmap(self._eval_starts_one, in_axes=(0, None)), static_argnums=1)
 
     # ------------------------------------------------------------------ host entry points
-    def _precision(self):
+    def _physics_precision(self):
         """Every program is traced at fp32 `highest` (the physics always runs at it); the learner's code
-        inside them (SGD steps, acting) is traced under `_learner_precision()`."""
+        inside them (SGD steps, acting) is traced under `learner_precision()`."""
         return jax.default_matmul_precision("highest")
 
-    def _learner_precision(self):
-        """`cfg.learner_precision` as a trace-time matmul precision (`configs.LEARNER_PRECISIONS`)."""
+    def learner_precision(self):
+        """The context the learner's code (SGD steps, acting) is traced in: `cfg.learner_precision` as a
+        trace-time matmul precision (`configs.LEARNER_PRECISIONS`); torch's `Program.learner_precision`."""
         return jax.default_matmul_precision(configs.LEARNER_PRECISIONS[self.cfg.learner_precision])
 
     def init(self, seeds) -> TrainState:
-        with self._precision():
+        with self._physics_precision():
             return self._program("init", len(seeds))(seed_keys(seeds))
 
     def abstract_state(self, seeds) -> TrainState:
-        with self._precision():
+        with self._physics_precision():
             return jax.eval_shape(jax.vmap(self._init_one), seed_keys(seeds))
 
     @staticmethod
@@ -196,7 +201,7 @@ class Program:
         """Run epoch `epoch` (1-based). Returns (state, metric means, first non-finite index)."""
         first = jnp.asarray((epoch - 1) * self.sched.actor_steps_per_epoch, jnp.int32)
         n_seeds = state.key.shape[0]
-        with self._precision(), warnings.catch_warnings():
+        with self._physics_precision(), warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=".*donated buffers were not usable.*")
             return self._program("epoch", n_seeds)(state, first)
 
@@ -204,7 +209,7 @@ class Program:
         """Episode returns (n_seeds, n_eval_envs) from the start states `eval_start`. `obs_noise` > 0 adds
         Gaussian noise of that std to every observation the policy sees (paper App. C.2.2; one compiled
         program per std; 0 is the training's own evaluation program)."""
-        with self._precision():
+        with self._physics_precision():
             program = self._program("evaluate", len(seeds), float(obs_noise))
             return program(acting_params(params), eval_start, eval_keys(seeds, epoch))
 
@@ -221,12 +226,12 @@ class Program:
             per_seed = jax.vmap(functools.partial(self._eval_one, obs_noise=float(obs_noise)))
             self._programs[key] = jax.jit(jax.vmap(per_seed, in_axes=(0, None, 0)))
         keys = jnp.stack([eval_keys(seeds, e) for e in epochs])
-        with self._precision():
+        with self._physics_precision():
             return self._programs[key](acting_params(params), eval_start, keys)
 
     def fresh_eval_starts(self, seeds, n: int, epoch: int):
         """`n` new evaluation start states per seed (for `sf2-jax eval --episodes`)."""
-        with self._precision():
+        with self._physics_precision():
             return self._eval_starts(eval_keys(seeds, epoch), n)
 
     # ------------------------------------------------------------------ per-seed pieces (vmapped)
@@ -270,7 +275,7 @@ class Program:
             batch, k = xs
             with jax.named_scope("step_noise"):
                 noise = self.algo.step_noise(k, batch)
-            with self._learner_precision():
+            with self.learner_precision():
                 new = self.algo.sgd_step(params, opt_state, batch, noise, step)
             params, opt_state, metrics = jax.tree_util.tree_map(
                 lambda n, o: jnp.where(train, n, o), new, (params, opt_state, jax.tree_util.tree_map(
@@ -295,7 +300,7 @@ class Program:
         key, k_act, k_sgd = jax.random.split(state.key, 3)
         obs = state.env_state.obs
         with jax.named_scope("explore"):
-            with self._learner_precision():
+            with self.learner_precision():
                 policy_action = self.algo.explore(state.params, obs, k_act).astype(jnp.float32)
             action = jnp.where(prefill, jax.random.uniform(k_act, (cfg.num_envs, A), jnp.float32, -1.0, 1.0),
                                policy_action)
@@ -332,7 +337,7 @@ class Program:
         def act(obs, k):
             if obs_noise:   # its own key: the acting noise stays that of the noise-free evaluation
                 obs = obs + obs_noise * jax.random.normal(jax.random.fold_in(k, 1), obs.shape, obs.dtype)
-            with self._learner_precision():
+            with self.learner_precision():
                 return self.algo.act(params, obs, k, cfg.deterministic_eval)
 
         return episode_returns(self.spec.eval_env, eval_start, act, key, self.sched.eval_actor_steps)
@@ -532,36 +537,25 @@ def _versions() -> dict:
                               "mujoco", "mujoco-mjx", "sf2-core-jax", "sf2-common"))
 
 
-def evaluate_checkpoint(out, epoch: int | None = None, num_eval_envs: int | None = None,
-                        deterministic: bool | None = None, obs_noise: float = 0.0) -> dict:
-    """Evaluate the checkpoint `epoch` (default: the latest) of the run folder `out`, with Gaussian noise
-    of std `obs_noise` added to the observations the policy sees (paper App. C.2.2):
-    {"epoch", "env_steps", "returns": {seed: [episode returns]}, "deterministic", "obs_noise",
-    "checkpoints": the epochs of the folder's checkpoints}."""
-    return evaluate_checkpoint_noises(out, epoch, num_eval_envs, deterministic, (obs_noise,))[0]
+def _restore_acting(ckpt: Checkpointer, job: CheckpointJob):
+    """((acting parameters, evaluation start states), meta) of checkpoint `job.epoch`; the replay buffers
+    and optimizer states it also holds are dropped here."""
+    state, meta = ckpt.restore(job.epoch, get_program(job.cfg).abstract_state(job.seeds))
+    return (acting_params(state.params), state.eval_start), meta
 
 
-def evaluate_checkpoint_noises(out, epoch: int | None = None, num_eval_envs: int | None = None,
-                               deterministic: bool | None = None, noises=(0.0,)) -> list[dict]:
-    """`evaluate_checkpoint` at each observation-noise std of `noises`, from one restore of the
-    checkpoint (the run's whole training state, replay buffers included, which `eval --obs-noise` would
-    otherwise read once per std). One result per std, in order, each as `evaluate_checkpoint`'s."""
-    ev = open_evaluation(out, "jax", TrainConfig, noises)
-    cfg, seeds = ev.cfg, ev.seeds
-    ckpt = Checkpointer(ev.run.checkpoint_dir, keep=cfg.keep_checkpoints)
-    try:
-        available = ckpt.all()
-        epoch = ev.checkpoint(available, epoch)
-        state, meta = ckpt.restore(epoch, get_program(cfg).abstract_state(seeds))
-    finally:
-        ckpt.close()
-    eval_cfg = ev.eval_config(deterministic)
-    program = get_program(eval_cfg)
-    episodes = ev.episodes(num_eval_envs)
-    key = EVAL_KEY_BASE + epoch
-    starts = state.eval_start if episodes is None else program.fresh_eval_starts(seeds, episodes, key)
-    params = state.params
-    del state   # the replay buffers and optimizer states: not needed to act
-    returns = [np.asarray(program.evaluate(params, starts, seeds, key, noise)) for noise in ev.noises]
-    return ev.results(epoch, meta, returns, eval_cfg.deterministic_eval, available)
+def _act(restored, job: CheckpointJob) -> list[np.ndarray]:
+    """Episode returns (seeds, episodes) per noise std of `job`, from the run's evaluation start states or
+    `job.episodes` fresh ones."""
+    params, starts = restored
+    program = get_program(job.eval_cfg)
+    if job.episodes is not None:
+        starts = program.fresh_eval_starts(job.seeds, job.episodes, job.key)
+    return [np.asarray(program.evaluate(params, starts, job.seeds, job.key, noise)) for noise in job.noises]
 
+
+# evaluate_checkpoint(out, epoch, num_eval_envs, deterministic, obs_noise) and evaluate_checkpoint_noises(...,
+# noises): the framework-free half is sf2_common.agents.evaluation's (documented there)
+_EVALUATOR = CheckpointEvaluator("jax", TrainConfig, Checkpointer, _restore_acting, _act)
+evaluate_checkpoint = _EVALUATOR.evaluate_checkpoint
+evaluate_checkpoint_noises = _EVALUATOR.evaluate_checkpoint_noises

@@ -40,7 +40,7 @@ import numpy as np
 import torch
 from sf2_common.agents import configs as common_configs
 from sf2_common.agents import hostloop
-from sf2_common.agents.evaluation import EVAL_KEY_BASE, open_evaluation
+from sf2_common.agents.evaluation import CheckpointEvaluator, CheckpointJob
 from sf2_common.agents.hostloop import WALL_FIELDS, TrainingDiverged
 from sf2_common.agents.lock import FolderLock
 from sf2_common.agents.plotting import method_label
@@ -58,7 +58,7 @@ from .configs import TrainConfig
 from .replay import ReplayBuffer, to_batch
 
 __all__ = ["Program", "SeedState", "TrainState", "get_program", "TrainingDiverged", "TrainResult", "train",
-           "evaluate_checkpoint", "evaluate_checkpoint_noises", "env_reset_keys", "eval_key",
+           "evaluate_checkpoint", "evaluate_checkpoint_noises", "seed_keys", "eval_keys", "env_reset_keys",
            "fresh_eval_start_keys", "EVAL_STREAM", "WALL_FIELDS"]
 
 EVAL_STREAM = 0x5EED  # eval keys: fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), epoch), as in the JAX core
@@ -66,27 +66,44 @@ OBS_NOISE_STREAM = 0x0B5  # the observation noise of `evaluate(..., obs_noise)`:
 # WALL_FIELDS, TrainingDiverged and the host loop's framework-free helpers (rows, the NaN guard's
 # message, progress bar, curve) are sf2_common.agents.hostloop, shared with the JAX core's trainer.
 
-def env_reset_keys(seed: int, num_envs: int, num_eval_envs: int):
-    """The JAX trainer's reset keys of `seed`: split(split(PRNGKey(seed), 3)[1], n + m); the first n reset
-    the training envs, the other m the evaluation start states."""
+
+# The envs are Playground's JAX envs (envs.PlaygroundEnv): they reset from JAX PRNG keys, derived here as the
+# JAX trainer derives them, so both frameworks start from the same states. JAX is imported only here.
+def seed_keys(seeds):
+    """The root key PRNGKey(s) of every seed, stacked (n_seeds, 2): the JAX trainer's `seed_keys`."""
     import jax
+    import jax.numpy as jnp
 
-    keys = jax.random.split(jax.random.split(jax.random.PRNGKey(seed), 3)[1], num_envs + num_eval_envs)
-    return keys[:num_envs], keys[num_envs:]
+    return jnp.stack([jax.random.PRNGKey(s) for s in seeds])
 
 
-def eval_key(seed: int, epoch: int):
-    """fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), epoch), the JAX trainer's evaluation key."""
+def env_reset_keys(seeds, num_envs: int, num_eval_envs: int):
+    """(training keys (n_seeds · num_envs, 2), evaluation start keys (n_seeds · num_eval_envs, 2)): per seed,
+    split(split(PRNGKey(seed), 3)[1], num_envs + num_eval_envs) as the JAX trainer's init, seeds in order."""
     import jax
+    import jax.numpy as jnp
 
-    return jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(seed), EVAL_STREAM), epoch)
+    keys = [jax.random.split(jax.random.split(k, 3)[1], num_envs + num_eval_envs) for k in seed_keys(seeds)]
+    return jnp.concatenate([k[:num_envs] for k in keys]), jnp.concatenate([k[num_envs:] for k in keys])
 
 
-def fresh_eval_start_keys(seed: int, epoch: int, n: int):
-    """Reset keys of `n` new evaluation start states (`sf2-torch eval --episodes n`), as the JAX core."""
+def eval_keys(seeds, epoch: int):
+    """fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), epoch) of every seed, stacked: the JAX trainer's
+    `eval_keys`."""
     import jax
+    import jax.numpy as jnp
 
-    return jax.random.split(jax.random.fold_in(eval_key(seed, epoch), 1), n)
+    return jnp.stack([jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(s), EVAL_STREAM), epoch)
+                      for s in seeds])
+
+
+def fresh_eval_start_keys(seeds, epoch: int, n: int):
+    """Reset keys (n_seeds · n, 2) of `n` new evaluation start states per seed (`sf2-torch eval --episodes
+    n`): split(fold_in(eval key, 1), n) per seed, as the JAX trainer's `Program.fresh_eval_starts`."""
+    import jax
+    import jax.numpy as jnp
+
+    return jnp.concatenate([jax.random.split(jax.random.fold_in(k, 1), n) for k in eval_keys(seeds, epoch)])
 
 
 @dataclasses.dataclass
@@ -122,7 +139,7 @@ class Program:
         self.sched = common_configs.schedule(cfg)
 
     # ------------------------------------------------------------------ setup
-    def precision(self):
+    def learner_precision(self):
         """`cfg.learner_precision` (common_configs.LEARNER_PRECISIONS): TF32 matmuls when
         "tensorfloat32" (torch's global flags; the physics is MJX, traced at fp32 `highest` by
         `envs.env_spec`, whatever torch's flags say). Returns the context the learner's forwards run in:
@@ -143,16 +160,14 @@ class Program:
         return SeedState(seed, algo, replay, generator)
 
     def init(self, seeds) -> TrainState:
-        self.precision()
+        self.learner_precision()
         agents = [self.make_agent(s) for s in seeds]
         env = envs.make_env(self.cfg.task, self.cfg.episode_length, self.cfg.action_repeat,
                             len(seeds) * self.cfg.num_envs, self.device)
-        import jax.numpy as jnp
-
-        keys = [env_reset_keys(s, self.cfg.num_envs, self.cfg.num_eval_envs) for s in seeds]
-        obs = env.reset_from_keys(jnp.concatenate([k[0] for k in keys])).get("observation")
+        train_keys, eval_start_keys = env_reset_keys(seeds, self.cfg.num_envs, self.cfg.num_eval_envs)
+        obs = env.reset_from_keys(train_keys).get("observation")
         return TrainState(tuple(seeds), agents, env, obs.view(len(seeds), self.cfg.num_envs, -1),
-                          eval_keys=jnp.concatenate([k[1] for k in keys]))
+                          eval_keys=eval_start_keys)
 
     # ------------------------------------------------------------------ acting
     def _env_step(self, state: TrainState, actions: torch.Tensor) -> TensorDict:
@@ -187,7 +202,7 @@ class Program:
                 * 2.0 - 1.0 for ag in state.agents])
             self._observe(state, self._env_step(state, actions))
             return
-        with self.precision():
+        with self.learner_precision():
             actions = torch.stack([ag.algo.explore(state.obs[i], ag.generator)
                                    for i, ag in enumerate(state.agents)]).float()
         self._observe(state, self._env_step(state, actions))
@@ -198,7 +213,7 @@ class Program:
             noise = ag.algo.step_noise(ag.generator, batches)
             for g in range(G):  # the step index drives the policy delay and `aux_every` schedules
                 batch = losses.Batch(*(x[g] for x in batches))
-                with self.precision():
+                with self.learner_precision():
                     metrics[i].append(ag.algo.sgd_step(batch, {k: v[g] for k, v in noise.items()},
                                                        step=state.grad_steps + g))
         sgd_index.extend(local * G + g for g in range(G))
@@ -251,7 +266,7 @@ class Program:
                 seen = obs + obs_noise * torch.stack([torch.randn(obs[i].shape, generator=noise_gens[i],
                                                                   device=self.device, dtype=obs.dtype)
                                                       for i in range(s)])
-            with self.precision():
+            with self.learner_precision():
                 actions = torch.stack([ag.algo.act(seen[i], gens[i], cfg.deterministic_eval)
                                        for i, ag in enumerate(agents)]).float()
             td = TensorDict({"observation": obs.reshape(s * n, -1), "action": actions.reshape(s * n, -1)},
@@ -434,44 +449,34 @@ def _versions() -> dict:
                               "mujoco-mjx", "sf2-core-torch", "sf2-common"))
 
 
-def evaluate_checkpoint(out, epoch: int | None = None, num_eval_envs: int | None = None,
-                        deterministic: bool | None = None, obs_noise: float = 0.0) -> dict:
-    """Evaluate the checkpoint `epoch` (default: the latest) of the run folder `out`, with Gaussian noise
-    of std `obs_noise` added to the observations the policy sees (paper App. C.2.2):
-    {"epoch", "env_steps", "returns": {seed: [episode returns]}, "deterministic", "obs_noise",
-    "checkpoints": the epochs of the folder's checkpoints}."""
-    return evaluate_checkpoint_noises(out, epoch, num_eval_envs, deterministic, (obs_noise,))[0]
-
-
-def evaluate_checkpoint_noises(out, epoch: int | None = None, num_eval_envs: int | None = None,
-                               deterministic: bool | None = None, noises=(0.0,)) -> list[dict]:
-    """`evaluate_checkpoint` at each observation-noise std of `noises`, from one restore of the
-    checkpoint (the run's whole training state, replay buffers included, which `eval --obs-noise` would
-    otherwise read once per std). One result per std, in order, each as `evaluate_checkpoint`'s."""
-    ev = open_evaluation(out, "torch", TrainConfig, noises)
-    cfg, seeds = ev.cfg, ev.seeds
-    ckpt = Checkpointer(ev.run.checkpoint_dir, keep=cfg.keep_checkpoints)
-    available = ckpt.all()
-    epoch = ev.checkpoint(available, epoch)
-    eval_cfg = ev.eval_config(deterministic)
-    program = get_program(eval_cfg)
-    program.precision()
-    import jax.numpy as jnp
-
-    episodes = ev.episodes(num_eval_envs)
-    key = EVAL_KEY_BASE + epoch
-    if episodes is not None:
-        starts = jnp.concatenate([fresh_eval_start_keys(s, key, episodes) for s in seeds])
-    else:
-        starts = jnp.concatenate([env_reset_keys(s, cfg.num_envs, cfg.num_eval_envs)[1] for s in seeds])
-    agents = [program.make_agent(s) for s in seeds]
-    saved, _, meta = ckpt.restore(epoch, map_location=program.device)
+def _restore_acting(ckpt: Checkpointer, job: CheckpointJob):
+    """(every seed's agent, loaded from checkpoint `job.epoch`, the checkpoint's meta); the replay buffers it
+    also holds are dropped here."""
+    program = get_program(job.eval_cfg)
+    program.learner_precision()
+    agents = [program.make_agent(s) for s in job.seeds]
+    saved, _, meta = ckpt.restore(job.epoch, map_location=program.device)
     try:
         for ag, s in zip(agents, saved["agents"]):
             ag.algo.load_state_dict(s["algo"])
     except (RuntimeError, KeyError) as err:
-        raise CheckpointMismatch(f"checkpoint {epoch} does not fit this program: {err}") from err
-    del saved   # the restored replay buffers: not needed to act
-    returns = [program.evaluate(agents, starts, seeds, key, obs_noise=noise) for noise in ev.noises]
-    return ev.results(epoch, meta, returns, eval_cfg.deterministic_eval, available)
+        raise CheckpointMismatch(f"checkpoint {job.epoch} does not fit this program: {err}") from err
+    return agents, meta
 
+
+def _act(agents, job: CheckpointJob) -> list[np.ndarray]:
+    """Episode returns (seeds, episodes) per noise std of `job`, from the run's evaluation start states or
+    `job.episodes` fresh ones."""
+    if job.episodes is None:
+        starts = env_reset_keys(job.seeds, job.cfg.num_envs, job.cfg.num_eval_envs)[1]
+    else:
+        starts = fresh_eval_start_keys(job.seeds, job.key, job.episodes)
+    program = get_program(job.eval_cfg)
+    return [program.evaluate(agents, starts, job.seeds, job.key, obs_noise=noise) for noise in job.noises]
+
+
+# evaluate_checkpoint(out, epoch, num_eval_envs, deterministic, obs_noise) and evaluate_checkpoint_noises(...,
+# noises): the framework-free half is sf2_common.agents.evaluation's (documented there)
+_EVALUATOR = CheckpointEvaluator("torch", TrainConfig, Checkpointer, _restore_acting, _act)
+evaluate_checkpoint = _EVALUATOR.evaluate_checkpoint
+evaluate_checkpoint_noises = _EVALUATOR.evaluate_checkpoint_noises
