@@ -60,7 +60,8 @@ from sf2_common.errors import ParamsError
 
 from sf2_jax import networks as nw
 
-__all__ = ["to_canonical", "from_canonical", "validate", "expected_shapes", "save", "load", "FORMATS"]
+__all__ = ["to_canonical", "from_canonical", "validate", "expected_shapes", "save", "load", "FORMATS",
+           "canonical_shapes", "unflatten"]
 
 FORMATS = paramfile.FORMATS
 
@@ -85,10 +86,21 @@ def to_canonical(params: Mapping) -> dict[str, np.ndarray]:
     return {name: np.array(value) for name, value in _flatten(params).items()}
 
 
+def canonical_shapes(tree) -> dict[str, tuple[int, ...]]:
+    """The canonical name and shape of every leaf of a nested params dict.
+
+    Args:
+      tree: nested mappings of arrays, or of `jax.ShapeDtypeStruct`s (`jax.eval_shape` of an init).
+
+    Returns:
+      {dot-joined name: shape}, names sorted as `to_canonical` orders them.
+    """
+    return {name: tuple(leaf.shape) for name, leaf in _flatten(tree).items()}
+
+
 @functools.lru_cache(maxsize=64)
 def _expected(nets: nw.Networks) -> dict[str, tuple[int, ...]]:
-    shapes = jax.eval_shape(lambda: nw.init_params(nets, jax.random.key(0)))
-    return {name: tuple(s.shape) for name, s in _flatten(shapes).items()}
+    return canonical_shapes(jax.eval_shape(lambda: nw.init_params(nets, jax.random.key(0))))
 
 
 def _networks(nets_or_cfg, algo: str | None) -> nw.Networks:
@@ -125,8 +137,25 @@ def from_canonical(flat: Mapping, nets: nw.Networks, dtype=None) -> dict:
     `dtype` (e.g. `jnp.float64`) casts every array; None keeps each array's dtype (as JAX canonicalizes it).
     """
     validate(flat, nets)
+    return unflatten(flat, _expected(nets), dtype)
+
+
+def unflatten(flat: Mapping, names=None, dtype=None) -> dict:
+    """The nested params dict of a canonical mapping (the inverse of `to_canonical`), unchecked.
+
+    `from_canonical` is `validate` and then this; the baselines' `from_canonical` is the same with their
+    own expected names.
+
+    Args:
+      flat: {canonical name: array}.
+      names: the names to take (default: every name of `flat`).
+      dtype: cast every array to it; None keeps each array's dtype (as JAX canonicalizes it).
+
+    Returns:
+      {group: {...: jax array}}, nested along the names' dots.
+    """
     params: dict = {}
-    for name in _expected(nets):
+    for name in (flat if names is None else names):
         *path, leaf = name.split(".")
         node = params
         for key in path:

@@ -13,11 +13,9 @@ import functools
 from collections.abc import Mapping
 
 import jax
-import jax.numpy as jnp
-import numpy as np
 from sf2_common import paramfile
 from sf2_common.errors import ParamsError
-from sf2_jax.params import load, save, to_canonical
+from sf2_jax.params import canonical_shapes, load, save, to_canonical, unflatten
 
 from . import sim, spr
 
@@ -35,22 +33,7 @@ def _init_fn(nets):
 @functools.lru_cache(maxsize=64)
 def _expected(nets) -> dict[str, tuple[int, ...]]:
     init = _init_fn(nets)
-    shapes = jax.eval_shape(lambda: init(nets, jax.random.key(0)))
-    return _shapes(shapes)
-
-
-def _shapes(tree) -> dict[str, tuple[int, ...]]:
-    out = {}
-
-    def walk(prefix, node):
-        if isinstance(node, Mapping):
-            for key in sorted(node):
-                walk(f"{prefix}.{key}" if prefix else str(key), node[key])
-        else:
-            out[prefix] = tuple(node.shape)
-
-    walk("", tree)
-    return out
+    return canonical_shapes(jax.eval_shape(lambda: init(nets, jax.random.key(0))))
 
 
 def expected_shapes(nets) -> dict[str, tuple[int, ...]]:
@@ -68,12 +51,4 @@ def validate(flat: Mapping, nets) -> None:
 def from_canonical(flat: Mapping, nets, dtype=None) -> dict:
     """Validate `flat` against `nets`, then build the nested params dict (cast to `dtype` if given)."""
     validate(flat, nets)
-    params: dict = {}
-    for name in _expected(nets):
-        *path, leaf = name.split(".")
-        node = params
-        for key in path:
-            node = node.setdefault(key, {})
-        value = np.asarray(flat[name])
-        node[leaf] = jnp.asarray(value, dtype=dtype) if dtype is not None else jnp.asarray(value)
-    return params
+    return unflatten(flat, _expected(nets), dtype)
