@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
-# Issue 12's targets, every row in one command on one host (its "Done means": each figure re-measured in one
-# run per machine kind), then their table (`python -m bench.targets`). Needs four GPUs of one host
-# (`nvidia-h100-x4`, `nvidia-h200-x4`); 340 s on four H100s (bench/results/h100x4/59-column, 60-column). Four
-# lanes at once, each one after the other:
+# The trainer rows of bench/README.md's tables for one GPU kind, in one command on one host: physics, the
+# JAX and torch trainers at one and 16 seeds, CheetahRun at 8 seeds, two GPUs against one. Needs four GPUs
+# of one host (`nvidia-h100-x4`, `nvidia-h200-x4`); 340 s on four H100s (bench/results/h100x4/59-column).
+# Four lanes at once, each one after the other:
 #   GPU 0  physics of the seven paper tasks at 1024 envs; the JAX trainer at one seed, TD3+SF² and TD3, fp32
 #          and TF32 (one process: the one-seed target and SF²/TD3 at one seed)
 #   GPU 1  the JAX and torch trainers at one seed, TD3+SF², fp32 and TF32 (one process: torch / JAX); then
@@ -11,15 +11,15 @@
 #          one-GPU reference of the two-GPU row)
 #   GPU 3  CheetahRun TD3+SF² at 8 seeds, TF32
 # then, once GPUs 2 and 3 are done: one process on each, 16 seeds each (two-gpus-2, two-gpus-3; the study
-# runner's way). Each part has its own time limit (the limits of bench/results/h200x2/55-h200-column cut the
-# torch and CheetahRun rows, 56-h200-column-rest measured what they need).
+# runner's way). Each part has its own time limit (on H200s the torch and CheetahRun rows need more:
+# bench/results/h200x2/56-h200-column-rest).
 #
-#   bash scripts/gpu_column.sh            (carry .whl-jax and .whl-torch)
+#   bash scripts/gpu-host/gpu_column.sh            (carry .whl-jax and .whl-torch)
 #
 # Results: $OUT/column.tgz (one folder per part: throughput.md/.csv or physics.md/.csv, machine.json; every
-# log; times.txt; targets.md), rewritten after each lane ends, so a cut command still returns what finished.
+# log; times.txt), rewritten after each lane ends, so a cut command still returns what finished.
 set -uo pipefail
-source scripts/gpu_env.sh || exit 1
+source scripts/gpu-host/gpu_env.sh || exit 1
 gpus=$(nvidia-smi -L | grep -c '^GPU ')
 [ "$gpus" -ge 4 ] || { echo "gpu_column.sh: needs four GPUs of one host (nvidia-h100-x4, nvidia-h200-x4), this host has $gpus" >&2; exit 2; }
 R=/tmp/column; rm -rf "$R"; mkdir -p "$R" "$OUT"
@@ -47,6 +47,5 @@ two() { part "$1" 160 "two-gpus-$1" $T $A --reps sf2 --seeds 16 --precisions ten
 two 2 & Q2=$!; two 3 & Q3=$!
 wait $Q2 $Q3 $L0 $L1
 kill $W 2>/dev/null
-python3 -m bench.targets "$R" --out "$R/targets.md" > "$R/targets.log" 2>&1
 pack
-cat "$R/targets.md"
+for f in "$R"/*/physics.md "$R"/*/throughput.md; do [ -f "$f" ] && { echo "== $f"; cat "$f"; }; done

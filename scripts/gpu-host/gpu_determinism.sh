@@ -16,12 +16,12 @@
 #                         the sharded program evaluate and learn as the one-device program does? The seeds
 #                         must divide by two (e.g. --seeds 0-3); a run that did not shard says so.
 #
-#   bash scripts/gpu_determinism.sh [default] [deterministic] [cached] [sharded] [-- train options]
+#   bash scripts/gpu-host/gpu_determinism.sh [default] [deterministic] [cached] [sharded] [-- train options]
 #   # pairs: the first three unless named; train options by default
 #   #   --task AcrobotSwingup --algo td3 --repr sf2 --config paper --seeds 0-4 --set num_timesteps=100000
 #
-# Answered on H200s (2026-11-26): the default pair differs from the first SGD epoch, the deterministic and
-# the cached pairs are identical to the bit (bench/results/h200/26-determinism, h200x2/27-determinism).
+# Answered on H200s: the default pair differs from the first SGD epoch, the deterministic and the cached
+# pairs are identical to the bit (docs/decisions/gpu-determinism.md).
 #
 # With two or more GPUs visible the two runs of the default and of the deterministic pair run at once, one
 # per GPU (two hosts' worth; the cached pair stays one after the other on GPU 0, since the second reads the
@@ -46,7 +46,7 @@ args=("$@")
 if [ ${#args[@]} -eq 0 ]; then
   args=(--task AcrobotSwingup --algo td3 --repr sf2 --config paper --seeds 0-4 --set num_timesteps=100000)
 fi
-source scripts/gpu_env.sh || exit 1
+source scripts/gpu-host/gpu_env.sh || exit 1
 out=/tmp/determinism; rm -rf "$out"; mkdir -p "$out" "$OUT"
 flag=--xla_gpu_deterministic_ops=true
 gpus=$(nvidia-smi -L 2>/dev/null | grep -c '^GPU ')
@@ -72,7 +72,7 @@ import sys
 from pathlib import Path
 
 from sf2_common.agents.runfolder import RunFolder
-from sf2_common.studies.merge import rows_difference
+from sf2_studies.merge import rows_difference
 
 out = Path(sys.argv[1])
 ended = {line.split(":")[0] for line in (out / "times.txt").read_text().splitlines()}
@@ -82,7 +82,7 @@ def rows(name):
     return RunFolder(out / name).read_rows(strict=True) if (out / name).is_dir() else []
 
 
-print("# Determinism of GPU training runs (scripts/gpu_determinism.sh)\n")
+print("# Determinism of GPU training runs (scripts/gpu-host/gpu_determinism.sh)\n")
 print("Wall times (process start to end, compilation included):\n")
 print("".join(f"- {line}\n" for line in (out / "times.txt").read_text().splitlines()))
 for a, b in (("default-1", "default-2"), ("deterministic-1", "deterministic-2"), ("cached-1", "cached-2"),

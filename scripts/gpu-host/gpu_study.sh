@@ -5,11 +5,11 @@
 # held, so the study folder lives at /tmp/study-<name> on the host: a run cut by the time limit resumes
 # from its last checkpoint in the next command on the same (still warm) host.
 #
-#   bash scripts/gpu_study.sh STUDY.toml SECONDS [study run options: --tasks ... --methods ... --seeds ...]
+#   bash scripts/gpu-host/gpu_study.sh STUDY.toml SECONDS [study run options: --tasks ... --methods ... --seeds ...]
 #
 # On a lease's last command add `--finish-within <about 0.7 x the seconds the lease has left>`: runs
 # forecast to end later are not started (their checkpoints would go back with the host); a run can take up
-# to ~1.4x its forecast (`python -m bench.forecast_check`, results/fig7-sac/README.md "Cost per run"; once a
+# to ~1.4x its forecast (`python -m bench.lab.forecast_check`, results/fig7-sac/README.md "Cost per run"; once a
 # study has most of its runs, `--leave-one-out` there shows how its next forecasts fare: fig7-sac's 77 runs,
 # one per GPU, took 0.44-0.93x theirs).
 # A study with no finished run of its own (fig7-sac at first) forecasts from another's: `--forecast-from results/fig7-td3` (it travels with the repo).
@@ -17,9 +17,9 @@
 # Wheels: .whl-jax (git-excluded), what the host's image lacks for training and evaluation, nothing more:
 #   bash ../shared/device/wheels.sh .whl-jax \
 #     && rm .whl-jax/{torchrl,tensordict,rliable,arch,pyopengl,flask,flask_cors,mediapy,tensorboardx}-* \
-#     && python3 scripts/slim_wheels.py .whl-jax
+#     && python3 scripts/gpu-host/slim_wheels.py .whl-jax
 # For the torch trainer (e.g. `bench.agent_throughput --frameworks torch,jax`) keep TorchRL and tensordict
-# apart and carry both folders (`carry: [".whl-jax", ".whl-torch"]`; scripts/gpu_env.sh installs both):
+# apart and carry both folders (`carry: [".whl-jax", ".whl-torch"]`; scripts/gpu-host/gpu_env.sh installs both):
 #   python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
 #     --platform manylinux_2_28_x86_64 -d .whl-torch torchrl==0.14.1 tensordict==0.14.3
 # This repository (its results/ included) and the wheels travel within 64 MiB. Statistics stay here: without
@@ -33,7 +33,7 @@ set -uo pipefail
 study=$1; limit=$2; shift 2
 name=$(basename "$study" .toml)
 folder=/tmp/study-$name
-source scripts/gpu_env.sh || exit 1
+source scripts/gpu-host/gpu_env.sh || exit 1
 # A new host starts from the runs this repository already holds (results/<name>), so finished runs are
 # not run again; the merge of the archive back into results/<name> skips them as identical.
 # The first line says which: a fresh host where the previous command's host was meant to be kept (a lease

@@ -5,14 +5,14 @@
 # constraint solver loops (docs/physics.md "Evaluation latency"). With two GPUs the two settings run at
 # the same time, one per GPU; with one, one after the other.
 #
-#   bash scripts/gpu_physics_flags.sh [TASKS [ENVS]]     # defaults: CheetahRun,FishSwim,HopperHop,PendulumSwingup 640
+#   bash scripts/gpu-host/gpu_physics_flags.sh [TASKS [ENVS]]     # defaults: CheetahRun,FishSwim,HopperHop,PendulumSwingup 640
 #
 # Writes $OUT/physics-flags.tar.gz (physics.csv/.md, machine.json per setting, the logs) and prints, per
 # task, both rates, the ms per env step and whether the final states agree bit for bit. Measured on
-# 2xH200 on 2026-11-23: the flag gains nothing (0.90-1.00x; bench/results/h200x2/README.md "18").
+# two H200s: the flag gains nothing (0.90-1.00x; git show 0d333e8:bench/results/h200x2/README.md, "18").
 set -uo pipefail
 tasks=${1:-CheetahRun,FishSwim,HopperHop,PendulumSwingup}; envs=${2:-640}
-source scripts/gpu_env.sh || exit 1
+source scripts/gpu-host/gpu_env.sh || exit 1
 export PYTHONPATH=$PYTHONPATH:$PWD PYTHONUNBUFFERED=1 XLA_PYTHON_CLIENT_PREALLOCATE=false
 flag="--xla_gpu_enable_command_buffer=+WHILE,+CONDITIONAL"
 out=/tmp/physics-flags; rm -rf "$out"; mkdir -p "$out"

@@ -1,7 +1,7 @@
 """Shrinks the GPU host's wheels so they travel with the working tree (the device tool carries 64 MiB in
 all, this repository included): drops from the wheels in FOLDER what training never loads, in place.
 
-    python scripts/slim_wheels.py .whl-jax
+    python scripts/gpu-host/slim_wheels.py .whl-jax
 
 mujoco: `mujoco/experimental/` (15.7 MB compressed), `mujoco/testdata/`, the C headers and the filament
 renderer's and the viewer's extension modules (2.5 MB; only `mujoco.mjrf` and `mujoco.viewer` import them,

@@ -1,28 +1,27 @@
 #!/usr/bin/env bash
 # Why does one process with a run's seeds sharded over two GPUs die (SF2_SHARD_SEEDS=1, Program.mesh)?
-# bench/results/h100x2/README.md "23-shard-probe". Each probe is a fresh process (a crash of XLA kills it)
+# docs/decisions/sharded-seeds.md. Each probe is a fresh process (a crash of XLA kills it)
 # with a time limit; each prints its exit status (139 = SIGSEGV).
 #
-#   bash scripts/gpu_shard_probe.sh flags      a minimal two-device jit, then the trainer's sharded program
+#   bash scripts/gpu-host/gpu_shard_probe.sh flags      a minimal two-device jit, then the trainer's sharded program
 #                                              under XLA flags that each switch one suspect off (measured
 #                                              2026-11-25, under Shardy, before `Program.mesh` picked GSPMD:
 #                                              every one segfaults in the compile of `init`)
-#   bash scripts/gpu_shard_probe.sh programs   each program sharded (`python -m bench.shard_probe`) under the
+#   bash scripts/gpu-host/gpu_shard_probe.sh programs   each program sharded (`python -m bench.lab.shard_probe`) under the
 #                                              GSPMD partitioner that `Program._program` picks: init; epoch and
 #                                              evaluate after a one-device init; then init under JAX's
-#                                              default Shardy partitioner (`--shardy`: the crash, measured
-#                                              2026-11-26, bench/results/h100x2/29-shardy), again with XLA's
+#                                              default Shardy partitioner (`--shardy`: the crash), again with XLA's
 #                                              per-pass HLO dump, whose last pass names where the compiler
 #                                              died ($OUT/xla-dump.tar.gz)
-#   bash scripts/gpu_shard_probe.sh minimal [CASE...]
-#                                              `python -m bench.shardy_repro`'s cases, one process each: the
+#   bash scripts/gpu-host/gpu_shard_probe.sh minimal [CASE...]
+#                                              `python -m bench.lab.shardy_repro`'s cases, one process each: the
 #                                              operation that the dump's Shardy input holds one custom call
 #                                              for (cuSOLVER's Cholesky, from MJX's env reset) alone under
 #                                              Shardy, inside and outside `shard_map`, its GSPMD and matmul
 #                                              controls, and the env reset itself
 set -uo pipefail
-mode=${1:?usage: bash scripts/gpu_shard_probe.sh flags|programs|minimal}
-source scripts/gpu_env.sh || exit 1
+mode=${1:?usage: bash scripts/gpu-host/gpu_shard_probe.sh flags|programs|minimal}
+source scripts/gpu-host/gpu_env.sh || exit 1
 export XLA_PYTHON_CLIENT_PREALLOCATE=false
 quiet() { grep -v "^WARNING\|warp\|^  File\|^Extension modules" | tail -6; }
 trainer() {   # trainer ENV... : the throughput bench's 4-seed TD3 program, sharded
@@ -34,9 +33,9 @@ trainer() {   # trainer ENV... : the throughput bench's 4-seed TD3 program, shar
 }
 programs() {   # programs "LIST [--shardy]" [ENV...]
   local list=$1; shift
-  echo "== bench.shard_probe --programs $list $*"
+  echo "== bench.lab.shard_probe --programs $list $*"
   # shellcheck disable=SC2086   # $list is the program list and, for the crash, --shardy
-  env "$@" SF2_SHARD_SEEDS=1 timeout 120 python3 -X faulthandler -u -m bench.shard_probe --programs $list \
+  env "$@" SF2_SHARD_SEEDS=1 timeout 120 python3 -X faulthandler -u -m bench.lab.shard_probe --programs $list \
     --seeds 4 2>&1 | quiet
   echo "exit ${PIPESTATUS[0]}"
 }
@@ -46,8 +45,8 @@ case $mode in
     [ ${#cases[@]} -gt 0 ] || cases=(cholesky-shard-map cholesky-shard-map-gspmd cholesky-jit \
       matmul-shard-map reset-shard-map reset-state-shard-map zero-size-shard-map)
     for c in "${cases[@]}"; do
-      echo "== bench.shardy_repro --case $c"
-      timeout 90 python3 -X faulthandler -u -m bench.shardy_repro --case "$c" 2>&1 | quiet
+      echo "== bench.lab.shardy_repro --case $c"
+      timeout 90 python3 -X faulthandler -u -m bench.lab.shardy_repro --case "$c" 2>&1 | quiet
       echo "exit ${PIPESTATUS[0]}"
     done ;;
   flags)

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Several GPUs of one host against one (issue 12 item 5), through the trainer's own epochs
+# Several GPUs of one host against one, through the trainer's own epochs
 # (`python -m bench.agent_throughput`), three ways in one command so the ratios share a machine:
 #   one-gpu            N seeds vmapped on GPU 0 alone (CUDA_VISIBLE_DEVICES=0)
 #   two-gpus-sharded   2N seeds in one process: `Program` spreads them over both GPUs (shard_map on "seed";
@@ -8,10 +8,10 @@
 #   two-processes      two processes started together, N seeds each, one per GPU (what the study runner
 #                      does with whole runs); their aggregate is the sum of the two rates
 #
-#   bash scripts/gpu_scaling.sh N [bench.agent_throughput options: --tasks --reps --precisions ...]
+#   bash scripts/gpu-host/gpu_scaling.sh N [bench.agent_throughput options: --tasks --reps --precisions ...]
 #
-# Takes about 6–7 minutes with the arguments of bench/results/h100x2/README.md "29-shardy" (on two H200s,
-# h200x2/15-two-gpus: 111 s for one-gpu, each way compiling for about 32 s per representation); pick the
+# Takes about 6–7 minutes with `2 --tasks AcrobotSwingup --reps none,sf2 --precisions tensorfloat32` (each
+# way compiles for about 32 s per representation; docs/decisions/sharded-seeds.md); pick the
 # ways with SCALING_WAYS (default "one-gpu,two-gpus-sharded,two-processes", the order they run in), and
 # give each a time limit with SCALING_WAY_LIMIT (seconds, default 240) so a hang or crash of one way does
 # not eat the others'.
@@ -23,7 +23,7 @@
 # the script's output through `tail` loses everything when it is cut: 2026-11-27, 330 s, nothing came back.)
 set -uo pipefail
 n=$1; shift
-source scripts/gpu_env.sh || exit 1
+source scripts/gpu-host/gpu_env.sh || exit 1
 gpus=$(nvidia-smi -L | grep -c '^GPU ')
 [ "$gpus" -ge 2 ] || { echo "gpu_scaling.sh: needs two GPUs, this host has $gpus" >&2; exit 2; }
 ways=${SCALING_WAYS:-one-gpu,two-gpus-sharded,two-processes}
