@@ -1,28 +1,17 @@
 """Where the device time of a training epoch goes: a `jax.profiler` trace of the JAX trainer's epochs, or
 (`--framework torch`) a `torch.profiler` trace of the torch trainer's, with its host time per phase.
 
-    python -m bench.agent_profile --task AcrobotSwingup --algo td3 --reps none,sf2 --seeds 1,8 \
-        --out bench/results/h200/11-agent-profile
-    python -m bench.agent_profile --framework torch --reps sf2 --seeds 1 --out /tmp/torch-profile
+    python -m bench.agent_profile --task AcrobotSwingup --algo td3 --reps none,sf2 --seeds 1,8 --out OUT
+    python -m bench.agent_profile --framework torch --reps sf2 --seeds 1 --out OUT
 
-Each case builds the trainer's own program (`sf2_jax.agents.trainer.get_program` of the `paper` preset
-with the budget cut so an epoch holds `--actor-steps` actor steps), runs one epoch (compilation and the
-random prefill), then traces `--epochs` epochs with `bench.profile.trace`. Everything is reported per SGD
-step (an actor step = one vectorized env step, a buffer insert, `grad_updates_per_step` batches and SGD
-steps), so kernel counts and device time compare directly with `bench run --profile`'s single updates.
-
-The torch trainer (`sf2_torch.agents.trainer.Program`) runs its epoch as a Python loop over actor steps,
-its seeds one after the other. Its case runs the same epochs twice after the warm-up (the prefill and the
-first SGD step, which compiles the update and captures its CUDA graphs): untraced, with host timers around
-each phase of an actor step (`explore`, `env_step`, `observe` = normalizer update and buffer insert,
-`sample` = buffer draw, `step_noise`, `sgd_step` = the compiled, graph-replayed update): first as the
-trainer runs them (each the host time of the call), then with the device drained before and after each
-phase (each its own host and device time, as if alone); then under `torch.profiler` for the kernels and
-the CUDA runtime and driver calls that can make the host wait. When the phases' host time is close to the
-wall time, the host paces the epoch (or one phase waits for the device: a phase that takes longer as
-trained than alone); when the kernels' busy time is, the device does. Where the device idles, each summary
-says (`bench.profile.idle_gaps`: the gaps between kernels, by the kernels around them and their streams);
-the torch case also writes its trace's device and CUDA API events (`trace-<rep>-x<seeds>.json.gz`).
+Each case builds the trainer's own program (the `paper` preset cut so an epoch holds `--actor-steps`
+actor steps), runs one epoch (compilation, random prefill), then traces `--epochs` epochs. Everything is
+per SGD step, so kernel counts and device time compare with `python -m bench run --profile`'s single
+updates; `--hlo` adds the kernels per phase counted in the compiled epoch (`bench.hlo`). The torch case
+times each phase of an actor step on the host (as trained, then with the device drained around each),
+then traces the kernels and the CUDA calls that can make the host wait: host time close to the wall time
+means the host paces the epoch, busy time close to it the device. Each summary lists where the device
+idles (`bench.profile.idle_gaps`); the torch case also writes its trace's events (`trace-*.json.gz`).
 """
 
 from __future__ import annotations
@@ -67,8 +56,21 @@ def _config(task, algo, rep, n_seeds, actor_steps, epochs, overrides, framework=
 
 
 def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=print, hlo_dump=None) -> dict:
-    """The traced epochs' summary (`bench.profile.trace`); with `hlo_dump` (the folder XLA dumps to, set in
-    `main` before JAX starts) also the epoch's kernels per phase (`bench.hlo_phases`) under "phases"."""
+    """Profile the JAX trainer's epochs with `jax.profiler`.
+
+    Args:
+        task, algo, rep: the case.
+        n_seeds: vmapped seeds.
+        actor_steps: actor steps per epoch.
+        epochs: epochs traced.
+        overrides: config fields to set.
+        log: a callable taking one line.
+        hlo_dump: the folder XLA dumps to (set in `main` before JAX starts): also count the epoch's
+            kernels per phase (`bench.hlo`).
+
+    Returns:
+        `bench.profile.trace`'s summary per SGD step, with "phases" when `hlo_dump` is given.
+    """
     import jax
     from sf2_jax.agents.trainer import get_program
 
@@ -86,10 +88,10 @@ def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=p
     log(f"  tracing {label}: {epochs} epochs of {program.sched.actor_steps_per_epoch} actor steps")
     out = trace(_EpochRunner(program, state, sgd), updates=epochs, label=label)
     if hlo_dump is not None:
-        from . import hlo_phases
+        from . import hlo
 
-        f = hlo_phases.find_module(Path(hlo_dump))   # the newest: this case's epoch program
-        out["phases"] = {**hlo_phases.count(f.read_text(), hlo_phases.phases()), "sgd_steps": sgd,
+        f = hlo.find_module(Path(hlo_dump))   # the newest: this case's epoch program
+        out["phases"] = {**hlo.count(f.read_text(), hlo.phases()), "sgd_steps": sgd,
                          "file": f.name}
         f.rename(Path(hlo_dump) / f"case-{algo}-{rep}-{n_seeds}seeds-{f.name}")
     return out
@@ -151,9 +153,21 @@ def _runtime_calls(events: list[dict], updates: int) -> list[dict]:
 
 def profile_torch_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=print,
                        events_to=None) -> dict:
-    """The torch trainer's epochs (module docstring): host time per phase, then a `torch.profiler` trace;
-    with `events_to` (a path), the trace's device and CUDA runtime/driver events are also written there
-    (gzipped JSON: what the summary is computed from, for questions it does not answer)."""
+    """Profile the torch trainer's epochs: host time per phase, then a `torch.profiler` trace.
+
+    Args:
+        task, algo, rep: the case.
+        n_seeds: seeds (the torch trainer runs them one after the other).
+        actor_steps: actor steps per epoch.
+        epochs: epochs timed per way (as trained, drained, traced).
+        overrides: config fields to set.
+        log: a callable taking one line.
+        events_to: a path for the trace's device and CUDA runtime/driver events (gzipped JSON).
+
+    Returns:
+        The summary: `host` (phases as trained and drained), `runtime` (CUDA calls that can wait) and
+        `devices` (`bench.profile.summarize_kernels`), per SGD step.
+    """
     import gzip
     import tempfile
     import time
@@ -202,8 +216,8 @@ def profile_torch_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides,
         host["synced" if synced else "as trained"] = timer.take(updates, time.perf_counter() - t)
     timer.synced = False
     # on CUDA the device activity alone (kernels, copies, CUDA runtime/driver calls through CUPTI): the
-    # summary reads nothing else, and recording every CPU op as well slowed the host 3.6× (the traced SGD step
-    # 4.7 ms against 1.3 ms untraced, bench/results/h100/62-torch-idle), which hides where the device idles
+    # summary reads nothing else, and recording every CPU op as well slows the host several times over,
+    # which hides where the device idles
     activities = [torch.profiler.ProfilerActivity.CUDA if torch.cuda.is_available()
                   else torch.profiler.ProfilerActivity.CPU]
     t = time.perf_counter()
@@ -232,6 +246,14 @@ def profile_torch_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides,
 
 
 def main(argv=None) -> int:
+    """Run `python -m bench.agent_profile`.
+
+    Args:
+        argv: the command line after the module name (default `sys.argv[1:]`).
+
+    Returns:
+        The exit status (2, before anything is built or written, for an invalid argument).
+    """
     p = argparse.ArgumentParser(prog="python -m bench.agent_profile", description=__doc__.split("\n\n")[0])
     p.add_argument("--task", default="AcrobotSwingup")
     p.add_argument("--algo", default="td3")
@@ -243,7 +265,7 @@ def main(argv=None) -> int:
     p.add_argument("--framework", default="jax", choices=("jax", "torch"),
                    help="whose trainer: jax (jax.profiler) or torch (host phases and torch.profiler)")
     p.add_argument("--hlo", action="store_true",
-                   help="jax: also count each epoch's compiled kernels per phase (bench.hlo_phases; "
+                   help="jax: also count each epoch's compiled kernels per phase (bench.hlo; "
                         "the optimized HLO is kept in OUT/hlo)")
     p.add_argument("--out", required=True)
     args = p.parse_args(argv)

@@ -1,23 +1,15 @@
 """Training throughput of the agents: env steps per second of whole training epochs.
 
     python -m bench.agent_throughput --tasks AcrobotSwingup --algos td3 --reps none,sf2 --seeds 1,8 \
-        --precisions highest,tensorfloat32,bfloat16 --env-steps 600000 --epochs 3 \
-        --out bench/results/h200/5-agents
+        --precisions highest,tensorfloat32 --env-steps 600000 --epochs 3 --out OUT
 
-Issue #3's measurement and the paper's §4.4 comparison (659 s vs ~1300 s for 10M steps of TD3 vs TD3+SF² on
-an RTX 4090, i.e. about 15k and 7.7k env-steps/s). Each case is the `paper` preset of the task with its
-budget cut to `--env-steps` and split into `--epochs` timed epochs, after warm-up epochs that hold the
-compilation, the random-action prefill and the first SGD step (`warm_up`: JAX compiles the whole epoch
-program at its first call, the torch trainer its update at the first SGD step; reported apart as `warmup_s`,
-never mixed into the rate). Every timed epoch does the same number of SGD steps (a measurement whose timed
-epochs differ stops with an error). An epoch is the trainer's own jitted program
-(`sf2_jax.agents.trainer.Program`: `lax.scan` over actor steps, each with its env step, buffer insert and
-`grad_updates_per_step` SGD steps, all seeds vmapped); it is timed from dispatch to `block_until_ready` of
-its outputs, without evaluation, checkpointing or plotting. Reported: median over the timed epochs of env
-steps per second per seed, and the aggregate over the vmapped seeds (per seed × seeds). `--precisions` sets
-the learner's matmul precision (`learner_precision`; the physics always runs at fp32 `highest`).
-`--frameworks jax,torch` adds the torch trainer (its seeds take their steps one after the other; its epoch
-is the same schedule, timed the same way).
+Each case is the task's `paper` preset with its budget cut to `--env-steps`, split into `--epochs` timed
+epochs after warm-up epochs that hold the compilation, the random prefill and the first SGD step
+(`warmup_s`, never mixed into the rate); every timed epoch is SGD from its first step to its last. An
+epoch is the trainer's own program (env steps, buffer inserts, `grad_updates_per_step` SGD steps, the
+seeds vmapped; no evaluation or checkpoint), timed from dispatch to completion. Reported: the median over
+the timed epochs of env steps/s per seed and over all seeds. `--precisions` sets the learner's matmul
+precision (the physics always runs at fp32 `highest`); `--frameworks jax,torch` adds the torch trainer.
 """
 
 from __future__ import annotations
@@ -55,16 +47,31 @@ def _block(framework: str, x):
 
 
 def warm_up(env_steps: int, epochs: int, prefill_env_steps: int) -> tuple[int, int]:
-    """(env steps per epoch, warm-up epochs) of a measurement of `epochs` timed epochs over `env_steps`:
-    the warm-up runs until the epoch that holds the first SGD step (env step `prefill_env_steps` + 1),
-    that epoch included, so every timed epoch is SGD from its first step to its last."""
+    """Split a measurement into epochs so that every timed epoch is all SGD.
+
+    Args:
+        env_steps: timed env steps per seed, all epochs.
+        epochs: timed epochs.
+        prefill_env_steps: env steps of random prefill before the first SGD step.
+
+    Returns:
+        (env steps per epoch, warm-up epochs): the warm-up runs up to and including the epoch that holds
+        the first SGD step.
+    """
     per_epoch = -(-env_steps // epochs)
     return per_epoch, prefill_env_steps // per_epoch + 1
 
 
 def framework_configs(framework: str, seeds: tuple[int, ...]):
-    """(the framework's configs module, a check raising `ConfigError` for a config of `seeds`): the JAX
-    agents' configs live in sf2-common, the torch agents' add their device and compile fields."""
+    """Find a framework's trainer configs.
+
+    Args:
+        framework: "jax" (configs of sf2-common) or "torch" (which adds device and compile fields).
+        seeds: the seeds a config will train.
+
+    Returns:
+        (the configs module, a check raising `ConfigError` for an invalid config).
+    """
     if framework == "jax":
         from sf2_common.agents import configs
         from sf2_jax.agents import representations
@@ -76,9 +83,16 @@ def framework_configs(framework: str, seeds: tuple[int, ...]):
 
 
 def parse_sets(items, frameworks) -> dict:
-    """`--set FIELD=VALUE` items typed by the configs of `frameworks`: the shared fields, and with the torch
-    framework alone also the torch trainer's own (`sf2_torch.agents.configs.TORCH_FIELDS`: device, compile,
-    cudagraphs). Raises `ConfigError` naming the field and the valid ones."""
+    """Type `--set FIELD=VALUE` items by the configs of the frameworks measured.
+
+    Args:
+        items: the `FIELD=VALUE` strings.
+        frameworks: the frameworks measured; with torch alone, the torch trainer's own fields
+            (`sf2_torch.agents.configs.TORCH_FIELDS`) are accepted too.
+
+    Returns:
+        {field: typed value}; a `ConfigError` names a bad field and the valid ones.
+    """
     from sf2_common.agents import configs
     from sf2_common.errors import ConfigError
 
@@ -102,8 +116,19 @@ def parse_sets(items, frameworks) -> dict:
 
 def config_for(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epochs: int, overrides: dict,
                framework: str = "jax"):
-    """The `paper` preset's config of one measurement (`warm_up` epochs, then `epochs` timed ones),
-    validated (`ConfigError` naming the problem); returns (config, warm-up epochs)."""
+    """Build the validated `paper` config of one measurement.
+
+    Args:
+        task, algo, rep: the case.
+        n_seeds: vmapped seeds.
+        env_steps: timed env steps per seed.
+        epochs: timed epochs.
+        overrides: config fields to set.
+        framework: "jax" or "torch".
+
+    Returns:
+        (config, warm-up epochs); a `ConfigError` names an invalid field.
+    """
     from sf2_common.agents.configs import schedule
 
     seeds = tuple(range(n_seeds))
@@ -118,8 +143,20 @@ def config_for(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epo
 
 def measure(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epochs: int,
             overrides: dict, framework: str = "jax", log=print) -> dict:
-    """Time `epochs` training epochs after the warm-up ones (compile, prefill, first SGD step: `warm_up`);
-    one row of `COLUMNS`."""
+    """Time training epochs of one case after its warm-up epochs.
+
+    Args:
+        task, algo, rep: the case.
+        n_seeds: vmapped seeds.
+        env_steps: timed env steps per seed.
+        epochs: timed epochs.
+        overrides: config fields to set.
+        framework: "jax" or "torch".
+        log: a callable taking one line.
+
+    Returns:
+        One row of `COLUMNS`.
+    """
     seeds = tuple(range(n_seeds))
     cfg, warm = config_for(task, algo, rep, n_seeds, env_steps, epochs, overrides, framework)
     if framework == "jax":
@@ -162,6 +199,15 @@ def measure(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epochs
 
 
 def markdown(rows: list[dict], info: dict) -> str:
+    """Render the rows and the ratios between them (SF²/vanilla, seeds, precisions, torch/JAX).
+
+    Args:
+        rows: `measure` rows.
+        info: the machine description.
+
+    Returns:
+        throughput.md's text.
+    """
     tasks = ", ".join(dict.fromkeys(r["task"] for r in rows))
     lines = [f"# Agents: training throughput, `paper` preset, {tasks}", "",
              "Command:", "", "```", info["command"], "```", "",
@@ -212,6 +258,14 @@ def markdown(rows: list[dict], info: dict) -> str:
 
 
 def main(argv=None) -> int:
+    """Run `python -m bench.agent_throughput`.
+
+    Args:
+        argv: the command line after the module name (default `sys.argv[1:]`).
+
+    Returns:
+        The exit status (2, before anything is compiled or written, for an invalid argument).
+    """
     p = argparse.ArgumentParser(prog="python -m bench.agent_throughput", description=__doc__.split("\n\n")[0])
     p.add_argument("--tasks", "--task", default="AcrobotSwingup", type=_names, help="comma list of tasks")
     p.add_argument("--algos", default="td3", type=_names)

@@ -1,8 +1,12 @@
-"""`python -m bench`: wall-clock tables of the SF² update (see bench/README.md).
+"""`python -m bench`: the wall-clock cost of one SGD update of vanilla TD3/SAC and of TD3/SAC + SF².
+
+Measures milliseconds per full update (critic, flow, actor, targets) over a grid of frameworks (JAX,
+torch eager, compiled, CUDA graphs), algorithms, representations, denoising steps T and integrators, and
+the paired ratios SF²/vanilla, T=8/T=1 and torch/JAX (bench/README.md says how to read them).
 
 Subcommands:
-  run        (default) time full SGD updates over a grid of cases; write CSV, markdown, PNG, machine.json
-  flow-step  time the JAX flow-loss step (value_and_grad + Adam on ψ, ζ), fast path vs oracle
+  run        (default) time full SGD updates; write updates.csv, updates.md, updates.png, machine.json
+  flow-step  time the JAX flow-loss step alone (value_and_grad + Adam on ψ, ζ), fast path against oracle
   report     re-render updates.md / updates.png from a results folder's CSV
 """
 
@@ -43,16 +47,24 @@ def _tasks(s: str) -> list[str]:
 
 def _unknown(values, valid, flag: str) -> str | None:
     bad = [v for v in values if v not in valid]
-    return f"{flag}: {', '.join(map(repr, bad))} unknown; valid: {', '.join(valid)}" if bad else None
+    return (f"{flag}: {', '.join(map(repr, bad))} unknown; valid: {', '.join(valid) or '(none registered)'}"
+            if bad else None)
 
 
 def check(args) -> str | None:
-    """What is wrong with the lists `run` or `flow-step` were given (the first problem, naming the flag and
-    the valid choices), or None. A bad name would otherwise be skipped silently (a framework or
-    representation) or stop the run with a traceback after the machine description (a task)."""
-    from . import prototypes
-    from .jax_steps import baselines_available
-    from .sizes import ALGOS, FRAMEWORKS, INTEGRATORS
+    """Find the first problem in the lists that `run` or `flow-step` were given.
+
+    A bad name would otherwise be skipped silently (a framework or representation) or stop the run with
+    a traceback after the machine description (a task).
+
+    Args:
+        args: the parsed arguments of `run` or `flow-step`.
+
+    Returns:
+        A message naming the flag and the valid choices, or None when every list is valid.
+    """
+    from .jax_steps import FLOW_VARIANTS, baselines_available
+    from .sizes import ALGOS, FRAMEWORKS, INTEGRATORS, VARIANT_REPS
 
     for flag in ("steps", "compiled_steps", "variant_steps", "flow_steps"):
         text = getattr(args, flag, None)
@@ -67,21 +79,13 @@ def check(args) -> str | None:
                 _tasks(getattr(args, flag))
             except ValueError as err:
                 return f"--{flag.replace('_', '-')}: {err}"
-    for flag in ("flow_variants", "variants"):   # prototypes.variant names the retired ones and why
-        for name in _names(getattr(args, flag, None) or ""):
-            try:
-                prototypes.variant(name)
-            except ValueError as err:
-                return f"--{flag.replace('_', '-')}: {err}"
-    lists = [("integrators", INTEGRATORS), ("compiled_integrators", INTEGRATORS)]
+    lists = [("integrators", INTEGRATORS), ("compiled_integrators", INTEGRATORS),
+             ("flow_variants", tuple(FLOW_VARIANTS)), ("variants", tuple(FLOW_VARIANTS))]
     if args.cmd == "run":
         lists += [("frameworks", FRAMEWORKS), ("algos", ALGOS), ("compiled_algos", ALGOS),
                   ("variant_algos", ALGOS)]
         if args.reps != "auto":
-            for rep in _names(args.reps):
-                if rep.startswith("sf2-") and rep[4:] in prototypes.RETIRED:
-                    return f"--reps: {rep!r} is retired ({prototypes.RETIRED[rep[4:]]})"
-            lists.append(("reps", ("none", "sf2", *baselines_available("jax"), *prototypes.REPRESENTATIONS)))
+            lists.append(("reps", ("none", "sf2", *baselines_available("jax"), *sorted(VARIANT_REPS))))
     for flag, valid in lists:
         text = getattr(args, flag, None)
         problem = text is not None and _unknown(_names(text), valid, f"--{flag.replace('_', '-')}")
@@ -91,6 +95,8 @@ def check(args) -> str | None:
 
 
 class Log:
+    """A run's log: each line printed with the seconds since the start, and kept for log.txt."""
+
     def __init__(self):
         self.lines: list[str] = []
         self.t0 = time.perf_counter()
@@ -135,17 +141,25 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 
 def parser() -> argparse.ArgumentParser:
+    """Build the argument parser of `python -m bench`.
+
+    Returns:
+        The parser, with the subcommands `run`, `flow-step` and `report`.
+    """
     p = argparse.ArgumentParser(prog="python -m bench", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="cmd")
-    r = sub.add_parser("run", help="time full SGD updates (default)")
+    r = sub.add_parser("run", help="time full SGD updates (default)",
+                       description="Time full SGD updates (critic, flow, actor, targets) over a grid of "
+                       "frameworks, algorithms, representations, denoising steps and integrators: ms per "
+                       "update and the paired ratios SF²/vanilla, T=8/T=1, torch/JAX.")
     _common(r)
     r.add_argument("--frameworks", default="jax,torch,torch-compile")
     r.add_argument("--algos", default="td3,sac")
     r.add_argument("--reps", default="auto",
                    help="representations: none (vanilla), sf2, the baselines (sim, simlap, simlap_authors, "
-                        "spr: sf2_baselines), bench prototypes (psi-only, sf2-*); auto = none,sf2 + the "
-                        "baselines when sf2_baselines imports")
+                        "spr: sf2_baselines) and any variant a bench module registered; auto = none,sf2 + "
+                        "the baselines when sf2_baselines imports")
     r.add_argument("--steps", default="1,2,4,8", help="denoising steps T")
     r.add_argument("--integrators", default="midpoint,euler")
     r.add_argument("--compiled-steps", default="1,8",
@@ -155,16 +169,16 @@ def parser() -> argparse.ArgumentParser:
     r.add_argument("--compiled-integrators", default="midpoint",
                    help="integrators timed for the compiled torch modes ('midpoint,euler' for both)")
     r.add_argument("--variant-algos", default="td3",
-                   help="algorithms timed for the bench-only representations")
+                   help="algorithms timed for the registered variant representations")
     r.add_argument("--variant-steps", default="1,8",
-                   help="T values timed for the bench-only representations (sf2-*, see prototypes.py)")
+                   help="T values timed for the registered variant representations")
     r.add_argument("--jax-scan", type=int, default=8,
                    help="updates per call of the `jax-scan` framework (lax.scan, as the trainer's "
                         "grad_updates_per_step = 8); `jax` makes one call per update")
     r.add_argument("--device", default="auto", help="torch device: auto, cpu, cuda")
     r.add_argument("--flow-step", action="store_true", help="also run the flow-step table in this run")
     r.add_argument("--flow-steps", default="1,8")
-    r.add_argument("--flow-variants", default="", help="bench/prototypes.py variants for the flow step")
+    r.add_argument("--flow-variants", default="", help="registered flow-loss variants for the flow step")
     r.add_argument("--flow-tasks", default=None,
                    help="tasks of the flow-step table (default: last of --tasks)")
     r.add_argument("--flow-accuracy", action="store_true",
@@ -177,17 +191,21 @@ def parser() -> argparse.ArgumentParser:
                    help="write the optimized HLO of the JAX TD3 SF² updates at the largest T (first task)")
     r.add_argument("--profile", action="store_true",
                    help="after timing, trace JAX TD3 updates of the first task (vanilla, SF² T=1 and the "
-                        "largest T, prototypes at T=1) with jax.profiler; write profile.md")
-    f = sub.add_parser("flow-step", help="JAX flow-loss step: fast path vs oracle")
+                        "largest T, variants at T=1) with jax.profiler; write profile.md")
+    f = sub.add_parser("flow-step", help="JAX flow-loss step: fast path vs oracle",
+                       description="Time the JAX flow-loss step alone (value_and_grad of flow_loss and Adam "
+                       "on ψ, ζ) per T: the fast path (ζ never built) against the oracle, in ms per step.")
     _common(f)
     f.set_defaults(tasks="cheetah")
     f.add_argument("--steps", default="1,8")
     f.add_argument("--integrators", default="midpoint")
-    f.add_argument("--variants", default="", help="extra bench/prototypes.py variants to time")
+    f.add_argument("--variants", default="", help="registered flow-loss variants to time as well")
     f.add_argument("--accuracy", action="store_true",
                    help="also measure the float32 flow-loss gradient error (fast path and each variant) "
                         "against float64")
-    rep = sub.add_parser("report", help="re-render markdown and plot from a results folder")
+    rep = sub.add_parser("report", help="re-render markdown and plot from a results folder",
+                         description="Re-render updates.md and updates.png of a results folder from its "
+                         "updates.csv and machine.json.")
     rep.add_argument("folder")
     rep.add_argument("--recount-flops", action="store_true",
                      help="recompute the JAX rows' FLOPs on this machine's CPU backend (results of runs "
@@ -196,6 +214,15 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    """Run `python -m bench`.
+
+    Args:
+        argv: the command line after `python -m bench` (default `sys.argv[1:]`); without a subcommand,
+            `run`.
+
+    Returns:
+        The exit status (2, with nothing written, for an invalid argument).
+    """
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0].startswith("-") and argv[0] not in ("-h", "--help"):
         argv = ["run", *argv]
@@ -324,6 +351,15 @@ def _torch_device(arg: str) -> str:
 
 
 def run(args, out: Path, info: dict, log) -> None:
+    """Time every case of `run`'s grid in interleaved rounds and write the results folder.
+
+    Args:
+        args: the parsed arguments of `run`.
+        out: results folder: updates.csv, updates.md, updates.png, machine.json (and, as asked,
+            flow_step.*, profile.md, hlo-*.txt.gz).
+        info: the machine description (`bench.machine.describe`); the measured ceilings are added.
+        log: a callable taking one line.
+    """
     from . import report, sizes, timing
 
     frameworks = _names(args.frameworks)
@@ -353,7 +389,7 @@ def run(args, out: Path, info: dict, log) -> None:
         info["peak"] = _peak(frameworks, device, log)
     budget = args.budget_s or float("inf")
     flow_md = ""
-    if args.flow_step:   # first: small, and what issue #2 needs
+    if args.flow_step:   # first: it is small
         flow_md = flow_step(args, out, info, log, steps=_ints(args.flow_steps),
                             variants=_names(args.flow_variants), write_machine=False)
     runners, meta = [], {}
@@ -411,7 +447,7 @@ def run(args, out: Path, info: dict, log) -> None:
 
 
 def _profile(runners, meta, task, steps, out, log, budget) -> None:
-    from . import profile
+    from . import profile, sizes
 
     want = []
     fws = {meta[r.name][0].framework for r in runners}
@@ -422,7 +458,7 @@ def _profile(runners, meta, task, steps, out, log, budget) -> None:
             continue
         if case.rep == "none" or (case.rep == "sf2" and case.integrator == "midpoint"
                                   and case.steps in (1, max(steps))) or (
-                case.has_ode and case.rep != "sf2" and case.steps == 1) or case.rep == "psi-only":
+                case.rep in sizes.VARIANT_REPS and case.steps <= 1):
             want.append(r)
     summaries = []
     for r in want:
@@ -489,7 +525,20 @@ def _print_summary(rows, log) -> None:
 
 # ------------------------------------------------------------------------------------------ flow step
 def flow_step(args, out: Path, info: dict, log, steps=None, variants=None, write_machine=True) -> str:
-    """Issue #2's timing mode: the JAX flow-loss step at `args.size` for each T, fast vs oracle."""
+    """Time the JAX flow-loss step at `args.size` for each T: fast path, oracle and the named variants.
+
+    Args:
+        args: the parsed arguments of `flow-step` (or of `run --flow-step`).
+        out: results folder; flow_step.csv and flow_step.md are written there.
+        info: the machine description (`bench.machine.describe`).
+        log: a callable taking one line.
+        steps: denoising steps T (default `args.steps`).
+        variants: names of `jax_steps.FLOW_VARIANTS` to time as well (default `args.variants`).
+        write_machine: also write machine.json.
+
+    Returns:
+        The markdown table (flow_step.md's text).
+    """
     import csv
 
     from . import jax_steps, sizes, timing
@@ -503,11 +552,7 @@ def flow_step(args, out: Path, info: dict, log, steps=None, variants=None, write
     else:
         tasks = _tasks(args.flow_tasks) if args.flow_tasks else _tasks(args.tasks)[-1:]
     accuracy = getattr(args, "accuracy", False) or getattr(args, "flow_accuracy", False)
-    protos = {}
-    if variants:
-        from . import prototypes
-
-        protos = {v: prototypes.variant(v) for v in variants}
+    protos = {v: jax_steps.FLOW_VARIANTS[v] for v in variants}
     runners, meta = [], {}
     for task in tasks:
         D, A = sizes.TASKS[task]
@@ -545,15 +590,13 @@ def flow_step(args, out: Path, info: dict, log, steps=None, variants=None, write
         w.writerows(rows)
     md = _flow_md(rows, runners, args, info)
     if accuracy:
-        from . import prototypes
-
         err_rows = []
         for task in tasks:
             D, A = sizes.TASKS[task]
             for T in steps:
                 try:
                     err_rows += [dict(task=task, **e) for e in
-                                 prototypes.grad_errors(D, A, args.size, T, list(protos), seed=args.seed)]
+                                 jax_steps.grad_errors(D, A, args.size, T, protos, seed=args.seed)]
                 except Exception as e:  # noqa: BLE001
                     log(f"grad_errors failed: {type(e).__name__}: {e}")
         md += _errors_md(err_rows)

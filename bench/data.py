@@ -1,4 +1,8 @@
-"""Random transition batches (never zeros: METHOD.md), the same numbers for both frameworks."""
+"""Random transition batches, the same numbers for both frameworks.
+
+Never zeros: a zero batch would let the frameworks skip work (multiplications by zero, denormals) and
+time something else than an update on real data.
+"""
 
 from __future__ import annotations
 
@@ -6,10 +10,20 @@ import numpy as np
 
 
 def make_batches(obs_size: int, action_size: int, batch_size: int, count: int = 4, seed: int = 0):
-    """`count` batches as dicts of float32 numpy arrays (fields of `losses.Batch`).
+    """Draw random transition batches.
 
     obs/next_obs ~ N(0, 1); action ~ U(−1, 1); reward ~ N(0, 1); discount 1 − terminal with 1% terminals;
-    truncation 1% ones. Several batches are cycled so a timing loop does not reuse one input.
+    truncation 1% ones. A timing loop cycles through several so it does not reuse one input.
+
+    Args:
+        obs_size: observation size D.
+        action_size: action size A.
+        batch_size: transitions per batch.
+        count: batches.
+        seed: numpy seed.
+
+    Returns:
+        `count` dicts of float32 numpy arrays, keyed by `FIELDS` (the fields of `losses.Batch`).
     """
     rng = np.random.default_rng(seed)
     out = []

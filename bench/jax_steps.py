@@ -9,14 +9,24 @@ Measured with `jax.jit(...).lower(...).compile()` (compile time recorded, FLOPs 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 from .data import FIELDS, make_batches
-from .sizes import Case
+from .sizes import VARIANT_REPS, Case
 from .timing import Runner
+
+# Flow-loss functions with `sf2_jax.losses.flow_loss`'s signature that `flow-step --variants` times beside
+# `fast` and `oracle`, by name. Empty here: a module that defines variants of the loss adds them.
+FLOW_VARIANTS: dict[str, Callable] = {}
 
 
 def configure(precision: str = "highest") -> None:
-    """Full fp32 matmuls for published numbers (docs/core-contract.md "Precision")."""
+    """Set JAX's default matmul precision for every program built afterwards.
+
+    Args:
+        precision: `jax_default_matmul_precision`; "highest" (full fp32) for published numbers
+            (docs/core-contract.md "Precision").
+    """
     import jax
 
     jax.config.update("jax_default_matmul_precision", precision)
@@ -43,8 +53,7 @@ def _cpu_lowered(raw, args):
 def _cost(lowered, compiled, raw=None, args=None) -> dict:
     """FLOPs from XLA's HLO cost analysis of the program lowered *for the CPU backend* (a property of
     the program: every dot counts 2·m·n·k, elementwise ops one per element; the GPU backend's analysis
-    reports far fewer, e.g. 12 instead of 35 GFLOP for the Cheetah SF² update, as it does not count
-    the GEMMs it hands to cuBLAS), bytes accessed from the compiled executable (after fusion)."""
+    leaves out the GEMMs it hands to cuBLAS), bytes accessed from the compiled executable (after fusion)."""
     import jax
 
     low, comp = _analysis(lowered), _analysis(compiled)
@@ -68,8 +77,15 @@ def _device_batches(case: Case, count: int, seed: int):
 
 
 def baselines_available(framework: str = "jax") -> tuple[str, ...]:
-    """Import `sf2_baselines.<framework>` (it registers Sim, SimLap, SPR with that framework's agents)
-    and return the baseline names, or () when the package is absent."""
+    """Register the baselines of `sf2_baselines` with one framework's agents.
+
+    Args:
+        framework: "jax" or "torch": imports `sf2_baselines.<framework>`, which registers Sim, SimLap and
+            SPR with that framework's agents.
+
+    Returns:
+        The baseline representations' names, or () when `sf2_baselines` is not installed.
+    """
     import importlib
 
     try:
@@ -86,8 +102,6 @@ def _algorithm(case: Case):
 
     if case.rep not in representations.names():
         baselines_available("jax")
-    if case.rep not in representations.names():
-        from . import prototypes  # noqa: F401 — registers the bench-only representations
     cfg = SF2Config(obs_size=case.obs_size, action_size=case.action_size, **case.sf2_overrides())
     return algorithms.make_algorithm(case.algo, cfg, representations.get(case.rep))
 
@@ -101,9 +115,18 @@ def _update(alg):
 
 
 def update_runner(case: Case, seed: int = 0, scan: int = 1) -> tuple[Runner, dict]:
-    """A Runner over one agents' update of `case`, `step_noise` then `sgd_step` as the trainer calls them
-    (one jitted call per update, or `scan` updates per call through `lax.scan`, as the trainer does with
-    `grad_updates_per_step`)."""
+    """Build a timed JAX update: `step_noise` then `sgd_step` of the agents, as the trainer calls them.
+
+    Args:
+        case: what to time (a `jax` or `jax-scan` case).
+        seed: seed of the parameters, batches and noise keys.
+        scan: updates per jitted call; above 1 they run through `lax.scan`, as the trainer runs its
+            `grad_updates_per_step`.
+
+    Returns:
+        The `Runner` and a dict with `flops`, `bytes` (XLA's cost analysis), `finite` (a callable: are
+        the parameters finite) and `hlo` (a callable: the compiled program's text).
+    """
     import jax
     import jax.numpy as jnp
 
@@ -139,7 +162,7 @@ def update_runner(case: Case, seed: int = 0, scan: int = 1) -> tuple[Runner, dic
     state = {"p": params, "o": opt_state, "i": 0}
     # Baselines update some groups every k-th step (`aux_every`): give them a growing step counter so a
     # timed block averages over their schedule. SF² and vanilla ignore the step (policy_delay = 1).
-    counting = case.rep not in ("none", "sf2", "psi-only") and not case.rep.startswith("sf2-")
+    counting = case.rep not in ("none", "sf2") and case.rep not in VARIANT_REPS
 
     def step():
         i = state["i"] % len(batches)
@@ -159,8 +182,15 @@ def update_runner(case: Case, seed: int = 0, scan: int = 1) -> tuple[Runner, dic
 
 
 def count_flops(case: Case, seed: int = 0) -> float:
-    """FLOPs of one update of `case` from XLA's HLO cost analysis of the program lowered for the CPU
-    (no compilation, no device): what `update_runner` reports, recomputable anywhere."""
+    """Count the FLOPs of one update from XLA's cost analysis of the program lowered for the CPU.
+
+    Args:
+        case: the update (a JAX case); nothing is compiled or run on a device.
+        seed: seed of the parameters and batch.
+
+    Returns:
+        FLOPs per update, the figure `update_runner` reports, recomputable on any machine.
+    """
     import jax
 
     alg = _algorithm(case)
@@ -175,9 +205,23 @@ def count_flops(case: Case, seed: int = 0) -> float:
 # ------------------------------------------------------------------------------------------ flow step
 def flow_step_runner(obs_size: int, action_size: int, size: str, steps: int, integrator: str,
                      contract: bool, seed: int = 0, loss_fn=None, label: str = "") -> tuple[Runner, dict]:
-    """value_and_grad of `sf2_jax.losses.flow_loss` + Adam on (ψ, ζ), jitted with donated buffers.
+    """Build a timed flow-loss step: value_and_grad of `sf2_jax.losses.flow_loss` and Adam on (ψ, ζ).
 
-    `loss_fn` replaces `losses.flow_loss` (same signature) to time a prototype."""
+    Args:
+        obs_size: observation size D.
+        action_size: action size A.
+        size: network/batch preset (`bench.sizes.SIZES`).
+        steps: denoising steps T.
+        integrator: "midpoint" or "euler".
+        contract: the fast path (`contract_zeta=True`) or the oracle that builds ζ (False).
+        seed: seed of the parameters, batches and noise.
+        loss_fn: a function with `flow_loss`'s signature to time instead (a `FLOW_VARIANTS` entry).
+        label: the runner's name.
+
+    Returns:
+        The `Runner` (jitted, donated buffers) and a dict with `flops`, `bytes`, `loss` and `first_loss`
+        (callables: the latest and the first step's loss).
+    """
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -232,6 +276,80 @@ def flow_step_runner(obs_size: int, action_size: int, size: str, steps: int, int
     name = label or f"flow/{'fast' if contract else 'oracle'}/T{steps}/{integrator}"
     runner = Runner(name, step, sync, compile_s=compile_s)
     return runner, {**cost, "loss": lambda: float(state["loss"]), "first_loss": lambda: float(state["first"])}
+
+
+def grad_errors(obs_size: int, action_size: int, size: str, steps: int, variants: dict[str, Callable],
+                seed: int = 0) -> list[dict]:
+    """Measure the float32 flow-loss gradient of the fast path and of each variant against float64.
+
+    Args:
+        obs_size: observation size D.
+        action_size: action size A.
+        size: network/batch preset (`bench.sizes.SIZES`).
+        steps: denoising steps T.
+        variants: name → a function with `flow_loss`'s signature, measured beside the fast path.
+        seed: seed of the parameters, batch and noise (one batch, the initial parameters).
+
+    Returns:
+        One row per function (`variant`, `steps`), with per group (ψ, ζ) the worst leaf's
+        ‖g − g₆₄‖∞ / ‖g₆₄‖∞ (`{group}_rel_err`, the leaf in `{group}_worst_leaf`) and the whole group's
+        2-norm ratio (`{group}_rel_err_2`); a function that fails gives a row with `error` instead.
+    """
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+    from sf2_common.config import SF2Config
+    from sf2_jax import losses
+    from sf2_jax import networks as nw
+    from sf2_jax.losses import Batch
+
+    from .sizes import SIZES
+
+    kw = {k: v for k, v in SIZES[size].items() if k != "batch_size"}
+    B = SIZES[size]["batch_size"]
+    cfg = SF2Config(obs_size=obs_size, action_size=action_size, denoising_steps=steps, **kw)
+    nets = nw.make_networks(cfg, "td3")
+    raw = make_batches(obs_size, action_size, B, 1, seed)[0]
+    rng = np.random.default_rng(seed + 1)
+    na = rng.uniform(-1, 1, (B, action_size)).astype(np.float32)
+    eps = rng.standard_normal((B, obs_size), np.float32)
+    k = rng.uniform(size=B).astype(np.float32)
+    host = jax.tree_util.tree_map(np.asarray, nw.init_params(nets, jax.random.key(seed), dtype=jnp.float32))
+
+    def grads(fn, dtype):
+        p = jax.tree_util.tree_map(lambda v: jnp.asarray(v, dtype), host)
+        batch = Batch(*(jnp.asarray(raw[f], dtype) for f in FIELDS))
+        inputs = (jnp.asarray(na, dtype), jnp.asarray(eps, dtype), jnp.asarray(k, dtype))
+
+        def f(sub, p, batch, inputs):   # everything an argument: no constants for XLA to fold
+            return fn(nets, {**p, **sub}, batch, *inputs)[0]
+
+        g = jax.jit(jax.grad(f))({"psi": p["psi"], "zeta": p["zeta"]}, p, batch, inputs)
+        return jax.tree_util.tree_map(lambda v: np.asarray(v, np.float64), g)
+
+    with jax.enable_x64(True):
+        ref = grads(losses.flow_loss, jnp.float64)
+    out = []
+    for name, fn in [("fast", losses.flow_loss), *variants.items()]:
+        try:
+            g = grads(fn, jnp.float32)
+        except Exception as e:  # noqa: BLE001 — e.g. a dot algorithm this backend lacks
+            out.append(dict(variant=name, steps=steps, error=f"{type(e).__name__}: {str(e)[:120]}"))
+            continue
+        row = dict(variant=name, steps=steps)
+        for group in ("psi", "zeta"):
+            worst, leaf, sq_err, sq_ref = 0.0, "", 0.0, 0.0
+            flat = jax.tree_util.tree_flatten_with_path(ref[group])[0]
+            for (path, b), a in zip(flat, jax.tree_util.tree_leaves(g[group])):
+                r = float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-30))
+                if r >= worst:
+                    worst, leaf = r, ".".join(str(getattr(q, "key", q)) for q in path)
+                sq_err, sq_ref = sq_err + float(np.sum((a - b) ** 2)), sq_ref + float(np.sum(b**2))
+            row[f"{group}_rel_err"] = worst
+            row[f"{group}_worst_leaf"] = leaf
+            row[f"{group}_rel_err_2"] = (sq_err / max(sq_ref, 1e-300)) ** 0.5
+        out.append(row)
+    return out
 
 
 def _task_for(obs_size: int, action_size: int) -> str:

@@ -35,6 +35,11 @@ def _git_commit(root: str) -> str:
 
 
 def gpu_name() -> str:
+    """Name the first GPU that torch or JAX sees.
+
+    Returns:
+        The device name, or "" without a GPU.
+    """
     try:
         import torch
 
@@ -64,7 +69,11 @@ def _nvidia_smi() -> str:
 
 
 def default_name() -> str:
-    """`h200`-style name for a GPU host, `cpu-<model>` otherwise (the results sub-folder)."""
+    """Name this machine for its results folder.
+
+    Returns:
+        An `h200`-style name on a GPU host, `cpu-<model>` otherwise.
+    """
     gpu = gpu_name()
     name = gpu or "cpu-" + cpu_model()
     name = re.sub(r"^nvidia[ -]+", "", name.lower())
@@ -77,7 +86,15 @@ ENV_PREFIXES = ("XLA_", "JAX_", "TF_", "CUDA_VISIBLE", "OMP_", "TORCH", "MKL_", 
 
 
 def describe(root: str, command: str) -> dict:
-    """Everything a reader needs to place the numbers: hardware, versions, precision settings."""
+    """Describe what a reader needs to place the numbers: hardware, versions, precision settings.
+
+    Args:
+        root: the repository root (its git commit is recorded, "+dirty" with local changes).
+        command: the command line that measured.
+
+    Returns:
+        A JSON-serializable dict (machine.json).
+    """
     info = {
         "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "command": command,

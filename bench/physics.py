@@ -1,20 +1,14 @@
 """Physics throughput: env steps per second of MuJoCo Playground's MJX step alone, per task.
 
-    python -m bench.physics --tasks all --envs 128,1024,4096 --out bench/results/h200/10-physics
+    python -m bench.physics --tasks all --envs 128,1024,4096 --out OUT
 
-Each case is one jitted program: `lax.scan` over `--steps` steps of `jax.vmap(env.step)` with uniformly
-random actions drawn inside the program (the actions are data, not constants XLA could fold), the pure-JAX
-MJX backend (`impl='jax'`) and fp32 `highest` matmuls (physics never runs at a lower precision:
-docs/core-contract.md "Precision"). Reported: the median of `--repeats` timed calls.
-
-Types matter. Five Playground tasks return a state whose types differ from the state `reset` returned in
-one leaf's weak type (e.g. a reward from `jnp.where(c, 1.0, 0.0)` in `reward.tolerance` with margin 0).
-A program called with the reset state and then with its own output is therefore compiled twice, and a
-benchmark that warms up with one call times the second compilation: that is what made five tasks look
-30-1000x slower than they are (docs/physics.md has the reproduction). Here the scan carry is kept
-strongly typed (every leaf `astype` its own dtype, before the first call and after every step), so each
-case compiles once; `type_changes` lists the leaves whose type `env.step` changes, and `compilations`
-(the jit cache size after the timed calls) proves the timed calls compiled nothing.
+Each case is one jitted program: `lax.scan` over `--steps` steps of `jax.vmap(env.step)` with random
+actions drawn inside the program (data, not constants XLA could fold), the pure-JAX MJX backend
+(`impl='jax'`) and fp32 `highest` matmuls (physics never runs at a lower precision). Reported: the median
+of `--repeats` timed calls. Some tasks' `env.step` returns a leaf whose weak type differs from the reset
+state's, so a program fed its own output compiles twice (docs/physics.md); here the scan carry is kept
+strongly typed, `type_changes` lists such leaves and `compilations` (the jit cache size after the timed
+calls) shows that the timed calls compiled nothing.
 """
 
 from __future__ import annotations
@@ -33,7 +27,15 @@ COLUMNS = ["task", "num_envs", "steps_per_call", "compilations", "type_changes",
 
 
 def type_changes(env, state) -> list[str]:
-    """The leaves of `state` (a vmapped reset state) whose dtype or weak type `env.step` changes."""
+    """Find the leaves whose dtype or weak type `env.step` changes.
+
+    Args:
+        env: a Playground environment.
+        state: a vmapped reset state.
+
+    Returns:
+        One "path: type -> type" line per changed leaf.
+    """
     import jax
     import jax.numpy as jnp
 
@@ -51,16 +53,32 @@ def type_changes(env, state) -> list[str]:
 
 
 def checksum_of(state) -> str:
-    """A fingerprint of the final physics state (qpos, qvel; every case runs the same actions from the same
-    start), so two runs of one case under different XLA flags can be checked to compute the same
-    trajectory: the float64 sums of qpos and qvel, exactly (`float.hex`)."""
+    """Fingerprint a physics state, so two runs of one case can be checked to compute one trajectory.
+
+    Args:
+        state: the final state (every case runs the same actions from the same start).
+
+    Returns:
+        The float64 sums of qpos and qvel, exactly (`float.hex`).
+    """
     import numpy as np
 
     return ";".join(float(np.asarray(x, np.float64).sum()).hex() for x in (state.data.qpos, state.data.qvel))
 
 
 def measure(task: str, num_envs: int, steps: int, repeats: int, log=print) -> dict:
-    """Time `repeats` calls of the scan of `steps` vmapped env steps, after warm-up; one row of COLUMNS."""
+    """Time the physics of one task.
+
+    Args:
+        task: a Playground task.
+        num_envs: vmapped envs.
+        steps: env steps per timed call (one `lax.scan`).
+        repeats: timed calls, after the warm-up.
+        log: a callable taking one line.
+
+    Returns:
+        One row of `COLUMNS` (env steps/s, compilations, type changes, checksum).
+    """
     import jax
     from mujoco_playground import registry
     from sf2_jax.agents.envs import strong_types as strong  # the carry's types cannot change
@@ -102,6 +120,15 @@ def measure(task: str, num_envs: int, steps: int, repeats: int, log=print) -> di
 
 
 def markdown(rows: list[dict], info: dict) -> str:
+    """Render the rows as a table of tasks by env counts.
+
+    Args:
+        rows: `measure` rows.
+        info: the machine description.
+
+    Returns:
+        physics.md's text.
+    """
     envs = sorted({r["num_envs"] for r in rows})
     tasks = list(dict.fromkeys(r["task"] for r in rows))
     by = {(r["task"], r["num_envs"]): r for r in rows}
@@ -125,6 +152,14 @@ def markdown(rows: list[dict], info: dict) -> str:
 
 
 def main(argv=None) -> int:
+    """Run `python -m bench.physics`.
+
+    Args:
+        argv: the command line after the module name (default `sys.argv[1:]`).
+
+    Returns:
+        The exit status (2, before anything is compiled or written, for an invalid argument).
+    """
     from sf2_common.agents.tasks import PAPER_TASKS, validate_task
     from sf2_common.errors import ConfigError
 

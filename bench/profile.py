@@ -42,7 +42,17 @@ def _union(intervals) -> float:
 
 
 def trace(runner, updates: int = 10, label: str = "") -> dict:
-    """Trace `updates` calls of `runner` (warm) and summarize the device activity per update."""
+    """Trace a warm runner with `jax.profiler` and summarize the device activity per update.
+
+    Args:
+        runner: a calibrated `bench.timing.Runner`.
+        updates: calls traced.
+        label: the summary's heading.
+
+    Returns:
+        {"label", "wall_ms_per_update", "devices": [`summarize_kernels` of each device]}, or
+        {"label", "error"}.
+    """
     import jax
 
     runner.step()
@@ -81,11 +91,21 @@ def trace(runner, updates: int = 10, label: str = "") -> dict:
 
 
 def idle_gaps(ks: list[dict], updates: int, top: int = 8, width: int = 48) -> dict:
-    """Where the device idles: every interval in which no kernel of `ks` (trace events with `name`, `ts`,
-    `dur` in µs and, in a torch.profiler trace, `args.stream`) runs, attributed to the kernel that ended last
-    before it and the kernel that starts it (names cut to `width` characters, each with its stream). Per
-    update: the idle time, the number of gaps, the idle time where the two kernels run on different
-    streams, and the `top` transitions by idle time."""
+    """Find where the device idles between kernels.
+
+    Each interval in which no kernel runs is attributed to the kernel that ended last before it and the
+    kernel that starts it.
+
+    Args:
+        ks: trace events with `name`, `ts`, `dur` (µs) and, in a torch.profiler trace, `args.stream`.
+        updates: updates the events span.
+        top: transitions listed.
+        width: characters kept of a kernel's name.
+
+    Returns:
+        Per update: `idle_ms_per_update`, `gaps_per_update`, `cross_stream_ms_per_update` (idle time where
+        the two kernels run on different streams) and `top`, the transitions with the most idle time.
+    """
     def label(e):
         return f"{e.get('name', '?')[:width]} (stream {e.get('args', {}).get('stream', '?')})"
 
@@ -110,9 +130,18 @@ def idle_gaps(ks: list[dict], updates: int, top: int = 8, width: int = 48) -> di
 
 
 def summarize_kernels(ks: list[dict], updates: int, device: str) -> dict:
-    """Per update: kernels, device-busy time (union of the kernels' intervals), the sum of kernel times,
-    the split by category and the costliest kernels, from trace events with `name`, `ts`, `dur` (µs).
-    Shared by the JAX trace above and the torch trainer's (`bench.agent_profile --framework torch`)."""
+    """Summarize one device's kernels per update.
+
+    Args:
+        ks: trace events with `name`, `ts`, `dur` (µs), from a JAX or a torch.profiler trace.
+        updates: updates the events span.
+        device: the device's name.
+
+    Returns:
+        Per update: kernels, device-busy time (union of the kernels' intervals), the sum of kernel
+        times, the split by category (GEMM, fusion, memcpy/memset, other), the costliest kernels and
+        `idle_gaps`.
+    """
     by_name = collections.defaultdict(lambda: [0, 0.0])
     by_cat = collections.defaultdict(lambda: [0, 0.0])
     for e in ks:
@@ -138,6 +167,14 @@ def summarize_kernels(ks: list[dict], updates: int, device: str) -> dict:
 
 
 def markdown(summaries: list[dict]) -> str:
+    """Render profile summaries.
+
+    Args:
+        summaries: `trace` results (or `bench.agent_profile`'s, with host phases and HLO counts).
+
+    Returns:
+        profile.md's text.
+    """
     out = ["# Device profile (jax.profiler; the torch trainer's: torch.profiler)", "",
            "Per update: wall time (dispatch to completion, traced), kernels launched, device-busy time "
            "(union of kernel intervals) and its split by kernel category; then the costliest kernels.", ""]
@@ -173,8 +210,8 @@ def markdown(summaries: list[dict]) -> str:
                 out += [f"| `{t['after']}` | `{t['before']}` | {t['count']:.2f} | {t['ms']:.4f} |"
                         for t in g["top"]]
         if s.get("phases"):   # bench.agent_profile --hlo
-            from .hlo_phases import markdown as phases_markdown
-            from .hlo_phases import phases
+            from .hlo import markdown as phases_markdown
+            from .hlo import phases
 
             out += ["", phases_markdown(s["phases"], phases(), s["phases"]["sgd_steps"])]
         out.append("")

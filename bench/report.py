@@ -11,7 +11,6 @@ import csv
 import json
 import math
 import statistics
-from collections import defaultdict
 from pathlib import Path
 
 from .sizes import SIZES, TASKS
@@ -27,11 +26,18 @@ FW_LABEL = {"jax": "JAX (jit)", "jax-scan": "JAX (jit, lax.scan of 8)", "torch":
             "torch-cudagraphs": "torch compiled + CUDA graphs"}
 FW_ORDER = ("jax", "jax-scan", "torch", "torch-graphs", "torch-compile", "torch-cudagraphs")
 TORCH_FW = ("torch", "torch-graphs", "torch-compile", "torch-cudagraphs")
+# The design targets of the update, set for the `paper` size on an H200 (TD3, midpoint).
 TARGETS = {"sf2_over_vanilla": 1.3, "per_step_pct": 3.0, "torch_over_jax": 1.5}
 
 
 # ------------------------------------------------------------------------------------------------ csv
 def write_csv(rows: list[dict], path: Path) -> None:
+    """Write a run's rows.
+
+    Args:
+        rows: one dict per timed case (the keys of `COLUMNS`).
+        path: the CSV file (updates.csv).
+    """
     with open(path, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=COLUMNS, extrasaction="ignore")
         w.writeheader()
@@ -48,8 +54,13 @@ def _fmt_csv(v):
 
 
 def print_rows(rows: list[dict], fields: tuple[str, ...], markdown: bool) -> None:
-    """`rows` on stdout: one JSON object per line, or (`markdown`) a Markdown table of `fields`
-    (bench.eval_share, bench.forecast_check)."""
+    """Print rows on stdout.
+
+    Args:
+        rows: dicts holding `fields`.
+        fields: the columns of the Markdown table.
+        markdown: a Markdown table of `fields`; otherwise one JSON object per line.
+    """
     if markdown:
         print("| " + " | ".join(fields) + " |\n|" + "---|" * len(fields))
         for r in rows:
@@ -60,6 +71,14 @@ def print_rows(rows: list[dict], fields: tuple[str, ...], markdown: bool) -> Non
 
 
 def read_csv(path: Path) -> list[dict]:
+    """Read a run's rows back.
+
+    Args:
+        path: an updates.csv written by `write_csv`.
+
+    Returns:
+        The rows, numbers parsed and `times_ms` as a list.
+    """
     rows = []
     with open(path) as f:
         for row in csv.DictReader(f):
@@ -109,7 +128,16 @@ def _rfmt(r) -> str:
 
 
 def per_step_pct(idx, fw, algo, task, size, integrator, rep="sf2") -> float:
-    """Least-squares slope of the median update time against T, in % of the T = 1 time."""
+    """Cost of one more denoising step: the least-squares slope of the median time against T.
+
+    Args:
+        idx: rows by key (framework, algo, rep, task, size, steps, integrator).
+        fw, algo, task, size, integrator: the cases' key.
+        rep: the representation ("sf2" or a variant).
+
+    Returns:
+        The slope in % of the T = 1 time, NaN with fewer than two T or no T = 1.
+    """
     pts = [(k[5], r["median_ms"]) for k, r in idx.items()
            if k[:5] == (fw, algo, rep, task, size) and k[6] == integrator]
     pts.sort()
@@ -141,6 +169,16 @@ def _variants(rows):
 
 # ------------------------------------------------------------------------------------------ markdown
 def markdown(rows: list[dict], machine: dict, extra: str = "") -> str:
+    """Render a run's tables: times, ratios, representations, torch/JAX, FLOPs, design targets.
+
+    Args:
+        rows: the run's rows.
+        machine: its machine.json.
+        extra: markdown appended at the end (the flow-step table).
+
+    Returns:
+        updates.md's text.
+    """
     idx = _index(rows)
     tasks, algos, fws, sizes, steps, integrators, reps = _groups(rows)
     out = [f"# SF² update-time bench: {machine.get('name', '')}", ""]
@@ -257,7 +295,7 @@ def _variant_section(idx, rows, tasks, algos, size, steps) -> list[str]:
     variants = _variants([r for r in rows if r["size"] == size])
     if not variants:
         return []
-    out = [f"### Prototypes (bench/prototypes.py, JAX, midpoint), size `{size}` — ms per update, and "
+    out = [f"### SF² variants (JAX, midpoint), size `{size}` — ms per update, and "
            "paired ratios to the cores' SF² step of the same T and to vanilla", "",
            "| task | algo | variant | " + " | ".join(f"T={T}" for T in steps)
            + " | variant / SF² (T=1) | variant (T=1) / vanilla | per extra step |",
@@ -335,7 +373,15 @@ def _flops_section(rows, size, machine) -> list[str]:
 
 
 def targets(idx, tasks, fws, size, steps, integrators) -> list[dict]:
-    """Issue #6 item 5 targets, evaluated on this run (TD3, midpoint)."""
+    """Evaluate the design targets (`TARGETS`) on this run's TD3 rows.
+
+    Args:
+        idx: rows by key.
+        tasks, fws, size, steps, integrators: the run's groups.
+
+    Returns:
+        One dict per target and task: `target`, `task`, `value`, `met`.
+    """
     res = []
     for task in tasks:
         for jfw in ("jax", "jax-scan"):
@@ -370,7 +416,7 @@ def _targets_section(idx, tasks, fws, size, steps, integrators) -> list[str]:
     res = targets(idx, tasks, fws, size, steps, integrators)
     if not res:
         return []
-    out = [f"### Targets of issue #6 (stated for `paper` size on the H200), size `{size}`", "",
+    out = [f"### Design targets (set for the `paper` size on an H200), size `{size}`", "",
            "| target | task | this run | met |", "|---|---|---|---|"]
     out += [f"| {r['target']} | {r['task']} | {r['value']} | {'yes' if r['met'] else 'no'} |" for r in res]
     return out + [""]
@@ -378,8 +424,15 @@ def _targets_section(idx, tasks, fws, size, steps, integrators) -> list[str]:
 
 # ------------------------------------------------------------------------------------------------ plot
 def plot(rows: list[dict], path: Path, title: str = "") -> None:
-    """Update time versus denoising steps per framework (the paper's Figure 2c), one panel per
-    (task, algo, size); midpoint solid, Euler dashed, vanilla dotted."""
+    """Plot update time against denoising steps per framework (the paper's Figure 2c).
+
+    One panel per (task, algo, size); midpoint solid, Euler dashed, vanilla dotted.
+
+    Args:
+        rows: the run's rows.
+        path: the PNG file.
+        title: the figure's title.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -436,7 +489,11 @@ def plot(rows: list[dict], path: Path, title: str = "") -> None:
 
 # ------------------------------------------------------------------------------------------ re-render
 def render(out_dir: Path) -> None:
-    """Re-write updates.md and updates.png from updates.csv and machine.json in `out_dir`."""
+    """Re-write updates.md and updates.png from a results folder's updates.csv and machine.json.
+
+    Args:
+        out_dir: the results folder (its flow_step.md, if any, is appended).
+    """
     rows = read_csv(out_dir / "updates.csv")
     machine = json.loads((out_dir / "machine.json").read_text())
     extra = (out_dir / "flow_step.md").read_text() if (out_dir / "flow_step.md").exists() else ""
@@ -447,9 +504,3 @@ def render(out_dir: Path) -> None:
 def _strip_title(md: str) -> str:
     return "\n".join(line for line in md.splitlines() if not line.startswith("# "))
 
-
-def grouped(rows, key):
-    out = defaultdict(list)
-    for r in rows:
-        out[key(r)].append(r)
-    return out

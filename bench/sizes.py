@@ -49,9 +49,20 @@ CUDA_ONLY = ("torch-graphs", "torch-cudagraphs")   # CUDA graphs
 ALGOS = ("td3", "sac")
 INTEGRATORS = ("midpoint", "euler")
 DEFAULT_STEPS = (1, 2, 4, 8)
+# Representations registered by a bench module rather than by the cores (JAX only, midpoint; timed at
+# `variant_steps` for `variant_algos`). Empty here: a module that registers one adds its name.
+VARIANT_REPS: set[str] = set()
 
 
 def resolve_task(name: str) -> str:
+    """Resolve a task name or alias.
+
+    Args:
+        name: a task of `TASKS` (any case) or an alias of `ALIASES` ("cheetah").
+
+    Returns:
+        The task's full name; a ValueError names the valid ones.
+    """
     if name in TASKS:
         return name
     key = name.lower()
@@ -64,7 +75,14 @@ def resolve_task(name: str) -> str:
 
 
 def unique_sizes(tasks) -> list[str]:
-    """Tasks with distinct (D, A), first name kept (the two Cartpole tasks share their sizes)."""
+    """Keep one task per distinct (D, A).
+
+    Args:
+        tasks: task names.
+
+    Returns:
+        The tasks whose sizes differ, the first name of each kept (the two Cartpoles share theirs).
+    """
     seen, out = set(), []
     for t in tasks:
         if TASKS[t] not in seen:
@@ -100,7 +118,7 @@ class Case:
 
     @property
     def has_ode(self) -> bool:
-        """SF² and its prototype variants (`sf2-*`) have denoising steps and an integrator."""
+        """Whether the case has denoising steps and an integrator (SF² and its variants `sf2-*`)."""
         return self.rep == "sf2" or self.rep.startswith("sf2-")
 
     @property
@@ -109,7 +127,7 @@ class Case:
         return f"{self.framework}/{self.algo}/{self.rep}{tail}/{self.task}/{self.size}"
 
     def sf2_overrides(self) -> dict:
-        """SF2Config keyword arguments for this case (sizes; T and integrator for SF²)."""
+        """The `SF2Config` keyword arguments of this case: sizes, and T and integrator for SF²."""
         kw = {k: v for k, v in SIZES[self.size].items() if k != "batch_size"}
         if self.has_ode:
             kw.update(denoising_steps=self.steps, integrator=self.integrator)
@@ -119,15 +137,24 @@ class Case:
 def grid(frameworks, algos, reps, tasks, size, steps=DEFAULT_STEPS, integrators=INTEGRATORS,
          compiled_steps=None, variant_steps=None, compiled_algos=None, variant_algos=None,
          compiled_integrators=None) -> list[Case]:
-    """Every case of the product, task-major (a run cut short by its budget keeps whole tasks).
-    `compiled_steps` restricts torch-compile SF² cases to those T (compilation is slow; None keeps
-    every T); `variant_steps` likewise restricts the bench-only representations (`sf2-*`, `psi-only`),
-    which exist for JAX only and use the midpoint integrator. `compiled_algos` / `variant_algos`
-    restrict those cases to some algorithms, `compiled_integrators` the compiled ones to some
-    integrators (None: all)."""
+    """List every case of the product of the arguments, task-major.
+
+    Args:
+        frameworks, algos, reps, tasks: the product's axes (`FRAMEWORKS`, `ALGOS`, representations, tasks).
+        size: network/batch preset.
+        steps: denoising steps T of the SF² cases.
+        integrators: integrators of the SF² cases.
+        compiled_steps: T of the compiled torch cases (compiling is slow); None: every T.
+        variant_steps: T of the `VARIANT_REPS` cases (JAX only, midpoint); None: every T.
+        compiled_algos, variant_algos: algorithms of those cases; None: all.
+        compiled_integrators: integrators of the compiled torch cases; None: all.
+
+    Returns:
+        The cases, task-major, so a run cut short by its budget keeps whole tasks.
+    """
     cases = []
     for task, fw, algo, rep in itertools.product(tasks, frameworks, algos, reps):
-        bench_only = rep == "psi-only" or rep.startswith("sf2-")   # bench/prototypes.py, JAX only
+        bench_only = rep in VARIANT_REPS
         if bench_only and (fw not in JAX or (variant_algos and algo not in variant_algos)):
             continue
         if fw in COMPILED and compiled_algos and algo not in compiled_algos:

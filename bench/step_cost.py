@@ -1,26 +1,15 @@
-"""The arithmetic of one SGD step: XLA's cost analysis of the JAX trainer's per-seed SGD step, per
-representation, and the matrix products' flops per phase.
+"""The arithmetic of one SGD step: XLA's cost analysis of the JAX trainer's SGD step per representation,
+and the matrix products' flops per phase.
 
-    python -m bench.step_cost --task AcrobotSwingup --algo td3 --reps none,sf2 [--seeds 16] --out DIR
+    python -m bench.step_cost --task AcrobotSwingup --algo td3 --reps none,sf2 [--seeds 16] --out OUT
 
-For each representation this compiles the algorithm's own `sgd_step` (`sf2_jax.agents.algorithms`) for the
-`paper` preset's shapes (a batch of `batch_size`, the step's noise; with `--seeds N` > 1 `jax.vmap`ped
-over N seeds as the trainer's several-seed program runs it, everything reported per seed), jitted under
-the trainer's precisions (`Program._physics_precision`, `learner_precision`), from shapes only: nothing runs.
-`step` is the first SGD step, so the step updates the policy (every step at the paper preset's
-`policy_delay` = 1). Reported per SGD step:
-- `flops`, `bytes accessed`, `transcendentals`: XLA's `cost_analysis()` of the step as compiled for the
-  backend JAX runs on (bytes: the inputs and outputs of each top-level instruction, i.e. of each kernel
-  on a GPU, so a CPU's count, with its other fusions, is no measure of a GPU's memory traffic; XLA's GPU
-  flops leave out most GEMMs, which run as library calls or Triton fusions: use the products' flops);
-- the products' flops, 2·M·N·K summed over the optimized HLO's `dot`s (also inside fusions) and library
-  GEMMs (a GPU's cuBLAS calls), per phase of the step (`sf2_jax.agents.algorithms.PHASES`, named by
-  `jax.named_scope`; `bench.hlo_phases.phase_of`).
-
-At many seeds per device the epoch is the device's work end to end (bench/README.md, issue 12), so these
-ratios bound what one representation's SGD step can cost against another's; at one seed the step's ~300
-kernel launches set the pace instead. The trainer's epoch scans `grad_updates_per_step` of these steps with
-the replay draws and the env step around them.
+Each representation's own `sgd_step` is compiled for the `paper` preset's shapes (with `--seeds N`,
+`jax.vmap`ped over N seeds as the trainer runs it; everything per seed) under the trainer's precisions,
+from shapes only: nothing runs. Reported per SGD step: XLA's flops, bytes accessed (the inputs and
+outputs of each kernel; a GPU's figure, not a CPU's) and transcendentals; the products' flops (2·M·N·K
+over every `dot` and library GEMM of the optimized HLO, also per phase: XLA's GPU flops leave most GEMMs
+out); the kernels. Bytes over the device's bandwidth plus product flops over its peak bound the step's
+time where the device is busy end to end (many seeds); at one seed the kernel launches set the pace.
 """
 
 from __future__ import annotations
@@ -32,7 +21,7 @@ import re
 import sys
 from pathlib import Path
 
-from . import hlo_phases
+from . import hlo
 
 _DIMS = re.compile(r"=\s*\(?[a-z]\w*\[([\d,]*)\]")   # an instruction's result (a tuple's first element)
 _LHS = re.compile(r"\s(?:dot|custom-call)\(\s*(?:[a-z]\w*\[([\d,]*)\]\S*\s+)?%?([\w.\-]+)")
@@ -45,20 +34,28 @@ def _dims(text: str) -> list[int]:
 
 
 def dot_flops(text: str, phases: tuple[str, ...]) -> dict:
-    """{"dots": dots per call, "flops": their 2·M·N·K, "by_phase": {phase: flops}, "unparsed": library
-    GEMMs per call whose contracting dimensions were not found (not counted)} of an optimized HLO
-    module's text: every `dot`, fused or not, and every library GEMM (a GPU's cuBLAS custom call, its
-    contracting dimensions from its backend config), weighted by the known trip counts of the loops around it
-    (`bench.hlo_phases.runs`); a dot's phase is the last of `phases` its op_name names, else "(other)"."""
-    comps, entry = hlo_phases.parse(text)
-    weight, _, _ = hlo_phases.runs(comps, entry, into_fusions=True)
+    """Count the flops of the matrix products of an optimized HLO module.
+
+    Every `dot`, fused or not, and every library GEMM (a GPU's cuBLAS call, its contracting dimensions
+    from its backend config), weighted by the known trip counts of the loops around it (`bench.hlo.runs`).
+
+    Args:
+        text: the optimized module's text.
+        phases: the phase scopes (`bench.hlo.phase_of`).
+
+    Returns:
+        {"dots": products per call, "flops": their 2·M·N·K, "by_phase": {phase: flops}, "unparsed":
+        library GEMMs whose contracting dimensions were not found (not counted)}.
+    """
+    comps, entry = hlo.parse(text)
+    weight, _, _ = hlo.runs(comps, entry, into_fusions=True)
     dots, flops, by_phase, unparsed = 0.0, 0.0, {}, 0.0
     for comp, w in weight.items():
         shapes = {name: _dims(m.group(1)) for name, _, line in comps[comp] if (m := _DIMS.search(line))}
         for name, op, line in comps[comp]:
             if op == "dot":
                 contract = _dims(_CONTRACT.search(line).group(1))
-            elif op == "custom-call" and hlo_phases.kernel_kind(op, name, line) == "gemm":
+            elif op == "custom-call" and hlo.kernel_kind(op, name, line) == "gemm":
                 m = _GEMM_CONTRACT.search(line)
                 if m is None:   # a library GEMM whose dimensions its config does not spell out
                     unparsed += w
@@ -71,14 +68,22 @@ def dot_flops(text: str, phases: tuple[str, ...]) -> dict:
             f = 2.0 * math.prod(shapes[name]) * math.prod(lhs[i] for i in contract)
             dots += w
             flops += w * f
-            phase = hlo_phases.phase_of(line, phases)
+            phase = hlo.phase_of(line, phases)
             by_phase[phase] = by_phase.get(phase, 0.0) + w * f
     return {"dots": dots, "flops": flops, "by_phase": by_phase, "unparsed": unparsed}
 
 
 def step_cost(cfg, n_seeds: int = 1) -> dict:
-    """The cost analysis of `cfg`'s SGD step (module docstring), per seed: at `n_seeds` > 1 the step
-    `jax.vmap`ped over seeds as the trainer's several-seed program runs it, divided by `n_seeds`."""
+    """Compile one SGD step from shapes and read its cost.
+
+    Args:
+        cfg: a trainer config (its representation, sizes, precisions).
+        n_seeds: above 1, the step `jax.vmap`ped over that many seeds, as the trainer runs it.
+
+    Returns:
+        Per seed: `flops`, `bytes`, `transcendentals` (XLA), `dot_flops` and `dot_by_phase` (the
+        products), `dot_dots`, `dot_unparsed`, `kernels`, and the `backend` compiled for.
+    """
     import jax
     from sf2_jax.agents.algorithms import PHASES
     from sf2_jax.agents.trainer import Program
@@ -102,7 +107,7 @@ def step_cost(cfg, n_seeds: int = 1) -> dict:
         analysis = analysis[0]
     text = compiled.as_text()
     dots = dot_flops(text, PHASES)
-    kernels = hlo_phases.count(text, PHASES)["by_phase"]
+    kernels = hlo.count(text, PHASES)["by_phase"]
     return {"representation": cfg.representation, "seeds": n_seeds, "flops": analysis["flops"] / n_seeds,
             "bytes": analysis["bytes accessed"] / n_seeds,
             "transcendentals": analysis.get("transcendentals", 0.0) / n_seeds,
@@ -113,9 +118,18 @@ def step_cost(cfg, n_seeds: int = 1) -> dict:
 
 
 def markdown(rows: list[dict], phases: tuple[str, ...]) -> str:
+    """Render the step costs, the ratios to the first representation and the product flops per phase.
+
+    Args:
+        rows: `step_cost` results, the first the reference.
+        phases: the phase scopes, in the table's order.
+
+    Returns:
+        step_cost.md's tables.
+    """
     g, mib = (lambda x: f"{x / 1e9:.3f}"), (lambda x: f"{x / 2**20:.1f}")
     out = ["Per seed and SGD step (dots and kernels: per call of the program, all seeds; kernels: "
-           "`bench.hlo_phases`' launches, meaningful for a GPU's program):", "",
+           "`bench.hlo`' launches, meaningful for a GPU's program):", "",
            "| representation | seeds | GFLOP (XLA) | MiB accessed | M transcendentals | dots | dot GFLOP "
            "| kernels |",
            "|---|---|---|---|---|---|---|---|"]
@@ -144,6 +158,14 @@ def markdown(rows: list[dict], phases: tuple[str, ...]) -> str:
 
 
 def main(argv=None) -> int:
+    """Run `python -m bench.step_cost`.
+
+    Args:
+        argv: the command line after the module name (default `sys.argv[1:]`).
+
+    Returns:
+        The exit status (2, before anything compiles, for an invalid argument).
+    """
     p = argparse.ArgumentParser(prog="python -m bench.step_cost", description=__doc__.split("\n\n")[0])
     p.add_argument("--task", default="AcrobotSwingup")
     p.add_argument("--algo", default="td3")

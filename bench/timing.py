@@ -1,18 +1,12 @@
 """Timing protocol shared by every framework.
 
-A `Runner` wraps one compiled/eager update with `step()` (dispatch one update, no sync) and `sync()`
-(wait until the device finished everything dispatched). `measure` times all runners of one run in
-interleaved rounds, so every ratio (SF²/vanilla, T=8/T=1, torch/JAX) compares numbers taken under the
-same machine conditions:
-
-1. warm-up: `warmup` updates per runner (compilation and autotuning excluded), then a calibration that
-   picks the block length n so that one block lasts about `block_s` seconds;
-2. `repeats` rounds; in each round every runner (in an order rotated by one per round) runs n updates
-   between two synchronizations: t = (wall time of the block) / n. The device is synchronized before
-   the clock starts and after the last update, so the block measures device work, not dispatch.
-
-Per runner: the median over rounds, the quartiles, the minimum. Paired ratios are taken per round and
-their median reported (robust to drift on a shared machine).
+A `Runner` wraps one compiled or eager update with `step()` (dispatch one update) and `sync()` (wait for
+the device). `calibrate` warms a runner up (compilation and autotuning excluded) and picks the block
+length n so that one block lasts about `block_s` seconds; `measure` then times every runner of a run in
+interleaved rounds (the order rotated by one per round), each block of n updates between two device
+synchronizations, so it measures device work, not dispatch. Per runner: the median over rounds, the
+quartiles, the minimum. Ratios (SF²/vanilla, T=8/T=1, torch/JAX) are taken per round and their median
+reported: both numbers come from the same seconds of the same machine.
 """
 
 from __future__ import annotations
@@ -26,6 +20,8 @@ from collections.abc import Callable, Sequence
 
 @dataclasses.dataclass
 class Runner:
+    """One timed update: `step()` dispatches it, `sync()` waits until the device has finished."""
+
     name: str
     step: Callable[[], None]
     sync: Callable[[], None]
@@ -36,7 +32,14 @@ class Runner:
     per_call: int = 1               # updates done by one `step()` (JAX lax.scan of several updates)
 
     def block(self, n: int) -> float:
-        """Seconds per update over n calls of `step()`."""
+        """Time one block.
+
+        Args:
+            n: calls of `step()` between the two synchronizations.
+
+        Returns:
+            Seconds per update over the block.
+        """
         self.sync()
         t0 = time.perf_counter()
         for _ in range(n):
@@ -46,6 +49,14 @@ class Runner:
 
 
 def calibrate(runner: Runner, warmup: int, block_s: float, max_n: int = 10_000) -> None:
+    """Warm a runner up and set its block length `runner.n`.
+
+    Args:
+        runner: the runner; its `n` and `probe_s` are set.
+        warmup: calls before the calibration.
+        block_s: the seconds one timed block should last.
+        max_n: the most calls per block.
+    """
     for _ in range(warmup):
         runner.step()
     runner.sync()
@@ -60,6 +71,13 @@ def calibrate(runner: Runner, warmup: int, block_s: float, max_n: int = 10_000) 
 
 
 def measure(runners: Sequence[Runner], repeats: int, log: Callable[[str], None] = print) -> None:
+    """Time every runner in interleaved rounds, appending one time per round to `runner.times`.
+
+    Args:
+        runners: calibrated runners.
+        repeats: rounds; each times one block of every runner, in an order rotated by one per round.
+        log: called with one line per round.
+    """
     k = len(runners)
     for r in range(repeats):
         order = [runners[(i + r) % k] for i in range(k)]
@@ -69,6 +87,15 @@ def measure(runners: Sequence[Runner], repeats: int, log: Callable[[str], None] 
 
 
 def quantile(xs: Sequence[float], q: float) -> float:
+    """Linearly interpolated quantile.
+
+    Args:
+        xs: values.
+        q: quantile in [0, 1].
+
+    Returns:
+        The quantile, NaN for no values.
+    """
     xs = sorted(xs)
     if not xs:
         return float("nan")
@@ -78,6 +105,14 @@ def quantile(xs: Sequence[float], q: float) -> float:
 
 
 def summary(times: Sequence[float]) -> dict:
+    """Summarize a runner's times.
+
+    Args:
+        times: seconds per update, one per round.
+
+    Returns:
+        {"median", "q25", "q75", "min"} (NaN for no times).
+    """
     if not times:
         return dict(median=float("nan"), q25=float("nan"), q75=float("nan"), min=float("nan"))
     return dict(median=statistics.median(times), q25=quantile(times, 0.25), q75=quantile(times, 0.75),
@@ -85,7 +120,15 @@ def summary(times: Sequence[float]) -> dict:
 
 
 def paired_ratio(num: Sequence[float], den: Sequence[float]) -> tuple[float, float, float]:
-    """Median and quartiles of per-round ratios num[r]/den[r]."""
+    """Ratio of two runners' times, paired per round.
+
+    Args:
+        num: the numerator runner's times, one per round.
+        den: the denominator runner's times of the same rounds.
+
+    Returns:
+        (median, first quartile, third quartile) of num[r] / den[r] over the rounds.
+    """
     ratios = [a / b for a, b in zip(num, den) if b > 0]
     if not ratios:
         return float("nan"), float("nan"), float("nan")

@@ -23,7 +23,12 @@ MODES = {"torch": (None, False), "torch-graphs": (None, True), "torch-compile": 
 
 
 def configure(allow_tf32: bool = False, threads: int | None = None) -> None:
-    """Full fp32 matmuls for published numbers (bench/README.md, "What is timed, and how")."""
+    """Set torch's matmul precision and threads for every update built afterwards.
+
+    Args:
+        allow_tf32: TF32 matmuls and convolutions; False (full fp32) for published numbers.
+        threads: intra-op threads (`torch.set_num_threads`); None leaves torch's default.
+    """
     import torch
 
     torch.backends.cuda.matmul.allow_tf32 = allow_tf32
@@ -65,21 +70,34 @@ class AgentsUpdate:
         self.i = 0
 
     def step(self) -> None:
+        """Dispatch one update (noise drawn, then `sgd_step`)."""
         batch = self.batches[self.i % len(self.batches)]
         self.alg.sgd_step(batch, self.alg.step_noise(self.generator, batch), self.i)
         self.i += 1
 
     def sync(self) -> None:
+        """Wait until the device has finished every dispatched update."""
         if self.device.type == "cuda":
             self.torch.cuda.synchronize(self.device)
 
     def finite(self) -> bool:
+        """Whether every trained parameter is finite."""
         return all(bool(self.torch.isfinite(p).all()) for p in self.alg._params(self.alg.groups))
 
 
 def update_runner(case: Case, device: str, seed: int = 0, warm_compile: int = 3) -> tuple[Runner, dict]:
-    """A Runner over one torch SGD step. For compiled (or graphed) frameworks `warm_compile` steps run here
-    and their time is reported as the compile time."""
+    """Build a timed torch update: `step_noise` then `sgd_step` of `sf2_torch.agents`.
+
+    Args:
+        case: what to time (a torch case: eager, compiled, with CUDA graphs).
+        device: "cpu" or "cuda".
+        seed: seed of the parameters, batches and noise.
+        warm_compile: steps run here for the compiled or graphed frameworks, their time reported as the
+            compile time.
+
+    Returns:
+        The `Runner` and a dict with `finite` (a callable) and `impl`.
+    """
     upd = AgentsUpdate(case, device, seed=seed)
     prepared = MODES[case.framework] != (None, False)
     t0 = time.perf_counter()
@@ -92,7 +110,16 @@ def update_runner(case: Case, device: str, seed: int = 0, warm_compile: int = 3)
 
 
 def count_flops(case: Case, device: str = "cpu", seed: int = 0) -> float:
-    """FLOPs of one eager update from torch's FlopCounterMode (matmuls only: a documented lower count)."""
+    """Count the FLOPs of one eager update with torch's FlopCounterMode.
+
+    Args:
+        case: the update (its framework is replaced by eager `torch`).
+        device: where to run it.
+        seed: seed of the parameters and batch.
+
+    Returns:
+        FLOPs of the matmuls only (a lower count than XLA's, which counts every operation).
+    """
     from torch.utils.flop_counter import FlopCounterMode
 
     upd = AgentsUpdate(case.__class__(**{**case.__dict__, "framework": "torch"}), device, seed=seed)
