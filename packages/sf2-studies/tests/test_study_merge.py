@@ -192,13 +192,14 @@ def test_archive_source_as_gpu_study_writes_it(tmp_path, runs_of):
     src = _source(tmp_path, "gpu", runs_of, finished=["A/td3/seeds-0-1"], partial=["B/td3/seeds-2-3"],
                   commands=["2026-01-01 10:00:00"])
     archive = tmp_path / "merging.tar.gz"
-    with tarfile.open(archive, "w:gz") as tar:   # what scripts/gpu_study.sh packs: ./ of the study folder
+    with tarfile.open(archive, "w:gz") as tar:   # what scripts/gpu-host/gpu_study.sh packs: ./ of the folder
         tar.add(src, arcname=".", filter=lambda m: None if m.name.endswith(("checkpoints", "final")) else m)
     by_folder, by_archive = tmp_path / "by-folder", tmp_path / "by-archive"
     _merge([src], by_folder, runs_of)
     out, _ = _merge([str(archive)], by_archive, runs_of)
     assert out.merged == ["A/td3/seeds-0-1"] and folder_digest(by_archive) == folder_digest(by_folder)
-    # a truncated archive, an empty one (scripts/gpu_study.sh after a failed command), a file that is none
+    # a truncated archive, an empty one (scripts/gpu-host/gpu_study.sh after a failed command), a file that is
+    # none
     data = archive.read_bytes()
     (tmp_path / "cut.tar.gz").write_bytes(data[: len(data) // 2])
     with tarfile.open(tmp_path / "empty.tar.gz", "w:gz"):
@@ -421,9 +422,9 @@ def test_keep_reruns_puts_a_differing_finished_run_beside_dest_and_merges_the_re
 
 
 def test_rows_difference_names_a_learned_value_before_timing():
-    """merge.rows_difference (the merge's refusal, scripts/gpu_determinism.sh's verdicts): None for equal
-    rows in any order; a learned value of a later row before a timing field of an earlier one; timing only
-    said as such; a row only one side has."""
+    """merge.rows_difference (the merge's refusal, scripts/gpu-host/gpu_determinism.sh's verdicts): None for
+    equal rows in any order; a learned value of a later row before a timing field of an earlier one; timing
+    only said as such; a row only one side has."""
     from sf2_studies.merge import rows_difference
 
     a = [{"epoch": 0, "seed": 0, "eval_return": 1.0, "walltime": 1.0},

@@ -3,8 +3,8 @@ the function computes (a toy step with state, then the agents' TD3+SF² and SAC+
 algorithm without graphs), each call's inputs are the ones used, outputs are copies, a call of another
 shape is refused, and no replay synchronizes the device (the reason it replaced tensordict's
 `CudaGraphModule`: graphs.py). CUDA graphs need a CUDA device: on a CPU-only host these tests report
-themselves skipped, with that reason, except the argument check; on the GPU host (bench/README.md, "GPU
-recipe") they run with `source scripts/gpu_env.sh && python3 -m pytest
+themselves skipped, with that reason, except the argument check; on a leased GPU host (scripts/gpu-host/)
+they run with `source scripts/gpu-host/gpu_env.sh && python3 -m pytest
 packages/sf2-core-torch/tests/agents/test_torch_graphs.py`."""
 
 from __future__ import annotations

@@ -79,11 +79,11 @@ def add_parser(sub, prog: str) -> None:
     k.add_argument("--out", required=True, help="folder for summary.md and the figure")
     g = ssub.add_parser("merge", help="join the runs of study folders or their .tar.gz archives into one "
                         "study folder", description="Copy the finished runs of each SOURCE (a study folder "
-                        "or a .tar.gz archive of one, e.g. from scripts/gpu_study.sh) into the study folder "
-                        "DIR: config.json, metrics.jsonl, train.log and evaluation results only. Refuses "
-                        "(nothing written) another study, a run whose config is not the study's, or a "
-                        "finished run DIR holds with other metrics (unless --keep-reruns); skips identical "
-                        "ones.")
+                        "or a .tar.gz archive of one, e.g. from scripts/gpu-host/gpu_study.sh) into the "
+                        "study folder DIR: config.json, metrics.jsonl, train.log and evaluation results "
+                        "only. Refuses (nothing written) another study, a run whose config is not the "
+                        "study's, or a finished run DIR holds with other metrics (unless --keep-reruns); "
+                        "skips identical ones.")
     g.add_argument("sources", nargs="+", metavar="SOURCE", help="study folder or .tar.gz archive of one")
     g.add_argument("--into", required=True, metavar="DIR",
                    help="the study folder to merge into (created if it does not exist)")
@@ -224,7 +224,7 @@ def _finished_elsewhere(backend, paths, folder) -> list:
 
 def finished_runs(backend, path, what: str = "study folder") -> list:
     """The finished runs (`runner.Job`s) of the study folder `path`, read only (`--forecast-from`,
-    bench/forecast_check.py); a path that is not a folder is refused by name (`what`: the option that
+    bench/lab/forecast_check.py); a path that is not a folder is refused by name (`what`: the option that
     gave it)."""
     from . import runner
     from .folder import StudyFolder

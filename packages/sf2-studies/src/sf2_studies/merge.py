@@ -1,5 +1,5 @@
 """`study merge SOURCE... --into DEST`: the runs of study folders that ran elsewhere (other commands,
-machines, sessions) joined into one study folder (folder.py), e.g. the archives scripts/gpu_study.sh
+machines, sessions) joined into one study folder (folder.py), e.g. the archives scripts/gpu-host/gpu_study.sh
 brings back merged into results/<study>/.
 
 A SOURCE is a study folder or a .tar.gz archive of one. Every SOURCE must hold the study DEST holds (the
@@ -216,7 +216,8 @@ def _open_source(text: str, stack: contextlib.ExitStack) -> tuple[str, StudyFold
         if len(inner) != 1:
             what = "study folder archive" if root != path else "study folder"
             raise StudyError(f"merge source {path} is not a {what}: it holds no {StudyFolder.STUDY} "
-                             f"(`study run FILE --out DIR` makes one; scripts/gpu_study.sh archives one)")
+                             "(`study run FILE --out DIR` makes one; scripts/gpu-host/gpu_study.sh archives "
+                             "one)")
         root = inner[0]
     return text, StudyFolder(root)
 
@@ -370,7 +371,7 @@ def rows_difference(a: list[dict], b: list[dict]) -> str | None:
     before a timing field ("epoch 9 seed 0: actor_loss 0.5345 vs 0.5334"; "equal learned values, only timing
     differs; first ..." when only timing does), None when every row is equal. Two hosts' runs of one config
     differ in timing always, and on GPUs in their values too unless XLA's deterministic ops are on
-    (results/fig7-td3/README.md; scripts/gpu_determinism.sh compares its pairs with this)."""
+    (results/fig7-td3/README.md; scripts/gpu-host/gpu_determinism.sh compares its pairs with this)."""
     first = first_difference(a, b)
     if first is not None:
         epoch, seed, field, x, y = first

@@ -503,7 +503,7 @@ def _md_reruns(found: list, ignored: list[Path], root: Path) -> list[str]:
              "same seeds. Per seed AUC as above; the difference rerun − run is a mean over the seeds with "
              "its 95% bootstrap interval; \"first difference\" is the first metric row, in epoch and seed "
              "order, where a learned value differs (epoch 0's evaluation: the two processes' evaluation "
-             "programs already rounded differently, bench/eval_sensitivity.py; a later epoch: their "
+             "programs already rounded differently, bench/lab/eval_sensitivity.py; a later epoch: their "
              "training did); the last column is the method's mean AUC over all its finished seeds on the "
              "task, as reported and with the rerun's seeds in place of the run's (reruns.csv: every "
              "seed).", ""]

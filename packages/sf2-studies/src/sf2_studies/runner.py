@@ -7,8 +7,8 @@ framework's own CLI, `python -m sf2_jax.cli train ... --out DIR/runs/<task>/<met
 
 Where the children run: one per visible GPU (CUDA_VISIBLE_DEVICES set to that GPU alone, so two runs
 never share a GPU's memory), or on a CPU one at a time unless `workers` says more. Never two runs to a GPU:
-they time-slice it, and together made 0.9-1.4x (bench/results/h200x2/README.md "17") and 1.06-1.12x
-(bench/results/h200/20-runs-per-gpu) the rate of one run alone; a GPU's rate grows with the seeds of one
+they time-slice it, and together made 0.9-1.4x and 1.06-1.12x the rate of one run alone
+(docs/decisions/one-run-per-gpu.md); a GPU's rate grows with the seeds of one
 vmapped program instead. A child dies with the runner (Linux: PR_SET_PDEATHSIG), and holds its run
 folder's lock (`.sf2-lock`, sf2_common.agents.lock) for as long as it lives, so a second runner on the
 same folder never trains the same run twice at once.
@@ -145,7 +145,7 @@ class Forecast:
     longer shared its GPU or was resumed: fig7-td3's 5-seed runs of TD3 on HopperHop (12 m 20 s against
     7 m 17 s at 10 seeds) and of TD3+SF² on CheetahRun (19 m 33 s against 7 m 44 s). Through preference 2
     they forecast fig7-sac's seven 5-seed CheetahRun and HopperHop runs of 2026-11-26 at 2.0-3.8x the time
-    they took; capped, at 1.02-1.61x (`python -m bench.forecast_check results/fig7-td3 results/fig7-sac
+    they took; capped, at 1.02-1.61x (`python -m bench.lab.forecast_check results/fig7-td3 results/fig7-sac
     --runs <that session's 11 runs>`). fig7-sac's 62 runs forecast from fig7-td3's alone (`--runs` all
     62): time taken 0.74x the forecasts in all (0.59x uncapped), 0.49-1.29x per run (0.21-1.29x)."""
 

@@ -152,7 +152,7 @@ NUMERICS_ENV = ("XLA_FLAGS", "NVIDIA_TF32_OVERRIDE", "CUBLAS_WORKSPACE_CONFIG")
 def numerics_environment(environ=None) -> dict:
     """{name: value} of the `NUMERICS_ENV` variables set (non-empty) in `environ` (default: this process's):
     XLA_FLAGS (`--xla_gpu_deterministic_ops=true` makes GPU runs repeat bit for bit and changes their
-    numbers: bench/results/h200x2/27-determinism/README.md), NVIDIA_TF32_OVERRIDE (TF32 in cuBLAS),
+    numbers: docs/decisions/gpu-determinism.md), NVIDIA_TF32_OVERRIDE (TF32 in cuBLAS),
     CUBLAS_WORKSPACE_CONFIG (torch's deterministic cuBLAS). config.json keeps them as "environment", so a run
     folder says how it was trained, and train.log names them each session (`environment_line`)."""
     import os

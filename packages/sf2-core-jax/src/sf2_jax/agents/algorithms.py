@@ -36,7 +36,7 @@ skips the policy by `lax.cond` (no Python branch on a traced value, so the step 
 
 Profiling: each part of the step is traced under a `jax.named_scope` (`critic_grad`, `critic_adam`,
 `aux_grad`, `aux_adam`, `policy_grad`, `policy_adam`, `targets`; `PHASES`), which names nothing but the
-operations' metadata, so `python -m bench.hlo_phases` counts the compiled step's kernels per part.
+operations' metadata, so `python -m bench.hlo` counts the compiled step's kernels per part.
 """
 
 from __future__ import annotations

@@ -25,7 +25,7 @@ functions without the vmap, `_seed_map`). Per seed:
 
 The actor step's parts are traced under `jax.named_scope`s (`ACTOR_PHASES`: `explore`, `env_step`,
 `observe` = normalizer and buffer insert, `sample`, `step_noise`; the SGD step's own in
-`sf2_jax.agents.algorithms.PHASES`), for `python -m bench.hlo_phases`.
+`sf2_jax.agents.algorithms.PHASES`), for `python -m bench.hlo`.
 
 The host loop between epochs (`sf2_common.agents.hostloop.run_epochs`, shared with sf2_torch) does
 everything that needs the host: the NaN guard (before anything is written), evaluation rows,
@@ -149,15 +149,15 @@ class Program:
         devices and they divide `n_seeds` evenly; else None (everything on the default device).
 
         Opt-in: on two H100s the sharded programs' compile died of a segfault in XLA's `shardy-xla` pass
-        (bench/results/h100x2/29-shardy; on two H200s the process died without a message), while two
-        processes with one GPU each reached 2.00x the rate of one (bench/results/h200x2/15-two-gpus).
+        (on two H200s the process died without a message), while two processes with one GPU each reached
+        2.00x the rate of one (docs/decisions/sharded-seeds.md).
         Under the GSPMD partitioner the sharded programs compile and run, so `_program` builds them with it:
         on a four-H100 host a `train` with its seeds over two GPUs ran end to end, at 2.07× (TD3+SF²) and
-        2.12× (TD3) one GPU's rate (bench/results/h100x4/31-scaling-sf2, 30-scaling), with numbers that
-        differ from one device's in the last bits from the first evaluation on (32-sharded-learning). At
+        2.12× (TD3) one GPU's rate, with numbers that differ from one device's in the last bits from the
+        first evaluation on. At
         full length (TD3+SF², AcrobotSwingup, 1M env steps, 8 seeds) its learning is within the spread of two
         one-device runs (AUC −5.5 [−14.0, +3.0] against one, −4.7 [−14.5, +5.1] against the other, whose
-        own difference is −0.8 [−11.6, +10.1]; 41-sharded-learning). Opt-in all the same: GSPMD is
+        own difference is −0.8 [−11.6, +10.1]). Opt-in all the same: GSPMD is
         deprecated in JAX and Shardy crashes on a `shard_map` with a zero-size array (40-physics-shardy), and
         several GPUs are used by whole runs, one per GPU (`study run`, 2.00×); the sharded program is tested
         on two CPU devices (tests/agents/test_devices.py)."""
@@ -262,8 +262,8 @@ class Program:
         is False each step keeps the parameters, Adam states and SGD count and reports zero metrics (the
         prefill, `_actor_step`). The selection is inside the scan's body, where XLA fuses most of it into
         the Adam and target updates (at one seed 57 select kernels per SGD step remain, which cost under 1%
-        of the rate: bench/results/h200x2/47-seeds-and-selects); after the scan it would cost a copy of every
-        array into the loop and a select kernel for each (bench/results/h100x4/38-kernel-phases)."""
+        of the rate); after the scan it would cost a copy of every array into the loop and a select kernel
+        for each (docs/decisions/jax-trainer-step.md)."""
         G, B = self.cfg.grad_updates_per_step, self.cfg.batch_size
         k_sample, k_sgd = jax.random.split(key)
         with jax.named_scope("sample"):
@@ -293,7 +293,7 @@ class Program:
         Both are computed and the step's kind selects (`jnp.where` on the unbatched flag; the SGD steps'
         inside their scan, `_sgd_steps`), with no `lax.cond`: on a GPU a conditional copies its predicate
         to the host and every array that passes through it to new buffers (about 390 copies per actor
-        step of TD3+SF²; bench/results/h100x4/38-kernel-phases), while the prefill's discarded SGD steps
+        step of TD3+SF²; docs/decisions/jax-trainer-step.md), while the prefill's discarded SGD steps
         cost only the run's first prefill actor steps."""
         cfg, A = self.cfg, self.spec.action_size
         prefill = actor_step < self.sched.prefill_actor_steps
@@ -346,7 +346,7 @@ class Program:
 def episode_returns(env, eval_start, act, key, n_steps: int) -> jax.Array:
     """Returns (n_envs,) of one episode per env from the start states `eval_start`: `n_steps` steps of
     `env.step(state, act(obs, k))`, `k` one of `key`'s `n_steps` splits; an env's rewards count until its
-    episode is done. The evaluation of `Program` (`act`: the policy), and of bench/eval_sensitivity.py."""
+    episode is done. The evaluation of `Program` (`act`: the policy), and of bench/lab/eval_sensitivity.py."""
     n_envs = jax.tree_util.tree_leaves(eval_start)[0].shape[0]
 
     def step(carry, k):
@@ -366,7 +366,7 @@ def _seed_map(fn, in_axes, n_seeds: int):
     `jax.vmap`, except at one seed, where `fn` runs on the seed's slice and the axis is added back outside.
     The same operations; but under a vmap of one seed XLA lays the GEMMs' outputs out column-major on a GPU,
     so that every LayerNorm is a chain of column reductions instead of one or two Triton kernels
-    (bench/results/h100x4/43-sharded-profile)."""
+    (docs/decisions/jax-trainer-step.md)."""
     if n_seeds != 1:
         return jax.vmap(fn, in_axes=in_axes)
 
@@ -375,7 +375,7 @@ def _seed_map(fn, in_axes, n_seeds: int):
                 for a, axis in zip(args, in_axes, strict=True)]
         return jax.tree_util.tree_map(lambda x: x[None], fn(*args))
 
-    return functools.wraps(fn)(one)   # the compiled module keeps fn's name (bench.hlo_phases finds it by it)
+    return functools.wraps(fn)(one)   # the compiled module keeps fn's name (bench.hlo finds it by it)
 
 
 @functools.lru_cache(maxsize=8)
@@ -493,7 +493,7 @@ class _Session:
     def evaluate_many(self, epochs: list[int]) -> np.ndarray:
         # One batch shape per run: a shorter batch (the schedule's last, a stop) is padded with its last
         # epoch, whose extra returns are dropped, so the program compiles once (a second shape cost 10-19 s
-        # of a HopperHop run: bench/results/h200/19-batched-eval).
+        # of a HopperHop run: docs/decisions/batched-evaluation.md).
         pad = max(self.program.cfg.checkpoint_every - len(epochs), 0)
         snaps = [self.snapshots.pop(e) for e in epochs]
         params = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *snaps, *[snaps[-1]] * pad)

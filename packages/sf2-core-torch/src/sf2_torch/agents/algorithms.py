@@ -44,8 +44,8 @@ and the target lerps are compiled too (`compile_updates`), as two functions of l
 `_adam_steps` (torch's functional foreach Adam, capturable) and `_move_targets`, so one program per stage
 serves every seed's agent: Inductor turns their foreach ops into a few Triton kernels. Eager, the fused Adam
 is one launch per group, and its 5 launches took 0.183 ms of a 1.345 ms SGD step at the paper preset
-(bench/results/h200x2/48-torch-profile/README.md), several times what its memory traffic needs; the compiled
-updates: bench/results/h200x2/50-torch-step/README.md. On the CPU they stay eager (foreach). On
+(docs/decisions/torch-trainer-step.md, also for the compiled updates), several times what its memory
+traffic needs. On the CPU they stay eager (foreach). On
 CUDA (`cudagraphs`) the whole step of each schedule combination (compiled losses, backward, capturable
 Adam, lerps) is captured as one CUDA graph by `graphs.StepGraph` (it takes the `Batch` and the noise dict
 as they are: pytrees of tensors; unlike tensordict's `CudaGraphModule`, it replays without a device

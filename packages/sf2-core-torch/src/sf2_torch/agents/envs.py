@@ -31,7 +31,7 @@ one flat buffer per dtype, which the jitted step unpacks, steps and packs again,
 one (n, D + 3) array [observation | reward | done | truncation]. Calling a jitted function costs host time
 for each array it takes and returns. With the state as it is, the torch trainer's host took 1.276 ms per
 SGD step (AcrobotSwingup, one seed, H200), more than the device's 1.104 ms of work, and the env step was
-0.465 ms of it (bench/results/h200x2/50-torch-step/README.md; packed: h200x2/51-torch-env). Packing is
+0.465 ms of it (docs/decisions/torch-trainer-step.md). Packing is
 exact (concatenations and slices), so the physics is the same
 (packages/sf2-core-torch/tests/agents/test_torch_envs.py steps both ways).
 

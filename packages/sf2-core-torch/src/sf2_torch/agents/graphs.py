@@ -13,7 +13,7 @@ step is already on the device and written on the current stream, so that wait on
 `torch.profiler` trace of the trainer (AcrobotSwingup TD3+SF², one seed, H100) showed one
 `cudaDeviceSynchronize` of 1.49 ms per SGD step, the host waiting out every step's kernels before it
 could queue the next actor step's env step and buffer work, and the epoch ran at 2.77 ms per SGD step
-against 1.99 ms of kernels (bench/results/h100/37-torch-sync/README.md). Here the inputs are copied on
+against 1.99 ms of kernels (docs/decisions/torch-trainer-step.md). Here the inputs are copied on
 the stream the graph replays on, so stream order is the only synchronization needed.
 """
 

@@ -43,7 +43,7 @@ class ReplayBuffer:
         # compilable: the storage keeps its last written index as a tensor where it is. Without it, every
         # insert reads that index to the host (`.item()` on the writer's device arange), which on a GPU
         # waits for all the work queued before it: once per actor step, the host stalled behind the SGD
-        # steps it had just queued (bench/results/h100/37-torch-sync/README.md). Single-process use only,
+        # steps it had just queued (docs/decisions/torch-trainer-step.md). Single-process use only,
         # which is this buffer's.
         storage = LazyTensorStorage(self.capacity, device=device, compilable=True)
         self.buffer = TorchRLReplayBuffer(storage=storage, sampler=RandomSampler(), batch_size=None)
