@@ -4,7 +4,7 @@ Modules: `errors` and `config` (`SF2Config`; both cores name them too), `agents.
 the `paper`/`quick` presets, CLI overrides, validation), `agents.tasks` (the DM Control task table of
 Table 1), `agents.registry` (pluggable representations, found by entry points), `agents.runfolder`,
 `agents.plotting`, `agents.hostloop` (the framework-free parts of the training loop) and `cli` (the
-`sf2-jax` / `sf2-torch` command line, parametrised by a `Framework`). Only numpy is imported eagerly.
+pieces each core's command line is built from). Only numpy is imported eagerly.
 """
 
 __version__ = "0.2.0"

@@ -1,17 +1,8 @@
 """The pieces of both cores' command lines, `sf2-jax` and `sf2-torch`: each core's cli.py builds its
 parser from these functions and calls its own trainer; commands of other packages (`study`, from
-sf2-studies) come by entry points of the group `sf2.commands`.
-
-    PROG train --task CartpoleBalance --algo td3 --repr sf2 --config quick --seeds 0-3 --out runs/cp
-    PROG train --task CartpoleBalance --algo td3 --repr sf2,none,sim --config quick --seeds 0-1 --out runs/cmp
-    PROG eval runs/cp [--epoch N] [--episodes 20] [--stochastic] [--obs-noise 0,0.1 [--save]]
-    PROG plot runs/cmp/td3-sf2 runs/cmp/td3-none --out curves.png
-    PROG study run studies/fig7-td3.toml --out results/fig7-td3      (with sf2-studies installed)
-    PROG tasks
-
-Every `TrainConfig` field can be overridden with its own flag (`--batch-size 128`) or `--set
-batch_size=128`. Exit status: 0 done, 2 bad input (reported before anything is compiled, naming the
-problem and the valid choices), 3 a NaN/inf loss stopped training, 130 interrupted.
+sf2-studies) come by entry points of the group `sf2.commands`. Exit status: 0 done, 2 bad input
+(reported before anything is compiled, naming the problem and the valid choices), 3 a NaN/inf loss
+stopped training, 130 interrupted.
 """
 
 from __future__ import annotations
@@ -33,9 +24,8 @@ from sf2_common.agents.runfolder import RunFolder
 from sf2_common.errors import ConfigError
 
 __all__ = ["Backend", "COMMANDS_GROUP", "PLUGINS", "compile_cache", "new_parser", "add_train_parser",
-           "add_eval_parser", "add_plot_parser", "add_tasks_parser", "add_shared_parsers", "plugin_commands",
-           "add_plugin_parsers", "resolve_configs", "train_runs", "print_table", "eval_command",
-           "expand_runs", "plot_command", "tasks_command", "join_negative_values", "run"]
+           "add_shared_parsers", "plugin_commands", "resolve_configs", "train_runs", "print_table",
+           "eval_command", "expand_runs", "plot_command", "tasks_command", "join_negative_values", "run"]
 
 COMMANDS_GROUP = "sf2.commands"
 # commands other packages provide: name → how to get them (said when one is asked for and absent)
@@ -60,11 +50,7 @@ def compile_cache(prog: str, cache_env: str) -> str:
 
 
 def new_parser(prog: str, doc: str):
-    """An argument parser whose description is the first paragraph of `doc`.
-
-    Returns:
-        (parser, its subparsers), where the commands are added.
-    """
+    """(An argument parser described by the first paragraph of `doc`, its subparsers for the commands)."""
     parser = argparse.ArgumentParser(prog=prog, description=doc.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     return parser, parser.add_subparsers(dest="command", required=True)
@@ -75,15 +61,8 @@ def _field_names(config_class) -> list[str]:
 
 
 def add_train_parser(sub, prog: str, config_class, seeds_help: str, cache_env: str) -> None:
-    """Add `train`, with a flag for every field of `config_class`.
-
-    Args:
-        sub: the subparsers of `new_parser`.
-        prog: the program's name.
-        config_class: the core's TrainConfig.
-        seeds_help: how the core runs several seeds.
-        cache_env: the environment variable of the compilation cache folder.
-    """
+    """Add `train` to the subparsers `sub`, with a flag for every field of the core's `config_class`;
+    `seeds_help` says how the core runs several seeds, `cache_env` names the compilation cache's variable."""
     t = sub.add_parser("train", help="train one or more methods over several seeds",
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     t.add_argument("--task", required=True, help="Playground DM Control task, e.g. CartpoleBalance "
@@ -112,8 +91,9 @@ def add_train_parser(sub, prog: str, config_class, seeds_help: str, cache_env: s
                             help=argparse.SUPPRESS if name in ("keep_checkpoints",) else None)
 
 
-def add_eval_parser(sub) -> None:
-    """Add `eval` (a run folder's checkpoint; with `--obs-noise`, under observation noise)."""
+def add_shared_parsers(sub, prog: str) -> None:
+    """Add the commands that take nothing of the core: eval, plot, the plugin commands (`sf2.commands`:
+    each found, and for each of `PLUGINS` not installed one that says how to install it), tasks."""
     e = sub.add_parser("eval", help="evaluate a run folder's checkpoint")
     e.add_argument("run", help="run folder")
     e.add_argument("--epoch", type=int, default=None, help="checkpoint epoch (default: latest)")
@@ -130,43 +110,9 @@ def add_eval_parser(sub) -> None:
                    "checkpoints (default 1)")
     e.add_argument("--save", action="store_true", help="with --obs-noise: write RUN/obs_noise.json (what "
                    "`study report` reads)")
-
-
-def add_plot_parser(sub) -> None:
-    """Add `plot` (learning curves of several run folders)."""
     p = sub.add_parser("plot", help="learning curves of several run folders (mean and 95%% CI per method)")
     p.add_argument("runs", nargs="+", help="run folders (folders holding run folders are expanded)")
     p.add_argument("--out", default="learning_curves.png", help="PNG to write")
-
-
-def add_tasks_parser(sub) -> None:
-    """Add `tasks` (the task table)."""
-    sub.add_parser("tasks", help="list the valid tasks and the paper preset's budget and action repeat")
-
-
-def add_shared_parsers(sub, prog: str) -> None:
-    """Add the commands that take nothing of the core: eval, plot, the plugin commands, tasks."""
-    add_eval_parser(sub)
-    add_plot_parser(sub)
-    add_plugin_parsers(sub, prog)
-    add_tasks_parser(sub)
-
-
-def plugin_commands() -> dict:
-    """The commands installed packages declare in the entry-point group `sf2.commands`.
-
-    Returns:
-        {name: command}, each command with `add_parser(subparsers, prog)` and `main(backend, args) -> int`.
-    """
-    found = {}
-    for ep in metadata.entry_points(group=COMMANDS_GROUP):
-        found.setdefault(ep.name, ep)
-    return {name: ep.load() for name, ep in sorted(found.items())}
-
-
-def add_plugin_parsers(sub, prog: str) -> None:
-    """Add the commands of `plugin_commands()`, and for each of `PLUGINS` that is not installed a command
-    that says how to install it (`run` calls the command the arguments name)."""
     plugins = plugin_commands()
     for name, command in plugins.items():
         command.add_parser(sub, prog)
@@ -174,21 +120,22 @@ def add_plugin_parsers(sub, prog: str) -> None:
     for name in sorted(PLUGINS.keys() - plugins.keys()):
         missing = sub.add_parser(name, help=f"({PLUGINS[name]})", add_help=False)
         missing.set_defaults(sf2_missing=PLUGINS[name])
+    sub.add_parser("tasks", help="list the valid tasks and the paper preset's budget and action repeat")
+
+
+def plugin_commands() -> dict:
+    """{name: command} of the entry-point group `sf2.commands`; a command has `add_parser(subparsers,
+    prog)` and `main(backend, args) -> int`."""
+    found = {}
+    for ep in metadata.entry_points(group=COMMANDS_GROUP):
+        found.setdefault(ep.name, ep)
+    return {name: ep.load() for name, ep in sorted(found.items())}
 
 
 # ------------------------------------------------------------------------------------------- train
 def resolve_configs(args, config_class, make_config: Callable, validate: Callable):
-    """Every config `train`'s arguments ask for, validated before anything is compiled.
-
-    Args:
-        args: the parsed `train` arguments.
-        config_class: the core's TrainConfig.
-        make_config: the core's `make_config(preset, task, algo, representation, overrides)`.
-        validate: the core's `validate(cfg, seeds)`.
-
-    Returns:
-        (configs, one per representation of `--repr`, seeds); raises ConfigError on bad input.
-    """
+    """(configs, one per representation of `--repr`, seeds) of parsed `train` arguments, made and checked
+    by the core's `make_config` and `validate` before anything is compiled; ConfigError on bad input."""
     overrides = configs.parse_overrides(args.set, config_class)
     for name in _field_names(config_class):
         value = getattr(args, f"field_{name}")
@@ -215,17 +162,8 @@ def _setup_jax(cache: str) -> None:
 
 
 def train_runs(args, cfgs, seeds, train: Callable, method_label: Callable) -> int:
-    """Train each config into its run folder, then print the final-return table (`train`).
-
-    Args:
-        args: the parsed `train` arguments.
-        cfgs, seeds: what `resolve_configs` returned.
-        train: the core's `agents.trainer.train`.
-        method_label: (algo, representation) -> the method's label, e.g. "TD3+SF²".
-
-    Returns:
-        The exit status, 0.
-    """
+    """`train`: each of `resolve_configs`' configs into its run folder with the core's `train`, then the
+    final-return table (`method_label(algo, representation)` names each method); exit status 0."""
     out = Path(args.out)
     several = len(cfgs) > 1
     plan = [(cfg, out / f"{cfg.algo}-{cfg.representation}" if several else out) for cfg in cfgs]
@@ -285,17 +223,8 @@ def print_table(table, seconds=None) -> None:
 # ------------------------------------------------------------------------------------------- eval, plot
 def eval_command(args, evaluate_checkpoint: Callable, evaluate_checkpoint_noises: Callable,
                  cache: str) -> int:
-    """`eval`: print a checkpoint's returns per seed (or as JSON), or run `eval --obs-noise`.
-
-    Args:
-        args: the parsed `eval` arguments.
-        evaluate_checkpoint: the core's `agents.trainer.evaluate_checkpoint`.
-        evaluate_checkpoint_noises: the core's `agents.trainer.evaluate_checkpoint_noises`.
-        cache: the compilation cache folder (`compile_cache`).
-
-    Returns:
-        The exit status, 0.
-    """
+    """`eval`: a checkpoint's returns per seed (or as JSON), or `eval --obs-noise`, by the core's two
+    evaluation functions, with JAX's compilation cache in the folder `cache`; exit status 0."""
     import numpy as np
 
     from sf2_common.agents import obsnoise
@@ -373,14 +302,8 @@ def join_negative_values(argv: list[str]) -> list[str]:
 
 
 def run(prog: str, parser, commands: dict, backend: Callable, argv=None) -> int:
-    """Parse `argv` (default: sys.argv[1:]) and run its command.
-
-    Args:
-        prog: the program's name, which starts every error message.
-        parser: the core's parser (`new_parser` and the `add_*` functions).
-        commands: {name: handler(args) -> exit status} of the core's own commands.
-        backend: () -> the `Backend` a command of `add_plugin_parsers` gets.
-        argv: the arguments.
+    """Parse `argv` (default: sys.argv[1:]) with the core's `parser` and run the command: one of the core's
+    `commands` ({name: handler(args)}) or a plugin command, given `backend()`.
 
     Returns:
         The exit status: 0 done, 2 bad input (a ConfigError, e.g. a run folder that cannot be used or a

@@ -51,7 +51,7 @@ from __future__ import annotations
 import dataclasses
 
 from . import stats
-from .spec import StudyError, seeds_text
+from .base import StudyError, seeds_text
 
 __all__ = ["Claim", "Comparison", "parse", "evaluate", "check", "markdown", "csv_rows", "VERDICTS",
            "CSV_FIELDS"]

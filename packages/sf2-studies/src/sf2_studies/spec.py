@@ -65,6 +65,8 @@ from pathlib import Path
 
 from sf2_common.errors import ConfigError
 
+from .base import StudyError, seeds_text
+
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover - Python 3.10: the backport (a dependency of sf2-common there)
@@ -72,7 +74,7 @@ else:  # pragma: no cover - Python 3.10: the backport (a dependency of sf2-commo
 
 __all__ = [
     "StudyError", "Method", "Evaluation", "ReportSettings", "Study", "Run", "load", "loads", "resolve",
-    "select_runs", "same_runs", "only_adds",
+    "select_runs", "same_runs", "only_adds", "seeds_text",
     "slug", "kind", "FIGURES", "FRAMEWORKS", "RUN_NEUTRAL",
 ]
 
@@ -89,10 +91,6 @@ _EVALUATION = ("obs_noise", "checkpoints", "episodes", "deterministic")
 _REPORT = ("figures", "final_window", "curve_statistic")
 CURVE_STATISTICS = ("mean", "median")   # over seeds at each evaluation (figures.learning_curves)
 DEFAULT_FINAL_WINDOW = 50_000   # paper §4.3: "the mean episode return over the final 50k steps"
-
-
-class StudyError(ConfigError):
-    """A study file or study folder that cannot be used as it is (exit status 2)."""
 
 
 def slug(label: str) -> str:
@@ -576,18 +574,6 @@ def select_runs(study: Study, runs: list[Run], tasks=None, methods=None, seeds=N
 def seeds_folder(seeds) -> str:
     """The folder name of a seed group: (0, 1, 2, 3, 4) → 'seeds-0-4', (0, 2, 4) → 'seeds-0_2_4'."""
     return "seeds-" + seeds_text(seeds).replace(",", "_")
-
-
-def seeds_text(seeds) -> str:
-    """(0, 1, 2, 5) → '0-2,5' (what `--seeds` takes)."""
-    parts, start = [], None
-    for i, s in enumerate(seeds):
-        if start is None:
-            start = s
-        if i + 1 == len(seeds) or seeds[i + 1] != s + 1:
-            parts.append(str(start) if s == start else f"{start}-{s}")
-            start = None
-    return ",".join(parts)
 
 
 def _config_key(cfg) -> str:

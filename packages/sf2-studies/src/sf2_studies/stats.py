@@ -13,14 +13,13 @@ from __future__ import annotations
 
 import numpy as np
 from sf2_common.agents.stats import (
-    COLUMN_STATISTICS,
     CONFIDENCE,
     MIN_SEEDS,
     RESAMPLES,
     SEED,
-    column_interval,
     global_seed,
     informative,
+    interval_over_seeds,
     mean_interval,
     require_rliable,
 )
@@ -35,6 +34,7 @@ __all__ = [
 
 STATISTICS = {"IQM": "aggregate_iqm", "Median": "aggregate_median", "Mean": "aggregate_mean"}  # of a claim
 METRICS = ("Median", "IQM", "Mean", "Optimality Gap")
+COLUMN_STATISTICS = ("mean", "median", "iqm")   # over seeds, per column (`column_interval`)
 
 
 # ------------------------------------------------------------------------------------------- per run
@@ -113,6 +113,26 @@ def aggregate_intervals(score_dict: dict, resamples: int = RESAMPLES, seed: int 
                                                   confidence_interval_size=CONFIDENCE)
         points[name], intervals[name] = p[name], i[name]
     return points, intervals
+
+
+def column_interval(values, statistic: str = "mean", resamples: int = RESAMPLES, seed: int = SEED):
+    """values (n_seeds,) or (n_seeds, n_points) → (statistic over seeds of each column, lower, upper), the
+    statistic one of `COLUMN_STATISTICS`: "mean" (`mean_interval`), "median" (np.median of each column,
+    the mean of the two middle seeds for an even count, the statistic of the paper's learning curves, Fig.
+    8) or "iqm" (`iqm_interval`); lower = upper = None below `MIN_SEEDS` seeds."""
+    if statistic not in COLUMN_STATISTICS:
+        raise ValueError(f"statistic {statistic!r}: one of {', '.join(COLUMN_STATISTICS)}")
+    if statistic == "iqm":
+        _, metrics = require_rliable()
+
+        def fn(x):  # rliable's IQM of each column's seeds
+            return np.array([metrics.aggregate_iqm(x[:, j]) for j in range(x.shape[1])])
+    else:
+        plain = {"mean": np.mean, "median": np.median}[statistic]
+
+        def fn(x):
+            return plain(x, axis=0)
+    return interval_over_seeds(values, fn, resamples, seed)
 
 
 def iqm_interval(values, resamples: int = RESAMPLES, seed: int = SEED):

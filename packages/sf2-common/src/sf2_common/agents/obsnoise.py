@@ -1,10 +1,8 @@
-"""`PROG eval RUN --obs-noise STDS [--checkpoints N] [--save]`: a run's latest checkpoints evaluated with
-Gaussian noise added to the observations the policy sees (paper App. C.2.2, Fig. 9 right), for either
-core: it calls the core's `evaluate_checkpoint_noises(run, epoch, num_eval_envs, deterministic, noises)`
-once per checkpoint (one restore of the training state for all stds). A study's [evaluation] runs it
-after training, and its report reads RUN/obs_noise.json (`--save`):
-{"settings": {"obs_noise", "checkpoints", "episodes", "deterministic"},
-"results": [{"noise", "epoch", "env_steps", "deterministic", "returns": {seed: [episode returns]}}]}.
+"""`PROG eval RUN --obs-noise STDS [--checkpoints N] [--save]` of either core: a run's latest checkpoints
+evaluated with Gaussian noise added to the observations the policy sees (paper App. C.2.2), one call of
+the core's `evaluate_checkpoint_noises` per checkpoint. A study's [evaluation] runs it after training
+and its report reads RUN/obs_noise.json (`--save`): {"settings": {"obs_noise", "checkpoints", "episodes",
+"deterministic"}, "results": [{"noise", "epoch", "env_steps", "deterministic", "returns": {seed: [...]}}]}.
 """
 
 from __future__ import annotations
@@ -65,18 +63,9 @@ def evaluate_obs_noise(evaluate_noises: Callable, run, noises, checkpoints: int 
 
 
 def save(run, result: dict) -> Path:
-    """Write RUN/obs_noise.json, one line per (noise, checkpoint).
-
-    Each episode return is written with the shortest decimal that gives back its float32 (the env's
-    reward dtype, so nothing is lost), which keeps a study's folders small (docs/decisions/obs-noise.md).
-
-    Args:
-        run: the run folder.
-        result: what `evaluate_obs_noise` returned.
-
-    Returns:
-        The path written.
-    """
+    """Write `evaluate_obs_noise`'s `result` into the run folder `run` as obs_noise.json, one line per
+    (noise, checkpoint), each return the shortest decimal of its float32 (docs/decisions/obs-noise.md);
+    returns the path."""
     import numpy as np
 
     def short(values):

@@ -21,8 +21,6 @@ from .runfolder import RunFolder
 __all__ = ["method_label", "mean_ci", "band_label", "curves", "plot_learning_curve", "plot_runs",
            "final_table"]
 
-BOOTSTRAP_RESAMPLES = 5000
-
 
 def method_label(algo: str, representation: str, registry=None) -> str:
     """'TD3+SF²', 'SAC', ... (vanilla has no suffix). The representation's label comes from `registry`
@@ -34,7 +32,7 @@ def method_label(algo: str, representation: str, registry=None) -> str:
     return algo.upper() + (f"+{label}" if label else "")
 
 
-def mean_ci(values, resamples: int = BOOTSTRAP_RESAMPLES) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def mean_ci(values, resamples: int = stats.RESAMPLES) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """values (n_seeds, n_points) → mean over seeds, lower, upper of the 95% percentile-bootstrap interval
     of the mean (module docstring); lower = upper = NaN (no interval) below `stats.MIN_SEEDS` seeds, and
     without rliable (a warning names the extra): a finished training's table and curve never fail on it."""
