@@ -1,6 +1,6 @@
 """Paired precision differences (TF32 − fp32, the same seed in both) of this study's report/results.csv:
 the mean over seeds with a 95% percentile bootstrap interval (rliable, through
-sf2_common.studies.stats.mean_interval). Run from the repository root:
+sf2_common.agents.stats.mean_interval). Run from the repository root:
     python results/precision-td3/paired.py
 """
 import csv
@@ -8,7 +8,7 @@ from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
-from sf2_common.studies.stats import mean_interval
+from sf2_common.agents.stats import mean_interval
 
 rows = list(csv.DictReader(open(Path(__file__).parent / "report" / "results.csv")))
 value = defaultdict(dict)                       # (task, method) -> {seed: row}

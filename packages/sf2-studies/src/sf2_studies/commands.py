@@ -1,5 +1,5 @@
 """The `study` subcommand of `sf2-jax` and `sf2-torch`: `COMMAND`, the entry point `study` of the group
-`sf2.commands`, which each core's command line finds (sf2_common.cli.add_plugin_parsers); it adds its
+`sf2.commands`, which each core's command line finds (sf2_common.cli.add_shared_parsers); it adds its
 parser with `add_parser` and runs with `main(backend, args)`:
 
     PROG study run FILE --out DIR [--tasks A,B] [--methods m1,m2] [--seeds 0-4] [--workers N] [--ray ADDRESS]

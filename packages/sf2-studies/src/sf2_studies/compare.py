@@ -4,7 +4,7 @@ results/fig7`).
 
 Nothing is pooled across studies: each study's numbers are the ones its own `study report` gives (per-task
 min–max normalization over that study's runs, paper §4.2; rliable intervals over its seeds; its claims'
-verdicts, sf2_common/studies/claims.py). This module reads each folder once with `report`'s functions and
+verdicts, sf2_studies/claims.py). This module reads each folder once with `report`'s functions and
 writes `summary.md` (one aggregate table per family, one row per comparison with a column per study, and
 per task each method's AUC in returns, the scale that does compare across studies) and
 `aggregate.png/svg` (one row of panels per family, `figures.aggregate`). Claims are matched by

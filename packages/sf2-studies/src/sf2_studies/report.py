@@ -670,7 +670,7 @@ def _md_definitions(study: Study) -> list[str]:
         f"{stats.RESAMPLES} resamples of the seeds (stratified by task for the aggregates; rliable's "
         f"`get_interval_estimates`). With fewer than {stats.MIN_SEEDS} seeds no interval is given: a "
         "nominal 95% bootstrap interval of 2 seeds covers the true mean about half the time (it is their "
-        "range); with 3–5 seeds it still covers only about 75–84% (sf2_common/studies/stats.py). Wall "
+        "range); with 3–5 seeds it still covers only about 75–84% (docs/decisions/intervals.md). Wall "
         "time (per task): the wall times of the method's finished runs on that task added up (one run per "
         "seed group; a resumed run's includes its restarts); a run's own is in results.csv. Learning "
         f"curves: the {study.report.curve_statistic} eval return over seeds at each evaluation.", ""]
