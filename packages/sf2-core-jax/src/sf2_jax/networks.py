@@ -299,7 +299,7 @@ def contract(nets: Networks, params: Params, features, target: bool = False):
     Layout: the kernel W (H, F·D) is re-laid (D, H, F) here, once per contraction (an internal transpose;
     the stored parameter keeps its canonical (in, out) layout), so the single GEMM ψ·W_tᵀ emits M already
     as (B, D·H) and every evaluation of `velocity_contracted` reduces over M's minor axis with no
-    per-evaluation re-layout of M (bench/results/h200/4-layout-fix: variant `wt`)."""
+    per-evaluation re-layout of M (docs/decisions/flow-loss-layout.md)."""
     cfg = nets.cfg
     _check_last("features", features, cfg.feature_size, "feature_size")
     W, b = zeta_last_layer(nets, params, target)

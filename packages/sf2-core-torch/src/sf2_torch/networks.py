@@ -239,7 +239,7 @@ def twin_heads(head_0: MLP, head_1: MLP, x: torch.Tensor) -> torch.Tensor:
     plain `cat` up to float rounding (packages/sf2-core-torch/tests/test_torch_networks.py). torch.compile
     does not merge two modules' products by itself; merging the twin Q heads took the torch trainer's GEMM
     launches per SGD step from 123 to 104 and its one-seed rate up by 6.6%
-    (bench/results/h200x2/50-torch-step/README.md)."""
+    (docs/decisions/torch-trainer-step.md)."""
     if head_0.num_hidden == 0:
         return torch.cat([head_0(x), head_1(x)], dim=-1)
 
