@@ -16,14 +16,8 @@ __all__ = ["TrainConfig", "TORCH_FIELDS", "COMPILE_MODES", "make_config", "valid
            "resolve_compile", "resolve_cudagraphs"]
 
 TORCH_FIELDS = ("device", "compile", "cudagraphs")
-# "auto": compile on CUDA, eager on the CPU. Measured (TD3+SF² step; the READMEs of
-# git show 0d333e8:bench/results/h200/6-torch-agents and 0d333e8:bench/results/cpu-amd-epyc-torch-agents):
-# on an H200 at paper sizes eager 11.6 ms, compiled 8.4 ms, compiled + CUDA graphs 2.3 ms (JAX 4.2 ms);
-# on a shared 2-core CPU (1 torch thread) at paper sizes eager 0.85 s, compiled 1.31 s (after 173 s of
-# compilation), at quick sizes eager 29 ms, compiled 17 ms (after 80 s). Other values: torch.compile modes.
-# "max-autotune-no-cudagraphs" (the trainer makes the CUDA graphs itself): Inductor's Triton GEMMs, autotuned;
-# on an H200 at one seed, TF32, 14,502 env steps/s against the default's 12,654–12,714 (the JAX trainer
-# 17,545), after 407 s of compilation against 52 s (docs/decisions/torch-trainer-step.md).
+# "auto": compile on CUDA, eager on the CPU; "off"; or a torch.compile mode ("max-autotune-no-cudagraphs":
+# Inductor's autotuned GEMMs, the trainer makes the CUDA graphs itself). docs/decisions/torch-compile-modes.md
 COMPILE_MODES = ("auto", "off", "default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
 
 
