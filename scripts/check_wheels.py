@@ -11,8 +11,8 @@ It fails (exit status 1, every problem listed) when
 - a Requires-Dist holds a direct reference (`name @ URL`, `file://`), or names a sibling package at any
   other specifier than `==` the repository's version;
 - a wheel or sdist lacks the LICENSE (identical to the root's), or its metadata does not say MIT;
-- `twine check --strict` fails, an install fails, a module imports from outside the new environment, or an
-  example fails.
+- `twine check --strict` fails, an install fails, a module imports from outside the new environment, an
+  example fails, or `sf2-jax --help` / `sf2-torch --help` (the cores' commands, no [train] needed) fails.
 It prints each wheel's Requires-Dist lines and the time of each phase.
 """
 
@@ -186,6 +186,9 @@ def main() -> int:
                 fail(f"README example {i} wrote no params.npz")
             print(f"README example {i} ({block.splitlines()[0].split('#')[0].strip()}): "
                   f"{'ok' if not done.returncode else 'FAILED'}", flush=True)
+        for script in ("sf2-jax", "sf2-torch"):  # the cores' commands, without [train]
+            done = run([str(venv / "bin" / script), "--help"], f"{script} --help", cwd=tmp, env=env)
+            print(f"{script} --help: {'ok' if not done.returncode else 'FAILED'}", flush=True)
         if len(BLOCKS) < 2:
             fail(f"README.md has {len(BLOCKS)} python blocks, expected one per core")
         print(f"examples in {time.perf_counter() - t:.0f} s")
