@@ -23,19 +23,21 @@ groups' parameters.)
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-from sf2_common.errors import ShapeError
+from sf2_common.errors import ConfigError, ShapeError
 
 from sf2_jax import networks as nw
 from sf2_jax.ode import integrate
 
 __all__ = [
     "Batch", "Critic", "sf2_critic", "flow_loss", "explicit_mixture_loss", "td3_critic_loss",
-    "td3_actor_loss", "sac_critic_loss", "sac_actor_loss", "sac_alpha_loss", "ema_update",
+    "td3_actor_loss", "sac_critic_loss", "sac_actor_loss", "sac_alpha_loss", "ema_update", "check_batch",
+    "check_noise",
 ]
 
 sg = jax.lax.stop_gradient
@@ -54,16 +56,6 @@ class Batch(NamedTuple):
     truncation: Any
 
 
-def sf2_critic(nets: nw.Networks) -> Critic:
-    """SF²'s critic Q(ψ(s, a)) (Appendix D): `critic(params, obs, action, target=False)` → (B, 2), the
-    core's twin Q heads on ψ (`target=True`: Q̄(ψ̄(s, a)))."""
-
-    def critic(params: nw.Params, obs, action, target: bool = False):
-        return nw.q_values(nets, params, nw.psi(nets, params, obs, action, target=target), target=target)
-
-    return critic
-
-
 def _trainable(params: nw.Params, groups: tuple[str, ...]) -> nw.Params:
     """Stop the gradient of every group not in `groups` (targets, normalizer, untrained networks)."""
     return {name: (value if name in groups else sg(value)) for name, value in params.items()}
@@ -77,15 +69,26 @@ def _with_critic(nets: nw.Networks, params: nw.Params, trained: tuple[str, ...],
     return params, critic
 
 
-def _check_batch(nets: nw.Networks, batch: Batch) -> tuple[int]:
-    """Check a 2-D batch against the config; returns its batch shape (B,)."""
-    cfg = nets.cfg
-    nw._check_last("batch.obs", batch.obs, cfg.obs_size, "obs_size")
+# ------------------------------------------------------------------------------------------------ checks
+def check_batch(cfg, batch: Batch) -> tuple[int]:
+    """Check a 2-D batch against a config's sizes, on static shapes only (free under `jax.jit`).
+
+    Args:
+      cfg: the `SF2Config` (its `obs_size` and `action_size`).
+      batch: the transitions; obs and next_obs (B, D), action (B, A), reward, discount, truncation (B,).
+
+    Returns:
+      The batch shape (B,).
+
+    Raises:
+      ShapeError: a field's shape differs, naming the field, the expected and the found shape.
+    """
+    nw.check_last("batch.obs", batch.obs, cfg.obs_size, "obs_size")
     if jnp.ndim(batch.obs) != 2:
         raise ShapeError(f"batch.obs: expected shape (B, {cfg.obs_size}) (a 2-D batch; vmap the loss for "
-                            f"more batch dimensions), found shape {tuple(jnp.shape(batch.obs))}")
-    nw._check_last("batch.next_obs", batch.next_obs, cfg.obs_size, "obs_size")
-    nw._check_last("batch.action", batch.action, cfg.action_size, "action_size")
+                         f"more batch dimensions), found shape {tuple(jnp.shape(batch.obs))}")
+    nw.check_last("batch.next_obs", batch.next_obs, cfg.obs_size, "obs_size")
+    nw.check_last("batch.action", batch.action, cfg.action_size, "action_size")
     b = tuple(jnp.shape(batch.obs)[:-1])
     for name in ("next_obs", "action"):
         nw._check_leading(f"batch.{name}", getattr(batch, name), b, "batch.obs")
@@ -94,9 +97,31 @@ def _check_batch(nets: nw.Networks, batch: Batch) -> tuple[int]:
     return b
 
 
-def _check_noise(nets: nw.Networks, name: str, x, batch_shape, size: int, what: str):
-    nw._check_last(name, x, size, what)
+def check_noise(name: str, x, batch_shape: tuple, size: int, what: str) -> None:
+    """Check an explicit noise (or another per-sample input) of shape (B, size), on static shapes only.
+
+    Args:
+      name: the argument's name, for the message.
+      x: the array.
+      batch_shape: (B,), the batch's (`check_batch`).
+      size: its last dimension.
+      what: the config field `size` is, for the message ("action_size", "obs_size").
+
+    Raises:
+      ShapeError: `x` is not of shape (*batch_shape, size), naming both.
+    """
+    nw.check_last(name, x, size, what)
     nw._check_leading(name, x, batch_shape, "batch.obs")
+
+
+def _check_same(name: str, x, shape: tuple, what: str) -> None:
+    if tuple(jnp.shape(x)) != tuple(shape):
+        raise ShapeError(f"{name} must have shape {tuple(shape)} ({what}), found {tuple(jnp.shape(x))}")
+
+
+def _require_sac(nets: nw.Networks) -> None:
+    if nets.algo != "sac":
+        raise ConfigError(f"SAC losses need networks built with algo='sac', found algo={nets.algo!r}")
 
 
 # ------------------------------------------------------------------------------------------------ flow
@@ -116,9 +141,9 @@ def flow_loss(nets: nw.Networks, params: nw.Params, batch: Batch, next_action, e
     Returns (loss, {"loss_p": mean_b m_b ℓ_P, "loss_boot": mean_b m_b ℓ_B}).
     """
     cfg = nets.cfg
-    b = _check_batch(nets, batch)
-    _check_noise(nets, "next_action", next_action, b, cfg.action_size, "action_size")
-    _check_noise(nets, "eps", eps, b, cfg.obs_size, "obs_size")
+    b = check_batch(cfg, batch)
+    check_noise("next_action", next_action, b, cfg.action_size, "action_size")
+    check_noise("eps", eps, b, cfg.obs_size, "obs_size")
     nw._check_batch_dims("flow_time", flow_time, b, "batch.obs")
     p = _trainable(params, ("psi", "zeta"))
     next_action = sg(next_action)
@@ -167,6 +192,8 @@ def explicit_mixture_loss(velocity_fn: Callable, x1, x2, eps1, eps2, k1, k2, wei
     Returns (loss, {"loss_1": first mean, "loss_2": second mean})."""
 
     def term(x, e, k):
+        _check_same("eps", e, jnp.shape(x), "same as x")
+        _check_same("k", k, jnp.shape(x)[:-1], "(B,)")
         x_k = k[..., None] * x + (1 - k[..., None]) * e
         return jnp.mean(jnp.sum((velocity_fn(x_k, k) - (x - e)) ** 2, axis=-1))
 
@@ -174,7 +201,17 @@ def explicit_mixture_loss(velocity_fn: Callable, x1, x2, eps1, eps2, k1, k2, wei
     return weight * loss_1 + (1 - weight) * loss_2, {"loss_1": loss_1, "loss_2": loss_2}
 
 
-# ------------------------------------------------------------------------------------------------ TD3
+# ------------------------------------------------------------------------------------------------ critic
+def sf2_critic(nets: nw.Networks) -> Critic:
+    """SF²'s critic Q(ψ(s, a)) (Appendix D): `critic(params, obs, action, target=False)` → (B, 2), the
+    core's twin Q heads on ψ (`target=True`: Q̄(ψ̄(s, a)))."""
+
+    def critic(params: nw.Params, obs, action, target: bool = False):
+        return nw.q_values(nets, params, nw.psi(nets, params, obs, action, target=target), target=target)
+
+    return critic
+
+
 def _td_loss(cfg, batch: Batch, q, next_value):
     """The TD loss of both critics: y = rs·r + discount·γ·next_value (B,), loss = ½ mean_{b,j}(m_b(Q_j −
     sg(y)))² over the twin Q (B, 2). Returns (loss, {"q": mean Q, "target_q": mean y})."""
@@ -183,6 +220,7 @@ def _td_loss(cfg, batch: Batch, q, next_value):
     return 0.5 * jnp.mean(err**2), {"q": jnp.mean(q), "target_q": jnp.mean(y)}
 
 
+# ------------------------------------------------------------------------------------------------ TD3
 def td3_critic_loss(nets: nw.Networks, params: nw.Params, batch: Batch, smoothing, *,
                     critic: Critic | None = None):
     """TD3 critic (Algorithm 2 on features): ã′ = clip(π̄(s′) + clip(σ_s ξ, −c, c), −1, 1),
@@ -190,8 +228,8 @@ def td3_critic_loss(nets: nw.Networks, params: nw.Params, batch: Batch, smoothin
     `smoothing` ξ (B, A) ~ N(0, I); Q = `critic` (default: SF²'s Q(ψ), trains Q and ψ).
     aux: q (mean Q), target_q (mean y)."""
     cfg = nets.cfg
-    b = _check_batch(nets, batch)
-    _check_noise(nets, "smoothing", smoothing, b, cfg.action_size, "action_size")
+    b = check_batch(cfg, batch)
+    check_noise("smoothing", smoothing, b, cfg.action_size, "action_size")
     p, critic = _with_critic(nets, params, ("psi", "q"), critic)
     noise = jnp.clip(cfg.smoothing_noise * smoothing, -cfg.noise_clip, cfg.noise_clip)
     next_action = jnp.clip(nw.td3_action(nets, p, batch.next_obs, target=True) + noise, -1, 1)
@@ -203,7 +241,7 @@ def td3_actor_loss(nets: nw.Networks, params: nw.Params, batch: Batch, *, critic
     """TD3 actor (Algorithm 2): −mean_b Q_0(s, π(s)) (the deterministic policy gradient; rlax's
     `dpg_loss`, which the authors call, has the same gradient for A = 1 and 1/A of it otherwise:
     docs/core-contract.md). Trains the policy only. aux: q (mean Q_0)."""
-    _check_batch(nets, batch)
+    check_batch(nets.cfg, batch)
     p, critic = _with_critic(nets, params, ("policy",), critic)
     action = nw.td3_action(nets, p, batch.obs)
     loss = -jnp.mean(critic(p, batch.obs, action)[:, 0])
@@ -218,8 +256,9 @@ def sac_critic_loss(nets: nw.Networks, params: nw.Params, batch: Batch, noise, *
     loss = ½ mean_{b,j}(m_b(Q_j(s, a) − sg(y)))². Q = `critic` (default: SF²'s Q(ψ), trains Q and ψ).
     aux: q, target_q."""
     cfg = nets.cfg
-    b = _check_batch(nets, batch)
-    _check_noise(nets, "noise", noise, b, cfg.action_size, "action_size")
+    _require_sac(nets)
+    b = check_batch(cfg, batch)
+    check_noise("noise", noise, b, cfg.action_size, "action_size")
     p, critic = _with_critic(nets, params, ("psi", "q"), critic)
     alpha = sg(jnp.exp(p["log_alpha"]))
     next_action, next_log_prob = nw.sac_sample(nets, p, batch.next_obs, noise)
@@ -233,8 +272,9 @@ def sac_actor_loss(nets: nw.Networks, params: nw.Params, batch: Batch, noise, *,
     """SAC actor (Algorithm 3): a ~ π(s) with ξ = `noise`; loss = mean_b(α log π(a|s) − min_j Q_j(s, a)),
     α constant. Trains the policy only. aux: entropy (−mean log π)."""
     cfg = nets.cfg
-    b = _check_batch(nets, batch)
-    _check_noise(nets, "noise", noise, b, cfg.action_size, "action_size")
+    _require_sac(nets)
+    b = check_batch(cfg, batch)
+    check_noise("noise", noise, b, cfg.action_size, "action_size")
     p, critic = _with_critic(nets, params, ("policy",), critic)
     alpha = sg(jnp.exp(p["log_alpha"]))
     action, log_prob = nw.sac_sample(nets, p, batch.obs, noise)
@@ -247,8 +287,9 @@ def sac_alpha_loss(nets: nw.Networks, params: nw.Params, batch: Batch, noise):
     target_entropy = −target_entropy_scale·A, a ~ π(s) with ξ = `noise`. Trains log_alpha only.
     aux: alpha."""
     cfg = nets.cfg
-    b = _check_batch(nets, batch)
-    _check_noise(nets, "noise", noise, b, cfg.action_size, "action_size")
+    _require_sac(nets)
+    b = check_batch(cfg, batch)
+    check_noise("noise", noise, b, cfg.action_size, "action_size")
     p = _trainable(params, ("log_alpha",))
     _, log_prob = nw.sac_sample(nets, p, batch.obs, noise)
     target_entropy = -cfg.target_entropy_scale * cfg.action_size
@@ -260,4 +301,13 @@ def sac_alpha_loss(nets: nw.Networks, params: nw.Params, batch: Batch, noise):
 # ------------------------------------------------------------------------------------------------ EMA
 def ema_update(target, online, tau):
     """Target-network EMA (paper §3.4): target ← (1 − τ)·target + τ·online, leaf by leaf."""
+    if isinstance(tau, numbers.Real) and not 0.0 <= float(tau) <= 1.0:
+        raise ConfigError(f"tau={tau!r} is invalid: must satisfy 0 <= tau <= 1")
+    t, o = jax.tree_util.tree_leaves(target), jax.tree_util.tree_leaves(online)
+    if (jax.tree_util.tree_structure(target) != jax.tree_util.tree_structure(online)
+            or any(jnp.shape(a) != jnp.shape(b) for a, b in zip(t, o))):
+        raise ShapeError(
+            "ema_update needs target and online of the same architecture, found parameter shapes "
+            f"{[tuple(jnp.shape(a)) for a in t]} and {[tuple(jnp.shape(b)) for b in o]}"
+        )
     return jax.tree_util.tree_map(lambda t, o: (1 - tau) * t + tau * o, target, online)

@@ -25,10 +25,10 @@ from sf2_common.embedding import EMBEDDING_K_GRID, embedding_turns
 from sf2_common.errors import ConfigError, ShapeError
 
 __all__ = [
-    "ALGOS", "MLP", "TwinQ", "Networks", "make_networks", "init_params", "init_normalizer",
+    "ALGOS", "LAYER_NORM_EPS", "MLP", "TwinQ", "Networks", "make_networks", "init_params", "init_normalizer",
     "normalize", "update_normalizer", "flow_time_embedding", "psi", "zeta", "zeta_hidden",
     "zeta_last_layer", "velocity", "contract", "velocity_contracted", "q_values", "td3_action",
-    "sac_distribution", "sac_sample", "sac_mode",
+    "sac_distribution", "sac_sample", "sac_mode", "check_last",
 ]
 
 ALGOS = ("td3", "sac")
@@ -103,9 +103,9 @@ def make_networks(cfg: SF2Config, algo: str) -> Networks:
     """ψ: MLP(hidden_sizes → F); ζ: MLP(zeta_hidden_sizes → F·D); Q: twin heads; policy: MLP(hidden_sizes →
     A (TD3) or 2A (SAC)). `algo` ∈ {"td3", "sac"}."""
     if not isinstance(cfg, SF2Config):
-        raise ConfigError(f"make_networks needs an SF2Config, got {type(cfg).__name__}")
+        raise ConfigError(f"cfg must be an SF2Config, found {type(cfg).__name__}")
     if algo not in ALGOS:
-        raise ConfigError(f"algo = {algo!r} is invalid: must be one of {ALGOS}")
+        raise ConfigError(f"algo={algo!r} is invalid: must be one of {', '.join(repr(a) for a in ALGOS)}")
     ln = cfg.layer_norm
     policy_out = cfg.action_size if algo == "td3" else 2 * cfg.action_size
     return Networks(
@@ -168,7 +168,18 @@ def _default_dtype(dtype):
 
 
 # ------------------------------------------------------------------------------------------ shape checks
-def _check_last(name: str, x, expected: int, what: str):
+def check_last(name: str, x, expected: int, what: str) -> None:
+    """Check the last dimension of an input on its static shape (free under `jax.jit`).
+
+    Args:
+      name: the argument's name, for the message.
+      x: the array.
+      expected: its last dimension.
+      what: the config field `expected` is, for the message ("obs_size", "action_size", ...).
+
+    Raises:
+      ShapeError: `x` is a scalar or its last dimension differs, naming both sizes.
+    """
     shape = jnp.shape(x)
     if len(shape) == 0 or shape[-1] != expected:
         found = shape[-1] if len(shape) else "a scalar"
@@ -200,14 +211,14 @@ def _group(nets: Networks, params: Params, name: str, target: bool) -> Params:
 # ------------------------------------------------------------------------------------------ normalizer
 def normalize(obs, stats: Params):
     """(obs − mean) / std with the running statistics `stats` (Brax running_statistics)."""
-    _check_last("obs", obs, jnp.shape(stats["mean"])[-1], "obs_size")
+    check_last("obs", obs, jnp.shape(stats["mean"])[-1], "obs_size")
     return (obs - stats["mean"]) / stats["std"]
 
 
 def update_normalizer(stats: Params, obs_batch, cfg: SF2Config) -> Params:
     """Brax's running-statistics update: Welford over a batch (every leading dim is a batch dim),
     std = clip(√(summed_var / count), normalizer_std_min, normalizer_std_max)."""
-    _check_last("obs_batch", obs_batch, cfg.obs_size, "obs_size")
+    check_last("obs_batch", obs_batch, cfg.obs_size, "obs_size")
     batch = jnp.reshape(obs_batch, (-1, cfg.obs_size))
     count = stats["count"] + batch.shape[0]
     diff_to_old_mean = batch - stats["mean"]
@@ -232,8 +243,8 @@ def flow_time_embedding(k, size: int):
     phase is 2π·t, |t| <= ~1. k_hi·G_hi and its fractional part are exact in float32, so the float32 phase
     is accurate to ~1e-6 rad (5e-4 rad when 10⁴·k·ω_i was formed directly: one ulp of a float32 phase
     near 10⁴), and no reassociation or fused multiply-add changes that."""
-    if size % 2:
-        raise ConfigError(f"embedding size = {size} is invalid: must be even")
+    if size < 2 or size % 2:
+        raise ConfigError(f"embedding size={size!r} is invalid: must be an even integer >= 2")
     k = jnp.asarray(k)
     if not jnp.issubdtype(k.dtype, jnp.floating):
         k = k.astype(jnp.result_type(float))
@@ -249,15 +260,15 @@ def flow_time_embedding(k, size: int):
 def psi(nets: Networks, params: Params, obs, action, target: bool = False):
     """ψ(s, a) (B, F) on concat[normalize(s), a] (Definition 3.1); `target=True` uses ψ̄."""
     cfg = nets.cfg
-    _check_last("obs", obs, cfg.obs_size, "obs_size")
-    _check_last("action", action, cfg.action_size, "action_size")
+    check_last("obs", obs, cfg.obs_size, "obs_size")
+    check_last("action", action, cfg.action_size, "action_size")
     x = jnp.concatenate([normalize(obs, params["obs_norm"]), action], axis=-1)
     return nets.psi.apply({"params": _group(nets, params, "psi", target)}, x)
 
 
 def _zeta_input(nets: Networks, x, k):
     cfg = nets.cfg
-    _check_last("x", x, cfg.obs_size, "obs_size")
+    check_last("x", x, cfg.obs_size, "obs_size")
     x, k = jnp.asarray(x), jnp.asarray(k)
     if k.ndim == 0:
         k = jnp.broadcast_to(k, x.shape[:-1])
@@ -288,7 +299,7 @@ def zeta_last_layer(nets: Networks, params: Params, target: bool = False):
 
 def velocity(nets: Networks, params: Params, x, k, features, target: bool = False):
     """Plain velocity u_d = Σ_f ζ(x, k)_{d f} ψ_f (Definition 3.1), shape (B, D). Materializes ζ."""
-    _check_last("features", features, nets.cfg.feature_size, "feature_size")
+    check_last("features", features, nets.cfg.feature_size, "feature_size")
     return jnp.einsum("...df,...f->...d", zeta(nets, params, x, k, target), features)
 
 
@@ -301,7 +312,7 @@ def contract(nets: Networks, params: Params, features, target: bool = False):
     as (B, D·H) and every evaluation of `velocity_contracted` reduces over M's minor axis with no
     per-evaluation re-layout of M (docs/decisions/flow-loss-layout.md)."""
     cfg = nets.cfg
-    _check_last("features", features, cfg.feature_size, "feature_size")
+    check_last("features", features, cfg.feature_size, "feature_size")
     W, b = zeta_last_layer(nets, params, target)
     W_t = jnp.transpose(W.reshape(W.shape[0], cfg.obs_size, cfg.feature_size), (1, 0, 2))  # (D, H, F)
     b = b.reshape(cfg.obs_size, cfg.feature_size)
@@ -312,28 +323,31 @@ def velocity_contracted(nets: Networks, params: Params, x, k, M, c, target: bool
     """Fast velocity u = einsum('bh,bdh->bd', h(x, k), M) + c with (M, c) from `contract`; equal to
     `velocity` (u is linear in ζ's last layer)."""
     h = zeta_hidden(nets, params, x, k, target)
-    if jnp.shape(M) != (*jnp.shape(h)[:-1], nets.cfg.obs_size, jnp.shape(h)[-1]):
-        raise ShapeError(f"M: expected shape {(*jnp.shape(h)[:-1], nets.cfg.obs_size, jnp.shape(h)[-1])} "
-                         f"(B, D, H) from `contract`, found {tuple(jnp.shape(M))}")
+    x_shape = tuple(jnp.shape(x))
+    if tuple(jnp.shape(M)) != (*x_shape, jnp.shape(h)[-1]) or tuple(jnp.shape(c)) != x_shape:
+        raise ShapeError(
+            f"contracted (M, c) must have shapes {(*x_shape, jnp.shape(h)[-1])} (B, D, H) and {x_shape}, "
+            f"found {tuple(jnp.shape(M))} and {tuple(jnp.shape(c))}"
+        )
     return jnp.einsum("bh,bdh->bd", h, M) + c
 
 
 # ------------------------------------------------------------------------------------------ Q and policies
 def q_values(nets: Networks, params: Params, features, target: bool = False):
     """Twin Q(ψ) (B, 2): column j is head_j (Appendix D)."""
-    _check_last("features", features, nets.cfg.feature_size, "feature_size")
+    check_last("features", features, nets.cfg.feature_size, "feature_size")
     return nets.q.apply({"params": _group(nets, params, "q", target)}, features)
 
 
 def _require(nets: Networks, algo: str, fn: str):
     if nets.algo != algo:
-        raise ConfigError(f"{fn} needs networks made with algo={algo!r}, these have algo={nets.algo!r}")
+        raise ConfigError(f"{fn} needs networks built with algo={algo!r}, found algo={nets.algo!r}")
 
 
 def td3_action(nets: Networks, params: Params, obs, target: bool = False):
     """TD3 deterministic policy tanh(MLP(normalize(s))) (B, A); `target=True` uses the target policy."""
     _require(nets, "td3", "td3_action")
-    _check_last("obs", obs, nets.cfg.obs_size, "obs_size")
+    check_last("obs", obs, nets.cfg.obs_size, "obs_size")
     out = nets.policy.apply({"params": _group(nets, params, "policy", target)},
                             normalize(obs, params["obs_norm"]))
     return jnp.tanh(out)
@@ -343,7 +357,7 @@ def sac_distribution(nets: Networks, params: Params, obs):
     """SAC pre-tanh Gaussian: loc = out[:, :A], σ = softplus(out[:, A:]) + min_std."""
     _require(nets, "sac", "sac_distribution")
     cfg = nets.cfg
-    _check_last("obs", obs, cfg.obs_size, "obs_size")
+    check_last("obs", obs, cfg.obs_size, "obs_size")
     out = nets.policy.apply({"params": params["policy"]}, normalize(obs, params["obs_norm"]))
     A = cfg.action_size
     return out[..., :A], jax.nn.softplus(out[..., A:]) + cfg.min_std
@@ -353,7 +367,8 @@ def sac_sample(nets: Networks, params: Params, obs, noise):
     """Tanh-Gaussian sample with explicit standard-normal ξ (B, A): u = loc + σξ, a = tanh(u),
     log π(a|s) = Σ_i[−½ξ_i² − log σ_i − ½ log 2π] − Σ_i 2(log 2 − u_i − softplus(−2u_i)).
     Returns (action (B, A), log_prob (B,))."""
-    _check_last("noise", noise, nets.cfg.action_size, "action_size")
+    _require(nets, "sac", "sac_sample")
+    check_last("noise", noise, nets.cfg.action_size, "action_size")
     loc, std = sac_distribution(nets, params, obs)
     _check_batch_dims("noise", noise, loc.shape, "the policy output")
     u = loc + std * noise

@@ -46,7 +46,8 @@ from .networks import (
 
 __all__ = [
     "Batch", "Critic", "sf2_critic", "flow_loss", "explicit_mixture_loss", "td3_critic_loss",
-    "td3_actor_loss", "sac_critic_loss", "sac_actor_loss", "sac_alpha_loss", "ema_update",
+    "td3_actor_loss", "sac_critic_loss", "sac_actor_loss", "sac_alpha_loss", "ema_update", "check_batch",
+    "check_noise",
 ]
 
 Critic = Callable[..., torch.Tensor]  # critic(obs, action, target=False) -> (B, 2)
@@ -70,20 +71,44 @@ def _check_same(name: str, tensor: torch.Tensor, shape: tuple[int, ...], what: s
         raise ShapeError(f"{name} must have shape {tuple(shape)} ({what}), found {tuple(tensor.shape)}")
 
 
-def _check_batch(nets: Networks, batch: Batch) -> int:
-    cfg = nets.cfg
+def check_batch(cfg, batch: Batch) -> tuple[int]:
+    """Check a 2-D batch against a config's sizes, on shapes only (no host synchronization).
+
+    Args:
+      cfg: the `SF2Config` (its `obs_size` and `action_size`).
+      batch: the transitions; obs and next_obs (B, D), action (B, A), reward, discount, truncation (B,).
+
+    Returns:
+      The batch shape (B,).
+
+    Raises:
+      ShapeError: a field's shape differs, naming the field, the expected and the found shape.
+    """
     if batch.obs.ndim != 2 or batch.obs.shape[-1] != cfg.obs_size:
-        raise ShapeError(f"batch.obs must have shape (B, {cfg.obs_size}), found {tuple(batch.obs.shape)}")
+        raise ShapeError(f"batch.obs must have shape (B, {cfg.obs_size}), found {tuple(batch.obs.shape)} "
+                         f"(a 2-D batch)")
     b = batch.obs.shape[0]
     _check_same("batch.action", batch.action, (b, cfg.action_size), "(B, action_size)")
     _check_same("batch.next_obs", batch.next_obs, (b, cfg.obs_size), "(B, obs_size)")
     for name in ("reward", "discount", "truncation"):
         _check_same(f"batch.{name}", getattr(batch, name), (b,), "(B,)")
-    return b
+    return (b,)
 
 
-def _check_action_noise(nets: Networks, name: str, x: torch.Tensor, b: int) -> None:
-    _check_same(name, x, (b, nets.cfg.action_size), "(B, action_size)")
+def check_noise(name: str, x: torch.Tensor, batch_shape: tuple, size: int, what: str) -> None:
+    """Check an explicit noise (or another per-sample input) of shape (B, size), on shapes only.
+
+    Args:
+      name: the argument's name, for the message.
+      x: the tensor.
+      batch_shape: (B,), the batch's (`check_batch`).
+      size: its last dimension.
+      what: the config field `size` is, for the message ("action_size", "obs_size").
+
+    Raises:
+      ShapeError: `x` is not of shape (*batch_shape, size), naming both.
+    """
+    _check_same(name, x, (*batch_shape, size), f"(B, {what})")
 
 
 def _sq_norm(x: torch.Tensor) -> torch.Tensor:
@@ -127,10 +152,11 @@ def flow_loss(
     Returns (loss, {"loss_p": mean_b m_b ℓ_P, "loss_boot": mean_b m_b ℓ_B}).
     """
     cfg = nets.cfg
-    b = _check_batch(nets, batch)
-    _check_same("next_action", next_action, (b, cfg.action_size), "(B, action_size)")
-    _check_same("eps", eps, (b, cfg.obs_size), "(B, obs_size)")
-    _check_same("flow_time", flow_time, (b,), "(B,)")
+    bs = check_batch(cfg, batch)
+    check_noise("next_action", next_action, bs, cfg.action_size, "action_size")
+    check_noise("eps", eps, bs, cfg.obs_size, "obs_size")
+    _check_same("flow_time", flow_time, bs, "(B,)")
+    (b,) = bs
     next_action = next_action.detach()
 
     next_obs_n = normalize(batch.next_obs, nets.obs_norm)
@@ -224,8 +250,8 @@ def td3_critic_loss(
     aux: q (mean Q), target_q (mean y)."""
     cfg = nets.cfg
     critic = critic or sf2_critic(nets)
-    b = _check_batch(nets, batch)
-    _check_action_noise(nets, "smoothing", smoothing, b)
+    b = check_batch(cfg, batch)
+    check_noise("smoothing", smoothing, b, cfg.action_size, "action_size")
     with torch.no_grad():
         noise = torch.clamp(cfg.smoothing_noise * smoothing, -cfg.noise_clip, cfg.noise_clip)
         next_action = torch.clamp(td3_action(nets, batch.next_obs, target=True) + noise, -1.0, 1.0)
@@ -240,7 +266,7 @@ def td3_actor_loss(
     `dpg_loss`, which the authors call, has the same gradient for A = 1 and 1/A of it otherwise:
     docs/core-contract.md). Trains the policy only. aux: q (mean Q_0)."""
     critic = critic or sf2_critic(nets)
-    _check_batch(nets, batch)
+    check_batch(nets.cfg, batch)
     action = td3_action(nets, batch.obs)
     loss = -torch.mean(_q(critic, batch, batch.obs, action)[:, 0])
     return loss, {"q": -loss.detach()}
@@ -264,8 +290,8 @@ def sac_critic_loss(
     cfg = nets.cfg
     critic = critic or sf2_critic(nets)
     alpha = _alpha(nets)
-    b = _check_batch(nets, batch)
-    _check_action_noise(nets, "noise", noise, b)
+    b = check_batch(nets.cfg, batch)
+    check_noise("noise", noise, b, nets.cfg.action_size, "action_size")
     with torch.no_grad():
         next_action, next_log_prob = sac_sample(nets, batch.next_obs, noise)
         next_log_prob = next_log_prob.to(batch.obs.dtype)
@@ -281,8 +307,8 @@ def sac_actor_loss(
     α constant. Trains the policy only. aux: entropy (−mean log π)."""
     critic = critic or sf2_critic(nets)
     alpha = _alpha(nets)
-    b = _check_batch(nets, batch)
-    _check_action_noise(nets, "noise", noise, b)
+    b = check_batch(nets.cfg, batch)
+    check_noise("noise", noise, b, nets.cfg.action_size, "action_size")
     action, log_prob = sac_sample(nets, batch.obs, noise)
     log_prob = log_prob.to(batch.obs.dtype)
     loss = torch.mean(alpha * log_prob - _q(critic, batch, batch.obs, action).min(-1).values)
@@ -297,8 +323,8 @@ def sac_alpha_loss(
     aux: alpha."""
     cfg = nets.cfg
     _alpha(nets)
-    b = _check_batch(nets, batch)
-    _check_action_noise(nets, "noise", noise, b)
+    b = check_batch(nets.cfg, batch)
+    check_noise("noise", noise, b, nets.cfg.action_size, "action_size")
     with torch.no_grad():
         _, log_prob = sac_sample(nets, batch.obs, noise)
         log_prob = log_prob.to(batch.obs.dtype)

@@ -61,6 +61,7 @@ __all__ = [
     "sac_mode",
     "zeta_last_layer",
     "init_normalizer",
+    "check_last",
 ]
 
 ALGOS = ("td3", "sac")
@@ -70,7 +71,18 @@ _LOG_2 = math.log(2.0)
 
 
 # ----------------------------------------------------------------------------------------------- checks
-def _check_last(name: str, tensor: torch.Tensor, size: int, what: str) -> None:
+def check_last(name: str, tensor: torch.Tensor, size: int, what: str) -> None:
+    """Check the last dimension of an input on its shape (no host synchronization).
+
+    Args:
+      name: the argument's name, for the message.
+      tensor: the tensor.
+      size: its last dimension.
+      what: the config field `size` is, for the message ("obs_size", "action_size", ...).
+
+    Raises:
+      ShapeError: `tensor` is a scalar or its last dimension differs, naming both sizes.
+    """
     if tensor.ndim < 1 or tensor.shape[-1] != size:
         found = tuple(tensor.shape)
         last = found[-1] if found else "none (a scalar)"
@@ -180,8 +192,8 @@ class Psi(MLP):
         self.obs_size, self.action_size = cfg.obs_size, cfg.action_size
 
     def forward(self, obs_normalized: torch.Tensor, action: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
-        _check_last("obs", obs_normalized, self.obs_size, "obs_size")
-        _check_last("action", action, self.action_size, "action_size")
+        check_last("obs", obs_normalized, self.obs_size, "obs_size")
+        check_last("action", action, self.action_size, "action_size")
         _check_batch("action", action, "obs", obs_normalized)
         return super().forward(torch.cat([obs_normalized, action], dim=-1))
 
@@ -208,7 +220,7 @@ class Zeta(MLP):
         )
 
     def hidden(self, x: torch.Tensor, k: torch.Tensor | float) -> torch.Tensor:
-        _check_last("x", x, self.obs_size, "obs_size")
+        check_last("x", x, self.obs_size, "obs_size")
         k = _flow_time_column(k, x)
         return self.trunk(torch.cat([x, flow_time_embedding(k, self.embedding_size)], dim=-1))
 
@@ -275,7 +287,7 @@ class TwinQ(nn.Module):
         self.head_1 = QHead(cfg, **kw)
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
-        _check_last("features", features, self.feature_size, "feature_size")
+        check_last("features", features, self.feature_size, "feature_size")
         return twin_heads(self.head_0, self.head_1, features)
 
 
@@ -287,7 +299,7 @@ class TD3Policy(MLP):
         self.obs_size = cfg.obs_size
 
     def forward(self, obs_normalized: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
-        _check_last("obs", obs_normalized, self.obs_size, "obs_size")
+        check_last("obs", obs_normalized, self.obs_size, "obs_size")
         return torch.tanh(super().forward(obs_normalized))
 
 
@@ -304,14 +316,14 @@ class SACPolicy(MLP):
 
     def forward(self, obs_normalized: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:  # type: ignore[override]
         """(loc, σ), each (B, A)."""
-        _check_last("obs", obs_normalized, self.obs_size, "obs_size")
+        check_last("obs", obs_normalized, self.obs_size, "obs_size")
         out = super().forward(obs_normalized)
         loc, pre_std = out[..., : self.action_size], out[..., self.action_size :]
         return loc, F.softplus(pre_std) + self.min_std
 
     def sample(self, obs_normalized: torch.Tensor, noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(action (B, A), log π(action|s) (B,)) for explicit standard-normal `noise` ξ (B, A)."""
-        _check_last("noise", noise, self.action_size, "action_size")
+        check_last("noise", noise, self.action_size, "action_size")
         _check_batch("noise", noise, "obs", obs_normalized)
         loc, std = self(obs_normalized)
         u = loc + std * noise
@@ -503,12 +515,12 @@ def _stats_of(stats) -> Mapping[str, torch.Tensor]:
 def normalize(obs: torch.Tensor, stats) -> torch.Tensor:
     """(obs − mean) / std with `stats` an `ObsNormalizer` (or a mapping with `mean` and `std`)."""
     s = _stats_of(stats)
-    _check_last("obs", obs, s["mean"].shape[-1], "obs_size")
+    check_last("obs", obs, s["mean"].shape[-1], "obs_size")
     return (obs - s["mean"]) / s["std"]
 
 
 def _running_update(stats, obs_batch, obs_size, std_min, std_max) -> dict[str, torch.Tensor]:
-    _check_last("obs_batch", obs_batch, obs_size, "obs_size")
+    check_last("obs_batch", obs_batch, obs_size, "obs_size")
     x = obs_batch.reshape(-1, obs_size).to(stats["mean"].dtype)
     if x.shape[0] == 0:
         return dict(stats)
@@ -541,8 +553,8 @@ def update_normalizer(stats, obs_batch: torch.Tensor, cfg: SF2Config):
 
 def psi(nets: Networks, obs: torch.Tensor, action: torch.Tensor, target: bool = False) -> torch.Tensor:
     """ψ(s, a) (B, F) on raw observations (normalized here with `nets.obs_norm`); `target` uses ψ̄."""
-    _check_last("obs", obs, nets.cfg.obs_size, "obs_size")
-    _check_last("action", action, nets.cfg.action_size, "action_size")
+    check_last("obs", obs, nets.cfg.obs_size, "obs_size")
+    check_last("action", action, nets.cfg.action_size, "action_size")
     net = nets.target_psi if target else nets.psi
     return net(normalize(obs, nets.obs_norm), action)
 
@@ -567,7 +579,7 @@ def velocity(
     nets: Networks, x: torch.Tensor, k: torch.Tensor, features: torch.Tensor, target: bool = False
 ) -> torch.Tensor:
     """Plain velocity u_d = Σ_f ζ(x, k)_{d f} ψ_f (Definition 3.1), (B, D). Materializes ζ (B, D, F)."""
-    _check_last("features", features, nets.cfg.feature_size, "feature_size")
+    check_last("features", features, nets.cfg.feature_size, "feature_size")
     return torch.einsum("bdf,bf->bd", zeta(nets, x, k, target), features)
 
 
@@ -583,7 +595,7 @@ def contract(
     `velocity_contracted` reduces over M's minor axis. Compute once per (ζ parameters, ψ) pair and reuse
     for every evaluation at new (x, k).
     """
-    _check_last("features", features, nets.cfg.feature_size, "feature_size")
+    check_last("features", features, nets.cfg.feature_size, "feature_size")
     w, b = (nets.target_zeta if target else nets.zeta).last_dense()  # (D, F, H), (D, F)
     d, h = w.shape[0], w.shape[-1]
     w_t = w.transpose(1, 2).reshape(d * h, w.shape[1])  # (D·H, F), a copy
@@ -624,7 +636,7 @@ def _require(nets: Networks, algo: str, fn: str) -> None:
 def td3_action(nets: Networks, obs: torch.Tensor, target: bool = False) -> torch.Tensor:
     """TD3 policy action tanh(MLP(normalized s)) (B, A); `target` uses the target policy."""
     _require(nets, "td3", "td3_action")
-    _check_last("obs", obs, nets.cfg.obs_size, "obs_size")
+    check_last("obs", obs, nets.cfg.obs_size, "obs_size")
     return (nets.target_policy if target else nets.policy)(normalize(obs, nets.obs_norm))
 
 
@@ -633,14 +645,14 @@ def sac_sample(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """(action (B, A), log π(action|s) (B,)) from the online SAC policy with explicit noise ξ (B, A)."""
     _require(nets, "sac", "sac_sample")
-    _check_last("obs", obs, nets.cfg.obs_size, "obs_size")
+    check_last("obs", obs, nets.cfg.obs_size, "obs_size")
     return nets.policy.sample(normalize(obs, nets.obs_norm), noise)
 
 
 def sac_distribution(nets: Networks, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """SAC pre-tanh Gaussian (loc, σ), each (B, A): loc = out[:, :A], σ = softplus(out[:, A:]) + min_std."""
     _require(nets, "sac", "sac_distribution")
-    _check_last("obs", obs, nets.cfg.obs_size, "obs_size")
+    check_last("obs", obs, nets.cfg.obs_size, "obs_size")
     return nets.policy(normalize(obs, nets.obs_norm))
 
 

@@ -1,5 +1,5 @@
-"""Pieces every baseline shares (PyTorch): shape checks, L2 normalization, target copies, the modules
-shared with the core agent.
+"""Pieces every baseline shares (PyTorch): the core's shape checks, L2 normalization, target copies, the
+modules shared with the core agent.
 
 The baselines' TD3 and SAC losses are the core's (`sf2_torch.losses.td3_critic_loss`, ..., paper
 Appendix D, Algorithms 2–3) with `critic=` the baseline's critic (`sim.critic`, `spr.critic`, or a
@@ -11,14 +11,17 @@ from __future__ import annotations
 
 import torch
 from sf2_common.config import SF2Config
-from sf2_common.errors import ConfigError, ShapeError
+from sf2_common.errors import ConfigError
 from sf2_torch import networks as core_nw
-from sf2_torch.losses import Batch
+from sf2_torch.losses import check_batch, check_noise
+from sf2_torch.networks import check_last
 from torch import nn
 
 __all__ = ["NORM_EPS", "l2_normalize", "frozen_copy", "init_core", "share_core", "check_last", "check_batch",
            "check_noise"]
 
+# check_last, check_batch, check_noise: the core's public shape checks (`sf2_torch.networks`,
+# `sf2_torch.losses`), the same the core's losses run, re-exported for the baselines' modules
 NORM_EPS = 1e-8
 
 
@@ -69,44 +72,3 @@ def share_core(nets: nn.Module, core: nn.Module | None) -> nn.Module:
     else:
         nets.log_alpha = core.log_alpha
     return nets
-
-
-# ------------------------------------------------------------------------------------------ checks
-def check_last(name: str, x: torch.Tensor, expected: int, what: str) -> None:
-    shape = tuple(x.shape)
-    if not shape or shape[-1] != expected:
-        found = shape[-1] if shape else "a scalar"
-        raise ShapeError(
-            f"{name}: expected last dimension {expected} ({what}), found {found} (shape {shape})"
-        )
-
-
-def check_batch(cfg, batch: Batch) -> tuple[int]:
-    """Validate a 2-D `Batch` against the config; returns the batch shape (B,)."""
-    check_last("batch.obs", batch.obs, cfg.obs_size, "obs_size")
-    if batch.obs.ndim != 2:
-        raise ShapeError(f"batch.obs: expected shape (B, {cfg.obs_size}) (a 2-D batch), found shape "
-                         f"{tuple(batch.obs.shape)}")
-    check_last("batch.next_obs", batch.next_obs, cfg.obs_size, "obs_size")
-    check_last("batch.action", batch.action, cfg.action_size, "action_size")
-    b = tuple(batch.obs.shape[:-1])
-    for name in ("next_obs", "action"):
-        found = tuple(getattr(batch, name).shape[:-1])
-        if found != b:
-            raise ShapeError(f"batch.{name}: expected batch shape {b} (that of batch.obs), found {found}")
-    for name in ("reward", "discount", "truncation"):
-        found = tuple(getattr(batch, name).shape)
-        if found != b:
-            raise ShapeError(
-                f"batch.{name}: expected shape {b} (the batch shape of batch.obs), found {found}"
-            )
-    return b
-
-
-def check_noise(name: str, x: torch.Tensor, batch_shape, size: int, what: str) -> None:
-    check_last(name, x, size, what)
-    found = tuple(x.shape[:-1])
-    if found != tuple(batch_shape):
-        raise ShapeError(
-            f"{name}: expected batch shape {tuple(batch_shape)} (that of batch.obs), found {found}"
-        )
