@@ -15,7 +15,7 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 _MISSING = [m for m in ("brax", "mujoco_playground", "orbax.checkpoint", "matplotlib", "tqdm")
             if importlib.util.find_spec(m.split(".")[0]) is None]
 if _MISSING:  # test_algorithms.py needs only jax, flax and optax
-    collect_ignore_glob = ["test_inputs.py", "test_training.py", "test_learning.py"]
+    collect_ignore_glob = ["test_inputs.py", "test_contract.py", "test_training.py", "test_learning.py"]
 
 import pytest  # noqa: E402
 
@@ -46,6 +46,15 @@ def float32_jax():
 
     with jax.enable_x64(False):
         yield
+
+
+@pytest.fixture(scope="session")
+def agent_core():
+    """The JAX agents, for the contract tests of `sf2_common.contract` (test_contract.py)."""
+    from sf2_common.contract import AgentCore
+    from sf2_jax.agents import configs, envs, representations, trainer
+
+    return AgentCore("jax", configs, trainer, envs, representations)
 
 
 @pytest.fixture(scope="session")

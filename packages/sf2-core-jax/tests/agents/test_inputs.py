@@ -1,20 +1,17 @@
-"""Bad input gets a clear error (exit status 2 from the CLI) before anything is compiled; presets,
-overrides and seeds parse as documented."""
+"""Bad input gets a clear error (exit status 2 from the CLI) before anything is compiled. The same contract
+through the API (bad input, presets, seeds, the schedule) is `sf2_common.contract` (test_contract.py)."""
 
 from __future__ import annotations
 
 import pytest
-from sf2_common.agents import configs
-from sf2_common.errors import ConfigError
 from sf2_common.testing import (
     BAD_TRAIN_INPUTS,
     check_baselines_resolve,
     check_cli_misuse,
-    check_paper_preset,
     cli_error,
 )
 from sf2_jax import cli
-from sf2_jax.agents import envs, representations, trainer
+from sf2_jax.agents import representations, trainer
 
 
 @pytest.fixture(autouse=True)
@@ -54,31 +51,6 @@ def test_baseline_representations_resolve(reprs):
 
 def test_cli_misuse(capsys, tmp_path):
     check_cli_misuse(cli.main, capsys, tmp_path)
-
-
-def test_presets():
-    check_paper_preset(configs.make_config, envs)
-    quick = configs.make_config("quick", "CartpoleBalance", overrides={"hidden_sizes": "64,64",
-                                                                       "deterministic_eval": "false"})
-    assert quick.hidden_sizes == (64, 64) and quick.deterministic_eval is False
-    assert cli.backend().validate(quick, "0-3") is quick   # against the JAX agents' representations
-    sf2 = quick.sf2_config(5, 1)
-    for name in configs.SF2_FIELDS:
-        assert getattr(sf2, name) == getattr(quick, name)
-
-
-def test_schedule_and_seeds():
-    cfg = configs.make_config("quick", "CartpoleBalance")
-    s = configs.schedule(cfg)
-    assert s.prefill_env_steps >= cfg.min_replay_size and s.total_env_steps >= cfg.num_timesteps
-    assert s.total_env_steps - cfg.num_timesteps < s.num_epochs * s.env_steps_per_actor_step
-    assert s.env_steps_after(s.num_epochs) == s.total_env_steps
-    assert s.grad_steps_before(s.prefill_actor_steps + 3) == 3 and s.grad_steps_before(1) == 0
-    assert configs.parse_seeds("0-3") == (0, 1, 2, 3)
-    assert configs.parse_seeds("0-2,9") == (0, 1, 2, 9)
-    assert configs.parse_seeds(7) == (7,)
-    with pytest.raises(ConfigError):
-        configs.parse_seeds("-1")
 
 
 def test_cli_tasks_lists_paper_tasks(capsys):

@@ -69,6 +69,15 @@ TINY = dict(
 
 
 @pytest.fixture(scope="session")
+def agent_core():
+    """The torch agents, for the contract tests of `sf2_common.contract` (test_contract.py)."""
+    from sf2_common.contract import AgentCore
+    from sf2_torch.agents import configs, envs, representations, trainer
+
+    return AgentCore("torch", configs, trainer, envs, representations, own_fields=configs.TORCH_FIELDS)
+
+
+@pytest.fixture(scope="session")
 def tiny_cfg():
     """Seconds per run: 4 envs, 60-step episodes, 16-wide networks; 3 epochs of 12 actor steps, the
     first 8 of them the prefill; 2 SGD steps per actor step (8, 24, 24 SGD steps per epoch). The same

@@ -1,5 +1,6 @@
-"""Bad input gets a clear error (exit status 2 from the CLI) before anything is built; presets, overrides
-and seeds parse as documented; `sf2-torch` takes the same configs and flags as `sf2-jax`."""
+"""Bad input gets a clear error (exit status 2 from the CLI) before anything is built; `sf2-torch` takes the
+same flags as `sf2-jax`; the torch-only fields. The same contract through the API (bad input, presets,
+seeds, the schedule, configs equal across frameworks) is `sf2_common.contract`, run by test_contract.py."""
 
 from __future__ import annotations
 
@@ -7,17 +8,14 @@ import dataclasses
 import importlib.util
 
 import pytest
-from sf2_common.agents import configs as common_configs
-from sf2_common.errors import ConfigError
 from sf2_common.testing import (
     BAD_TRAIN_INPUTS,
     check_baselines_resolve,
     check_cli_misuse,
-    check_paper_preset,
     cli_error,
 )
 from sf2_torch import cli
-from sf2_torch.agents import configs, envs, representations, trainer
+from sf2_torch.agents import configs, representations, trainer
 
 
 @pytest.fixture(autouse=True)
@@ -76,16 +74,9 @@ def test_cli_misuse(capsys, tmp_path):
     check_cli_misuse(cli.main, capsys, tmp_path)
 
 
-def test_presets():
-    paper = check_paper_preset(configs.make_config, envs)
+def test_presets_torch_fields():
+    paper = configs.make_config("paper", "PendulumSwingup", "sac", "sf2")
     assert (paper.device, paper.compile, paper.cudagraphs) == ("auto", "auto", "auto")
-    quick = configs.make_config("quick", "CartpoleBalance", overrides={"hidden_sizes": "64,64",
-                                                                       "deterministic_eval": "false"})
-    assert quick.hidden_sizes == (64, 64) and quick.deterministic_eval is False
-    configs.validate(quick, "0-3")
-    sf2 = quick.sf2_config(5, 1)
-    for name in common_configs.SF2_FIELDS:
-        assert getattr(sf2, name) == getattr(quick, name)
 
 
 def test_compile_and_device_resolution():
@@ -102,20 +93,6 @@ def test_compile_and_device_resolution():
     assert configs.resolve_device(cfg.replace(device="cpu")) == cpu
 
 
-def test_schedule_and_seeds():
-    cfg = configs.make_config("quick", "CartpoleBalance")
-    s = common_configs.schedule(cfg)
-    assert s.prefill_env_steps >= cfg.min_replay_size and s.total_env_steps >= cfg.num_timesteps
-    assert s.total_env_steps - cfg.num_timesteps < s.num_epochs * s.env_steps_per_actor_step
-    assert s.env_steps_after(s.num_epochs) == s.total_env_steps
-    assert s.grad_steps_before(s.prefill_actor_steps + 3) == 3 and s.grad_steps_before(1) == 0
-    assert common_configs.parse_seeds("0-3") == (0, 1, 2, 3)
-    assert common_configs.parse_seeds("0-2,9") == (0, 1, 2, 9)
-    assert common_configs.parse_seeds(7) == (7,)
-    with pytest.raises(ConfigError):
-        common_configs.parse_seeds("-1")
-
-
 def test_cli_tasks_lists_paper_tasks(capsys):
     assert cli.main(["tasks"]) == 0
     out = capsys.readouterr().out
@@ -124,17 +101,6 @@ def test_cli_tasks_lists_paper_tasks(capsys):
 
 # ------------------------------------------------------------------------------- the same as sf2-jax
 _JAX_AGENTS = importlib.util.find_spec("sf2_jax") is not None
-
-
-@pytest.mark.parametrize("preset", ["paper", "quick"])
-@pytest.mark.parametrize("task", ["CartpoleBalance", "PendulumSwingup", "CheetahRun"])
-def test_presets_equal_sf2_jax(preset, task):
-    """Switching framework changes nothing of a run's config (the torch-only fields aside): the JAX agents
-    use sf2_common's TrainConfig as it is."""
-    j = common_configs.make_config(preset, task, "sac", "sf2").to_dict()
-    t = configs.make_config(preset, task, "sac", "sf2").to_dict()
-    assert set(t) - set(j) == set(configs.TORCH_FIELDS)
-    assert {k: v for k, v in t.items() if k not in configs.TORCH_FIELDS} == j
 
 
 @pytest.mark.skipif(not _JAX_AGENTS, reason="sf2_jax is not installed")
