@@ -1,50 +1,10 @@
-"""The paper's claims checked against a study's runs: a study file's `[[claims]]` entries (parsed here into
+"""The paper's claims checked against a study's runs: a study file's `[[claims]]` entries (parsed into
 `Study.claims`) and their verdicts in `study report` (summary.md "The paper's claims", claims.csv).
 
-    [[claims]]
-    text = "App. C.2.1, Fig. 7: at 1M env steps SF² surpasses vanilla and SF-based baselines"
-    method = "td3-sf2"                  # a method's name or label
-    above = ["td3-none", "td3-sim"]     # the methods it is claimed to beat
-    tasks = "all"                       # or a list of the study's tasks (default "all")
-    statistic = "IQM"                   # of the normalized AUC: IQM (default), Median or Mean
-    per_task = false                    # true: a verdict on each task alone (paper Fig. 8)
-    score = "normalized_auc"            # or "obs_noise": each seed's AUC over the checkpoints evaluated
-                                        # under observation noise ([evaluation]), one comparison per level
-                                        # (paper Fig. 9 right); several tasks need per_task = true
-
-Each comparison (`method` against one of `above`, on the claim's tasks, or on one task with `per_task`)
-uses the seeds both methods finished on every task of the comparison: the difference statistic(method) −
-statistic(other) of the normalized AUC with its 95% bootstrap interval (`stats.difference_interval`:
-rliable, each method's seeds resampled independently within each task), and rliable's probability of
-improvement P(method > other). Its verdict:
-
-    supported       the interval lies above 0
-    contradicted    the interval lies below 0
-    not resolved    the interval holds 0
-    cannot decide   a task of the comparison has no finished seeds of one of the two methods (the numbers
-                    shown are then over the tasks that have them: interim), or fewer than `MIN_SEEDS`
-                    common seeds (no interval)
-
-A claim is contradicted when a comparison is, else cannot be decided when a comparison cannot be, else
-supported when every comparison is, else not resolved. A 95% bootstrap interval of 5 seeds covers the true
-difference less often than 95% (stats.py); summary.md says so beside the table.
-
-Would the study's full seeds decide it? A comparison over n of the study's N seeds (n < N) also gets
-`projected`, the interval's half-width scaled to N seeds, (upper − lower) / 2 × √(n / N): a bootstrap
-interval of a mean-like statistic narrows as 1/√seeds if the seeds spread as the first n do. It is a
-planning figure, not a test: a not-resolved difference larger than it may be resolved by running the rest
-of the seeds; one smaller than it likely will not be. Checked on results/fig7-td3's 15 per-task
-comparisons that went from 5 seeds to 15 (their claims.csv in this repository's history): the 15-seed
-half-width was 0.41–1.63× the projection (median 0.95); the five not resolved at 5 seeds split as
-projected: the four with "Δ within" stayed not resolved, the one "Δ beyond" became supported.
-
-How large is a per-task difference? A comparison on one task also gets `difference_auc`, the claim's
-statistic of the AUC itself (return units) of the method minus the other's. Min–max normalization is affine
-per task, so it is `difference` times the task's AUC range and has the same verdict; it tells a difference
-of returns from a difference of failures: results/fig7-sac's CartpoleSwingupSparse, where no SAC-family run
-learned much by 1M steps (the best seed's AUC 12.9 of the 1,000 a run can score), has SAC+SF² − SAC
-−0.111 normalized, contradicted, and −1.43 in returns.
-"""
+Each comparison is the difference of a statistic of the normalized AUC (method − other) with its 95%
+bootstrap interval (rliable) and P(method > other); supported (interval above 0), contradicted (below),
+not resolved (holds 0), cannot decide (a task lacks finished seeds, or fewer than `MIN_SEEDS`). The
+fields, the rules and the projected half-width are documented in docs/study-files.md "Claims"."""
 
 from __future__ import annotations
 

@@ -1,23 +1,16 @@
 """The `study` subcommand of `sf2-jax` and `sf2-torch`: `COMMAND`, the entry point `study` of the group
-`sf2.commands`, which each core's command line finds (sf2_common.cli.add_shared_parsers); it adds its
-parser with `add_parser` and runs with `main(backend, args)`:
+`sf2.commands`, which each core's command line finds; it adds its parser with `add_parser` and runs with
+`main(backend, args)`:
 
-    PROG study run FILE --out DIR [--tasks A,B] [--methods m1,m2] [--seeds 0-4] [--workers N] [--ray ADDRESS]
-                   [--finish-within SECONDS] [--forecast-from DIR] [--dry-run]
+    PROG study run FILE --out DIR [--tasks A,B] [--methods m1,m2] [--seeds 0-4] [--workers N]
+                   [--ray ADDRESS] [--finish-within SECONDS] [--forecast-from DIR] [--dry-run]
     PROG study report DIR [--out REPORT_DIR]
     PROG study merge SOURCE... --into DIR [--partial]
     PROG study compress DIR
+    PROG study compare DIR... --out DIR
 
-`run` checks the study file and every run's config before anything is compiled (bad input: exit status
-2, nothing written), then trains what is not done yet (runner.py, rayrun.py); exit status 0 when every
-selected run is done (or, with --finish-within, left unstarted as forecast not to end in time), 1 if
-one failed or was held by another runner. `report` writes results.csv,
-summary.md and the figures (report.py). `merge` joins study folders or their .tar.gz archives (runs
-that came back from other commands, machines or sessions) into one study folder (merge.py), and keeps
-their metrics.jsonl and obs_noise.json gzip-compressed; `compress` does that to a folder's finished runs
-(sf2_common.fileio: every reader takes either form).
-FILE may also be the name of a file in ./studies/ (`smoke`).
-"""
+Bad input exits with status 2 and writes nothing; `run` exits 0 when every selected run is done, 1 if one
+failed or was held by another process. FILE may also name a file in ./studies/ (`smoke`)."""
 
 from __future__ import annotations
 

@@ -1,20 +1,10 @@
-"""A study folder: the study file it was made from, its state, and one run folder per training program.
+"""A study folder: the study file it was made from (study.toml), its state (study.json: the run folder of
+every (task, method) and seed group, the commands), one run folder per training program under
+runs/<task>/<method>[/seeds-0-4]/, reruns under rerun/, and the report under report/.
 
-    DIR/study.toml              a copy of the study file (a different file → `StudyError`, nothing written;
-                                one that differs only in description, report or claims, or that only adds
-                                tasks or methods (spec.same_runs), replaces it)
-    DIR/study.json              name, framework, id, the run folder of every (task, method) and seed
-                                group, the commands
-    DIR/runs/<task>/<method>/   a run folder of the framework's trainer (sf2_common.agents.runfolder):
-                                config.json, metrics.jsonl, checkpoints/, final/, train.log,
-                                obs_noise.json (the study's [evaluation], when it has one)
-    DIR/runs/<task>/<method>/seeds-0-4/   the same, one per seed group, when the study file sets
-                                `seeds_per_run` (spec.py); runs/<task>/<method>/ then holds only these
-    DIR/report/                 `study report`: results.csv, summary.md, figures
-
-Runs are independent folders, so a study folder merges runs that finished elsewhere (its study folder was
-made from the same file): `study merge SOURCE... --into DIR` (merge.py) copies them with their checks.
-"""
+A study file that differs from the copy only in what no run depends on, or only adds tasks or methods,
+replaces the copy; any other difference is a `StudyError` and nothing is written. The layout:
+docs/study-files.md "The study folder"."""
 
 from __future__ import annotations
 

@@ -1,39 +1,10 @@
 """`study merge SOURCE... --into DEST`: the runs of study folders that ran elsewhere (other commands,
-machines, sessions) joined into one study folder (folder.py), e.g. the archives scripts/gpu-host/gpu_study.sh
-brings back merged into results/<study>/.
+machines, sessions), or .tar.gz archives of them, joined into one study folder.
 
-A SOURCE is a study folder or a .tar.gz archive of one. Every SOURCE must hold the study DEST holds (the
-same study file up to `spec.same_runs`), or DEST does not exist yet and is created with SOURCE's study.toml;
-a SOURCE whose study only adds tasks or methods to DEST's (an ablation run elsewhere) gives DEST its copy.
-Per run folder of the study (a task, a method, a seed group) the merge copies only what a study folder
-keeps in git (`KEPT`: config.json, metrics.jsonl, train.log and, with an [evaluation], obs_noise.json;
-never checkpoints/, final/, damaged/, parameters or learning_curve.png), and writes metrics.jsonl and
-obs_noise.json gzip-compressed (`COMPRESSED`; a SOURCE may hold either form, sf2_common.fileio):
-
-    SOURCE's run        DEST's run          what happens
-    finished            none / unfinished   copied (an unfinished DEST run is replaced)
-    finished            finished, equal     skipped (identical metrics)
-    finished            finished, differs   refused: the whole merge stops, nothing written; with
-                                            `reruns`, kept beside it as a rerun (below)
-    unfinished          any                 skipped; with `partial` copied where DEST has none or less
-    not started         any                 nothing to merge
-
-A run is finished when every seed has its last epoch's row (and its obs_noise.json, with an
-[evaluation]): `StudyFolder.run_state`. Each run's config.json is checked against the config the study
-file gives that run (`StudyFolder.check_run`, i.e. `RunFolder.check_compatible`). Every check of every
-SOURCE comes before the first write; then each run folder is written into a temporary sibling and renamed
-into place (a replaced DEST folder is renamed away first and removed only after, or set aside if it held
-more than `KEPT`, e.g. checkpoints), and study.json last: the union of the runs entries, the commands of
-DEST and every SOURCE in time order without duplicates (DEST keeps its id).
-
-Reruns. On GPUs two runs of one config and seeds differ from the first epoch on (XLA picks kernels by
-timing them in each process; results/fig7-td3/README.md "reproducible in distribution"), so a run that ran
-twice comes back twice with different metrics. With `reruns` (`--keep-reruns`) the merge keeps DEST's (or
-the first source's) in `runs/` and writes the other, `KEPT` files only, to DEST/rerun/<task>-<method>/<seed
-group>/ (`StudyFolder.rerun_path`; a second, different rerun of the same run gets ".2", and so on; one
-identical to a kept rerun is skipped): out of the results and claims, which read `runs/` only, compared
-with the run they repeat in the report's "Reruns" section (reruns.py), and never lost.
-"""
+Per run folder the merge copies only what a study folder keeps in git (`KEPT`), gzip-compressed
+(`COMPRESSED`); a finished run that differs from DEST's is refused, or with `reruns` kept beside it.
+Every check of every SOURCE comes before the first write; each run folder is written into a temporary
+sibling and renamed into place, study.json last. The rules: docs/study-files.md "Merging"."""
 
 from __future__ import annotations
 

@@ -1,21 +1,11 @@
 """`study report DIR`: a study folder's numbers (paper §4.2, Appendix C) as DIR/report/results.csv,
-summary.md and figures (`figures.py`). Framework-free: it reads the study file's copy, study.json and the
-run folders' config.json, metrics.jsonl and obs_noise.json. Only finished runs (every seed evaluated after
-the last epoch) enter the numbers; the others are listed as incomplete. With seed groups (`seeds_per_run`,
-spec.py) a (task, method) joins the seeds of its finished groups: it is reported with the seeds it has,
-summary.md says which are missing, and flags methods compared at unequal seed counts.
+claims.csv, summary.md and figures (`figures.py`); framework-free, from the run folders' files.
 
-Per run and seed (results.csv): AUC of the evaluation-return curve (`stats.auc`: return units), AUC
-normalized per task by the min and max over every finished run and seed of the study on that task, the
-final evaluation return, the mean return over the final `final_window` env steps, env steps, wall time
-(the run's: its seeds train in one program; with seed groups the seed's group's). Per family (TD3, SAC)
-and method: median, IQM, mean and optimality gap of the normalized AUCs with 95% stratified-bootstrap
-intervals (`stats.aggregate_intervals`), every method of the family on the same tasks and seeds: of the
-tasks on which all of them have finished seeds, the tasks × seeds that give the most scores (`coverage`);
-summary.md says which, so an interim study shows an interim aggregate, named as such. The study file's
-`[[claims]]` get a verdict each (claims.py; summary.md and claims.csv). Unfinished runs are listed
-compactly (`_md_incomplete`).
-"""
+Per run and seed: the AUC of the evaluation-return curve, normalized per task by the min and max over every
+finished run and seed of the study, the final return and wall time. Per family (TD3, SAC) and method: the
+median, IQM, mean and optimality gap with 95% stratified-bootstrap intervals, every method on the same tasks
+and seeds (an interim study's aggregate is named as such). Only finished runs enter the numbers; the
+others are listed as incomplete. The claims get verdicts (claims.py)."""
 
 from __future__ import annotations
 

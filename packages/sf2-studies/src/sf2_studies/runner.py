@@ -1,22 +1,11 @@
-"""Running a study's runs on this host. Each run (a task, a method and a seed group: all the study's seeds,
-or `seeds_per_run` of them, in one program: the JAX trainer vmaps them) is a child process of the
-framework's own CLI, `python -m sf2_jax.cli train ... --out DIR/runs/<task>/<method>[/seeds-0-4]
---no-progress` (then `eval ... --obs-noise` when the study has an
-[evaluation]), so resuming, `kill -9` and the no-duplicate-row guarantee are the trainer's
-(sf2_common.agents.runfolder): a finished run is skipped, a partial one resumes from its last checkpoint.
+"""Running a study's runs on this host: each run (a task, a method and a seed group, one program) is a
+child process of the framework's own CLI (`python -m sf2_jax.cli train ... --no-progress`, then `eval ...
+--obs-noise --save` with an [evaluation]), so resuming and `kill -9` are the trainer's.
 
-Where the children run: one per visible GPU (CUDA_VISIBLE_DEVICES set to that GPU alone, so two runs
-never share a GPU's memory), or on a CPU one at a time unless `workers` says more. Never two runs to a GPU:
-they time-slice it, and together made 0.9-1.4x and 1.06-1.12x the rate of one run alone
-(docs/decisions/one-run-per-gpu.md); a GPU's rate grows with the seeds of one
-vmapped program instead. A child dies with the runner (Linux: PR_SET_PDEATHSIG), and holds its run
-folder's lock (`.sf2-lock`, sf2_common.agents.lock) for as long as it lives, so a second runner on the
-same folder never trains the same run twice at once.
-
-Children get PYTHONHASHSEED=0 unless the caller set it: the JAX program of a run depends on Python's
-string hashing (its persistent-compilation-cache key changes from one process to the next otherwise), so
-a fixed seed makes every process of a study compile, and compute, the same program.
-"""
+Children run one per visible GPU (CUDA_VISIBLE_DEVICES set to that GPU alone), or on a CPU one at a time
+unless `workers` says more; a child dies with the runner and inherits its lock on the run folder
+(sf2_common.agents.lock). Children get PYTHONHASHSEED=0 unless the caller set it: the JAX program's
+compilation-cache key depends on Python's string hashing. docs/study-files.md "Running"."""
 
 from __future__ import annotations
 
@@ -107,47 +96,9 @@ def plan(study: Study, folder: StudyFolder, runs: list[Run]) -> tuple[list[Job],
 
 class Forecast:
     """Seconds of training a job still needs: its remaining env steps at the wall-clock seconds per env step
-    of finished runs. The rate is, in this order of preference:
-    1. the mean over the finished runs of the job's own task and method folder (`Run.folder`) with its
-       number of seeds;
-    2. relative to another method on the same task at the same number of seeds: that method's rate there
-       times the largest ratio of the job's method to it over the other tasks where both finished runs of
-       that many seeds (the largest such estimate over the task's other methods);
-    3. the job's own runs of other seed counts, scaled (below);
-    4. the slowest finished run of its task with its number of seeds, else of any number scaled to its
-       seeds; without a run of its task, the same over all tasks. Runs of its own seed count come
-       first because `scale` takes the largest ratio between seed counts, which runs that shared their
-       GPU inflate: fig7-sac's first runs forecast from fig7-td3's (`study run --forecast-from`) came
-       out 3.4x the slowest 5-seed run of their task (AcrobotSwingup 14 m 37 s against 4 m 15 s).
-    2 before 3: a first 10-seed run of a method is then forecast from 10-seed runs on its own task, not from
-    its own 5-seed runs, some of which shared their GPU with other runs and took 2-3x their cost (results/
-    fig7-td3/README.md "Cost per run"): CartpoleSwingupSparse TD3+SF² at 10 seeds, 14 m 21 s by 3 and 6 m
-    25 s by 2, where that task's TD3 run of 10 seeds took 4 m 05 s. Neither is exact: from the history
-    before them, the forecasts of the five CartpoleBalanceSparse runs of 10 seeds of 2026-11-25 were 19%
-    short to 11% long by 2 and 14% short to 6% long by 3, so leave `--finish-within` a margin. The
-    largest, not the mean, in 2 and the slowest in 4 because methods differ up to ~4x in cost and
-    `--finish-within` must not start a run the lease's end would cut. Checked (2026-11-26) on results/
-    fig7-sac's 51 runs, each task's runs forecast as if the task had none (from the other tasks and
-    results/fig7-td3): the largest gives 0.64–1.04× the time the runs took per task, no run over 1.07×;
-    medians in its place would give 0.82–1.38×, 11 runs over 1.2×. The rates are those of the machines
-    the finished runs ran on; evaluation children ([evaluation]) are not counted. `known` is False without
-    any finished run.
-
-    Seed counts: a GPU trains vmapped seeds together, so a run of 10 seeds takes ~1.35x the time of one of 5,
-    not 2x (results/fig7-td3/README.md "Cost per run"): the rate per env step (all seeds' steps) falls with
-    the seeds. A rate measured at k seeds is scaled to n by the largest ratio rate(n) / rate(k) of the
-    (task, method) pairs that finished runs of both counts measure; without such a pair, by 1 for n > k (as
-    if the time grew with the seeds) and by k / n for n < k (as if it did not shrink): never below the time
-    the run can take.
-
-    Fewer seeds never take longer: a finished run's rate at k seeds is capped at m / k times the rate of a
-    run of the same task and method with m > k seeds (that run's wall time). A run of fewer seeds that took
-    longer shared its GPU or was resumed: fig7-td3's 5-seed runs of TD3 on HopperHop (12 m 20 s against
-    7 m 17 s at 10 seeds) and of TD3+SF² on CheetahRun (19 m 33 s against 7 m 44 s). Through preference 2
-    they forecast fig7-sac's seven 5-seed CheetahRun and HopperHop runs of 2026-11-26 at 2.0-3.8x the time
-    they took; capped, at 1.02-1.61x (`python -m bench.lab.forecast_check results/fig7-td3 results/fig7-sac
-    --runs <that session's 11 runs>`). fig7-sac's 62 runs forecast from fig7-td3's alone (`--runs` all
-    62): time taken 0.74x the forecasts in all (0.59x uncapped), 0.49-1.29x per run (0.21-1.29x)."""
+    of finished runs (its own task and method at its seed count first; else another method on its task
+    scaled by the largest ratio between the two; else its own runs at other seed counts, scaled; else the
+    slowest run of its task). `known` is False without any finished run. docs/decisions/forecasts.md."""
 
     def __init__(self, done: list[Job]):
         self.rates: dict[tuple[str, str], list[tuple[int, float]]] = {}   # (seeds, s per env step)
