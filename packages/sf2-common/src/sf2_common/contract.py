@@ -1,10 +1,10 @@
 """The agents' framework-independent contract as pytest tests, written once and run on each core.
 
-Each core's agents tests import these tests (test_contract.py) and their conftest.py gives them the core as
-the `agent_core` fixture (an `AgentCore`). The contract: bad input is refused with a `ConfigError` naming
-it before anything is built or written; presets, overrides, seeds and the schedule are as documented;
-switching framework changes nothing of a run's shared config. The command-line tests stay in each core's
-test_inputs (`sf2_common.testing` holds their shared cases).
+Each core's agents tests import these tests (test_contract.py, test_torch_contract.py) and their
+conftest.py gives them the core as the `agent_core` fixture (an `AgentCore`). The contract: bad input is
+refused with a `ConfigError` naming it before anything is built or written; presets, overrides, seeds
+and the schedule are as documented; switching framework changes nothing of a run's shared config. The
+command-line tests stay in each core's test_inputs (`sf2_common.testing` holds their shared cases).
 """
 
 from __future__ import annotations

@@ -70,7 +70,7 @@ TINY = dict(
 
 @pytest.fixture(scope="session")
 def agent_core():
-    """The torch agents, for the contract tests of `sf2_common.contract` (test_contract.py)."""
+    """The torch agents, for the contract tests of `sf2_common.contract` (test_torch_contract.py)."""
     from sf2_common.contract import AgentCore
     from sf2_torch.agents import configs, envs, representations, trainer
 
