@@ -1,17 +1,11 @@
 """sf2_baselines: the comparison methods of the SF² paper (ICLR 2026, §4.2 and Appendix B.1).
 
 Three representations, each in both frameworks with the same module and function names:
-
-=========  ===================================================================  =========================
-name       method                                                               paper
-=========  ===================================================================  =========================
-``sim``    TD3Sim / SACSim: successor features "the simple way" (Chua et al.,    §4.2
-           2024): basis features φ(s, a, w), SF heads ψᵢ, Qᵢ = wᵀψᵢ
-``simlap`` TD3SimLap / SACSimLap: Sim without the Q-alignment of φ, plus a       §4.2
-           graph-Laplacian orthogonality objective on normalized φ
-``spr``    TD3+SPR / SAC+SPR: self-predictive representations (Schwarzer et      Appendix B.1
-           al., 2021) for state inputs, K = 1, Gaussian-noise augmentation
-=========  ===================================================================  =========================
+``sim`` (TD3Sim / SACSim, §4.2): successor features "the simple way" (Chua et al., 2024), basis features
+φ(s, a, w), SF heads ψᵢ, Qᵢ = wᵀψᵢ; ``simlap`` (TD3SimLap / SACSimLap, §4.2): Sim without the
+Q-alignment of φ, plus a graph-Laplacian orthogonality objective on normalized φ; ``spr`` (TD3+SPR /
+SAC+SPR, Appendix B.1): self-predictive representations (Schwarzer et al., 2021) for state inputs, K = 1,
+Gaussian-noise augmentation.
 
 ``sf2_baselines.jax`` needs ``sf2-core-jax`` (extra ``[jax]``), ``sf2_baselines.torch`` needs
 ``sf2-core-torch`` (extra ``[torch]``). Importing either registers the representations ``sim``,

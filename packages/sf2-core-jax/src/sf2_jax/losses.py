@@ -2,23 +2,16 @@
 
 Paper: eq. (3)–(4) and Algorithm 1 (flow), Appendix A.3 (explicit mixture), Appendix D Algorithms 2–3
 (TD3 and SAC on features); docs/core-contract.md "Losses". Every random draw (ε, flow_time k, smoothing
-ξ, SAC noise) is an argument, so the same inputs give the same numbers in JAX and torch.
+ξ, SAC noise) is an argument, so the same inputs give the same numbers in JAX and torch. Each loss
+returns `(loss, aux)`, `aux` a dict of scalars; batches are 2-D, every field (B, ·) (vmap a loss for more
+batch dimensions); batch means divide by B, samples masked by m_b = 1 − truncation_b count as zeros. The
+TD3 and SAC losses are written once against a `critic` (default: SF²'s Q(ψ(s, a)), `sf2_critic`; the
+agents pass their representation's).
 
-Each loss returns `(loss, aux)` with `aux` a dict of scalars. Batches are 2-D: every field is (B, ·)
-(vmap a loss for more batch dimensions). Batch means divide by B; samples masked by
-m_b = 1 − truncation_b count as zeros.
-
-The TD3 and SAC losses are written once, against a critic: `critic(params, obs, action, target=False)`
-→ twin Q (B, 2), online or target. The default (`critic=None`) is SF²'s Q(ψ(s, a)) (`sf2_critic`);
-the agents pass their representation's critic (vanilla Q(s, a), Sim, SPR, ...). `nets` still gives the
-config and the policy (π, π̄, SAC sampling).
-
-Gradient contract: the caller chooses the trained groups and takes `jax.grad` with respect to those
-groups only. With the default critic the losses also stop the gradient of every group they do not
-train (flow: ψ, ζ; critics: ψ, Q; actors: the policy; temperature: log α), so `jax.grad` over the whole
-`params` dict gives zeros for the others. The TD target y and SAC's α in the critic and actor losses
-are constants (stop_gradient) in every case. (torch: `loss.backward(inputs=...)` on the trained
-groups' parameters.)
+Gradient contract: the caller takes `jax.grad` with respect to the trained groups only; with the default
+critic a loss also stops the gradient of every group it does not train. The TD target y and SAC's α are
+constants in every case. `check_batch` and `check_noise` are the losses' shape checks, public for the
+baselines' losses (the torch core's `sf2_torch.losses` has the same functions).
 """
 
 from __future__ import annotations
@@ -45,8 +38,16 @@ Critic = Callable[..., Any]   # critic(params, obs, action, target=False) -> (B,
 
 
 class Batch(NamedTuple):
-    """Transitions: obs (B, D), action (B, A), reward (B,), discount (B,) = 1 − terminal, next_obs (B, D),
-    truncation (B,) ∈ {0, 1}."""
+    """Transitions of a 2-D batch.
+
+    Attributes:
+      obs: (B, D) observations s.
+      action: (B, A) actions a.
+      reward: (B,) rewards r.
+      discount: (B,) 1 − terminal.
+      next_obs: (B, D) next observations s′.
+      truncation: (B,) 1 where the time limit cut the episode, else 0.
+    """
 
     obs: Any
     action: Any
@@ -126,19 +127,30 @@ def _require_sac(nets: nw.Networks) -> None:
 
 # ------------------------------------------------------------------------------------------------ flow
 def flow_loss(nets: nw.Networks, params: nw.Params, batch: Batch, next_action, eps, flow_time):
-    """L_flow = mean_b m_b[(1 − γ_su) ℓ_P + γ_su ℓ_B] (eq. 3–4, Algorithm 1).
+    """The flow loss of SF² (eq. 3–4, Algorithm 1), trained on ψ and ζ.
 
-    ℓ_P = Σ_d (ζ(x_k, k)ψ − (s̄′ − ε))²_d with x_k = k s̄′ + (1 − k) ε, s̄′ = normalize(s′), ψ = ψ(s, a);
-    ℓ_B = Σ_d (ζ(x̂, k)ψ − sg(ζ̄(x̂, k)ψ̄′))²_d with ψ̄′ = ψ̄(s′, ā′) and x̂ the ODE solution from ε over
-    [0, k] under the target field ζ̄ψ̄′ (`denoising_steps` steps of `integrator`).
+    L_flow = mean_b m_b[(1 − γ_su) ℓ_P + γ_su ℓ_B], with
+    ℓ_P = Σ_d (ζ(x_k, k)ψ − (s̄′ − ε))²_d, x_k = k s̄′ + (1 − k) ε, s̄′ = normalize(s′), ψ = ψ(s, a);
+    ℓ_B = Σ_d (ζ(x̂, k)ψ − sg(ζ̄(x̂, k)ψ̄′))²_d, ψ̄′ = ψ̄(s′, ā′), x̂ the ODE solution from ε over [0, k] under
+    the target field ζ̄ψ̄′ (`denoising_steps` steps of `integrator`).
+    With `cfg.contract_zeta` (the fast path, docs/core-contract.md "Networks") ζ's last layer is contracted
+    with ψ once (M, c) and with ψ̄′ once (M̄, c̄) and reused for every evaluation; the two online evaluations
+    go through ζ's hidden layers as one batch of 2B. Otherwise (the oracle) ζ (B, D, F) is materialized at
+    each point. With γ_su = 0 the bootstrap branch is skipped and loss_boot = 0.
 
-    `next_action` ā′ (B, A) gets no gradient; `eps` ε (B, D) ~ N(0, I); `flow_time` k (B,) ~ U(0, 1).
-    With `cfg.contract_zeta` the fast path (docs/core-contract.md "Networks", fast path) contracts ζ's
-    last layer with ψ once (M, c) and with ψ̄′ once (M̄, c̄) and reuses them for every evaluation; the two
-    online evaluations (at x_k and x̂) go through ζ's hidden layers as one batch of 2B, then one product
-    with M. Otherwise (the oracle) ζ (B, D, F) is materialized at each point. With γ_su = 0 the
-    bootstrap branch is skipped and loss_boot = 0. Trains ψ and ζ.
-    Returns (loss, {"loss_p": mean_b m_b ℓ_P, "loss_boot": mean_b m_b ℓ_B}).
+    Args:
+      nets: the `Networks` (its `cfg`: sizes and hyperparameters; its algo: the policy).
+      params: the parameters of every group (`networks.init_params`).
+      batch: the transitions.
+      next_action: ā′ (B, A); gets no gradient.
+      eps: ε (B, D) ~ N(0, I).
+      flow_time: k (B,) ~ U(0, 1).
+
+    Returns:
+      (loss, {"loss_p": mean_b m_b ℓ_P, "loss_boot": mean_b m_b ℓ_B}).
+
+    Raises:
+      ShapeError: a field of `batch` or a noise of another shape.
     """
     cfg = nets.cfg
     b = check_batch(cfg, batch)
@@ -187,9 +199,24 @@ def flow_loss(nets: nw.Networks, params: nw.Params, batch: Batch, next_action, e
 
 
 def explicit_mixture_loss(velocity_fn: Callable, x1, x2, eps1, eps2, k1, k2, weight):
-    """Explicit mixture objective (Appendix A.3), with φ_k(ε, x) = kx + (1 − k)ε:
+    """The explicit mixture objective of the two-Gaussian study (Appendix A.3).
+
+    With φ_k(ε, x) = kx + (1 − k)ε:
     weight·mean_b‖v(φ_k1(ε1, x1), k1) − (x1 − ε1)‖² + (1 − weight)·mean_b‖v(φ_k2(ε2, x2), k2) − (x2 − ε2)‖².
-    Returns (loss, {"loss_1": first mean, "loss_2": second mean})."""
+
+    Args:
+      velocity_fn: v(x, k), x (B, D) and k (B,) → (B, D).
+      x1, x2: samples of the two components, (B, D).
+      eps1, eps2: ε (B, D) ~ N(0, I), one per component.
+      k1, k2: flow times (B,) ~ U(0, 1), one per component.
+      weight: the first component's weight.
+
+    Returns:
+      (loss, {"loss_1": the first mean, "loss_2": the second mean}).
+
+    Raises:
+      ShapeError: an ε of another shape than its x, or a k of another shape than x's batch.
+    """
 
     def term(x, e, k):
         _check_same("eps", e, jnp.shape(x), "same as x")
@@ -203,8 +230,14 @@ def explicit_mixture_loss(velocity_fn: Callable, x1, x2, eps1, eps2, k1, k2, wei
 
 # ------------------------------------------------------------------------------------------------ critic
 def sf2_critic(nets: nw.Networks) -> Critic:
-    """SF²'s critic Q(ψ(s, a)) (Appendix D): `critic(params, obs, action, target=False)` → (B, 2), the
-    core's twin Q heads on ψ (`target=True`: Q̄(ψ̄(s, a)))."""
+    """SF²'s critic Q(ψ(s, a)) (Appendix D): the core's twin Q heads on ψ.
+
+    Args:
+      nets: the `Networks` (its `cfg`: sizes and hyperparameters; its algo: the policy).
+
+    Returns:
+      `critic(params, obs, action, target=False)` → (B, 2); `target=True`: Q̄(ψ̄(s, a)).
+    """
 
     def critic(params: nw.Params, obs, action, target: bool = False):
         return nw.q_values(nets, params, nw.psi(nets, params, obs, action, target=target), target=target)
@@ -223,10 +256,24 @@ def _td_loss(cfg, batch: Batch, q, next_value):
 # ------------------------------------------------------------------------------------------------ TD3
 def td3_critic_loss(nets: nw.Networks, params: nw.Params, batch: Batch, smoothing, *,
                     critic: Critic | None = None):
-    """TD3 critic (Algorithm 2 on features): ã′ = clip(π̄(s′) + clip(σ_s ξ, −c, c), −1, 1),
-    y = rs·r + discount·γ·min_j Q̄_j(s′, ã′), loss = ½ mean_{b,j}(m_b(Q_j(s, a) − sg(y)))².
-    `smoothing` ξ (B, A) ~ N(0, I); Q = `critic` (default: SF²'s Q(ψ), trains Q and ψ).
-    aux: q (mean Q), target_q (mean y)."""
+    """The TD3 critic loss (Algorithm 2 on features), trained on Q (and, by default, ψ).
+
+    ã′ = clip(π̄(s′) + clip(σ_s ξ, −c, c), −1, 1), y = rs·r + discount·γ·min_j Q̄_j(s′, ã′),
+    loss = ½ mean_{b,j}(m_b(Q_j(s, a) − sg(y)))².
+
+    Args:
+      nets: the `Networks` (its `cfg`: sizes and hyperparameters; its algo: the policy).
+      params: the parameters of every group (`networks.init_params`).
+      batch: the transitions.
+      smoothing: ξ (B, A) ~ N(0, I), the target policy's smoothing noise.
+      critic: `critic(params, obs, action, target=False)` → (B, 2); None: SF²'s Q(ψ) (`sf2_critic`).
+
+    Returns:
+      (loss, {"q": mean Q, "target_q": mean y}).
+
+    Raises:
+      ShapeError: a field of `batch` or the noise of another shape.
+    """
     cfg = nets.cfg
     b = check_batch(cfg, batch)
     check_noise("smoothing", smoothing, b, cfg.action_size, "action_size")
@@ -238,9 +285,23 @@ def td3_critic_loss(nets: nw.Networks, params: nw.Params, batch: Batch, smoothin
 
 
 def td3_actor_loss(nets: nw.Networks, params: nw.Params, batch: Batch, *, critic: Critic | None = None):
-    """TD3 actor (Algorithm 2): −mean_b Q_0(s, π(s)) (the deterministic policy gradient; rlax's
-    `dpg_loss`, which the authors call, has the same gradient for A = 1 and 1/A of it otherwise:
-    docs/core-contract.md). Trains the policy only. aux: q (mean Q_0)."""
+    """The TD3 actor loss (Algorithm 2), trained on the policy only.
+
+    loss = −mean_b Q_0(s, π(s)), the deterministic policy gradient (rlax's `dpg_loss`, which the authors call,
+    has the same gradient for A = 1 and 1/A of it otherwise: docs/core-contract.md).
+
+    Args:
+      nets: the `Networks` (its `cfg`: sizes and hyperparameters; its algo: the policy).
+      params: the parameters of every group (`networks.init_params`).
+      batch: the transitions.
+      critic: `critic(params, obs, action, target=False)` → (B, 2); None: SF²'s Q(ψ) (`sf2_critic`).
+
+    Returns:
+      (loss, {"q": mean Q_0}).
+
+    Raises:
+      ShapeError: a field of `batch` of another shape.
+    """
     check_batch(nets.cfg, batch)
     p, critic = _with_critic(nets, params, ("policy",), critic)
     action = nw.td3_action(nets, p, batch.obs)
@@ -251,10 +312,26 @@ def td3_actor_loss(nets: nw.Networks, params: nw.Params, batch: Batch, *, critic
 # ------------------------------------------------------------------------------------------------ SAC
 def sac_critic_loss(nets: nw.Networks, params: nw.Params, batch: Batch, noise, *,
                     critic: Critic | None = None):
-    """SAC critic (Algorithm 3 on features): a′, log π(a′|s′) from the online policy at s′ with ξ′ = `noise`;
+    """The SAC critic loss (Algorithm 3 on features), trained on Q (and, by default, ψ).
+
+    a′, log π(a′|s′) from the online policy at s′ with ξ′ = `noise`;
     y = rs·r + discount·γ·(min_j Q̄_j(s′, a′) − α log π(a′|s′)), α = exp(log_alpha) constant;
-    loss = ½ mean_{b,j}(m_b(Q_j(s, a) − sg(y)))². Q = `critic` (default: SF²'s Q(ψ), trains Q and ψ).
-    aux: q, target_q."""
+    loss = ½ mean_{b,j}(m_b(Q_j(s, a) − sg(y)))².
+
+    Args:
+      nets: the `Networks` (its `cfg`: sizes and hyperparameters; its algo: the policy).
+      params: the parameters of every group (`networks.init_params`).
+      batch: the transitions.
+      noise: ξ′ (B, A) ~ N(0, I), the policy's noise at s′.
+      critic: `critic(params, obs, action, target=False)` → (B, 2); None: SF²'s Q(ψ) (`sf2_critic`).
+
+    Returns:
+      (loss, {"q": mean Q, "target_q": mean y}).
+
+    Raises:
+      ConfigError: networks built for another algorithm than SAC.
+      ShapeError: a field of `batch` or the noise of another shape.
+    """
     cfg = nets.cfg
     _require_sac(nets)
     b = check_batch(cfg, batch)
@@ -269,8 +346,24 @@ def sac_critic_loss(nets: nw.Networks, params: nw.Params, batch: Batch, noise, *
 
 def sac_actor_loss(nets: nw.Networks, params: nw.Params, batch: Batch, noise, *,
                    critic: Critic | None = None):
-    """SAC actor (Algorithm 3): a ~ π(s) with ξ = `noise`; loss = mean_b(α log π(a|s) − min_j Q_j(s, a)),
-    α constant. Trains the policy only. aux: entropy (−mean log π)."""
+    """The SAC actor loss (Algorithm 3), trained on the policy only.
+
+    a ~ π(s) with ξ = `noise`; loss = mean_b(α log π(a|s) − min_j Q_j(s, a)), α constant.
+
+    Args:
+      nets: the `Networks` (its `cfg`: sizes and hyperparameters; its algo: the policy).
+      params: the parameters of every group (`networks.init_params`).
+      batch: the transitions.
+      noise: ξ (B, A) ~ N(0, I).
+      critic: `critic(params, obs, action, target=False)` → (B, 2); None: SF²'s Q(ψ) (`sf2_critic`).
+
+    Returns:
+      (loss, {"entropy": −mean log π}).
+
+    Raises:
+      ConfigError: networks built for another algorithm than SAC.
+      ShapeError: a field of `batch` or the noise of another shape.
+    """
     cfg = nets.cfg
     _require_sac(nets)
     b = check_batch(cfg, batch)
@@ -283,9 +376,24 @@ def sac_actor_loss(nets: nw.Networks, params: nw.Params, batch: Batch, noise, *,
 
 
 def sac_alpha_loss(nets: nw.Networks, params: nw.Params, batch: Batch, noise):
-    """SAC temperature: loss = mean_b(exp(log_alpha)·sg(−log π(a|s) − target_entropy)),
-    target_entropy = −target_entropy_scale·A, a ~ π(s) with ξ = `noise`. Trains log_alpha only.
-    aux: alpha."""
+    """The SAC temperature loss, trained on log_alpha only.
+
+    loss = mean_b(exp(log_alpha)·sg(−log π(a|s) − target_entropy)), target_entropy = −target_entropy_scale·A,
+    a ~ π(s) with ξ = `noise`.
+
+    Args:
+      nets: the `Networks` (its `cfg`: sizes and hyperparameters; its algo: the policy).
+      params: the parameters of every group (`networks.init_params`).
+      batch: the transitions.
+      noise: ξ (B, A) ~ N(0, I).
+
+    Returns:
+      (loss, {"alpha": α}).
+
+    Raises:
+      ConfigError: networks built for another algorithm than SAC.
+      ShapeError: a field of `batch` or the noise of another shape.
+    """
     cfg = nets.cfg
     _require_sac(nets)
     b = check_batch(cfg, batch)
@@ -300,7 +408,20 @@ def sac_alpha_loss(nets: nw.Networks, params: nw.Params, batch: Batch, noise):
 
 # ------------------------------------------------------------------------------------------------ EMA
 def ema_update(target, online, tau):
-    """Target-network EMA (paper §3.4): target ← (1 − τ)·target + τ·online, leaf by leaf."""
+    """The target-network EMA (paper §3.4): target ← (1 − τ)·target + τ·online, leaf by leaf.
+
+    Args:
+      target: the target parameters (a pytree).
+      online: the online parameters, the same tree and shapes.
+      tau: the rate τ in [0, 1] (checked when a Python number; a traced value is not checked).
+
+    Returns:
+      The new target parameters.
+
+    Raises:
+      ConfigError: a rate outside [0, 1].
+      ShapeError: trees of another architecture.
+    """
     if isinstance(tau, numbers.Real) and not 0.0 <= float(tau) <= 1.0:
         raise ConfigError(f"tau={tau!r} is invalid: must satisfy 0 <= tau <= 1")
     t, o = jax.tree_util.tree_leaves(target), jax.tree_util.tree_leaves(online)

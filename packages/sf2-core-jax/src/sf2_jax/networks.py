@@ -100,8 +100,21 @@ class Networks:
 
 
 def make_networks(cfg: SF2Config, algo: str) -> Networks:
-    """ψ: MLP(hidden_sizes → F); ζ: MLP(zeta_hidden_sizes → F·D); Q: twin heads; policy: MLP(hidden_sizes →
-    A (TD3) or 2A (SAC)). `algo` ∈ {"td3", "sac"}."""
+    """Build the networks of one SF² agent.
+
+    ψ: MLP(hidden_sizes → F) on [normalize(s), a]; ζ: MLP(zeta_hidden_sizes → F·D) on [x, embedding(k)];
+    Q: twin heads on ψ; policy: MLP(hidden_sizes → A (TD3) or 2A (SAC)) on normalize(s) (Appendix E).
+
+    Args:
+      cfg: the `SF2Config`.
+      algo: "td3" or "sac".
+
+    Returns:
+      The `Networks` (parameter-free flax modules: `init_params` makes the parameters).
+
+    Raises:
+      ConfigError: `cfg` is not an `SF2Config`, or `algo` is neither "td3" nor "sac".
+    """
     if not isinstance(cfg, SF2Config):
         raise ConfigError(f"cfg must be an SF2Config, found {type(cfg).__name__}")
     if algo not in ALGOS:
@@ -119,7 +132,15 @@ def make_networks(cfg: SF2Config, algo: str) -> Networks:
 
 
 def init_normalizer(size: int, dtype=None) -> Params:
-    """Initial running statistics: count 0, mean 0, summed_var 0, std 1."""
+    """The initial running observation statistics.
+
+    Args:
+      size: D.
+      dtype: of the statistics (default: JAX's default float type).
+
+    Returns:
+      {"count": 0, "mean": zeros (D,), "summed_var": zeros (D,), "std": ones (D,)}.
+    """
     dtype = _default_dtype(dtype)
     return {
         "count": jnp.zeros((), dtype),
@@ -130,11 +151,19 @@ def init_normalizer(size: int, dtype=None) -> Params:
 
 
 def init_params(nets: Networks, key: jax.Array, dtype=None) -> Params:
-    """Parameters of every canonical group: `obs_norm`, `psi`, `zeta`, `q`, `policy`, `target_psi`,
-    `target_zeta`, `target_q`, and `target_policy` (TD3) or `log_alpha` (SAC, = cfg.init_log_alpha).
+    """Initialise the parameters of every canonical group.
 
-    Targets are copies of the online networks. `dtype` defaults to JAX's default float type (float64
-    under `jax_enable_x64`, else float32).
+    The groups: `obs_norm`, `psi`, `zeta`, `q`, `policy`, `target_psi`, `target_zeta`, `target_q`, and
+    `target_policy` (TD3) or `log_alpha` (SAC, = cfg.init_log_alpha); targets are copies of the online
+    networks; kernels LeCun-uniform, biases zero.
+
+    Args:
+      nets: the `Networks`.
+      key: a PRNG key.
+      dtype: of every parameter (default: JAX's default float type, float64 under `jax_enable_x64`).
+
+    Returns:
+      {group: nested params} (`sf2_jax.params` flattens it to canonical names).
     """
     cfg = nets.cfg
     dtype = _default_dtype(dtype)
@@ -210,14 +239,39 @@ def _group(nets: Networks, params: Params, name: str, target: bool) -> Params:
 
 # ------------------------------------------------------------------------------------------ normalizer
 def normalize(obs, stats: Params):
-    """(obs − mean) / std with the running statistics `stats` (Brax running_statistics)."""
+    """Normalize observations with running statistics (Brax `running_statistics`): (obs − mean) / std.
+
+    Args:
+      obs: (..., D).
+      stats: `init_normalizer`'s mapping (the `obs_norm` group).
+
+    Returns:
+      (..., D).
+
+    Raises:
+      ShapeError: `obs` of another last dimension.
+    """
     check_last("obs", obs, jnp.shape(stats["mean"])[-1], "obs_size")
     return (obs - stats["mean"]) / stats["std"]
 
 
 def update_normalizer(stats: Params, obs_batch, cfg: SF2Config) -> Params:
-    """Brax's running-statistics update: Welford over a batch (every leading dim is a batch dim),
-    std = clip(√(summed_var / count), normalizer_std_min, normalizer_std_max)."""
+    """Brax's running-statistics update with a batch of observations (Welford).
+
+    std = clip(√(summed_var / count), normalizer_std_min, normalizer_std_max); every leading dimension of
+    `obs_batch` is a sample.
+
+    Args:
+      stats: the current statistics (`init_normalizer`'s mapping).
+      obs_batch: (..., D).
+      cfg: the `SF2Config` (D and the std clip).
+
+    Returns:
+      The new statistics.
+
+    Raises:
+      ShapeError: `obs_batch` of another last dimension.
+    """
     check_last("obs_batch", obs_batch, cfg.obs_size, "obs_size")
     batch = jnp.reshape(obs_batch, (-1, cfg.obs_size))
     count = stats["count"] + batch.shape[0]
@@ -234,15 +288,25 @@ def update_normalizer(stats: Params, obs_batch, cfg: SF2Config) -> Params:
 
 
 def flow_time_embedding(k, size: int):
-    """Sinusoidal embedding of the flow time k (authors' `scalar_positional_embedding`), shape (..., size):
-    out[2i] = sin(10⁴·k·ω_i), out[2i+1] = cos(10⁴·k·ω_i), ω_i = exp(−2i·ln(10⁴)/size).
+    """The sinusoidal embedding of the flow time k (the authors' `scalar_positional_embedding`).
 
-    The phase is reduced exactly before sin/cos (docs/parity.md, "flow-time embedding"): with
-    G_i = 10⁴·ω_i / 2π turns (up to 1592), k = k_hi + k_lo (k_hi = round(4096·k)/4096, k_lo exact) and
-    G = G_hi + G_lo (G_hi on 11 bits), t = (k_hi·G_hi − round(k_hi·G_hi)) + (k_hi·G_lo + k_lo·G) and the
-    phase is 2π·t, |t| <= ~1. k_hi·G_hi and its fractional part are exact in float32, so the float32 phase
-    is accurate to ~1e-6 rad (5e-4 rad when 10⁴·k·ω_i was formed directly: one ulp of a float32 phase
-    near 10⁴), and no reassociation or fused multiply-add changes that."""
+    out[2i] = sin(10⁴·k·ω_i), out[2i+1] = cos(10⁴·k·ω_i), ω_i = exp(−2i·ln(10⁴)/size). The phase is reduced
+    exactly before sin/cos (docs/parity.md, "flow-time embedding"): with G_i = 10⁴·ω_i / 2π turns,
+    k = k_hi + k_lo (k_hi = round(4096·k)/4096) and G = G_hi + G_lo (G_hi on 11 bits),
+    t = (k_hi·G_hi − round(k_hi·G_hi)) + (k_hi·G_lo + k_lo·G), phase 2π·t; k_hi·G_hi and its fractional part
+    are exact in float32, so the float32 phase is accurate to ~1e-6 rad instead of one ulp of a phase
+    near 10⁴.
+
+    Args:
+      k: the flow time, any shape (...).
+      size: E, an even integer >= 2.
+
+    Returns:
+      (..., size).
+
+    Raises:
+      ConfigError: `size` odd or < 2.
+    """
     if size < 2 or size % 2:
         raise ConfigError(f"embedding size={size!r} is invalid: must be an even integer >= 2")
     k = jnp.asarray(k)
@@ -258,7 +322,21 @@ def flow_time_embedding(k, size: int):
 
 
 def psi(nets: Networks, params: Params, obs, action, target: bool = False):
-    """ψ(s, a) (B, F) on concat[normalize(s), a] (Definition 3.1); `target=True` uses ψ̄."""
+    """ψ(s, a), the time-invariant state-action feature (Definition 3.1), on [normalize(s), a].
+
+    Args:
+      nets: the `Networks`.
+      params: the parameters (`init_params`).
+      obs: raw observations (B, D) (normalized here with the `obs_norm` statistics).
+      action: (B, A).
+      target: the target network instead of the online one.
+
+    Returns:
+      (B, F).
+
+    Raises:
+      ShapeError: `obs` or `action` of another last dimension.
+    """
     cfg = nets.cfg
     check_last("obs", obs, cfg.obs_size, "obs_size")
     check_last("action", action, cfg.action_size, "action_size")
@@ -279,38 +357,104 @@ def _zeta_input(nets: Networks, x, k):
 
 
 def zeta(nets: Networks, params: Params, x, k, target: bool = False):
-    """ζ(x, k) (B, D, F): the F·D outputs reshaped row-major, entry (d, f) = output d·F + f."""
+    """ζ(x, k), the time-conditioned matrix field, on [x, embedding(k)].
+
+    Entry (d, f) of the (D, F) matrix is ζ's output d·F + f (row-major).
+
+    Args:
+      nets: the `Networks`.
+      params: the parameters (`init_params`).
+      x: (B, D), in normalized-observation space.
+      k: the flow time (B,) (or a scalar).
+      target: the target network instead of the online one.
+
+    Returns:
+      (B, D, F).
+
+    Raises:
+      ShapeError: `x` of another last dimension, or `k` of another batch shape.
+    """
     cfg = nets.cfg
     out = nets.zeta.apply({"params": _group(nets, params, "zeta", target)}, _zeta_input(nets, x, k))
     return out.reshape(*out.shape[:-1], cfg.obs_size, cfg.feature_size)
 
 
 def zeta_hidden(nets: Networks, params: Params, x, k, target: bool = False):
-    """h(x, k) (B, H): ζ's MLP up to (not including) its last Dense (the fast path's h)."""
+    """h(x, k): ζ's MLP up to, not including, its last Dense (the fast path's h).
+
+    Args:
+      nets: the `Networks`.
+      params: the parameters (`init_params`).
+      x: (B, D).
+      k: the flow time (B,) (or a scalar).
+      target: the target network instead of the online one.
+
+    Returns:
+      (B, H).
+
+    Raises:
+      ShapeError: `x` of another last dimension, or `k` of another batch shape.
+    """
     return nets.zeta.apply({"params": _group(nets, params, "zeta", target)}, _zeta_input(nets, x, k),
                            method=MLP.hidden)
 
 
 def zeta_last_layer(nets: Networks, params: Params, target: bool = False):
-    """ζ's last Dense: kernel W (H, F·D) and bias b (F·D,)."""
+    """ζ's last Dense layer in canonical layout.
+
+    Args:
+      nets: the `Networks`.
+      params: the parameters (`init_params`).
+      target: the target network instead of the online one.
+
+    Returns:
+      (kernel W (H, F·D), bias b (F·D,)).
+    """
     last = _group(nets, params, "zeta", target)[f"dense_{len(nets.cfg.zeta_hidden_sizes)}"]
     return last["kernel"], last["bias"]
 
 
 def velocity(nets: Networks, params: Params, x, k, features, target: bool = False):
-    """Plain velocity u_d = Σ_f ζ(x, k)_{d f} ψ_f (Definition 3.1), shape (B, D). Materializes ζ."""
+    """The plain velocity u = ζ(x, k)ᵀψ: u_d = Σ_f ζ(x, k)_{d f} ψ_f (Definition 3.1); materializes ζ.
+
+    Args:
+      nets: the `Networks`.
+      params: the parameters (`init_params`).
+      x: (B, D).
+      k: the flow time (B,).
+      features: ψ (B, F).
+      target: the target network instead of the online one.
+
+    Returns:
+      (B, D).
+
+    Raises:
+      ShapeError: an input of another shape.
+    """
     check_last("features", features, nets.cfg.feature_size, "feature_size")
     return jnp.einsum("...df,...f->...d", zeta(nets, params, x, k, target), features)
 
 
 def contract(nets: Networks, params: Params, features, target: bool = False):
-    """Contract ζ's last layer with ψ once (docs/core-contract.md "Networks", fast path): M (B, D, H) and
-    c (B, D) with M[b, d, h] = Σ_f W[h, d·F + f] ψ[b, f] and c[b, d] = Σ_f b[d·F + f] ψ[b, f].
+    """Contract ζ's last layer with ψ once, for the fast path (docs/core-contract.md "Networks").
 
-    Layout: the kernel W (H, F·D) is re-laid (D, H, F) here, once per contraction (an internal transpose;
-    the stored parameter keeps its canonical (in, out) layout), so the single GEMM ψ·W_tᵀ emits M already
-    as (B, D·H) and every evaluation of `velocity_contracted` reduces over M's minor axis with no
-    per-evaluation re-layout of M (docs/decisions/flow-loss-layout.md)."""
+    M[b, d, h] = Σ_f W[h, d·F + f] ψ[b, f] and c[b, d] = Σ_f b[d·F + f] ψ[b, f]; compute once per (ζ, ψ) and
+    reuse for every evaluation at new (x, k). The kernel is re-laid (D, H, F) once per contraction (the stored
+    parameter keeps its canonical layout), so one GEMM emits M as (B, D·H) and every `velocity_contracted`
+    reduces over M's minor axis (docs/decisions/flow-loss-layout.md).
+
+    Args:
+      nets: the `Networks`.
+      params: the parameters (`init_params`).
+      features: ψ (B, F).
+      target: the target network instead of the online one.
+
+    Returns:
+      (M (B, D, H), c (B, D)).
+
+    Raises:
+      ShapeError: `features` of another last dimension.
+    """
     cfg = nets.cfg
     check_last("features", features, cfg.feature_size, "feature_size")
     W, b = zeta_last_layer(nets, params, target)
@@ -320,8 +464,25 @@ def contract(nets: Networks, params: Params, features, target: bool = False):
 
 
 def velocity_contracted(nets: Networks, params: Params, x, k, M, c, target: bool = False):
-    """Fast velocity u = einsum('bh,bdh->bd', h(x, k), M) + c with (M, c) from `contract`; equal to
-    `velocity` (u is linear in ζ's last layer)."""
+    """The fast velocity u = einsum('bh,bdh->bd', h(x, k), M) + c, equal to `velocity`.
+
+    u is linear in ζ's last layer, so (M, c) from `contract` give it without building ζ (B, D, F).
+
+    Args:
+      nets: the `Networks`.
+      params: the parameters (`init_params`).
+      x: (B, D).
+      k: the flow time (B,).
+      M: (B, D, H) from `contract`.
+      c: (B, D) from `contract`.
+      target: the target network instead of the online one.
+
+    Returns:
+      (B, D).
+
+    Raises:
+      ShapeError: `x`, `k`, M or c of another shape.
+    """
     h = zeta_hidden(nets, params, x, k, target)
     x_shape = tuple(jnp.shape(x))
     if tuple(jnp.shape(M)) != (*x_shape, jnp.shape(h)[-1]) or tuple(jnp.shape(c)) != x_shape:
@@ -334,7 +495,20 @@ def velocity_contracted(nets: Networks, params: Params, x, k, M, c, target: bool
 
 # ------------------------------------------------------------------------------------------ Q and policies
 def q_values(nets: Networks, params: Params, features, target: bool = False):
-    """Twin Q(ψ) (B, 2): column j is head_j (Appendix D)."""
+    """The twin Q heads on features (Appendix D): column j is head j.
+
+    Args:
+      nets: the `Networks`.
+      params: the parameters (`init_params`).
+      features: ψ (B, F).
+      target: the target network instead of the online one.
+
+    Returns:
+      (B, 2).
+
+    Raises:
+      ShapeError: `features` of another last dimension.
+    """
     check_last("features", features, nets.cfg.feature_size, "feature_size")
     return nets.q.apply({"params": _group(nets, params, "q", target)}, features)
 
@@ -345,7 +519,21 @@ def _require(nets: Networks, algo: str, fn: str):
 
 
 def td3_action(nets: Networks, params: Params, obs, target: bool = False):
-    """TD3 deterministic policy tanh(MLP(normalize(s))) (B, A); `target=True` uses the target policy."""
+    """The TD3 policy's action tanh(MLP(normalize(s))).
+
+    Args:
+      nets: the `Networks`.
+      params: the parameters (`init_params`).
+      obs: raw observations (B, D).
+      target: the target policy instead of the online one.
+
+    Returns:
+      (B, A) in [−1, 1].
+
+    Raises:
+      ConfigError: networks built for another algorithm.
+      ShapeError: `obs` of another last dimension.
+    """
     _require(nets, "td3", "td3_action")
     check_last("obs", obs, nets.cfg.obs_size, "obs_size")
     out = nets.policy.apply({"params": _group(nets, params, "policy", target)},
@@ -354,7 +542,20 @@ def td3_action(nets: Networks, params: Params, obs, target: bool = False):
 
 
 def sac_distribution(nets: Networks, params: Params, obs):
-    """SAC pre-tanh Gaussian: loc = out[:, :A], σ = softplus(out[:, A:]) + min_std."""
+    """The SAC policy's pre-tanh Gaussian: loc = out[:, :A], σ = softplus(out[:, A:]) + min_std.
+
+    Args:
+      nets: the `Networks`.
+      params: the parameters (`init_params`).
+      obs: raw observations (B, D).
+
+    Returns:
+      (loc (B, A), σ (B, A)).
+
+    Raises:
+      ConfigError: networks built for another algorithm.
+      ShapeError: `obs` of another last dimension.
+    """
     _require(nets, "sac", "sac_distribution")
     cfg = nets.cfg
     check_last("obs", obs, cfg.obs_size, "obs_size")
@@ -364,9 +565,24 @@ def sac_distribution(nets: Networks, params: Params, obs):
 
 
 def sac_sample(nets: Networks, params: Params, obs, noise):
-    """Tanh-Gaussian sample with explicit standard-normal ξ (B, A): u = loc + σξ, a = tanh(u),
+    """A tanh-Gaussian sample of the SAC policy with explicit standard-normal noise, and its log-density.
+
+    u = loc + σξ, a = tanh(u),
     log π(a|s) = Σ_i[−½ξ_i² − log σ_i − ½ log 2π] − Σ_i 2(log 2 − u_i − softplus(−2u_i)).
-    Returns (action (B, A), log_prob (B,))."""
+
+    Args:
+      nets: the `Networks`.
+      params: the parameters (`init_params`).
+      obs: raw observations (B, D).
+      noise: ξ (B, A) ~ N(0, I).
+
+    Returns:
+      (action (B, A), log_prob (B,)).
+
+    Raises:
+      ConfigError: networks built for another algorithm.
+      ShapeError: `obs` or `noise` of another shape.
+    """
     _require(nets, "sac", "sac_sample")
     check_last("noise", noise, nets.cfg.action_size, "action_size")
     loc, std = sac_distribution(nets, params, obs)
@@ -378,6 +594,19 @@ def sac_sample(nets: Networks, params: Params, obs, noise):
 
 
 def sac_mode(nets: Networks, params: Params, obs):
-    """SAC deterministic action tanh(loc) (B, A)."""
+    """The SAC policy's deterministic action tanh(loc).
+
+    Args:
+      nets: the `Networks`.
+      params: the parameters (`init_params`).
+      obs: raw observations (B, D).
+
+    Returns:
+      (B, A).
+
+    Raises:
+      ConfigError: networks built for another algorithm.
+      ShapeError: `obs` of another last dimension.
+    """
     loc, _ = sac_distribution(nets, params, obs)
     return jnp.tanh(loc)

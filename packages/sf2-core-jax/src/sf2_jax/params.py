@@ -1,48 +1,11 @@
-"""Canonical parameters: the framework-neutral interchange format of SF² (docs/params.md).
+"""Canonical parameters: the framework-neutral interchange format of SF² (docs/params.md), JAX side.
 
-A canonical mapping is a flat ``dict[str, numpy.ndarray]`` whose keys are dot-joined paths. Loading the
-same canonical mapping into `sf2_jax` and `sf2_torch` gives networks that compute the same numbers.
-
-Groups (top-level names)
-------------------------
-==================  ===================================================================  ==========
-group               content                                                              algo
-==================  ===================================================================  ==========
-``obs_norm``        running statistics ``count`` (), ``mean`` (D,), ``summed_var`` (D,),  both
-                    ``std`` (D,)
-``psi``             ψ: MLP(hidden_sizes → F) on [normalize(s), a]                        both
-``zeta``            ζ: MLP(zeta_hidden_sizes → F·D) on [x, embedding(k)]                  both
-``q``               twin Q heads ``q.head_0.*`` and ``q.head_1.*``                        both
-``policy``          TD3: MLP(hidden_sizes → A); SAC: MLP(hidden_sizes → 2A)              both
-``target_psi``      EMA copy of ``psi``                                                  both
-``target_zeta``     EMA copy of ``zeta``                                                 both
-``target_q``        EMA copy of ``q``                                                    both
-``target_policy``   EMA copy of ``policy``                                               TD3 only
-``log_alpha``       SAC temperature log α, shape ()                                       SAC only
-==================  ===================================================================  ==========
-
-Inside a network, layer i (counted from 0, input side first) has
-``dense_{i}.kernel`` (in, out), ``dense_{i}.bias`` (out,) and, for each hidden layer when
-``cfg.layer_norm``, ``layer_norm_{i}.scale`` (out,) and ``layer_norm_{i}.bias`` (out,). The last layer is
-Dense only; Q heads have no LayerNorm. Kernels are always stored (in, out): JAX/flax layout; torch
-transposes its ``weight``. ζ's last kernel (H, F·D) has output column d·F + f for entry (d, f) of ζ.
-
-Examples with D = 5, A = 1 and the default sizes: ``psi.dense_0.kernel`` (6, 512),
-``psi.layer_norm_0.scale`` (512,), ``psi.dense_3.kernel`` (512, 512), ``zeta.dense_0.kernel`` (69, 512),
-``zeta.dense_2.kernel`` (512, 2560), ``q.head_1.dense_1.bias`` (1,), ``obs_norm.count`` ().
-
-Files
------
-``save(path, flat)`` writes ``.npz`` (numpy only, `numpy.savez`) or ``.safetensors`` (needs the
-`safetensors` package: ``pip install sf2-core-jax[safetensors]``), chosen by the suffix; ``load(path)``
-reads either back as a flat mapping. Arrays keep their dtype (float32 or float64). A missing, unreadable
-or corrupt file raises `ParamsError`.
-
-Checking
---------
-``validate(flat, nets)`` (or ``validate(flat, cfg, algo)``) compares a mapping with the names and shapes
-that `networks.init_params` produces for that config and algorithm, and raises `ParamsError` listing every
-missing, unexpected and misshaped entry (expected and found shapes). ``from_canonical`` validates first.
+A canonical mapping is a flat ``dict[str, numpy.ndarray]``: dot-joined names (``psi.dense_0.kernel``,
+``q.head_1.dense_0.bias``, ``obs_norm.mean``, ``log_alpha``), kernels stored (in, out), LayerNorm
+``scale``/``bias``; the groups are `networks.init_params`'s. Loading one mapping into `sf2_jax` and
+`sf2_torch` (`sf2_torch.params`, the same functions) gives networks that compute the same numbers.
+`to_canonical` / `from_canonical` convert, `validate` and `expected_shapes` check against networks, `save`
+and `load` read and write ``.npz`` or ``.safetensors`` files (`sf2_common.paramfile`, shared by both cores).
 """
 
 from __future__ import annotations
@@ -82,7 +45,14 @@ def _flatten(tree) -> dict:
 
 
 def to_canonical(params: Mapping) -> dict[str, np.ndarray]:
-    """Flatten a `params` dict of canonical groups to {dot-joined name: numpy array} (copies)."""
+    """The canonical mapping of a params dict.
+
+    Args:
+      params: nested params of canonical groups (`networks.init_params`, an agent's parameters).
+
+    Returns:
+      {dot-joined name: numpy array}, copies, names sorted.
+    """
     return {name: np.array(value) for name, value in _flatten(params).items()}
 
 
@@ -116,14 +86,31 @@ def _networks(nets_or_cfg, algo: str | None) -> nw.Networks:
 
 
 def expected_shapes(nets_or_cfg, algo: str | None = None) -> dict[str, tuple[int, ...]]:
-    """{canonical name: shape} that `init_params` gives for these networks (or this config and algo)."""
+    """The canonical names and shapes of networks' parameters.
+
+    Args:
+      nets_or_cfg: the `networks.Networks`, or an `SF2Config` with `algo`.
+      algo: "td3" or "sac", with a config (with networks: None or theirs).
+
+    Returns:
+      {canonical name: shape}, as `networks.init_params` gives them.
+
+    Raises:
+      ParamsError: a config without `algo`, an `algo` other than the networks', or neither networks nor
+        a config.
+    """
     return dict(_expected(_networks(nets_or_cfg, algo)))
 
 
 def validate(flat: Mapping, nets_or_cfg, algo: str | None = None) -> None:
-    """Raise `ParamsError` naming every missing, unexpected and misshaped entry of `flat`.
+    """Check a canonical mapping against networks' names and shapes.
 
-    Accepts `validate(flat, nets)` or `validate(flat, cfg, algo)`.
+    Args:
+      flat: {canonical name: array}.
+      nets_or_cfg, algo: as `expected_shapes`'.
+
+    Raises:
+      ParamsError: naming every missing, unexpected and misshaped entry (expected and found shapes).
     """
     nets = _networks(nets_or_cfg, algo)
     cfg = nets.cfg
@@ -132,9 +119,19 @@ def validate(flat: Mapping, nets_or_cfg, algo: str | None = None) -> None:
 
 
 def from_canonical(flat: Mapping, nets: nw.Networks, dtype=None) -> dict:
-    """Validate `flat` against `nets`, then build the nested `params` dict of JAX arrays.
+    """The params dict of a canonical mapping, validated against the networks first.
 
-    `dtype` (e.g. `jnp.float64`) casts every array; None keeps each array's dtype (as JAX canonicalizes it).
+    Args:
+      flat: {canonical name: array}.
+      nets: the `networks.Networks` the parameters are for.
+      dtype: cast every array to it (e.g. `jnp.float64`); None keeps each array's dtype (as JAX
+        canonicalizes it).
+
+    Returns:
+      The nested params dict of JAX arrays, as `networks.init_params` returns it.
+
+    Raises:
+      ParamsError: as `validate`.
     """
     validate(flat, nets)
     return unflatten(flat, _expected(nets), dtype)
@@ -167,11 +164,31 @@ def unflatten(flat: Mapping, names=None, dtype=None) -> dict:
 
 # ------------------------------------------------------------------------------------------------ files
 def save(path, flat: Mapping) -> Path:
-    """Write a canonical mapping to `path` (.npz or .safetensors by suffix), atomically. Returns the path
-    (`sf2_common.paramfile`: the same files for both cores)."""
+    """Write a canonical mapping to a file, atomically; either core reads it back.
+
+    Args:
+      path: a ``.npz`` (numpy only) or ``.safetensors`` (the `safetensors` package) path.
+      flat: {canonical name: array}; arrays keep their dtype.
+
+    Returns:
+      The path written.
+
+    Raises:
+      ParamsError: another suffix, a non-numeric array, or ``.safetensors`` without the package.
+    """
     return paramfile.save_arrays(path, {str(name): np.asarray(value) for name, value in flat.items()})
 
 
 def load(path) -> dict[str, np.ndarray]:
-    """Read a canonical mapping written by `save` (either core). `ParamsError` if missing or corrupt."""
+    """Read a canonical mapping written by `save` (either core).
+
+    Args:
+      path: a ``.npz`` or ``.safetensors`` file.
+
+    Returns:
+      {canonical name: numpy array}.
+
+    Raises:
+      ParamsError: the file is missing, unreadable or corrupt.
+    """
     return paramfile.load_arrays(path)

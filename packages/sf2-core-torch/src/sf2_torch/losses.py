@@ -2,22 +2,16 @@
 
 Paper: eq. (3)–(4) and Algorithm 1 (flow), Appendix A.3 (explicit mixture), Appendix D Algorithms 2–3
 (TD3 and SAC on features); docs/core-contract.md "Losses". Every random draw (ε, flow_time k, smoothing
-ξ, SAC noise) is an argument, so the same inputs give the same numbers in JAX and torch.
+ξ, SAC noise) is an argument, so the same inputs give the same numbers in JAX and torch. Each loss
+returns `(loss, aux)`, `aux` a dict of detached 0-d tensors (no host synchronization inside a loss);
+batches are 2-D, every field (B, ·); batch means divide by B, samples masked by m_b = 1 − truncation_b
+count as zeros. The TD3 and SAC losses are written once against a `critic` (default: SF²'s Q(ψ(s, a)),
+`sf2_critic`; the agents pass their representation's).
 
-Each loss returns `(loss, aux)` with `aux` a dict of scalars (torch: a 0-d tensor with a graph and
-detached 0-d tensors; no host synchronization inside a loss). Batches are 2-D: every field is (B, ·).
-Batch means divide by B; samples masked by m_b = 1 − truncation_b count as zeros.
-
-The TD3 and SAC losses are written once, against a critic: `critic(obs, action, target=False)`
-→ twin Q (B, 2), online or target. The default (`critic=None`) is SF²'s Q(ψ(s, a)) (`sf2_critic`);
-the agents pass their representation's critic (vanilla Q(s, a), Sim, SPR, ...). `nets` still gives the
-config and the policy (π, π̄, SAC sampling).
-
-Gradient contract: the caller chooses the trained groups: `loss.backward(inputs=...)` with the trained
-groups' parameters. Targets are evaluated under `torch.no_grad()`, and the TD target y and SAC's α in
-the critic and actor losses are constants (detached) in every case, so no loss reaches a target; the
-actor losses also reach the critic's online parameters, which `inputs` leaves out. (The JAX core: `jax.grad`
-with respect to the trained groups only.)
+Gradient contract: the caller calls `loss.backward(inputs=...)` with the trained groups' parameters;
+targets are evaluated under `torch.no_grad()`. The TD target y and SAC's α are constants in every case.
+`check_batch` and `check_noise` are the losses' shape checks, public for the baselines' losses (the JAX
+core's `sf2_jax.losses` has the same functions).
 """
 
 from __future__ import annotations
@@ -54,8 +48,16 @@ Critic = Callable[..., torch.Tensor]  # critic(obs, action, target=False) -> (B,
 
 
 class Batch(NamedTuple):
-    """Transitions: obs (B, D), action (B, A), reward (B,), discount (B,) = 1 − terminal, next_obs (B, D),
-    truncation (B,) ∈ {0, 1}."""
+    """Transitions of a 2-D batch.
+
+    Attributes:
+      obs: (B, D) observations s.
+      action: (B, A) actions a.
+      reward: (B,) rewards r.
+      discount: (B,) 1 − terminal.
+      next_obs: (B, D) next observations s′.
+      truncation: (B,) 1 where the time limit cut the episode, else 0.
+    """
 
     obs: torch.Tensor
     action: torch.Tensor
@@ -137,19 +139,29 @@ def _bootstrap_target(nets, batch, next_action, eps, flow_time, contracted: bool
 def flow_loss(
     nets: Networks, batch: Batch, next_action: torch.Tensor, eps: torch.Tensor, flow_time: torch.Tensor
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """L_flow = mean_b m_b[(1 − γ_su) ℓ_P + γ_su ℓ_B] (eq. 3–4, Algorithm 1).
+    """The flow loss of SF² (eq. 3–4, Algorithm 1), trained on ψ and ζ.
 
-    ℓ_P = Σ_d (ζ(x_k, k)ψ − (s̄′ − ε))²_d with x_k = k s̄′ + (1 − k) ε, s̄′ = normalize(s′), ψ = ψ(s, a);
-    ℓ_B = Σ_d (ζ(x̂, k)ψ − sg(ζ̄(x̂, k)ψ̄′))²_d with ψ̄′ = ψ̄(s′, ā′) and x̂ the ODE solution from ε over
-    [0, k] under the target field ζ̄ψ̄′ (`denoising_steps` steps of `integrator`).
+    L_flow = mean_b m_b[(1 − γ_su) ℓ_P + γ_su ℓ_B], with
+    ℓ_P = Σ_d (ζ(x_k, k)ψ − (s̄′ − ε))²_d, x_k = k s̄′ + (1 − k) ε, s̄′ = normalize(s′), ψ = ψ(s, a);
+    ℓ_B = Σ_d (ζ(x̂, k)ψ − sg(ζ̄(x̂, k)ψ̄′))²_d, ψ̄′ = ψ̄(s′, ā′), x̂ the ODE solution from ε over [0, k] under
+    the target field ζ̄ψ̄′ (`denoising_steps` steps of `integrator`).
+    With `cfg.contract_zeta` (the fast path, docs/core-contract.md "Networks") ζ's last layer is contracted
+    with ψ once (M, c) and with ψ̄′ once (M̄, c̄) and reused for every evaluation; the two online evaluations
+    go through ζ's hidden layers as one batch of 2B. Otherwise (the oracle) ζ (B, D, F) is materialized at
+    each point. With γ_su = 0 the bootstrap branch is skipped and loss_boot = 0.
 
-    `next_action` ā′ (B, A) gets no gradient; `eps` ε (B, D) ~ N(0, I); `flow_time` k (B,) ~ U(0, 1).
-    With `cfg.contract_zeta` the fast path (docs/core-contract.md "Networks", fast path) contracts ζ's
-    last layer with ψ once (M, c) and with ψ̄′ once (M̄, c̄) and reuses them for every evaluation; the two
-    online evaluations (at x_k and x̂) go through ζ's hidden layers as one batch of 2B, then one product
-    with M. Otherwise (the oracle) ζ (B, D, F) is materialized at each point. With γ_su = 0 the
-    bootstrap branch is skipped and loss_boot = 0. Trains ψ and ζ.
-    Returns (loss, {"loss_p": mean_b m_b ℓ_P, "loss_boot": mean_b m_b ℓ_B}).
+    Args:
+      nets: the `Networks` (its `cfg`: sizes and hyperparameters; its algo: the policy).
+      batch: the transitions.
+      next_action: ā′ (B, A); gets no gradient.
+      eps: ε (B, D) ~ N(0, I).
+      flow_time: k (B,) ~ U(0, 1).
+
+    Returns:
+      (loss, {"loss_p": mean_b m_b ℓ_P, "loss_boot": mean_b m_b ℓ_B}).
+
+    Raises:
+      ShapeError: a field of `batch` or a noise of another shape.
     """
     cfg = nets.cfg
     bs = check_batch(cfg, batch)
@@ -201,9 +213,24 @@ def explicit_mixture_loss(
     k2: torch.Tensor,
     weight: float | torch.Tensor,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """Explicit mixture objective (Appendix A.3), with φ_k(ε, x) = kx + (1 − k)ε:
+    """The explicit mixture objective of the two-Gaussian study (Appendix A.3).
+
+    With φ_k(ε, x) = kx + (1 − k)ε:
     weight·mean_b‖v(φ_k1(ε1, x1), k1) − (x1 − ε1)‖² + (1 − weight)·mean_b‖v(φ_k2(ε2, x2), k2) − (x2 − ε2)‖².
-    Returns (loss, {"loss_1": first mean, "loss_2": second mean})."""
+
+    Args:
+      velocity_fn: v(x, k), x (B, D) and k (B,) → (B, D).
+      x1, x2: samples of the two components, (B, D).
+      eps1, eps2: ε (B, D) ~ N(0, I), one per component.
+      k1, k2: flow times (B,) ~ U(0, 1), one per component.
+      weight: the first component's weight.
+
+    Returns:
+      (loss, {"loss_1": the first mean, "loss_2": the second mean}).
+
+    Raises:
+      ShapeError: an ε of another shape than its x, or a k of another shape than x's batch.
+    """
 
     def term(x, e, k):
         _check_same("eps", e, tuple(x.shape), "same as x")
@@ -217,8 +244,14 @@ def explicit_mixture_loss(
 
 # ------------------------------------------------------------------------------------------------ critic
 def sf2_critic(nets: Networks) -> Critic:
-    """SF²'s critic Q(ψ(s, a)) (Appendix D): `critic(obs, action, target=False)` → (B, 2), the core's twin
-    Q heads on ψ (`target=True`: Q̄(ψ̄(s, a)))."""
+    """SF²'s critic Q(ψ(s, a)) (Appendix D): the core's twin Q heads on ψ.
+
+    Args:
+      nets: the `Networks` (its `cfg`: sizes and hyperparameters; its algo: the policy).
+
+    Returns:
+      `critic(obs, action, target=False)` → (B, 2); `target=True`: Q̄(ψ̄(s, a)).
+    """
 
     def critic(obs, action, target=False):
         return q_values(nets, psi(nets, obs, action, target=target), target=target)
@@ -244,10 +277,23 @@ def _td_loss(cfg, batch: Batch, q: torch.Tensor, next_value: torch.Tensor):
 def td3_critic_loss(
     nets: Networks, batch: Batch, smoothing: torch.Tensor, *, critic: Critic | None = None
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """TD3 critic (Algorithm 2 on features): ã′ = clip(π̄(s′) + clip(σ_s ξ, −c, c), −1, 1),
-    y = rs·r + discount·γ·min_j Q̄_j(s′, ã′), loss = ½ mean_{b,j}(m_b(Q_j(s, a) − sg(y)))².
-    `smoothing` ξ (B, A) ~ N(0, I); Q = `critic` (default: SF²'s Q(ψ), trains Q and ψ).
-    aux: q (mean Q), target_q (mean y)."""
+    """The TD3 critic loss (Algorithm 2 on features), trained on Q (and, by default, ψ).
+
+    ã′ = clip(π̄(s′) + clip(σ_s ξ, −c, c), −1, 1), y = rs·r + discount·γ·min_j Q̄_j(s′, ã′),
+    loss = ½ mean_{b,j}(m_b(Q_j(s, a) − sg(y)))².
+
+    Args:
+      nets: the `Networks` (its `cfg`: sizes and hyperparameters; its algo: the policy).
+      batch: the transitions.
+      smoothing: ξ (B, A) ~ N(0, I), the target policy's smoothing noise.
+      critic: `critic(obs, action, target=False)` → (B, 2); None: SF²'s Q(ψ) (`sf2_critic`).
+
+    Returns:
+      (loss, {"q": mean Q, "target_q": mean y}).
+
+    Raises:
+      ShapeError: a field of `batch` or the noise of another shape.
+    """
     cfg = nets.cfg
     critic = critic or sf2_critic(nets)
     b = check_batch(cfg, batch)
@@ -262,9 +308,22 @@ def td3_critic_loss(
 def td3_actor_loss(
     nets: Networks, batch: Batch, *, critic: Critic | None = None
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """TD3 actor (Algorithm 2): −mean_b Q_0(s, π(s)) (the deterministic policy gradient; rlax's
-    `dpg_loss`, which the authors call, has the same gradient for A = 1 and 1/A of it otherwise:
-    docs/core-contract.md). Trains the policy only. aux: q (mean Q_0)."""
+    """The TD3 actor loss (Algorithm 2), trained on the policy only.
+
+    loss = −mean_b Q_0(s, π(s)), the deterministic policy gradient (rlax's `dpg_loss`, which the authors call,
+    has the same gradient for A = 1 and 1/A of it otherwise: docs/core-contract.md).
+
+    Args:
+      nets: the `Networks` (its `cfg`: sizes and hyperparameters; its algo: the policy).
+      batch: the transitions.
+      critic: `critic(obs, action, target=False)` → (B, 2); None: SF²'s Q(ψ) (`sf2_critic`).
+
+    Returns:
+      (loss, {"q": mean Q_0}).
+
+    Raises:
+      ShapeError: a field of `batch` of another shape.
+    """
     critic = critic or sf2_critic(nets)
     check_batch(nets.cfg, batch)
     action = td3_action(nets, batch.obs)
@@ -283,10 +342,25 @@ def _alpha(nets: Networks) -> torch.Tensor:
 def sac_critic_loss(
     nets: Networks, batch: Batch, noise: torch.Tensor, *, critic: Critic | None = None
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """SAC critic (Algorithm 3 on features): a′, log π(a′|s′) from the online policy at s′ with ξ′ = `noise`;
+    """The SAC critic loss (Algorithm 3 on features), trained on Q (and, by default, ψ).
+
+    a′, log π(a′|s′) from the online policy at s′ with ξ′ = `noise`;
     y = rs·r + discount·γ·(min_j Q̄_j(s′, a′) − α log π(a′|s′)), α = exp(log_alpha) constant;
-    loss = ½ mean_{b,j}(m_b(Q_j(s, a) − sg(y)))². Q = `critic` (default: SF²'s Q(ψ), trains Q and ψ).
-    aux: q, target_q."""
+    loss = ½ mean_{b,j}(m_b(Q_j(s, a) − sg(y)))².
+
+    Args:
+      nets: the `Networks` (its `cfg`: sizes and hyperparameters; its algo: the policy).
+      batch: the transitions.
+      noise: ξ′ (B, A) ~ N(0, I), the policy's noise at s′.
+      critic: `critic(obs, action, target=False)` → (B, 2); None: SF²'s Q(ψ) (`sf2_critic`).
+
+    Returns:
+      (loss, {"q": mean Q, "target_q": mean y}).
+
+    Raises:
+      ConfigError: networks built for another algorithm than SAC.
+      ShapeError: a field of `batch` or the noise of another shape.
+    """
     cfg = nets.cfg
     critic = critic or sf2_critic(nets)
     alpha = _alpha(nets)
@@ -303,8 +377,23 @@ def sac_critic_loss(
 def sac_actor_loss(
     nets: Networks, batch: Batch, noise: torch.Tensor, *, critic: Critic | None = None
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """SAC actor (Algorithm 3): a ~ π(s) with ξ = `noise`; loss = mean_b(α log π(a|s) − min_j Q_j(s, a)),
-    α constant. Trains the policy only. aux: entropy (−mean log π)."""
+    """The SAC actor loss (Algorithm 3), trained on the policy only.
+
+    a ~ π(s) with ξ = `noise`; loss = mean_b(α log π(a|s) − min_j Q_j(s, a)), α constant.
+
+    Args:
+      nets: the `Networks` (its `cfg`: sizes and hyperparameters; its algo: the policy).
+      batch: the transitions.
+      noise: ξ (B, A) ~ N(0, I).
+      critic: `critic(obs, action, target=False)` → (B, 2); None: SF²'s Q(ψ) (`sf2_critic`).
+
+    Returns:
+      (loss, {"entropy": −mean log π}).
+
+    Raises:
+      ConfigError: networks built for another algorithm than SAC.
+      ShapeError: a field of `batch` or the noise of another shape.
+    """
     critic = critic or sf2_critic(nets)
     alpha = _alpha(nets)
     b = check_batch(nets.cfg, batch)
@@ -318,9 +407,23 @@ def sac_actor_loss(
 def sac_alpha_loss(
     nets: Networks, batch: Batch, noise: torch.Tensor
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """SAC temperature: loss = mean_b(exp(log_alpha)·sg(−log π(a|s) − target_entropy)),
-    target_entropy = −target_entropy_scale·A, a ~ π(s) with ξ = `noise`. Trains log_alpha only.
-    aux: alpha."""
+    """The SAC temperature loss, trained on log_alpha only.
+
+    loss = mean_b(exp(log_alpha)·sg(−log π(a|s) − target_entropy)), target_entropy = −target_entropy_scale·A,
+    a ~ π(s) with ξ = `noise`.
+
+    Args:
+      nets: the `Networks` (its `cfg`: sizes and hyperparameters; its algo: the policy).
+      batch: the transitions.
+      noise: ξ (B, A) ~ N(0, I).
+
+    Returns:
+      (loss, {"alpha": α}).
+
+    Raises:
+      ConfigError: networks built for another algorithm than SAC.
+      ShapeError: a field of `batch` or the noise of another shape.
+    """
     cfg = nets.cfg
     _alpha(nets)
     b = check_batch(nets.cfg, batch)
@@ -343,8 +446,17 @@ def _tensors(x: nn.Module | Iterable[torch.Tensor]) -> list[torch.Tensor]:
 def ema_update(
     target: nn.Module | Iterable[torch.Tensor], online: nn.Module | Iterable[torch.Tensor], tau: float
 ) -> None:
-    """Target-network EMA (paper §3.4): target ← (1 − τ)·target + τ·online, parameter by parameter, in
-    place. `target` and `online` are modules of the same architecture (or matching sequences of tensors)."""
+    """The target-network EMA (paper §3.4): target ← (1 − τ)·target + τ·online, in place.
+
+    Args:
+      target: the target module (or a sequence of tensors).
+      online: the online module of the same architecture (or matching tensors).
+      tau: the rate τ in [0, 1] (checked when a Python number; a tensor is not checked).
+
+    Raises:
+      ConfigError: a rate outside [0, 1].
+      ShapeError: modules of another architecture.
+    """
     if isinstance(tau, numbers.Real) and not 0.0 <= float(tau) <= 1.0:
         raise ConfigError(f"tau={tau!r} is invalid: must satisfy 0 <= tau <= 1")
     t, o = _tensors(target), _tensors(online)

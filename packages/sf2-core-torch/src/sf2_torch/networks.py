@@ -1,20 +1,16 @@
-"""Networks of SF²: ψ, ζ, twin Q heads, TD3 and SAC policies, observation normalizer (docs/core-contract.md
-"Networks").
+"""Networks of SF²: ψ, ζ, twin Q heads, TD3 and SAC policies, observation normalizer, flow-time embedding.
 
-Notation (docs/core-contract.md "Notation"): B batch, D = obs_size, A = action_size, F = feature_size,
-H = width of ζ's last hidden layer, E = embedding_size; `flow_time` k ∈ [0, 1] is the flow time, never the
-MDP step.
+Paper: Definition 3.1 (u = ζ(x, k)ᵀψ(s, a)), Appendix E (architectures); docs/core-contract.md "Networks"
+and "Notation" (B batch, D = obs_size, A = action_size, F = feature_size, H = width of ζ's last hidden
+layer, E = embedding_size; `flow_time` k ∈ [0, 1] is the flow time, never the MDP step).
 
 Every network is an `MLP` whose children are named `dense_{i}` (`nn.Linear`) and `layer_norm_{i}`
-(`nn.LayerNorm`, ε = 1e-6), so that `params.to_canonical` maps module paths to the canonical names
-(`psi.dense_0.kernel`, ...). A hidden layer is Dense → ReLU → LayerNorm; the last layer is Dense only.
-Initialization: LeCun-uniform kernels U(±√(3/fan_in)), zero biases, LayerNorm scale 1 and bias 0.
-
-`make_networks(cfg, algo)` builds a `Networks` module holding the online networks, their target
-copies (`requires_grad=False`) and, for SAC, the `log_alpha` parameter. The functional helpers at the
-bottom (`psi`, `zeta`, `velocity`, `contract`, `velocity_contracted`, `q_values`, `td3_action`,
-`sac_sample`, `normalize`, `update_normalizer`, `flow_time_embedding`) have the JAX core's signatures
-without its `params` argument; they check shapes and raise `ShapeError` before any torch op fails.
+(`nn.LayerNorm`, ε = 1e-6), so `params.to_canonical` maps module paths to the canonical names. A hidden
+layer is Dense → ReLU → LayerNorm, the last layer Dense only; LeCun-uniform kernels, zero biases.
+`make_networks(cfg, algo)` builds a `Networks` module of the online networks, their frozen target copies
+and, for SAC, `log_alpha`. The functional helpers (`psi`, `zeta`, `velocity`, `contract`, ...) have the
+JAX core's signatures without its `params` argument, and every input is shape-checked (`check_last`): a
+wrong size raises `ShapeError` naming the expected and the found sizes before any torch op runs.
 """
 
 from __future__ import annotations
@@ -242,16 +238,22 @@ class QHead(MLP):
 
 
 def twin_heads(head_0: MLP, head_1: MLP, x: torch.Tensor) -> torch.Tensor:
-    """`torch.cat([head_0(x), head_1(x)], -1)` of two MLPs of one shape with one output each, as one
-    program: the first layer's two weights stacked make one GEMM on the shared input (forward, and one each
-    for the weight and the input gradient); each later hidden layer is one batched product over the two
-    heads (`torch.baddbmm`); the LayerNorms normalize both heads at once and scale by each head's own
-    weight and bias; the two output layers are one elementwise product and row sum. Each head's parameters
-    stay its own (`head_j.dense_i`, `head_j.layer_norm_i`: the canonical names), and the values equal the
-    plain `cat` up to float rounding (packages/sf2-core-torch/tests/test_torch_networks.py). torch.compile
-    does not merge two modules' products by itself; merging the twin Q heads took the torch trainer's GEMM
-    launches per SGD step from 123 to 104 and its one-seed rate up by 6.6%
-    (docs/decisions/torch-trainer-step.md)."""
+    """Two MLP heads of one shape on one input as one program: `torch.cat([head_0(x), head_1(x)], -1)`.
+
+    The first layer's two weights stacked make one GEMM on the shared input (forward, and one each for the
+    weight and the input gradient); each later hidden layer is one batched product over the two heads
+    (`torch.baddbmm`); the LayerNorms normalize both heads at once and scale by each head's own weight and
+    bias; the output layers are one elementwise product and row sum. Each head keeps its own parameters (the
+    canonical names), and the values equal the plain `cat` up to float rounding. torch.compile does not merge
+    two modules' products by itself (docs/decisions/torch-trainer-step.md).
+
+    Args:
+      head_0, head_1: MLPs of one shape with one output each.
+      x: their input (..., in).
+
+    Returns:
+      (..., 2).
+    """
     if head_0.num_hidden == 0:
         return torch.cat([head_0(x), head_1(x)], dim=-1)
 
@@ -444,9 +446,23 @@ def make_networks(
     dtype: torch.dtype | None = None,
     device: torch.device | str | None = None,
 ) -> Networks:
-    """Build and initialise every network of `algo` ∈ {"td3", "sac"} (seed with `torch.manual_seed` first).
+    """Build the networks of one SF² agent and initialise them (seed with `torch.manual_seed` first).
 
+    ψ: MLP(hidden_sizes → F) on [normalize(s), a]; ζ: MLP(zeta_hidden_sizes → F·D) on [x, embedding(k)];
+    Q: twin heads on ψ; policy: MLP(hidden_sizes → A (TD3) or 2A (SAC)) on normalize(s) (Appendix E).
     Draw order: ψ, ζ, Q head 0, Q head 1, policy; targets copy the online networks.
+
+    Args:
+      cfg: the `SF2Config`.
+      algo: "td3" or "sac".
+      dtype: of every parameter (default: torch's default dtype).
+      device: where they live.
+
+    Returns:
+      The `Networks`: online networks, their frozen target copies and, for SAC, `log_alpha`.
+
+    Raises:
+      ConfigError: `cfg` is not an `SF2Config`, or `algo` is neither "td3" nor "sac".
     """
     return Networks(cfg, algo, dtype=dtype, device=device)
 
@@ -469,13 +485,24 @@ def _embedding_tables(size: int, dtype: torch.dtype, device: torch.device):
 
 
 def flow_time_embedding(k: torch.Tensor, size: int) -> torch.Tensor:
-    """Sinusoidal embedding of flow time k (B,) → (B, size), interleaved sin/cos.
+    """The sinusoidal embedding of the flow time k (the authors' `scalar_positional_embedding`).
 
-    For i = 0..size/2−1, ω_i = exp(−2i·ln(10⁴)/size): out[2i] = sin(10⁴·k·ω_i), out[2i+1] = cos(10⁴·k·ω_i).
-    The phase is reduced exactly before sin/cos, as in the JAX core (docs/parity.md, "flow-time embedding"):
-    with G_i = 10⁴·ω_i / 2π turns, k = k_hi + k_lo (k_hi = round(4096·k)/4096) and G = G_hi + G_lo (G_hi
-    on 11 bits), t = (k_hi·G_hi − round(k_hi·G_hi)) + (k_hi·G_lo + k_lo·G), phase 2π·t; the float32
-    phase is accurate to ~1e-6 rad instead of one ulp of a phase near 10⁴ (5e-4 rad).
+    out[2i] = sin(10⁴·k·ω_i), out[2i+1] = cos(10⁴·k·ω_i), ω_i = exp(−2i·ln(10⁴)/size). The phase is reduced
+    exactly before sin/cos (docs/parity.md, "flow-time embedding"): with G_i = 10⁴·ω_i / 2π turns,
+    k = k_hi + k_lo (k_hi = round(4096·k)/4096) and G = G_hi + G_lo (G_hi on 11 bits),
+    t = (k_hi·G_hi − round(k_hi·G_hi)) + (k_hi·G_lo + k_lo·G), phase 2π·t; k_hi·G_hi and its fractional part
+    are exact in float32, so the float32 phase is accurate to ~1e-6 rad instead of one ulp of a phase
+    near 10⁴.
+
+    Args:
+      k: the flow time, any shape (...).
+      size: E, an even integer >= 2.
+
+    Returns:
+      (..., size).
+
+    Raises:
+      ConfigError: `size` odd or < 2.
     """
     if size < 2 or size % 2:
         raise ConfigError(f"embedding size={size!r} is invalid: must be an even integer >= 2")
@@ -492,7 +519,15 @@ def flow_time_embedding(k: torch.Tensor, size: int) -> torch.Tensor:
 
 
 def init_normalizer(size: int, dtype: torch.dtype | None = None) -> dict[str, torch.Tensor]:
-    """Initial running statistics as a dict: count 0, mean 0, summed_var 0, std 1 (functional form)."""
+    """The initial running observation statistics.
+
+    Args:
+      size: D.
+      dtype: of the statistics (default: torch's default dtype).
+
+    Returns:
+      {"count": 0, "mean": zeros (D,), "summed_var": zeros (D,), "std": ones (D,)}.
+    """
     kw = dict(dtype=dtype or torch.get_default_dtype())
     return {
         "count": torch.zeros((), **kw),
@@ -513,7 +548,18 @@ def _stats_of(stats) -> Mapping[str, torch.Tensor]:
 
 
 def normalize(obs: torch.Tensor, stats) -> torch.Tensor:
-    """(obs − mean) / std with `stats` an `ObsNormalizer` (or a mapping with `mean` and `std`)."""
+    """Normalize observations with running statistics (Brax `running_statistics`): (obs − mean) / std.
+
+    Args:
+      obs: (..., D).
+      stats: an `ObsNormalizer` (or `Networks`, or a mapping with `mean` and `std`).
+
+    Returns:
+      (..., D).
+
+    Raises:
+      ShapeError: `obs` of another last dimension.
+    """
     s = _stats_of(stats)
     check_last("obs", obs, s["mean"].shape[-1], "obs_size")
     return (obs - s["mean"]) / s["std"]
@@ -533,11 +579,21 @@ def _running_update(stats, obs_batch, obs_size, std_min, std_max) -> dict[str, t
 
 
 def update_normalizer(stats, obs_batch: torch.Tensor, cfg: SF2Config):
-    """Brax's running-statistics update (Welford over the batch, std = clip(√(summed_var/count))).
+    """Brax's running-statistics update with a batch of observations (Welford).
 
-    `stats` an `ObsNormalizer` (or `Networks`): updated in place and returned. `stats` a mapping
-    {count, mean, summed_var, std}: a new dict is returned. Every leading dimension of `obs_batch` is a
-    sample.
+    std = clip(√(summed_var / count), normalizer_std_min, normalizer_std_max); every leading dimension of
+    `obs_batch` is a sample.
+
+    Args:
+      stats: an `ObsNormalizer` or `Networks` (updated in place), or a mapping {count, mean, summed_var, std}.
+      obs_batch: (..., D).
+      cfg: the `SF2Config` (D and the std clip).
+
+    Returns:
+      The updated `ObsNormalizer`, or a new mapping when given a mapping.
+
+    Raises:
+      ShapeError: `obs_batch` of another last dimension.
     """
     with torch.no_grad():
         if isinstance(stats, Networks):
@@ -552,7 +608,20 @@ def update_normalizer(stats, obs_batch: torch.Tensor, cfg: SF2Config):
 
 
 def psi(nets: Networks, obs: torch.Tensor, action: torch.Tensor, target: bool = False) -> torch.Tensor:
-    """ψ(s, a) (B, F) on raw observations (normalized here with `nets.obs_norm`); `target` uses ψ̄."""
+    """ψ(s, a), the time-invariant state-action feature (Definition 3.1), on [normalize(s), a].
+
+    Args:
+      nets: the `Networks`.
+      obs: raw observations (B, D) (normalized here with the `obs_norm` statistics).
+      action: (B, A).
+      target: the target network instead of the online one.
+
+    Returns:
+      (B, F).
+
+    Raises:
+      ShapeError: `obs` or `action` of another last dimension.
+    """
     check_last("obs", obs, nets.cfg.obs_size, "obs_size")
     check_last("action", action, nets.cfg.action_size, "action_size")
     net = nets.target_psi if target else nets.psi
@@ -560,17 +629,53 @@ def psi(nets: Networks, obs: torch.Tensor, action: torch.Tensor, target: bool = 
 
 
 def zeta(nets: Networks, x: torch.Tensor, k: torch.Tensor, target: bool = False) -> torch.Tensor:
-    """ζ(x, k) (B, D, F); x lives in normalized-observation space."""
+    """ζ(x, k), the time-conditioned matrix field, on [x, embedding(k)].
+
+    Entry (d, f) of the (D, F) matrix is ζ's output d·F + f (row-major).
+
+    Args:
+      nets: the `Networks`.
+      x: (B, D), in normalized-observation space.
+      k: the flow time (B,) (or a scalar).
+      target: the target network instead of the online one.
+
+    Returns:
+      (B, D, F).
+
+    Raises:
+      ShapeError: `x` of another last dimension, or `k` of another batch shape.
+    """
     return (nets.target_zeta if target else nets.zeta)(x, k)
 
 
 def zeta_hidden(nets: Networks, x: torch.Tensor, k: torch.Tensor, target: bool = False) -> torch.Tensor:
-    """h(x, k) (B, H): ζ up to (not including) its last Dense."""
+    """h(x, k): ζ's MLP up to, not including, its last Dense (the fast path's h).
+
+    Args:
+      nets: the `Networks`.
+      x: (B, D).
+      k: the flow time (B,) (or a scalar).
+      target: the target network instead of the online one.
+
+    Returns:
+      (B, H).
+
+    Raises:
+      ShapeError: `x` of another last dimension, or `k` of another batch shape.
+    """
     return (nets.target_zeta if target else nets.zeta).hidden(x, k)
 
 
 def zeta_last_layer(nets: Networks, target: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
-    """ζ's last Dense in canonical layout: kernel W (H, F·D) (a transposed view), bias b (F·D,)."""
+    """ζ's last Dense layer in canonical layout.
+
+    Args:
+      nets: the `Networks`.
+      target: the target network instead of the online one.
+
+    Returns:
+      (kernel W (H, F·D), a transposed view, bias b (F·D,)).
+    """
     last = (nets.target_zeta if target else nets.zeta).last
     return last.weight.T, last.bias
 
@@ -578,7 +683,21 @@ def zeta_last_layer(nets: Networks, target: bool = False) -> tuple[torch.Tensor,
 def velocity(
     nets: Networks, x: torch.Tensor, k: torch.Tensor, features: torch.Tensor, target: bool = False
 ) -> torch.Tensor:
-    """Plain velocity u_d = Σ_f ζ(x, k)_{d f} ψ_f (Definition 3.1), (B, D). Materializes ζ (B, D, F)."""
+    """The plain velocity u = ζ(x, k)ᵀψ: u_d = Σ_f ζ(x, k)_{d f} ψ_f (Definition 3.1); materializes ζ.
+
+    Args:
+      nets: the `Networks`.
+      x: (B, D).
+      k: the flow time (B,).
+      features: ψ (B, F).
+      target: the target network instead of the online one.
+
+    Returns:
+      (B, D).
+
+    Raises:
+      ShapeError: an input of another shape.
+    """
     check_last("features", features, nets.cfg.feature_size, "feature_size")
     return torch.einsum("bdf,bf->bd", zeta(nets, x, k, target), features)
 
@@ -586,14 +705,23 @@ def velocity(
 def contract(
     nets: Networks, features: torch.Tensor, target: bool = False
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """(M (B, D, H), c (B, D)) of the fast path (docs/core-contract.md "Networks", fast path).
+    """Contract ζ's last layer with ψ once, for the fast path (docs/core-contract.md "Networks").
 
-    M[b, d, h] = Σ_f W[h, d·F + f] ψ[b, f] and c[b, d] = Σ_f b[d·F + f] ψ[b, f], with W ζ's last kernel
-    (H, F·D) in canonical layout and b its bias. Layout (as the JAX core's `contract`): the torch weight
-    (F·D, H), i.e. (D, F, H), is re-laid (D, H, F) once per contraction (an internal copy; the parameter
-    keeps its layout), so one GEMM ψ·W_tᵀ emits M contiguous as (B, D·H) and every evaluation of
-    `velocity_contracted` reduces over M's minor axis. Compute once per (ζ parameters, ψ) pair and reuse
-    for every evaluation at new (x, k).
+    M[b, d, h] = Σ_f W[h, d·F + f] ψ[b, f] and c[b, d] = Σ_f b[d·F + f] ψ[b, f]; compute once per (ζ, ψ) and
+    reuse for every evaluation at new (x, k). The kernel is re-laid (D, H, F) once per contraction (the stored
+    parameter keeps its canonical layout), so one GEMM emits M as (B, D·H) and every `velocity_contracted`
+    reduces over M's minor axis (docs/decisions/flow-loss-layout.md).
+
+    Args:
+      nets: the `Networks`.
+      features: ψ (B, F).
+      target: the target network instead of the online one.
+
+    Returns:
+      (M (B, D, H), c (B, D)).
+
+    Raises:
+      ShapeError: `features` of another last dimension.
     """
     check_last("features", features, nets.cfg.feature_size, "feature_size")
     w, b = (nets.target_zeta if target else nets.zeta).last_dense()  # (D, F, H), (D, F)
@@ -612,8 +740,24 @@ def velocity_contracted(
     c: torch.Tensor,
     target: bool = False,
 ) -> torch.Tensor:
-    """u = einsum('bh,bdh->bd', h(x, k), M) + c, (B, D), with (M, c) from `contract`: equal to `velocity`
-    without building ζ (B, D, F)."""
+    """The fast velocity u = einsum('bh,bdh->bd', h(x, k), M) + c, equal to `velocity`.
+
+    u is linear in ζ's last layer, so (M, c) from `contract` give it without building ζ (B, D, F).
+
+    Args:
+      nets: the `Networks`.
+      x: (B, D).
+      k: the flow time (B,).
+      m: (B, D, H) from `contract`.
+      c: (B, D) from `contract`.
+      target: the target network instead of the online one.
+
+    Returns:
+      (B, D).
+
+    Raises:
+      ShapeError: `x`, `k`, M or c of another shape.
+    """
     h = zeta_hidden(nets, x, k, target)
     if tuple(m.shape) != (*x.shape, h.shape[-1]) or tuple(c.shape) != tuple(x.shape):
         raise ShapeError(
@@ -624,7 +768,19 @@ def velocity_contracted(
 
 
 def q_values(nets: Networks, features: torch.Tensor, target: bool = False) -> torch.Tensor:
-    """[Q_0(ψ), Q_1(ψ)] (B, 2)."""
+    """The twin Q heads on features (Appendix D): column j is head j.
+
+    Args:
+      nets: the `Networks`.
+      features: ψ (B, F).
+      target: the target network instead of the online one.
+
+    Returns:
+      (B, 2).
+
+    Raises:
+      ShapeError: `features` of another last dimension.
+    """
     return (nets.target_q if target else nets.q)(features)
 
 
@@ -634,7 +790,20 @@ def _require(nets: Networks, algo: str, fn: str) -> None:
 
 
 def td3_action(nets: Networks, obs: torch.Tensor, target: bool = False) -> torch.Tensor:
-    """TD3 policy action tanh(MLP(normalized s)) (B, A); `target` uses the target policy."""
+    """The TD3 policy's action tanh(MLP(normalize(s))).
+
+    Args:
+      nets: the `Networks`.
+      obs: raw observations (B, D).
+      target: the target policy instead of the online one.
+
+    Returns:
+      (B, A) in [−1, 1].
+
+    Raises:
+      ConfigError: networks built for another algorithm.
+      ShapeError: `obs` of another last dimension.
+    """
     _require(nets, "td3", "td3_action")
     check_last("obs", obs, nets.cfg.obs_size, "obs_size")
     return (nets.target_policy if target else nets.policy)(normalize(obs, nets.obs_norm))
@@ -643,20 +812,60 @@ def td3_action(nets: Networks, obs: torch.Tensor, target: bool = False) -> torch
 def sac_sample(
     nets: Networks, obs: torch.Tensor, noise: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """(action (B, A), log π(action|s) (B,)) from the online SAC policy with explicit noise ξ (B, A)."""
+    """A tanh-Gaussian sample of the SAC policy with explicit standard-normal noise, and its log-density.
+
+    u = loc + σξ, a = tanh(u),
+    log π(a|s) = Σ_i[−½ξ_i² − log σ_i − ½ log 2π] − Σ_i 2(log 2 − u_i − softplus(−2u_i)).
+
+    Args:
+      nets: the `Networks`.
+      obs: raw observations (B, D).
+      noise: ξ (B, A) ~ N(0, I).
+
+    Returns:
+      (action (B, A), log_prob (B,)).
+
+    Raises:
+      ConfigError: networks built for another algorithm.
+      ShapeError: `obs` or `noise` of another shape.
+    """
     _require(nets, "sac", "sac_sample")
     check_last("obs", obs, nets.cfg.obs_size, "obs_size")
     return nets.policy.sample(normalize(obs, nets.obs_norm), noise)
 
 
 def sac_distribution(nets: Networks, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """SAC pre-tanh Gaussian (loc, σ), each (B, A): loc = out[:, :A], σ = softplus(out[:, A:]) + min_std."""
+    """The SAC policy's pre-tanh Gaussian: loc = out[:, :A], σ = softplus(out[:, A:]) + min_std.
+
+    Args:
+      nets: the `Networks`.
+      obs: raw observations (B, D).
+
+    Returns:
+      (loc (B, A), σ (B, A)).
+
+    Raises:
+      ConfigError: networks built for another algorithm.
+      ShapeError: `obs` of another last dimension.
+    """
     _require(nets, "sac", "sac_distribution")
     check_last("obs", obs, nets.cfg.obs_size, "obs_size")
     return nets.policy(normalize(obs, nets.obs_norm))
 
 
 def sac_mode(nets: Networks, obs: torch.Tensor) -> torch.Tensor:
-    """Deterministic SAC action tanh(loc) (B, A)."""
+    """The SAC policy's deterministic action tanh(loc).
+
+    Args:
+      nets: the `Networks`.
+      obs: raw observations (B, D).
+
+    Returns:
+      (B, A).
+
+    Raises:
+      ConfigError: networks built for another algorithm.
+      ShapeError: `obs` of another last dimension.
+    """
     return torch.tanh(sac_distribution(nets, obs)[0])
 

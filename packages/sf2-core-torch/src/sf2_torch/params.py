@@ -1,45 +1,12 @@
-"""Canonical parameter interchange: one flat mapping name → numpy array, shared with the JAX core.
+"""Canonical parameters: the framework-neutral interchange format of SF² (docs/params.md), torch side.
 
-The scheme (docs/core-contract.md "Canonical parameters")
---------------------------------------------------------
-Names are dot-joined paths, grouped by network:
-
-=====================================  ==========================================================
-`obs_norm.count`                       () running count of observations (float)
-`obs_norm.mean`, `.summed_var`, `.std`  (D,) Brax running statistics
-`psi.*`, `zeta.*`, `policy.*`          online MLPs (`policy` is the TD3 or SAC head)
-`q.head_0.*`, `q.head_1.*`             the twin Q heads (no LayerNorm)
-`target_psi.*`, `target_zeta.*`,       target copies, same layout as their online networks
-`target_q.*`, `target_policy.*`        (`target_policy` only for TD3)
-`log_alpha`                            () SAC temperature (SAC only)
-=====================================  ==========================================================
-
-Inside a network, layer i is `dense_{i}.kernel` (in, out), `dense_{i}.bias` (out,) and, after each hidden
-layer when LayerNorm is on, `layer_norm_{i}.scale` and `layer_norm_{i}.bias` (width,). Kernels are always
-stored (in, out), as flax does: torch's `nn.Linear.weight` is (out, in) and is transposed on the way in
-and out; LayerNorm's `weight` is called `scale`. Examples with D = 5, A = 1, F = 16, hidden (32, 32):
-`psi.dense_0.kernel` (6, 32), `psi.dense_2.kernel` (32, 16), `zeta.dense_2.kernel` (32, 80) whose output
-index d·F + f is entry (d, f) of ζ's (D, F) matrix, `q.head_0.dense_1.kernel` (32, 1).
-
-Functions
----------
-Every function takes `nets` as one module (the core's `Networks`, a baseline's networks) or as a mapping
-{group: module or parameter} (an agent's groups, e.g. {"obs_norm": ..., "q": ..., "log_alpha": ...}):
-a group's entries are named `<group>.<path>`, a parameter group (`log_alpha`) is named by its group. The
-modules use the canonical layer names, so this one converter serves every representation.
-
-- `to_canonical(nets, grads=False)`: the flat dict (numpy copies, never views of the module's memory).
-  With `grads=True`, the `.grad` of every parameter in the same layout (zeros where `.grad` is None;
-  the normalizer's buffers, which are not parameters, are left out).
-- `from_canonical(flat, nets)`: `validate` first, then copy every entry into `nets` in place, cast to
-  the dtype and device `nets` already has. Returns `nets`.
-- `validate(flat, nets)` or `validate(flat, cfg, algo)`: raise `ParamsError` listing every missing,
-  unexpected and misshaped entry (expected and found shapes, canonical layout).
-- `expected_shapes(nets)` / `expected_shapes(cfg, algo)`: name → canonical shape.
-- `save(path, flat)`: `.npz` (numpy only) or `.safetensors` (needs the `safetensors` package), chosen by
-  the suffix (any other suffix is a `ParamsError`); written atomically (temporary file, then rename),
-  arrays keep their dtype. `load(path)`: the flat dict back; a missing, unreadable or corrupt file
-  raises `ParamsError`. Files are interchangeable with the JAX core's `params` (docs/params.md).
+A canonical mapping is a flat ``dict[str, numpy.ndarray]``: dot-joined names (``psi.dense_0.kernel``,
+``q.head_1.dense_0.bias``, ``obs_norm.mean``, ``log_alpha``), kernels stored (in, out) as flax does
+(`nn.Linear.weight` is transposed on the way in and out), LayerNorm ``scale``/``bias``. The modules use the
+canonical layer names, so one converter serves the core's `Networks`, the baselines' networks and an
+agent's groups. Loading one mapping into `sf2_torch` and `sf2_jax` (`sf2_jax.params`, the same functions)
+gives networks that compute the same numbers. `save` and `load` read and write ``.npz`` or
+``.safetensors`` files (`sf2_common.paramfile`, shared by both cores).
 """
 
 from __future__ import annotations
@@ -55,7 +22,7 @@ from sf2_common.config import SF2Config
 from sf2_common.errors import ParamsError
 from torch import nn
 
-__all__ = ["to_canonical", "from_canonical", "validate", "expected_shapes", "save", "load"]
+__all__ = ["to_canonical", "from_canonical", "validate", "expected_shapes", "save", "load", "FORMATS"]
 
 FORMATS = paramfile.FORMATS
 
@@ -110,7 +77,17 @@ def _to_numpy(tensor: torch.Tensor, transposed: bool) -> np.ndarray:
 
 
 def to_canonical(nets, grads: bool = False) -> dict[str, np.ndarray]:
-    """The canonical flat dict of `nets` (or, with `grads=True`, of its parameters' `.grad`)."""
+    """The canonical mapping of networks' parameters (or of their gradients).
+
+    Args:
+      nets: the core's `Networks`, a baseline's networks, or a mapping {group: module or parameter} (an
+        agent's groups, e.g. {"obs_norm": ..., "q": ..., "log_alpha": ...}).
+      grads: the `.grad` of every parameter instead (zeros where None; the normalizer's buffers, not
+        parameters, left out).
+
+    Returns:
+      {dot-joined name: numpy array}, copies (never views of the modules' memory), kernels (in, out).
+    """
     out: dict[str, np.ndarray] = {}
     for name, tensor, transposed in _slots(nets, buffers=not grads):
         if grads:
@@ -133,7 +110,18 @@ def _networks_for(nets_or_cfg, algo: str | None) -> nn.Module:
 
 
 def expected_shapes(nets_or_cfg, algo: str | None = None) -> dict[str, tuple[int, ...]]:
-    """Canonical name → shape for networks `nets`, or for `make_networks(cfg, algo)` (built on 'meta')."""
+    """The canonical names and shapes of networks' parameters.
+
+    Args:
+      nets_or_cfg: networks (as `to_canonical` takes them), or an `SF2Config` with `algo`.
+      algo: "td3" or "sac", with a config (default "td3"; built on the 'meta' device, no memory).
+
+    Returns:
+      {canonical name: shape}, kernels (in, out).
+
+    Raises:
+      TypeError: neither networks, a mapping of groups nor a config.
+    """
     nets = _networks_for(nets_or_cfg, algo)
     return {name: _canonical_shape(t, tr) for name, t, tr in _slots(nets)}
 
@@ -149,9 +137,15 @@ def _describe(nets: nn.Module) -> str:
 
 
 def validate(flat: Mapping[str, object], nets_or_cfg, algo: str | None = None) -> None:
-    """Raise `ParamsError` naming every missing, unexpected and misshaped entry of `flat`.
+    """Check a canonical mapping against networks' names and shapes.
 
-    `nets_or_cfg` is the networks the parameters are meant for, or an `SF2Config` with `algo`.
+    Args:
+      flat: {canonical name: array}.
+      nets_or_cfg, algo: as `expected_shapes`'.
+
+    Raises:
+      ParamsError: naming every missing, unexpected, misshaped and non-numeric entry (expected and found
+        shapes).
     """
     if not isinstance(flat, Mapping):
         raise ParamsError(
@@ -188,7 +182,18 @@ def validate(flat: Mapping[str, object], nets_or_cfg, algo: str | None = None) -
 
 
 def from_canonical(flat: Mapping[str, object], nets):
-    """Copy canonical `flat` into `nets` in place (validated first; nets keep their dtype and device)."""
+    """Load a canonical mapping into networks, in place, validated against them first.
+
+    Args:
+      flat: {canonical name: array}.
+      nets: networks as `to_canonical` takes them; they keep their dtype and device.
+
+    Returns:
+      `nets`.
+
+    Raises:
+      ParamsError: as `validate`.
+    """
     validate(flat, nets)
     with torch.no_grad():
         for name, tensor, transposed in _slots(nets):
@@ -203,11 +208,31 @@ def _arrays(flat: Mapping[str, object]) -> dict[str, np.ndarray]:
 
 
 def save(path: str | os.PathLike, flat: Mapping[str, object]) -> Path:
-    """Write `flat` to `path` (.npz or .safetensors, by suffix) atomically; returns the path
-    (`sf2_common.paramfile`: the same files for both cores)."""
+    """Write a canonical mapping to a file, atomically; either core reads it back.
+
+    Args:
+      path: a ``.npz`` (numpy only) or ``.safetensors`` (the `safetensors` package) path.
+      flat: {canonical name: array or tensor}; arrays keep their dtype.
+
+    Returns:
+      The path written.
+
+    Raises:
+      ParamsError: another suffix, a non-numeric array, or ``.safetensors`` without the package.
+    """
     return paramfile.save_arrays(path, _arrays(flat))
 
 
 def load(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """Read a canonical parameter file written by `save` (either core); `ParamsError` if it cannot."""
+    """Read a canonical mapping written by `save` (either core).
+
+    Args:
+      path: a ``.npz`` or ``.safetensors`` file.
+
+    Returns:
+      {canonical name: numpy array}.
+
+    Raises:
+      ParamsError: the file is missing, unreadable or corrupt.
+    """
     return paramfile.load_arrays(path)

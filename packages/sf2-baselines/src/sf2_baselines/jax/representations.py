@@ -1,8 +1,7 @@
 """The baselines as pluggable representations of `sf2_jax.agents` (TD3 and SAC, `--repr NAME`).
 
-Each class wires one baseline's networks and pure losses into the interface of
-`sf2_jax.agents.representations.Representation` (init, critic, critic_groups, aux_groups, aux_noise,
-aux_loss, targets); the base algorithms train them with the core's TD3/SAC losses on `critic`.
+Each class wires one baseline's networks and pure losses into `sf2_jax.agents.representations.
+Representation`; the base algorithms train them with the core's TD3/SAC losses on `critic`.
 `register_all()` adds them to the registry; `sf2_baselines.jax` calls it on import.
 
 ==================  ==============  ==================  =====================================  ============
@@ -13,11 +12,7 @@ name                critic trains   aux step trains     aux loss                
 ``simlap_authors``  q, phi          phi, task           simlap.simlap_loss (w every 10/16)     φ̄
 ``spr``             q, encoder      encoder, proj, pred spr.spr_loss                           f̄, ḡ
 ==================  ==============  ==================  =====================================  ============
-
-Schedules: `aux_every` maps a group to the period (in gradient steps) of its updates inside the aux
-step (`Representation.aux_every`). The base algorithm keeps that group's parameters and whole Adam state
-(moments and count) unchanged on the other steps, as the authors' `gradient_steps % 10 == 0` cond does
-with their separate w optimizer.
+The w schedules are `Representation.aux_every`.
 """
 
 from __future__ import annotations
@@ -60,8 +55,11 @@ class _SimBase(reps.Representation):
 
 @reps.register
 class SimRepresentation(_SimBase):
-    """`sim`: TD3Sim / SACSim (Chua et al. 2024 as the SF² paper runs it, §4.2). The TD loss trains the
-    SF heads and φ; the reward-prediction step trains w every `sim.REWARD_EVERY[algo]` steps."""
+    """`sim`: TD3Sim / SACSim, Chua et al. (2024) as the SF² paper runs them (§4.2).
+
+    The TD loss trains the SF heads and φ; the reward-prediction step trains w every `sim.REWARD_EVERY[algo]`
+    gradient steps (`aux_every`).
+    """
 
     name = "sim"
     label = "Sim"
@@ -74,8 +72,11 @@ class SimRepresentation(_SimBase):
 
 @reps.register
 class SimLapRepresentation(_SimBase):
-    """`simlap`: TD3SimLap / SACSimLap as the paper describes them (§4.2): no Q-alignment of φ (the TD
-    loss trains the SF heads only); φ trained by the Laplacian objective, w by reward prediction."""
+    """`simlap`: TD3SimLap / SACSimLap as the paper describes them (§4.2).
+
+    No Q-alignment of φ: the TD loss trains the SF heads only; the aux step trains φ by the Laplacian
+    objective and w by reward prediction (w every `sim.REWARD_EVERY[algo]` steps).
+    """
 
     name = "simlap"
     label = "SimLap"
@@ -89,8 +90,11 @@ class SimLapRepresentation(_SimBase):
 
 @reps.register
 class SimLapAuthorsRepresentation(SimLapRepresentation):
-    """`simlap_authors`: SimLap as the authors' code runs it: the TD loss also trains φ (their
-    `critic_update` updates the feature parameters), then the Laplacian step trains φ again."""
+    """`simlap_authors`: SimLap as the authors' code runs it.
+
+    The TD loss also trains φ (their `critic_update` updates the feature parameters), then the Laplacian step
+    trains φ again.
+    """
 
     name = "simlap_authors"
     label = "SimLap(code)"
@@ -99,9 +103,12 @@ class SimLapAuthorsRepresentation(SimLapRepresentation):
 
 @reps.register
 class SPRRepresentation(reps.Representation):
-    """`spr`: TD3+SPR / SAC+SPR (Appendix B.1): the critic on the encoder z = f(s, a), trained by the TD
-    loss; the SPR step trains f, g and h on the K = 1 self-prediction loss with Gaussian augmentation of
-    std `cfg.spr_augmentation_std` (the config field; paper Figure 5 sweeps it)."""
+    """`spr`: TD3+SPR / SAC+SPR (Appendix B.1), self-predictive representations for state inputs.
+
+    The critic sits on the encoder z = f(s, a), trained by the TD loss; the SPR step trains f, g and h on the
+    K = 1 self-prediction loss, with Gaussian augmentation of std `cfg.spr_augmentation_std` (paper Figure 5
+    sweeps it).
+    """
 
     name = "spr"
     label = "SPR"

@@ -1,19 +1,14 @@
-"""Sim (JAX): successor features learned "the simple way" (Chua et al., 2024), as the SF² paper adapts
-them to TD3 and SAC (TD3Sim, SACSim; paper §4.2). Equations and every deviation: README.md "Sim".
+"""Sim (JAX): successor features learned "the simple way" (Chua et al., 2024) for TD3 and SAC (TD3Sim,
+SACSim; paper §4.2). Networks, equations and every deviation from the authors' code: README.md "Sim".
 
-Networks (parameter groups, canonical names as docs/params.md):
-- ``phi`` / ``target_phi``: basis features φ(s, a, ŵ) = MLP(hidden_sizes → F) on
-  concat[normalize(s), a, ŵ], ŵ = sg(w) / (‖w‖ + 1e-8); hidden layers Dense → ReLU → LayerNorm (the
-  core's `MLP`).
-- ``q`` / ``target_q``: successor-feature heads ψ_j(φ) = Dense(F → q_hidden_size) → ReLU → Dense(→ F),
-  j = 0, 1 (``q.head_{j}.dense_{0,1}``), no LayerNorm.
-- ``task``: the task vector ``task.w`` of shape (F,) ~ N(0, 1) at init. Stored as one (F,) vector,
-  never in the replay (the authors' code stores it per insert with the wrong shape, which breaks
-  F = 512; README.md "Sim").
+Parameter groups (canonical names as docs/params.md): ``phi``/``target_phi``, basis features
+φ(s, a, ŵ) = MLP(hidden_sizes → F) on concat[normalize(s), a, ŵ], ŵ = sg(w)/(‖w‖ + 1e-8);
+``q``/``target_q``, twin successor-feature heads ψ_j(φ) = Dense(F → q_hidden_size) → ReLU → Dense(→ F);
+``task``, the task vector ``task.w`` (F,) ~ N(0, 1), one parameter, never stored in the replay (the
+authors' code stores it per insert with the wrong shape, which breaks F = 512).
 
-Q_j(s, a) = wᵀψ_j(φ(s, a, ŵ)). The TD loss trains ψ_j and φ; the reward-prediction loss
-(wᵀφ(s′, ā′, ŵ) − rs·r)² trains w only, on its own schedule (`REWARD_EVERY`). Target critic:
-Q̄_j = wᵀψ̄_j(φ̄(s′, ã′, ŵ)) with EMA targets φ̄, ψ̄.
+Q_j(s, a) = wᵀψ_j(φ(s, a, ŵ)), the target critic Q̄_j = wᵀψ̄_j(φ̄(s′, ã′, ŵ)). The TD loss trains ψ_j
+and φ; `reward_loss` trains w only, every `REWARD_EVERY[algo]` gradient steps.
 """
 
 from __future__ import annotations
@@ -57,7 +52,13 @@ REWARD_EVERY = {"td3": 10, "sac": 16}
 
 class SFHeads(nn.Module):
     """Twin successor-feature heads `head_0`, `head_1`: the core `MLP((hidden,), F)` without LayerNorm.
-    `__call__(φ)` → (..., 2, F)."""
+
+    Attributes:
+      hidden_size: q_hidden_size.
+      feature_size: F.
+
+    `__call__(φ)` → (..., 2, F).
+    """
 
     hidden_size: int
     feature_size: int
@@ -72,7 +73,15 @@ class SFHeads(nn.Module):
 
 @struct.dataclass
 class SimNetworks:
-    """Config, algorithm, the core networks (policy) and the Sim modules; no parameters (hashable)."""
+    """The networks of a Sim agent, without parameters (hashable; `init_params` makes them).
+
+    Attributes:
+      cfg: the `SF2Config`.
+      algo: "td3" or "sac".
+      core: the core `Networks` (the policy and the observation statistics).
+      phi: φ, the core `MLP(hidden_sizes → F)` on [normalize(s), a, ŵ].
+      q: the `SFHeads`.
+    """
 
     cfg: SF2Config = struct.field(pytree_node=False)
     algo: str = struct.field(pytree_node=False)
@@ -163,9 +172,23 @@ def critic(nets: SimNetworks, params: Params, obs, action, target: bool = False)
 
 # ------------------------------------------------------------------------------------------ losses
 def reward_loss(nets: SimNetworks, params: Params, batch: Batch, next_action):
-    """Reward prediction (Chua et al. 2024; authors' `task_loss`):
-    loss = mean_b m_b (wᵀφ(s′, ā′, ŵ) − rs·r)². ā′ (B, A) is given (TD3: target policy at s′; SAC: a
-    policy sample) and gets no gradient. Trains `task` (w) only. aux: predicted_reward_rms (√mean (wᵀφ′)²)."""
+    """Sim's reward prediction (Chua et al. 2024; the authors' `task_loss`), trained on w only.
+
+    loss = mean_b m_b (wᵀφ(s′, ā′, ŵ) − rs·r)².
+
+    Args:
+      nets: the `SimNetworks`.
+      params: the parameters (`init_params`).
+      batch: the transitions.
+      next_action: ā′ (B, A) from the base algorithm (TD3: the target policy at s′; SAC: a policy sample);
+        gets no gradient.
+
+    Returns:
+      (loss, {"predicted_reward_rms": √mean_b (wᵀφ′)²}).
+
+    Raises:
+      ShapeError: a field of `batch` or `next_action` of another shape.
+    """
     cfg = nets.cfg
     b = common.check_batch(cfg, batch)
     common.check_noise("next_action", next_action, b, cfg.action_size, "action_size")

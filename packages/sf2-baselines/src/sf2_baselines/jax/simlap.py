@@ -1,19 +1,10 @@
 """SimLap (JAX): Sim without the Q-alignment of the features, plus a graph-Laplacian orthogonality
 objective on L2-normalized features (TD3SimLap, SACSimLap; SF² paper §4.2). README.md "SimLap".
 
-Same networks and parameter groups as `sim` (φ, SF heads ψ_j, task vector w, Q_j = wᵀψ_j(φ)).
-What changes is who trains φ (the critic groups of the agents' representations):
-- paper (representation `simlap`): the TD loss trains the SF heads only; φ is trained by
-  `laplacian_loss` alone;
-- the authors' code (representation `simlap_authors`): the TD loss trains φ too, then the Laplacian
-  step trains φ again.
-w is trained by Sim's `reward_loss` on its own schedule in both.
-
-Laplacian objective on φ̂ = φ/(‖φ‖ + 1e-8), φ = φ(s, a, ŵ), φ̂′ = normalized φ(s′, ā′, ŵ) (both online):
-    L_lap  = (1/(B·F)) Σ_b m_b ‖φ̂_b − φ̂′_b‖²                 (graph-Laplacian smoothness)
-    L_diag = −(2/B) Σ_b m_b φ̂_bᵀφ̂′_b                          (orthogonality: positive pairs)
-    L_off  = (1/(B(B−1))) Σ_{i≠j} (φ̂_iᵀφ̂′_j)²                  (orthogonality: other pairs)
-    laplacian_loss = L_lap + L_diag + L_off
+Same networks and parameter groups as `sim`. What changes is who trains φ (the critic groups of the
+agents' representations): in the paper (`simlap`) the TD loss trains the SF heads only and φ is trained
+by `laplacian_loss` alone; in the authors' code (`simlap_authors`) the TD loss trains φ too, then the
+Laplacian step trains φ again. w is trained by Sim's `reward_loss` on its own schedule in both.
 """
 
 from __future__ import annotations
@@ -60,9 +51,27 @@ sg = jax.lax.stop_gradient
 Params = dict[str, Any]
 
 def laplacian_loss(nets: SimNetworks, params: Params, batch: Batch, next_action):
-    """Graph-Laplacian orthogonality objective (module docstring). ā′ (B, A) is given (TD3: target policy
-    at s′; SAC: a policy sample) and gets no gradient. Trains `phi` only (through both φ(s, a) and
-    φ(s′, ā′)). Needs B ≥ 2. aux: lap_term, orth_diag, orth_offdiag."""
+    """SimLap's graph-Laplacian orthogonality objective, trained on φ only (through φ(s, a) and φ(s′, ā′)).
+
+    With φ̂ = φ(s, a, ŵ)/(‖·‖ + 1e-8) and φ̂′ = φ(s′, ā′, ŵ)/(‖·‖ + 1e-8), both online:
+        L_lap  = (1/(B·F)) Σ_b m_b ‖φ̂_b − φ̂′_b‖²          (graph-Laplacian smoothness)
+        L_diag = −(2/B) Σ_b m_b φ̂_bᵀφ̂′_b                   (orthogonality: positive pairs)
+        L_off  = (1/(B(B−1))) Σ_{i≠j} (φ̂_iᵀφ̂′_j)²           (orthogonality: other pairs)
+        laplacian_loss = L_lap + L_diag + L_off
+
+    Args:
+      nets: the `SimNetworks`.
+      params: the parameters (`init_params`).
+      batch: the transitions.
+      next_action: ā′ (B, A) from the base algorithm (TD3: the target policy at s′; SAC: a policy sample);
+        gets no gradient.
+
+    Returns:
+      (loss, {"lap_term": L_lap, "orth_diag": L_diag, "orth_offdiag": L_off}).
+
+    Raises:
+      ShapeError: a field of `batch` or `next_action` of another shape, or B < 2.
+    """
     cfg = nets.cfg
     b = common.check_batch(cfg, batch)
     common.check_noise("next_action", next_action, b, cfg.action_size, "action_size")
@@ -82,8 +91,20 @@ def laplacian_loss(nets: SimNetworks, params: Params, batch: Batch, next_action)
 
 def simlap_loss(nets: SimNetworks, params: Params, batch: Batch, next_action):
     """The SimLap representation step: `laplacian_loss` (trains φ) + Sim's `reward_loss` (trains w).
-    Neither term sends gradient into the other's group, so one Adam step on (φ, w) with one Adam state
-    per group equals the two separate steps. aux: the Laplacian terms, laplacian_loss, reward_loss."""
+
+    Args:
+      nets: the `SimNetworks`.
+      params: the parameters (`init_params`).
+      batch: the transitions.
+      next_action: ā′ (B, A) from the base algorithm (TD3: the target policy at s′; SAC: a policy sample);
+        gets no gradient.
+
+    Returns:
+      (loss, the Laplacian terms, "laplacian_loss", "reward_loss" and reward_loss's aux).
+
+    Raises:
+      ShapeError: as `laplacian_loss`.
+    """
     lap, aux = laplacian_loss(nets, params, batch, next_action)
     rew, rew_aux = reward_loss(nets, params, batch, next_action)
     return lap + rew, {**aux, **rew_aux, "laplacian_loss": lap, "reward_loss": rew}

@@ -1,22 +1,13 @@
-"""SPR (JAX): self-predictive representations (Schwarzer et al., 2021) adapted to state inputs as in
-the SF² paper's Appendix B.1: K = 1 prediction step, Gaussian-noise augmentation (std σ: the config field
-`spr_augmentation_std`, 0.05 by default, the paper's choice from its Figure 5 sweep), added to TD3 and SAC
-(TD3+SPR, SAC+SPR). README.md "SPR".
+"""SPR (JAX): self-predictive representations (Schwarzer et al., 2021) for state inputs, as the SF² paper's
+Appendix B.1 adds them to TD3 and SAC (TD3+SPR, SAC+SPR): K = 1 prediction step, Gaussian-noise
+augmentation of std σ (the config field `spr_augmentation_std`, 0.05 by default, the paper's choice from
+its Figure 5 sweep). README.md "SPR".
 
-Networks (parameter groups):
-- ``encoder`` / ``target_encoder``: z = f(s̃, a) = MLP(hidden_sizes → F) on concat[s̃, a], s̃ the
-  normalized observation (augmented in the SPR loss only); the same shape as SF²'s ψ. Being a
-  state-action encoder, f is SPR's encoder and its one-step transition model in one network.
-- ``q`` / ``target_q``: the core's twin Q heads on z (as SF²'s Q heads on ψ); the TD loss trains q and f.
-- ``projection`` / ``target_projection``: g = Dense(F → q_hidden_size) (SPR projects with the first layer
-  of its Q head; here a separate layer of that shape).
-- ``prediction``: h = Dense(q_hidden_size → q_hidden_size), linear as in SPR.
-
-SPR loss, with explicit standard-normal noise ξ, ξ′ (B, D) and σ = `augmentation_std`:
-    s̃ = normalize(s) + σξ,  s̃′ = normalize(s′) + σξ′
-    p = h(g(f(s̃, a))),  t = sg(ḡ(f̄(s̃′, ā′)))                    (ā′ from the base algorithm)
-    spr_loss = mean_b m_b ‖p/‖p‖ − t/‖t‖‖²  ( = 2 − 2 cos(p, t) per sample)
-Targets f̄, ḡ are EMAs (rate τ) of f, g; f̄ is also the critic's target encoder.
+Parameter groups: ``encoder``/``target_encoder``, z = f(s̃, a) = MLP(hidden_sizes → F) on concat[s̃, a]
+(SPR's encoder and its one-step transition model in one state-action network, the shape of SF²'s ψ);
+``q``/``target_q``, the core's twin Q heads on z (the TD loss trains q and f); ``projection``/
+``target_projection``, g = Dense(F → q_hidden_size); ``prediction``, h = Dense(q_hidden_size →
+q_hidden_size), linear. f̄ and ḡ are EMAs (rate τ); f̄ is also the critic's target encoder.
 """
 
 from __future__ import annotations
@@ -59,7 +50,17 @@ AUGMENTATION_STD = SF2Config.spr_augmentation_std
 
 @struct.dataclass
 class SPRNetworks:
-    """Config, algorithm, the core networks (policy, twin Q heads) and the SPR modules (hashable)."""
+    """The networks of an SPR agent, without parameters (hashable; `init_params` makes them).
+
+    Attributes:
+      cfg: the `SF2Config`.
+      algo: "td3" or "sac".
+      augmentation_std: σ of the Gaussian augmentation s̃ = s̄ + σξ.
+      core: the core `Networks` (the policy, the twin Q heads, the observation statistics).
+      encoder: f, the core `MLP(hidden_sizes → F)` on [normalize(s), a].
+      projection: g, Dense(F → q_hidden_size).
+      prediction: h, Dense(q_hidden_size → q_hidden_size).
+    """
 
     cfg: SF2Config = struct.field(pytree_node=False)
     algo: str = struct.field(pytree_node=False)
@@ -160,10 +161,27 @@ def predict(nets: SPRNetworks, params: Params, y):
 
 # ------------------------------------------------------------------------------------------ losses
 def spr_loss(nets: SPRNetworks, params: Params, batch: Batch, next_action, obs_noise, next_obs_noise):
-    """SPR self-prediction loss with K = 1 (module docstring): mean_b m_b ‖p̂ − t̂‖², p̂ = normalized
-    h(g(f(s̃, a))), t̂ = normalized ḡ(f̄(s̃′, ā′)), no gradient through the target. `obs_noise` ξ and
-    `next_obs_noise` ξ′ (B, D) ~ N(0, I); ā′ (B, A) is given. Trains `encoder`, `projection`,
-    `prediction`. aux: spr_cosine (mean_b m_b cos(p, t))."""
+    """SPR's K = 1 self-prediction loss, trained on the encoder f, the projection g and the prediction h.
+
+    With σ = `augmentation_std`:
+        s̃ = normalize(s) + σξ,  s̃′ = normalize(s′) + σξ′,  p = h(g(f(s̃, a))),  t = sg(ḡ(f̄(s̃′, ā′)))
+        spr_loss = mean_b m_b ‖p/‖p‖ − t/‖t‖‖²  (= 2 − 2 cos(p, t) per sample)
+
+    Args:
+      nets: the `SPRNetworks`.
+      params: the parameters (`init_params`).
+      batch: the transitions.
+      next_action: ā′ (B, A) from the base algorithm (TD3: the target policy at s′; SAC: a policy sample);
+        gets no gradient.
+      obs_noise: ξ (B, D) ~ N(0, I).
+      next_obs_noise: ξ′ (B, D) ~ N(0, I).
+
+    Returns:
+      (loss, {"spr_cosine": mean_b m_b cos(p, t)}).
+
+    Raises:
+      ShapeError: a field of `batch` or a noise of another shape.
+    """
     cfg = nets.cfg
     b = common.check_batch(cfg, batch)
     common.check_noise("next_action", next_action, b, cfg.action_size, "action_size")

@@ -39,8 +39,15 @@ REWARD_EVERY = {"td3": 10, "sac": 16}
 
 
 class SFHeads(nn.Module):
-    """Twin successor-feature heads `head_0`, `head_1`: core `MLP(F, (hidden,), F)` without LayerNorm.
-    `forward(φ)` → (..., 2, F)."""
+    """Twin successor-feature heads `head_0`, `head_1`: the core `MLP(F, (hidden,), F)` without LayerNorm.
+
+    Args:
+      feature_size: F.
+      hidden_size: q_hidden_size.
+      **kw: dtype, device.
+
+    `forward(φ)` → (..., 2, F).
+    """
 
     def __init__(self, feature_size: int, hidden_size: int, **kw) -> None:
         super().__init__()
@@ -54,7 +61,12 @@ class SFHeads(nn.Module):
 
 
 class Task(nn.Module):
-    """The task vector: parameter `w` (F,) ~ N(0, 1) (canonical name `task.w`)."""
+    """The task vector: the parameter `w` (F,) ~ N(0, 1), canonical name `task.w`.
+
+    Args:
+      feature_size: F.
+      dtype, device: of `w`.
+    """
 
     def __init__(self, feature_size: int, *, dtype=None, device=None) -> None:
         super().__init__()
@@ -64,7 +76,20 @@ class Task(nn.Module):
 
 
 class SimNetworks(nn.Module):
-    """All modules of a Sim agent (module docstring). `cfg` and `algo` are plain attributes."""
+    """All modules of a Sim agent: φ, the SF heads, the task vector, their targets and the core's part.
+
+    Args:
+      cfg: the `SF2Config`.
+      algo: "td3" or "sac".
+      dtype, device: of every parameter.
+
+    Attributes:
+      cfg, algo: as given.
+      phi, target_phi: φ on [normalize(s), a, ŵ] and its EMA target.
+      q, target_q: the `SFHeads` and their EMA target.
+      task: the `Task` (w).
+      obs_norm, policy, target_policy (TD3) / log_alpha (SAC): the core agent's (`common.init_core`).
+    """
 
     def __init__(self, cfg: SF2Config, algo: str = "td3", *, dtype=None, device=None) -> None:
         super().__init__()
@@ -122,8 +147,22 @@ def critic(nets: SimNetworks, obs: torch.Tensor, action: torch.Tensor, target: b
 
 # ------------------------------------------------------------------------------------------ losses
 def reward_loss(nets: SimNetworks, batch: Batch, next_action: torch.Tensor):
-    """Reward prediction: mean_b m_b (wᵀφ(s′, ā′, ŵ) − rs·r)²; trains w only.
-    aux: predicted_reward_rms (√mean (wᵀφ′)²)."""
+    """Sim's reward prediction (Chua et al. 2024; the authors' `task_loss`), trained on w only.
+
+    loss = mean_b m_b (wᵀφ(s′, ā′, ŵ) − rs·r)².
+
+    Args:
+      nets: the `SimNetworks`.
+      batch: the transitions.
+      next_action: ā′ (B, A) from the base algorithm (TD3: the target policy at s′; SAC: a policy sample);
+        gets no gradient.
+
+    Returns:
+      (loss, {"predicted_reward_rms": √mean_b (wᵀφ′)²}).
+
+    Raises:
+      ShapeError: a field of `batch` or `next_action` of another shape.
+    """
     cfg = nets.cfg
     b = common.check_batch(cfg, batch)
     common.check_noise("next_action", next_action, b, cfg.action_size, "action_size")

@@ -2,11 +2,6 @@
 objective on L2-normalized features (TD3SimLap, SACSimLap; SF² paper §4.2). Mirror of
 `sf2_baselines.jax.simlap`; README.md "SimLap".
 
-With φ̂ = φ(s, a, ŵ)/(‖·‖ + 1e-8) and φ̂′ = φ(s′, ā′, ŵ)/(‖·‖ + 1e-8), both online:
-    L_lap  = (1/(B·F)) Σ_b m_b ‖φ̂_b − φ̂′_b‖²
-    L_diag = −(2/B) Σ_b m_b φ̂_bᵀφ̂′_b
-    L_off  = (1/(B(B−1))) Σ_{i≠j} (φ̂_iᵀφ̂′_j)²
-    laplacian_loss = L_lap + L_diag + L_off        (trains φ)
 Who trains φ is the critic groups of the agents' representations: the paper's (`simlap`) TD loss trains
 the SF heads only; the authors' code (`simlap_authors`) also trains φ with it.
 """
@@ -46,8 +41,26 @@ __all__ = [
 
 
 def laplacian_loss(nets: SimNetworks, batch: Batch, next_action: torch.Tensor):
-    """Graph-Laplacian orthogonality objective (module docstring); trains `phi` only; needs B ≥ 2.
-    aux: lap_term, orth_diag, orth_offdiag."""
+    """SimLap's graph-Laplacian orthogonality objective, trained on φ only (through φ(s, a) and φ(s′, ā′)).
+
+    With φ̂ = φ(s, a, ŵ)/(‖·‖ + 1e-8) and φ̂′ = φ(s′, ā′, ŵ)/(‖·‖ + 1e-8), both online:
+        L_lap  = (1/(B·F)) Σ_b m_b ‖φ̂_b − φ̂′_b‖²          (graph-Laplacian smoothness)
+        L_diag = −(2/B) Σ_b m_b φ̂_bᵀφ̂′_b                   (orthogonality: positive pairs)
+        L_off  = (1/(B(B−1))) Σ_{i≠j} (φ̂_iᵀφ̂′_j)²           (orthogonality: other pairs)
+        laplacian_loss = L_lap + L_diag + L_off
+
+    Args:
+      nets: the `SimNetworks`.
+      batch: the transitions.
+      next_action: ā′ (B, A) from the base algorithm (TD3: the target policy at s′; SAC: a policy sample);
+        gets no gradient.
+
+    Returns:
+      (loss, {"lap_term": L_lap, "orth_diag": L_diag, "orth_offdiag": L_off}).
+
+    Raises:
+      ShapeError: a field of `batch` or `next_action` of another shape, or B < 2.
+    """
     cfg = nets.cfg
     b = common.check_batch(cfg, batch)
     common.check_noise("next_action", next_action, b, cfg.action_size, "action_size")
@@ -66,8 +79,20 @@ def laplacian_loss(nets: SimNetworks, batch: Batch, next_action: torch.Tensor):
 
 
 def simlap_loss(nets: SimNetworks, batch: Batch, next_action: torch.Tensor):
-    """`laplacian_loss` (trains φ) + Sim's `reward_loss` (trains w): the SimLap representation step.
-    aux: the Laplacian terms, laplacian_loss, reward_loss."""
+    """The SimLap representation step: `laplacian_loss` (trains φ) + Sim's `reward_loss` (trains w).
+
+    Args:
+      nets: the `SimNetworks`.
+      batch: the transitions.
+      next_action: ā′ (B, A) from the base algorithm (TD3: the target policy at s′; SAC: a policy sample);
+        gets no gradient.
+
+    Returns:
+      (loss, the Laplacian terms, "laplacian_loss", "reward_loss" and reward_loss's aux).
+
+    Raises:
+      ShapeError: as `laplacian_loss`.
+    """
     lap, aux = laplacian_loss(nets, batch, next_action)
     rew, rew_aux = reward_loss(nets, batch, next_action)
     return lap + rew, {**aux, **rew_aux, "laplacian_loss": lap.detach(), "reward_loss": rew.detach()}

@@ -7,9 +7,6 @@ the SF² paper's Appendix B.1 (K = 1, Gaussian-noise augmentation of std σ: the
 (MLP(hidden_sizes → F) on concat[s̃, a]), `q` (the core's twin Q heads on z = f(s, a)), `projection` g
 (Dense F → q_hidden_size), `prediction` h (Dense q_hidden_size → q_hidden_size), and the targets
 `target_encoder`, `target_q`, `target_projection`.
-
-    s̃ = normalize(s) + σξ,  s̃′ = normalize(s′) + σξ′,  p = h(g(f(s̃, a))),  t = sg(ḡ(f̄(s̃′, ā′)))
-    spr_loss = mean_b m_b ‖p/‖p‖ − t/‖t‖‖²
 """
 
 from __future__ import annotations
@@ -42,8 +39,26 @@ AUGMENTATION_STD = SF2Config.spr_augmentation_std
 
 
 class SPRNetworks(nn.Module):
-    """All modules of an SPR agent (module docstring). `cfg`, `algo`, `augmentation_std` are attributes;
-    σ = `augmentation_std`, by default the config's `spr_augmentation_std`."""
+    """All modules of an SPR agent: encoder, projection, prediction, their targets and the core's part.
+
+    Args:
+      cfg: the `SF2Config`.
+      algo: "td3" or "sac".
+      augmentation_std: σ of the Gaussian augmentation s̃ = s̄ + σξ; None for the config's
+        `spr_augmentation_std`.
+      dtype, device: of every parameter.
+
+    Attributes:
+      cfg, algo, augmentation_std: as given.
+      encoder, target_encoder: f on [normalize(s), a] and its EMA target.
+      projection, target_projection: g, Dense(F → q_hidden_size), and its EMA target.
+      prediction: h, Dense(q_hidden_size → q_hidden_size).
+      q, target_q: the twin Q heads on z.
+      obs_norm, policy, target_policy (TD3) / log_alpha (SAC): the core agent's (`common.init_core`).
+
+    Raises:
+      ConfigError: a negative `augmentation_std`, or `cfg`/`algo` as the core's `make_networks`.
+    """
 
     def __init__(
         self,
@@ -136,8 +151,26 @@ def spr_loss(
     obs_noise: torch.Tensor,
     next_obs_noise: torch.Tensor,
 ):
-    """SPR self-prediction loss, K = 1 (module docstring). Trains `encoder`, `projection`, `prediction`.
-    aux: spr_cosine (mean_b m_b cos(p, t))."""
+    """SPR's K = 1 self-prediction loss, trained on the encoder f, the projection g and the prediction h.
+
+    With σ = `augmentation_std`:
+        s̃ = normalize(s) + σξ,  s̃′ = normalize(s′) + σξ′,  p = h(g(f(s̃, a))),  t = sg(ḡ(f̄(s̃′, ā′)))
+        spr_loss = mean_b m_b ‖p/‖p‖ − t/‖t‖‖²  (= 2 − 2 cos(p, t) per sample)
+
+    Args:
+      nets: the `SPRNetworks`.
+      batch: the transitions.
+      next_action: ā′ (B, A) from the base algorithm (TD3: the target policy at s′; SAC: a policy sample);
+        gets no gradient.
+      obs_noise: ξ (B, D) ~ N(0, I).
+      next_obs_noise: ξ′ (B, D) ~ N(0, I).
+
+    Returns:
+      (loss, {"spr_cosine": mean_b m_b cos(p, t)}).
+
+    Raises:
+      ShapeError: a field of `batch` or a noise of another shape.
+    """
     cfg = nets.cfg
     b = common.check_batch(cfg, batch)
     common.check_noise("next_action", next_action, b, cfg.action_size, "action_size")

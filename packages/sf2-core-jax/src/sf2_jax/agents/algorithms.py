@@ -1,42 +1,17 @@
 """Base algorithms TD3 and SAC, written once against the representation interface.
 
-The losses are the core's (`sf2_jax.losses.td3_critic_loss`, ..., with `critic=` the representation's
-critic); this module only schedules them. The vocabulary is the same in sf2_torch.agents.algorithms
-(table: docs/core-contract.md "Agents: the plug-in vocabulary"); JAX methods are pure, take `params`
-(and `opt_state` where they update it) first and a PRNG `key` where torch takes a generator.
+The losses are the core's (`sf2_jax.losses`, with `critic=` the representation's critic); this module
+schedules them: one SGD step in the authors' order (docs/core-contract.md "One SGD step"), every random
+input drawn up front by `step_noise` (keys `noise_keys()`, the torch agents' too) so `sgd_step` is pure.
+The vocabulary is sf2_torch.agents.algorithms' (docs/core-contract.md "Agents: the plug-in vocabulary");
+JAX methods are pure, take `params` (and `opt_state` where they update it) first and a PRNG `key` where
+torch takes a generator. Each trained group has its own Adam state (`shared_adam = False` gives ψ's aux
+step a second one, `opt_state["psi:aux"]`).
 
-One SGD step (`sgd_step`; docs/core-contract.md "One SGD step", the authors' order):
-1. at the pre-step parameters: the critic gradient (groups `q` + `representation.critic_groups`) and,
-   on actor steps (`step % policy_delay == 0`), each policy group's gradient from its loss
-   (`policy_losses`: TD3 the actor; SAC the temperature and the actor);
-2. Adam on the critic groups;
-3. the representation's loss at the parameters after 2 (ā′ = `aux_next_action` from the pre-step
-   policy), Adam on `representation.aux_groups`;
-4. Adam on the policy groups (actor steps only);
-5. targets: Q̄ (TD3: and π̄) ← EMA with τ when `updates_q_target(step)` (TD3: on actor steps; SAC: every
-   step), the representation's `targets()` every step. The authors' TD3 blended the new policy into the
-   old *online* policy; we average into the target.
-Each group has its own Adam state, so ψ, trained in steps 2 and 3, keeps one state across both (as in
-the authors' code); with `shared_adam = False` step 3 gives such a group a second state of its own,
-`opt_state["<group>:aux"]` (an ablation: then the flow loss's gradient does not set the scale of the TD
-loss's steps on ψ through the shared second moment).
-
-Noise: `step_noise(key, batch)` draws every random input of one SGD step, a dict keyed by
-`noise_keys()`: TD3 `smoothing_noise` ξ (target-policy smoothing); SAC `next_action_noise` ξ′ (a′ ~ π(s′)
-in the TD target), `actor_noise`, `alpha_noise` (a ~ π(s) in the actor and temperature losses) and, with a
-representation loss, `flow_action_noise` (ā′ ~ π(s′)); then the representation's `noise_keys` (SF²:
-`flow_noise` ε, `flow_time` k). The names are the torch agents' keys, so tests hand one draw to both
-frameworks. `sgd_step` is pure given it.
-
-Schedules (`step`, the run's gradient-step index): a group of `representation.aux_every` ({group:
-period}) takes its aux Adam step only when `step % period == 0`; on the other steps its parameters and
-whole Adam state (moments and step count) are kept by `jnp.where` on the step, and a `policy_delay` > 1
-skips the policy by `lax.cond` (no Python branch on a traced value, so the step stays one program under
-`jit`, `scan` and the trainer's seed `vmap`).
-
-Profiling: each part of the step is traced under a `jax.named_scope` (`critic_grad`, `critic_adam`,
-`aux_grad`, `aux_adam`, `policy_grad`, `policy_adam`, `targets`; `PHASES`), which names nothing but the
-operations' metadata, so `python -m bench.hlo` counts the compiled step's kernels per part.
+Schedules on the traced step index (`aux_every`, `policy_delay`) keep a group's parameters and whole Adam
+state by `jnp.where` or skip the policy by `lax.cond`, so the step stays one program under `jit`, `scan`
+and the trainer's seed `vmap`. Each part is traced under a `jax.named_scope` (`PHASES`), so `python -m
+bench.hlo` counts the compiled step's kernels per part.
 """
 
 from __future__ import annotations

@@ -1,24 +1,14 @@
 """Orbax checkpoints of the complete training state (all seeds): parameters, optimizer states, env
 states, replay buffers, keys and counters, so a resumed run continues bit for bit.
 
-The state is stored as a flat dict of its leaves ("00000", "00001", ...) and rebuilt on restore with the
-tree structure of a freshly initialised state of the same program; zero-size leaves (MJX keeps a few
-empty arrays) are not written (Orbax refuses them) and come from that template. Orbax writes each
-checkpoint into a temporary folder and renames it when complete, so a run killed mid-save leaves the
-previous checkpoint intact. A JSON `meta` item stores the epoch, env steps and the leaf count.
-
-The trainer's `save(wait=False)` returns once the arrays are on the host (Orbax's synchronous
-device-to-host copy, so the next epoch may donate their device buffers) and Orbax writes the files in the
-background while training goes on; the next save, `finish`, `latest`, `all`, `restore` and `close` first
-wait for it. A 10-seed CheetahRun, FishSwim or HopperHop run of fig7-td3 / fig7-sac spent 7.5–10% of its
-wall time waiting for its ten checkpoints' writes (2.8–5.4 s each; Orbax's "Waiting for previous save"
-lines in the runs' train.log). A run killed during a write keeps its previous checkpoint (below).
-
-Once Orbax has finished, the save writes the checkpoint's file manifest (`sf2_common.agents.checkpoints`);
-`restore` checks it first, so a truncated, garbled or missing file is one `CheckpointDamaged` naming the
-file (which the resume rule of `sf2_common.agents.resume` sets aside) instead of the errors of Orbax's
-asynchronous reader. Whatever Orbax still raises is turned into that error (a checkpoint without a
-manifest) or into `CheckpointMismatch` (intact files that do not fit the program).
+The state is stored as a flat dict of its leaves ("00000", ...) and rebuilt on restore with the tree
+structure of a freshly initialised state of the same program (zero-size leaves, which Orbax refuses, come
+from that template); a JSON `meta` item holds the epoch, env steps and leaf count. Orbax writes into a
+temporary folder and renames it when complete, so a kill mid-save leaves the previous checkpoint intact.
+`save(wait=False)` returns once the arrays are on the host and Orbax writes in the background; every
+other method waits for it first (docs/decisions/background-checkpoints.md). The file manifest
+(`sf2_common.agents.checkpoints`) is written last and checked first by `restore`: a damaged file is one
+`CheckpointDamaged` naming it, intact files that do not fit the program a `CheckpointMismatch`.
 """
 
 from __future__ import annotations

@@ -47,8 +47,22 @@ class EnvSpec:
 
 @functools.lru_cache(maxsize=16)
 def make_envs(task: str, episode_length: int, action_repeat: int) -> EnvSpec:
-    """Load `task` with the MJX backend and wrap it for training (auto-reset, truncation flag) and for
-    evaluation (same wrapper; the evaluator runs exactly one episode per env and ignores resets)."""
+    """Load a task with the MJX backend, wrapped for training and for evaluation.
+
+    Both use Playground's `wrap_for_brax_training` (auto-reset, truncation flag); the evaluator runs exactly
+    one episode per env and ignores the resets.
+
+    Args:
+      task: a MuJoCo Playground DM Control task (`valid_tasks`).
+      episode_length: env steps per episode (the time limit; `truncation` is set where it cuts).
+      action_repeat: physics steps per env step.
+
+    Returns:
+      Its `EnvSpec`, cached per (task, episode_length, action_repeat).
+
+    Raises:
+      ConfigError: an unknown task, or one with structured observations.
+    """
     validate_task(task)
     from mujoco_playground import registry, wrapper
 
@@ -72,9 +86,8 @@ class StrongTypes:
     Playground tasks return some leaves weakly typed, at reset or at step (CheetahRun's `data.time` after
     reset, the Cartpole sparse tasks' and HopperHop's reward metrics after a step; docs/physics.md). The
     training epoch's `lax.scan` hands back its carry strongly typed, so a program called first with a
-    reset state and then with its own output compiles twice (measured on an H200: a first training epoch
-    of 32 s instead of 4 s on CheetahRun and HopperHop). Values are unchanged. The torch trainer's env
-    does the same (`sf2_torch.agents.envs._physics`)."""
+    reset state and then with its own output would compile twice. Values are unchanged. The torch
+    trainer's env does the same (`sf2_torch.agents.envs._physics`)."""
 
     def __init__(self, env):
         self.env = env
@@ -90,8 +103,17 @@ class StrongTypes:
 
 
 def strong_types(tree):
-    """`tree` with every leaf strongly typed, values unchanged (a weak leaf's program input type would
-    differ from the same leaf after `lax.scan` or `jit`, which compiles the program again)."""
+    """The same pytree with every leaf strongly typed, values unchanged.
+
+    A weak leaf's program input type differs from the same leaf after `lax.scan` or `jit`, which would
+    compile the program again.
+
+    Args:
+      tree: a pytree of JAX arrays (an env state).
+
+    Returns:
+      The tree, each leaf `x.astype(x.dtype)`.
+    """
     import jax
 
     return jax.tree_util.tree_map(lambda x: x.astype(x.dtype), tree)

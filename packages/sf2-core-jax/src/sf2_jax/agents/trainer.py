@@ -1,37 +1,18 @@
 """The one off-policy training loop (Brax style, current JAX), for every algorithm × representation.
 
-A `Program` is everything compiled for one `TrainConfig`; all of it is `vmap`ped over seeds, so
-`--seeds 0-3` trains four independent agents in one jitted program (a single seed runs the same per-seed
-functions without the vmap, `_seed_map`). Per seed:
+A `Program` is everything compiled for one `TrainConfig`, `vmap`ped over seeds: `--seeds 0-3` trains four
+independent agents in one jitted program (one seed runs the per-seed functions without the vmap). Per
+seed the `TrainState` holds the parameters (the observation statistics are the `obs_norm` group), Adam
+states, the vectorized env state, the replay buffer, a PRNG key, counters and the evaluation start states.
+`epoch` scans `actor_steps_per_epoch` actor steps (the run's first `prefill_actor_steps` act uniformly at
+random and train nothing, in the same program, so the env step compiles once; every later one explores,
+observes, inserts and runs `grad_updates_per_step` SGD steps) and returns each metric's mean and first
+non-finite index; `evaluate` runs one episode from each evaluation start state, `evaluate_many` several
+epochs' parameters in one program. The actor step's parts are `jax.named_scope`s (`ACTOR_PHASES`).
 
-- state: parameters, Adam states, the vectorized env state, the replay buffer, a PRNG key, counters,
-  and the start states of the evaluation envs; the running observation statistics are the
-  `obs_norm` parameter group (Brax's update rule, `sf2_jax.networks.update_normalizer`).
-- `init`: parameters (keyed by PRNGKey(seed)), one reset of `num_envs + num_eval_envs` envs (split
-  into the training envs and the evaluation start states), an empty buffer.
-- `epoch(state, first_actor_step)` (jitted, the state donated): `lax.scan` over
-  `actor_steps_per_epoch` actor steps. The first `prefill_actor_steps` actor steps of the run act
-  uniformly at random and keep the parameters (their SGD steps run and are discarded by `jnp.where`,
-  `_actor_step`); every later one acts with exploration noise, updates the observation statistics,
-  inserts the transitions, samples `grad_updates_per_step` batches and runs that many SGD steps via
-  `lax.scan`. It returns the mean of every metric over the epoch's SGD steps and, per metric, the
-  index of its first non-finite value. The prefill lives in the epoch program so that the env step
-  is compiled once for training (the env dominates compile time on a CPU).
-- `evaluate`: one episode from each evaluation start state (deterministic or acting policy; the
-  policy's noise key changes with every evaluation, the start states do not).
-- `evaluate_many`: `evaluate` of several epochs' parameters in one program vmapped over them; the
-  host loop uses it (through `_Session.snapshot`) for the epochs between two checkpoints when
-  `checkpoint_every` > 1, since an evaluation's ~1000 sequential env steps are bound by latency.
-
-The actor step's parts are traced under `jax.named_scope`s (`ACTOR_PHASES`: `explore`, `env_step`,
-`observe` = normalizer and buffer insert, `sample`, `step_noise`; the SGD step's own in
-`sf2_jax.agents.algorithms.PHASES`), for `python -m bench.hlo`.
-
-The host loop between epochs (`sf2_common.agents.hostloop.run_epochs`, shared with sf2_torch) does
-everything that needs the host: the NaN guard (before anything is written), evaluation rows,
-checkpoints, the progress bar and the learning-curve PNG. Order per epoch: train → NaN guard → evaluate
-(batched up to the checkpoint) → append rows → checkpoint. A run killed at any moment resumes from its
-last checkpoint; rows of later epochs are dropped and produced again identically (runfolder.py).
+The host loop between epochs (NaN guard, evaluation rows, checkpoints, progress, the curve) is
+`sf2_common.agents.hostloop.run_epochs`, shared with sf2_torch: train → NaN guard → evaluate → append
+rows → checkpoint; a run killed at any moment resumes from its last checkpoint (docs/run-folders.md).
 """
 
 from __future__ import annotations
@@ -145,22 +126,19 @@ class Program:
 
     @staticmethod
     def mesh(n_seeds: int) -> jax.sharding.Mesh | None:
-        """The local devices as a one-axis mesh ("seed") when `SF2_SHARD_SEEDS=1` is set, there are several
-        devices and they divide `n_seeds` evenly; else None (everything on the default device).
+        """The local devices as one "seed" mesh, when one run's seeds are to be spread over them.
 
-        Opt-in: on two H100s the sharded programs' compile died of a segfault in XLA's `shardy-xla` pass
-        (on two H200s the process died without a message), while two processes with one GPU each reached
-        2.00x the rate of one (docs/decisions/sharded-seeds.md).
-        Under the GSPMD partitioner the sharded programs compile and run, so `_program` builds them with it:
-        on a four-H100 host a `train` with its seeds over two GPUs ran end to end, at 2.07× (TD3+SF²) and
-        2.12× (TD3) one GPU's rate, with numbers that differ from one device's in the last bits from the
-        first evaluation on. At
-        full length (TD3+SF², AcrobotSwingup, 1M env steps, 8 seeds) its learning is within the spread of two
-        one-device runs (AUC −5.5 [−14.0, +3.0] against one, −4.7 [−14.5, +5.1] against the other, whose
-        own difference is −0.8 [−11.6, +10.1]). Opt-in all the same: GSPMD is
-        deprecated in JAX and Shardy crashes on a `shard_map` with a zero-size array (40-physics-shardy), and
-        several GPUs are used by whole runs, one per GPU (`study run`, 2.00×); the sharded program is tested
-        on two CPU devices (tests/agents/test_devices.py)."""
+        Opt-in (docs/decisions/sharded-seeds.md): several GPUs are used by whole runs, one per GPU (`study
+        run`); a sharded program is compiled with the GSPMD partitioner, under which its numbers differ from
+        one device's in the last bits. Tested on two CPU devices (tests/agents/test_devices.py).
+
+        Args:
+          n_seeds: the run's number of seeds.
+
+        Returns:
+          The mesh when `SF2_SHARD_SEEDS=1` is set, there are several local devices and they divide
+          `n_seeds` evenly; else None (everything on the default device).
+        """
         devices = jax.local_devices()
         if os.environ.get(SHARD_SEEDS) != "1" or len(devices) < 2 or n_seeds % len(devices):
             return None
@@ -261,9 +239,8 @@ class Program:
         """`grad_updates_per_step` SGD steps on fresh batches from the buffer; where `train` (a bool scalar)
         is False each step keeps the parameters, Adam states and SGD count and reports zero metrics (the
         prefill, `_actor_step`). The selection is inside the scan's body, where XLA fuses most of it into
-        the Adam and target updates (at one seed 57 select kernels per SGD step remain, which cost under 1%
-        of the rate); after the scan it would cost a copy of every array into the loop and a select kernel
-        for each (docs/decisions/jax-trainer-step.md)."""
+        the Adam and target updates; after the scan it would cost a copy of every array into the loop and a
+        select kernel for each (docs/decisions/jax-trainer-step.md)."""
         G, B = self.cfg.grad_updates_per_step, self.cfg.batch_size
         k_sample, k_sgd = jax.random.split(key)
         with jax.named_scope("sample"):
@@ -292,9 +269,9 @@ class Program:
         count as they were; a training step acts with `explore` and runs `grad_updates_per_step` SGD steps.
         Both are computed and the step's kind selects (`jnp.where` on the unbatched flag; the SGD steps'
         inside their scan, `_sgd_steps`), with no `lax.cond`: on a GPU a conditional copies its predicate
-        to the host and every array that passes through it to new buffers (about 390 copies per actor
-        step of TD3+SF²; docs/decisions/jax-trainer-step.md), while the prefill's discarded SGD steps
-        cost only the run's first prefill actor steps."""
+        to the host and every array that passes through it to new buffers
+        (docs/decisions/jax-trainer-step.md), while the prefill's discarded SGD steps cost only the run's
+        first prefill actor steps."""
         cfg, A = self.cfg, self.spec.action_size
         prefill = actor_step < self.sched.prefill_actor_steps
         key, k_act, k_sgd = jax.random.split(state.key, 3)
@@ -380,7 +357,17 @@ def _seed_map(fn, in_axes, n_seeds: int):
 
 @functools.lru_cache(maxsize=8)
 def get_program(cfg: TrainConfig) -> Program:
-    """The `Program` of `cfg`, cached: runs with equal configs reuse the compiled functions."""
+    """The compiled pieces of one config, cached: runs with equal configs reuse the compiled functions.
+
+    Args:
+      cfg: the run's `TrainConfig` (frozen, hashable: the cache key).
+
+    Returns:
+      Its `Program` (the last 8 configs' are kept).
+
+    Raises:
+      ConfigError: the task is unknown or has structured observations, or the representation is unknown.
+    """
     return Program(cfg)
 
 
@@ -418,14 +405,28 @@ def device_note(n_seeds: int) -> str | None:
 def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = False,
           progress: bool = True, hook: Callable[[str, int], None] | None = None,
           stop_after_epoch: int | None = None, plot: bool = True) -> TrainResult:
-    """Train `cfg` for every seed of `seeds` (vmapped) into the run folder `out`.
+    """Train one config for every seed (one vmapped program) into a run folder.
 
-    Resumes from the folder's newest checkpoint that restores completely when it holds the same run
-    (`resume`; `sf2_common.agents.resume` sets damaged ones aside); `fresh` deletes the folder's previous
-    contents first. `hook(event, epoch)` is called at the points of `hostloop.run_epochs` (tests use it
-    to simulate a kill). `stop_after_epoch` ends the run early (after that epoch's checkpoint), as a kill
-    would. Raises `ConfigError` for bad input before anything is compiled (a `RunFolderError` for a run
-    folder that cannot be used) and `TrainingDiverged` on a NaN/inf loss.
+    Args:
+      cfg: the run's `TrainConfig`.
+      seeds: the seeds, as `parse_seeds` takes them ("0-3", "0,2,5", 7, a sequence of ints).
+      out: the run folder (docs/run-folders.md); one writer at a time (a lock file).
+      resume: resume from the folder's newest checkpoint that restores completely when it holds the same
+        run (`sf2_common.agents.resume` sets damaged ones aside).
+      fresh: delete the folder's previous contents first.
+      progress: show the progress bar.
+      hook: `hook(event, epoch)`, called at the points of `hostloop.run_epochs` (tests simulate a kill).
+      stop_after_epoch: end the run early, after that epoch's checkpoint, as a kill would.
+      plot: write the learning-curve PNG.
+
+    Returns:
+      A `TrainResult`: the run folder, its rows, the final state of all seeds, the seeds, the checkpoint
+      epoch resumed from.
+
+    Raises:
+      ConfigError: bad input, before anything is compiled.
+      RunFolderError: a run folder that cannot be used (another run's, another core's, in use).
+      TrainingDiverged: a NaN or inf loss (nothing of that epoch is written).
     """
     seeds = configs.parse_seeds(seeds)
     configs.validate(cfg, seeds, representations.REGISTRY)
@@ -492,8 +493,8 @@ class _Session:
 
     def evaluate_many(self, epochs: list[int]) -> np.ndarray:
         # One batch shape per run: a shorter batch (the schedule's last, a stop) is padded with its last
-        # epoch, whose extra returns are dropped, so the program compiles once (a second shape cost 10-19 s
-        # of a HopperHop run: docs/decisions/batched-evaluation.md).
+        # epoch, whose extra returns are dropped, so the program compiles once (a second shape compiles
+        # the whole evaluation again: docs/decisions/batched-evaluation.md).
         pad = max(self.program.cfg.checkpoint_every - len(epochs), 0)
         snaps = [self.snapshots.pop(e) for e in epochs]
         params = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *snaps, *[snaps[-1]] * pad)

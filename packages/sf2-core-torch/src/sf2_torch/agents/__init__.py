@@ -1,15 +1,10 @@
 """SF² agents on PyTorch (TorchRL for the env and the replay buffer): TD3 and SAC, vanilla or on SF²
-features, trained on MuJoCo Playground DM Control tasks. The torch mirror of the JAX agents: same module
-names, config fields and presets (`paper`, `quick`), representation interface, run-folder layout and CLI
-(`sf2-torch` ↔ `sf2-jax`).
+features, trained on MuJoCo Playground DM Control tasks; the torch mirror of the JAX agents (same module
+names, configs, presets, representation interface, run folders and CLI, `sf2-torch` ↔ `sf2-jax`).
 
-Needs the `[train]` extra (torchrl, tensordict, playground, mujoco-mjx, jax, matplotlib, tqdm). Modules:
-`envs` (tasks; a TorchRL env over Playground's JAX env), `configs` (TrainConfig with the torch-only fields),
-`representations` (the pluggable interface: `none`, `sf2`; sf2-baselines adds `sim`, `simlap`, `spr`),
-`algorithms` (TD3, SAC on `sf2_torch.losses`: `step_noise`, `sgd_step`), `replay` (TorchRL replay
-buffer), `trainer` (the one training loop), `checkpoint`. The framework-free parts (run folders, plots,
-the host loop) live in `sf2_common.agents`; the update-time bench in bench/ of the repository. The CLI
-is `sf2_torch.cli` (`sf2-torch`).
+Needs the `[train]` extra. Modules: `envs`, `configs` (TrainConfig with the torch-only fields),
+`representations`, `algorithms`, `replay`, `trainer`, `checkpoint`, `graphs` (the step's CUDA graph); the
+framework-free parts (run folders, plots, the host loop) are `sf2_common.agents`.
 
     from sf2_torch.agents import make_config, train
     cfg = make_config("quick", "CartpoleBalance", algo="td3", representation="sf2")

@@ -1,55 +1,18 @@
 """Base algorithms TD3 and SAC, written once against the representation interface.
 
-The losses are the core's (`sf2_torch.losses.td3_critic_loss`, ..., with `critic=` the representation's
-critic); this module only schedules them. The vocabulary is the same in the JAX core's agents.algorithms
-(table: docs/core-contract.md "Agents: the plug-in vocabulary"); torch methods act on the modules the
-algorithm holds and update them in place, and take a `torch.Generator` where JAX takes a PRNG key.
+The losses are the core's (`sf2_torch.losses`, with `critic=` the representation's critic); this module
+schedules them: one SGD step in the authors' order (docs/core-contract.md "One SGD step"), every random
+input drawn up front by `step_noise` (keys `noise_keys()`, the JAX agents' too) so `sgd_step` is pure.
+The vocabulary is sf2_jax.agents.algorithms' (docs/core-contract.md "Agents: the plug-in vocabulary");
+torch methods update the modules the algorithm holds in place and take a `torch.Generator` where JAX takes
+a PRNG key. Each loss's gradient lands only in the groups it trains (`loss.backward(inputs=...)`); one
+Adam per trained group (`shared_adam = False` gives ψ's aux step a second one, `optimizers["psi:aux"]`).
 
-One SGD step (`sgd_step`; docs/core-contract.md "One SGD step", the authors' order):
-1. at the pre-step parameters: the critic gradient (groups `q` + `representation.critic_groups`) and,
-   on actor steps (`step % policy_delay == 0`), each policy group's gradient from its loss
-   (`policy_losses`: TD3 the actor; SAC the temperature and the actor);
-2. Adam on the critic groups;
-3. the representation's loss at the parameters after 2 (ā′ = `aux_next_action` from the pre-step
-   policy), Adam on `representation.aux_groups`;
-4. Adam on the policy groups (actor steps only);
-5. targets: Q̄ (TD3: and π̄) ← EMA with τ when `updates_q_target(step)` (TD3: on actor steps; SAC: every
-   step), the representation's `targets()` every step. The authors' TD3 blended the new policy into the
-   old *online* policy; we average into the target.
-Each group has its own Adam state, so ψ, trained in steps 2 and 3, keeps one state across both (as in
-the authors' code); with `shared_adam = False` step 3 steps such a group with a second optimizer of its
-own, `optimizers["<group>:aux"]` (an ablation; sf2_jax's `opt_state["<group>:aux"]`). torch: each loss's
-gradient lands only in the groups it trains,
-`loss.backward(inputs=...)` with their parameters (losses.py, "Gradient contract"); one `torch.optim.Adam`
-per group (lr `learning_rate`, ε `adam_eps`; log α: lr `alpha_learning_rate`, ε 1e-8 as optax's default);
-the targets move by one `torch._foreach_lerp_` per rate.
-
-Noise: `step_noise(generator, batch)` draws every random input of one SGD step, a dict keyed by
-`noise_keys()`: TD3 `smoothing_noise` ξ (target-policy smoothing); SAC `next_action_noise` ξ′ (a′ ~ π(s′)
-in the TD target), `actor_noise`, `alpha_noise` (a ~ π(s) in the actor and temperature losses) and, with a
-representation loss, `flow_action_noise` (ā′ ~ π(s′)); then the representation's `noise_keys` (SF²:
-`flow_noise` ε, `flow_time` k). The names are the JAX agents' keys, so tests hand one draw to both
-frameworks. `sgd_step` is pure given it.
-
-Schedules (`step`, the run's gradient-step index, a host int): a group of `representation.aux_every`
-({group: period}) takes its aux Adam step only when `step % period == 0`; on the other steps its Adam does
-not step, so its parameters and whole Adam state (moments and step count) stay as they were. The schedule
-is decided on the host: each combination (actor step or not, the groups skipped, Q̄ moved or not) is its
-own step function, so nothing in a step branches on a device value.
-
-Compilation: `torch.compile` (`compile_mode`) compiles the loss parts, `_critic`, `_policy` and `_aux`,
-each once; AOTAutograd compiles their backward with them, so the compiled code is the loss + gradient
-computation. On CUDA the Adam steps of each stage (the critic groups, the aux groups, the policy groups)
-and the target lerps are compiled too (`compile_updates`), as two functions of lists of tensors,
-`_adam_steps` (torch's functional foreach Adam, capturable) and `_move_targets`, so one program per stage
-serves every seed's agent: Inductor turns their foreach ops into a few Triton kernels. Eager, the fused Adam
-is one launch per group, and its 5 launches took 0.183 ms of a 1.345 ms SGD step at the paper preset
-(docs/decisions/torch-trainer-step.md, also for the compiled updates), several times what its memory
-traffic needs. On the CPU they stay eager (foreach). On
-CUDA (`cudagraphs`) the whole step of each schedule combination (compiled losses, backward, capturable
-Adam, lerps) is captured as one CUDA graph by `graphs.StepGraph` (it takes the `Batch` and the noise dict
-as they are: pytrees of tensors; unlike tensordict's `CudaGraphModule`, it replays without a device
-synchronization, graphs.py says why). The step does no `.item()` and no host synchronization.
+The schedule (`aux_every`, `policy_delay`, the Q̄ update) is decided on the host: each combination is its
+own step function, so nothing branches on a device value and the step never synchronizes. `torch.compile`
+(`compile_mode`) compiles the loss parts with their backward; on CUDA the Adam steps and target lerps too,
+and `graphs.StepGraph` replays each combination's whole step as one CUDA graph
+(docs/decisions/torch-trainer-step.md).
 """
 
 from __future__ import annotations

@@ -1,21 +1,14 @@
 """Checkpoints of the complete training state (all seeds): networks, targets, Adam states, replay
-buffers, generators, env states and counters, so that a resumed run continues bit for bit.
+buffers, generators, env states and counters, so a resumed run continues bit for bit.
 
-Layout (the torch counterpart of the JAX trainer's Orbax checkpoints, in the same `checkpoints/` folder
-of a run): `checkpoints/<epoch>/state.pt` (`torch.save` of the torch state, loaded with
-`weights_only=True`), `env.npz` (the JAX env state's arrays, in tree order) and `meta.json` (epoch, env
-steps, seeds, array count). Each checkpoint is written into a temporary folder and renamed when complete,
-so a run killed mid-save leaves the previous checkpoint intact; the `keep` newest are kept.
-
-The file manifest of `sf2_common.agents.checkpoints` is written into the temporary folder last; `restore`
-checks it first, so a truncated, garbled or missing file is one `CheckpointDamaged` naming the file (which
-the resume rule of `sf2_common.agents.resume` sets aside), and intact files that do not load are
-`CheckpointMismatch`.
-
-The trainer's `save(wait=False)` returns once the state is copied to the host (tensors to CPU, arrays
-copied, so later in-place updates and the next epochs cannot reach it) and a thread writes the files; the
-next `save`, and `finish`, `all`, `latest`, `restore` and `close`, wait for it (the JAX core's
-`Checkpointer` does the same with Orbax's background writes: sf2_jax/agents/checkpoint.py).
+Layout, in the run's `checkpoints/` folder as the JAX core's: `<epoch>/state.pt` (`torch.save` of the
+torch state, loaded with `weights_only=True`), `env.npz` (the JAX env state's arrays, in tree order) and
+`meta.json` (epoch, env steps, seeds, array count). Each checkpoint is written into a temporary folder and
+renamed when complete, so a kill mid-save leaves the previous one intact; the `keep` newest are kept.
+`save(wait=False)` returns once the state is copied to the host and a thread writes the files; every other
+method waits for it first (docs/decisions/background-checkpoints.md). The file manifest
+(`sf2_common.agents.checkpoints`) is written last and checked first by `restore`: a damaged file is one
+`CheckpointDamaged` naming it, intact files that do not load a `CheckpointMismatch`.
 """
 
 from __future__ import annotations

@@ -1,41 +1,17 @@
-"""Tasks and env creation. The task table (which MuJoCo Playground DM Control tasks exist, the paper's
-per-task budgets and action repeat) is `sf2_common.agents.tasks`, re-exported here (as in the JAX
-agents).
+"""Tasks and env creation, for the torch trainer. The task table (the paper's tasks, budgets and action
+repeat) is `sf2_common.agents.tasks`, re-exported here as in the JAX agents.
 
-Environments: `PlaygroundEnv` is a TorchRL env (a subclass of TorchRL's `MujocoPlaygroundWrapper`) around
-the *same* JAX env the JAX trainer steps: Playground's task with the pure-JAX MJX backend
-(`config_overrides={'impl': 'jax'}`), wrapped by `wrap_for_brax_training` (Brax's VmapWrapper +
-EpisodeWrapper(episode_length, action_repeat) + auto-reset to the cached first state). So both frameworks
-see identical dynamics, truncation flags and resets; arrays cross between JAX and torch by DLPack.
-
-Why not TorchRL's `MujocoPlaygroundEnv` as it is: it steps the bare task (no time limit, so no truncation
-signal: its `terminated` equals `done`), resets the whole batch at once (no per-env auto-reset), has no
-action repeat of its own (a FrameSkipTransform sums rewards but does not count env steps the Brax way),
-and runs `vmap(jit(step))`, which re-traces the vmap on every call. The subclass keeps TorchRL's specs,
-`reset`/`step`/`rollout` API and TensorDict layout, and replaces `_init_env`/`_reset`/`_step`:
-
-- one `jax.jit` of the whole vectorised reset and step (shared by every env of the same task, episode
-  length and action repeat in the process, so training and evaluation envs compile once per batch size);
-- outputs `observation`, `reward` (…, 1), `done`, `terminated` and `truncated` (…, 1), TorchRL's done
-  convention: `done = terminated | truncated`, with Brax's `done` and `info['truncation']`;
-- auto-reset happens inside the JAX step (Brax semantics): on the step an episode ends, `next.observation`
-  is already the first observation of the next episode, exactly what the JAX trainer stores as s′
-  (its critic masks truncated transitions and does not bootstrap terminal ones, so s′ only matters for
-  the flow loss on terminal steps, which DM Control tasks do not have). Call `reset` once; never on done.
-- `reset_from_keys(keys)`: reset from explicit JAX PRNG keys (n, 2), so the torch trainer starts its envs and
-  evaluation episodes from the same states as the JAX trainer with the same seed.
-- `get_state_leaves()` / `set_state_leaves(leaves)`: the JAX env state as numpy arrays, for checkpoints.
-
-Between steps the env keeps the JAX state *packed* (`StateLayout`): its arrays (182 for AcrobotSwingup) as
-one flat buffer per dtype, which the jitted step unpacks, steps and packs again, returning the transition as
-one (n, D + 3) array [observation | reward | done | truncation]. Calling a jitted function costs host time
-for each array it takes and returns. With the state as it is, the torch trainer's host took 1.276 ms per
-SGD step (AcrobotSwingup, one seed, H200), more than the device's 1.104 ms of work, and the env step was
-0.465 ms of it (docs/decisions/torch-trainer-step.md). Packing is
-exact (concatenations and slices), so the physics is the same
-(packages/sf2-core-torch/tests/agents/test_torch_envs.py steps both ways).
-
-Playground and JAX are imported when an env is built.
+`PlaygroundEnv` is a TorchRL env (a subclass of TorchRL's `MujocoPlaygroundWrapper`) around the *same* JAX
+env the JAX trainer steps: Playground's task with the pure-JAX MJX backend, wrapped by
+`wrap_for_brax_training` (episode length, action repeat, auto-reset inside the step), so both frameworks
+see identical dynamics, truncation flags and resets; arrays cross by DLPack. TorchRL's own
+`MujocoPlaygroundEnv` steps the bare task (no time limit, no per-env auto-reset, no action repeat), so the
+subclass keeps TorchRL's specs and `reset`/`step`/`rollout` API and replaces `_init_env`/`_reset`/`_step`:
+one jitted vectorised reset and step per task, episode length and action repeat; TorchRL's done
+convention (`done = terminated | truncated`); `reset_from_keys` from the JAX trainer's keys; the state
+kept packed into one buffer per dtype between steps (`StateLayout`, exact; fewer arrays cross per call:
+docs/decisions/torch-trainer-step.md); `get_state_leaves`/`set_state_leaves` for checkpoints. Playground
+and JAX are imported when an env is built.
 """
 
 from __future__ import annotations
@@ -148,7 +124,19 @@ def _packed_fns(spec: EnvSpec, layout: StateLayout):
 
 @functools.lru_cache(maxsize=16)
 def env_spec(task: str, episode_length: int, action_repeat: int) -> EnvSpec:
-    """Load `task` with the MJX backend, wrap it as the JAX trainer does, jit reset and step (cached)."""
+    """Load a task with the MJX backend, wrapped as the JAX trainer wraps it, its reset and step jitted.
+
+    Args:
+      task: a MuJoCo Playground DM Control task (`valid_tasks`).
+      episode_length: env steps per episode (the time limit; `truncation` is set where it cuts).
+      action_repeat: physics steps per env step.
+
+    Returns:
+      Its `EnvSpec`, cached per (task, episode_length, action_repeat).
+
+    Raises:
+      ConfigError: an unknown task, or one with structured observations.
+    """
     validate_task(task)
     import jax
     from mujoco_playground import registry, wrapper
@@ -182,7 +170,19 @@ def _physics(fn):
 
 def make_env(task: str, episode_length: int, action_repeat: int, num_envs: int,
              device: torch.device | str = "cpu") -> PlaygroundEnv:
-    """A `PlaygroundEnv` of `num_envs` parallel copies of `task` on `device`."""
+    """A TorchRL env of parallel copies of a task.
+
+    Args:
+      task, episode_length, action_repeat: as `env_spec`'s.
+      num_envs: the batch of envs.
+      device: where its tensors live.
+
+    Returns:
+      The `PlaygroundEnv`; call `reset` (or `reset_from_keys`) once, never on done.
+
+    Raises:
+      ConfigError: as `env_spec`.
+    """
     return PlaygroundEnv(env_spec(task, episode_length, action_repeat), num_envs=num_envs, device=device)
 
 
@@ -237,7 +237,14 @@ class PlaygroundEnv(MujocoPlaygroundWrapper):
 
     # ---------------------------------------------------------------- helpers
     def reset_from_keys(self, keys) -> TensorDict:
-        """Reset every env from explicit JAX PRNG keys (num_envs, 2); returns the reset TensorDict."""
+        """Reset every env from explicit JAX PRNG keys, as the JAX trainer resets from the same keys.
+
+        Args:
+          keys: JAX PRNG keys (num_envs, 2) (`trainer.env_reset_keys`, `fresh_eval_start_keys`).
+
+        Returns:
+          The reset TensorDict (`observation`, `done`, `terminated`, `truncated`).
+        """
         return self._reset_from(keys)
 
     def _reset_from(self, keys):
@@ -272,12 +279,29 @@ class PlaygroundEnv(MujocoPlaygroundWrapper):
         return TensorDict._new_unsafe(source=out, batch_size=self.batch_size, device=self.device)
 
     def get_state_leaves(self) -> list[np.ndarray]:
+        """The JAX env state as numpy arrays in tree order, copies (for a checkpoint).
+
+        Returns:
+          The state's leaves.
+
+        Raises:
+          RuntimeError: the env was never reset.
+        """
         if self._layout is None:
             raise RuntimeError("reset the env once before reading its state")
         # copies: the next step donates the buffers, and a checkpoint is written while the next epochs train
         return [np.array(x) for x in self._layout.unpack([np.asarray(b) for b in self._packed], np)]
 
     def set_state_leaves(self, leaves) -> None:
+        """Restore the JAX env state from `get_state_leaves`'s arrays.
+
+        Args:
+          leaves: the arrays, in tree order.
+
+        Raises:
+          RuntimeError: the env was never reset (its layout is unknown).
+          ValueError: the arrays do not fit the state (count, shape or dtype).
+        """
         import jax
 
         if self._layout is None:

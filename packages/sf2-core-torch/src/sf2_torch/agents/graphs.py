@@ -1,20 +1,16 @@
 """One CUDA graph per SGD-step function, replayed without a host synchronization.
 
 `StepGraph(fn)` runs `fn` (a function of pytrees of CUDA tensors, e.g. the `Batch` and the noise dict,
-returning a pytree of tensors, e.g. the metrics) eagerly for `warmup` calls on a side stream (the
-warm-up that `torch.compile` and capturable Adam need before capture), captures it as a
-`torch.cuda.CUDAGraph` at the next call, and from then on copies each call's inputs into the captured
-input tensors and replays the graph, all on the current stream, returning copies of the outputs.
+returning a pytree of tensors, e.g. the metrics) eagerly for `warmup` calls on a side stream (the warm-up
+that `torch.compile` and capturable Adam need before capture), captures it as a `torch.cuda.CUDAGraph` at
+the next call, and from then on copies each call's inputs into the captured input tensors and replays the
+graph, all on the current stream, returning copies of the outputs.
 
-Why not tensordict's `CudaGraphModule` (the torch agents' graph until 2026-11-27): it calls
-`torch.cuda.synchronize` before every replay (tensordict pull request 1026: inputs copied from the host
-with `non_blocking=True` could otherwise be read before they land). In the torch trainer every input of a
-step is already on the device and written on the current stream, so that wait only stalls the host: a
-`torch.profiler` trace of the trainer (AcrobotSwingup TD3+SF², one seed, H100) showed one
-`cudaDeviceSynchronize` of 1.49 ms per SGD step, the host waiting out every step's kernels before it
-could queue the next actor step's env step and buffer work, and the epoch ran at 2.77 ms per SGD step
-against 1.99 ms of kernels (docs/decisions/torch-trainer-step.md). Here the inputs are copied on
-the stream the graph replays on, so stream order is the only synchronization needed.
+Why not tensordict's `CudaGraphModule`: it synchronizes the device before every replay (inputs copied from
+the host with `non_blocking=True` could otherwise be read before they land). In the torch trainer every
+input of a step is already on the device and written on the current stream, so that wait only stalls the
+host, which then cannot queue the next actor step's work (docs/decisions/torch-trainer-step.md). Here the
+inputs are copied on the stream the graph replays on, so stream order is the only synchronization needed.
 """
 
 from __future__ import annotations

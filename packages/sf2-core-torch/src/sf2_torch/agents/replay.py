@@ -20,8 +20,15 @@ __all__ = ["ReplayBuffer", "to_batch"]
 
 
 def to_batch(td: TensorDictBase) -> Batch:
-    """The core `Batch` of transitions of any batch shape (…): obs (…, D), action (…, A), reward,
-    discount = 1 − done and truncation (…) in the observations' dtype, next_obs (…, D)."""
+    """The core's `Batch` of TorchRL transitions, as the JAX trainer stores them.
+
+    Args:
+      td: transitions of any batch shape (…) in TorchRL's layout.
+
+    Returns:
+      obs (…, D), action (…, A), reward, discount = 1 − done and truncation (…) in the observations'
+      dtype, next_obs (…, D).
+    """
     obs, nxt = td.get("observation"), td.get("next")
 
     def flag(x):
@@ -33,7 +40,16 @@ def to_batch(td: TensorDictBase) -> Batch:
 
 
 class ReplayBuffer:
+    """TorchRL's replay buffer on the training device, sampled from one seed's generator."""
+
     def __init__(self, capacity: int, device, generator: torch.Generator):
+        """An empty buffer.
+
+        Args:
+          capacity: transitions kept (the newest).
+          device: where the transitions live.
+          generator: the seed's `torch.Generator`, which draws every sample.
+        """
         from torchrl.data import LazyTensorStorage
         from torchrl.data import ReplayBuffer as TorchRLReplayBuffer
         from torchrl.data.replay_buffers.samplers import RandomSampler
@@ -51,17 +67,30 @@ class ReplayBuffer:
         self.buffer.set_rng(generator)
 
     def insert(self, transitions: TensorDictBase) -> None:
-        """Write the n transitions of `transitions` (batch (n,), n ≤ capacity) over the oldest ones."""
+        """Write transitions over the oldest ones.
+
+        Args:
+          transitions: n ≤ capacity transitions, batch shape (n,).
+        """
         self.buffer.extend(transitions)
 
     def sample(self, n: int) -> TensorDictBase:
-        """`n` transitions drawn uniformly with replacement from the filled part."""
+        """Draw transitions uniformly with replacement from the filled part.
+
+        Args:
+          n: how many.
+
+        Returns:
+          n transitions (TorchRL's layout; `to_batch` makes them a `Batch`).
+        """
         return self.buffer.sample(n)
 
     def size(self) -> int:
+        """The number of transitions held."""
         return len(self.buffer)
 
     def state_dict(self) -> dict:
+        """The transitions and the write position, for a checkpoint."""
         return self.buffer.state_dict()
 
     def load_state_dict(self, state: dict) -> None:

@@ -1,43 +1,12 @@
 """Pluggable representations: what the critic sees, and the representation's own loss.
 
-A representation is the part of an agent between the raw (s, a) and the twin Q values. The vocabulary
-is the same in the JAX core's agents.representations (table: docs/core-contract.md "Agents: the plug-in
-vocabulary"); torch methods act on the modules the representation holds (and take a `torch.Generator`
-where JAX takes a PRNG key).
-
-Class attributes:
-- `name`, `label` (tables and plots, e.g. "SF²"), `supported_algos`;
-- `critic_groups`: groups besides `q` that the critic (TD) loss trains (SF²: ψ, the authors'
-  `back_critic_grad=True`);
-- `aux_groups`, `aux_loss_name`: the groups its own loss trains, one Adam step right after the critic
-  step of every SGD step (SF²: the flow loss `flow_loss` on ψ and ζ);
-- `noise_keys`: the entries of `aux_noise` (SF²: `flow_noise` ε and `flow_time` k, eq. 3); the names are
-  the JAX agents' too, so one draw feeds both frameworks;
-- `aux_every` ({group: period}, default {}): groups of `aux_groups` that the aux step updates only on
-  gradient steps `step % period == 0` (Sim/SimLap's task vector w: every 10 TD3 / 16 SAC steps, the
-  authors' `gradient_steps % 10 == 0` cond). On the other steps the base algorithm leaves that group's
-  parameters *and* its whole Adam state (moments and step count) unchanged, as the authors' separate w
-  optimizer, which only steps when it is used: Adam's bias correction counts w's own updates.
-
-Methods:
-- `__init__(cfg, nets)`: `nets` are the core `Networks` of the algorithm (policy, SF² networks);
-- `init(core)` → {group: nn.Module}: the groups it owns. It always owns the Q heads `q`/`target_q`
-  (their input is its features); SF² adds ψ, ζ and their targets. `core` is the algorithm's
-  `sf2_torch.networks.Networks`, so a representation that reuses core networks takes them; new modules
-  are initialised from torch's global generator (the trainer seeds it);
-- `critic(obs, action, target=False)` → (B, 2): twin Q on its features (online or target);
-- `aux_noise(generator, batch)` → {noise key: tensor}: the random inputs of its loss, shapes from
-  `batch.obs.shape[:-1]` (any leading dims); the loss is pure;
-- `aux_loss(batch, next_action, noise)` → (loss, aux dict): its own loss; `next_action` ā′ is given by
-  the base algorithm (TD3: target policy at s′; SAC: a policy sample);
-- `targets()` → {target group: (online group, τ)}: the EMA targets it owns besides `target_q`; the base
-  algorithm applies them every step (one `torch._foreach_lerp_` per rate) and moves `target_q` on its
-  own schedule.
-
-The base algorithms (algorithms.py) are written once against this interface; the trainer never looks
-inside a representation. Baselines (Sim, SimLap, SPR) plug in by subclassing `Representation` and
-calling `register`. Every group a representation returns is saved, restored, trained and exported
-(`sf2_torch.params.to_canonical` of the groups) by name.
+`Representation` is the interface the base algorithms (algorithms.py) are written against; the trainer
+never looks inside one, and every group it returns is saved, restored and trained by name. `none`
+(vanilla TD3/SAC, `NoRepresentation`) and `sf2` (`SF2Representation`) are here; the baselines (Sim,
+SimLap, SPR) subclass `Representation` in sf2-baselines. `register`, `get`, `names` and `REGISTRY` select
+one by name (`--repr NAME`). The vocabulary is sf2_jax.agents.representations' (docs/core-contract.md
+"Agents: the plug-in vocabulary"); torch methods act on the modules the representation holds and take a
+`torch.Generator` where JAX takes a PRNG key.
 """
 
 from __future__ import annotations
@@ -56,8 +25,26 @@ __all__ = ["Representation", "NoRepresentation", "SF2Representation", "VanillaQ"
 
 
 class Representation:
-    """Base class (see the module docstring). Subclasses set the class attributes and override the
-    methods; the defaults describe a representation with no loss of its own."""
+    """The part of an agent between the raw (s, a) and the twin Q values, and its own loss.
+
+    Subclasses set the class attributes and override the methods; the defaults describe a representation
+    with no loss of its own.
+
+    Attributes:
+      name: selects it (`--repr NAME`, `register`).
+      label: shown in tables and plots, e.g. "SF²".
+      supported_algos: the algorithms it works with.
+      critic_groups: groups besides `q` that the critic (TD) loss trains (SF²: ψ, the authors'
+        `back_critic_grad=True`).
+      aux_groups: the groups its own loss trains, one Adam step right after the critic step of every SGD
+        step (SF²: ψ and ζ).
+      aux_loss_name: its loss's metric name (SF²: "flow_loss").
+      noise_keys: the entries of `aux_noise` (SF²: `flow_noise` ε and `flow_time` k, eq. 3); one draw
+        feeds both frameworks.
+      aux_every: {aux group: period}: groups the aux step updates only on gradient steps `step % period
+        == 0` (Sim's task vector w, as the authors' separate optimizer); on the other steps the group's
+        parameters and whole Adam state (moments and step count) stay unchanged.
+    """
 
     name: ClassVar[str] = ""
     label: ClassVar[str] = ""                  # shown in tables and plots, e.g. "SF²"
@@ -69,22 +56,74 @@ class Representation:
     aux_every: ClassVar[dict[str, int]] = {}       # {aux group: period in gradient steps}
 
     def __init__(self, cfg: SF2Config, nets: networks.Networks):
+        """Keep the config and the algorithm's networks.
+
+        Args:
+          cfg: the algorithm's `SF2Config`.
+          nets: the core `Networks` of the algorithm (the policy; SF²'s networks).
+        """
         self.cfg = cfg
         self.nets = nets
 
     def init(self, core: networks.Networks) -> dict[str, nn.Module]:
+        """Build the groups it owns: always the Q heads `q`, `target_q` (their input is its features).
+
+        Args:
+          core: the algorithm's `sf2_torch.networks.Networks` (a representation that reuses core networks
+            takes them); new modules are initialised from torch's global generator, which the trainer seeds.
+
+        Returns:
+          {group: nn.Module}.
+        """
         raise NotImplementedError
 
     def critic(self, obs: torch.Tensor, action: torch.Tensor, target: bool = False) -> torch.Tensor:
+        """Twin Q on its features.
+
+        Args:
+          obs: (B, D) raw observations.
+          action: (B, A).
+          target: the target networks instead of the online ones.
+
+        Returns:
+          (B, 2).
+        """
         raise NotImplementedError
 
     def aux_noise(self, generator: torch.Generator, batch: losses.Batch) -> dict[str, torch.Tensor]:
+        """Draw the random inputs of its loss.
+
+        Args:
+          generator: the seed's `torch.Generator`.
+          batch: the SGD step's batch (shapes from `batch.obs.shape[:-1]`, any leading dimensions).
+
+        Returns:
+          {noise key: tensor}, keyed by `noise_keys`.
+        """
         return {}
 
     def aux_loss(self, batch: losses.Batch, next_action: torch.Tensor, noise: dict[str, torch.Tensor]):
+        """Its own loss, pure given the noise.
+
+        Args:
+          batch: the SGD step's batch.
+          next_action: ā′ (B, A), from the base algorithm (TD3: the target policy at s′; SAC: a sample).
+          noise: `aux_noise`'s draw.
+
+        Returns:
+          (loss, {metric: 0-d tensor}).
+
+        Raises:
+          NotImplementedError: it has no loss of its own.
+        """
         raise NotImplementedError(f"representation {self.name!r} has no loss of its own")
 
     def targets(self) -> dict[str, tuple[str, float]]:
+        """The EMA targets it owns besides `target_q`, which the base algorithm moves every step.
+
+        Returns:
+          {target group: (online group, τ)}.
+        """
         return {}
 
 

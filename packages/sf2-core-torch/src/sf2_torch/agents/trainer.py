@@ -2,31 +2,15 @@
 torch mirror of the JAX agents' trainer (same schedule, order of operations, run folder, rows, NaN guard,
 checkpoint/resume semantics and progress output).
 
-A `Program` is what one `TrainConfig` needs in a process (the jitted Playground env functions are cached
-per task). Seeds: the JAX trainer `vmap`s them; here every seed has its own agent (networks, Adam states,
-target updaters), TorchRL replay buffer and `torch.Generator`, and the seeds take their steps one after
-the other; all seeds' envs step together in one Playground batch. Per seed s:
-
-- init: `torch.manual_seed(s)` before the networks are built; a generator seeded with s draws every
-  action noise, replay index and loss noise. The envs reset from the JAX trainer's keys
-  (split(split(PRNGKey(s), 3)[1], num_envs + num_eval_envs): the first `num_envs` for training, the
-  rest the evaluation start states), so both frameworks start from the same states.
-- `epoch(state, epoch)`: `actor_steps_per_epoch` actor steps. The first `prefill_actor_steps` actor
-  steps of the run act uniformly at random and do no SGD (the prefill); every later one acts with
-  exploration noise, updates the observation statistics (Brax's rule, with the observations acted on),
-  inserts the transitions, samples `grad_updates_per_step` batches at once, draws the noise of all of
-  them in one go (`Algorithm.step_noise` of the (G, B) batch) and runs that many SGD steps
-  (`Algorithm.sgd_step`, compiled or not). Metrics stay on
-  the device until the epoch ends; then the mean of every metric over the epoch's SGD steps and the
-  index of its first non-finite value are computed (indexed as the JAX trainer's: actor step · G + g).
-- `evaluate`: one episode from each evaluation start state (deterministic or acting policy; the acting
-  noise changes with every evaluation, the start states do not).
-
-The host loop between epochs (`sf2_common.agents.hostloop.run_epochs`, shared with the JAX core): train →
-NaN guard → evaluate → append rows → checkpoint. A run killed at any moment resumes from its last
-checkpoint; rows of later epochs are dropped and produced again identically
-(`sf2_common.agents.runfolder`). TorchRL provides the env wrapper (envs.py) and the replay buffer
-(replay.py); the losses are `sf2_torch.losses`.
+A `Program` is what one `TrainConfig` needs in a process. Every seed has its own agent (networks, Adam
+states, target updaters; `torch.manual_seed(seed)` before they are built), TorchRL replay buffer and
+`torch.Generator`, and the seeds take their SGD steps one after the other; all seeds' envs step together
+in one Playground batch, reset from the JAX trainer's keys (`env_reset_keys`), so both frameworks start
+from the same states. `epoch` runs `actor_steps_per_epoch` actor steps (the prefill acts uniformly at
+random and trains nothing; every later one explores, observes, inserts and runs `grad_updates_per_step`
+SGD steps on noise drawn in one go) and returns each metric's mean and first non-finite index, indexed as
+the JAX trainer's. The host loop between epochs is `sf2_common.agents.hostloop.run_epochs`, shared with
+the JAX core: train → NaN guard → evaluate → append rows → checkpoint (docs/run-folders.md).
 """
 
 from __future__ import annotations
@@ -310,7 +294,17 @@ _PROGRAMS: dict[TrainConfig, Program] = {}
 
 
 def get_program(cfg: TrainConfig) -> Program:
-    """The `Program` of `cfg`, cached (the env functions it compiles are cached per task as well)."""
+    """What one config needs in this process, cached (the env functions are cached per task as well).
+
+    Args:
+      cfg: the run's `TrainConfig` (frozen, hashable: the cache key).
+
+    Returns:
+      Its `Program` (the last 8 configs' are kept).
+
+    Raises:
+      ConfigError: the task is unknown or has structured observations, or the representation is unknown.
+    """
     if cfg not in _PROGRAMS:
         if len(_PROGRAMS) >= 8:
             _PROGRAMS.pop(next(iter(_PROGRAMS)))
@@ -338,13 +332,28 @@ def _save(ckpt: Checkpointer, program: Program, state: TrainState, epoch: int, e
 def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = False,
           progress: bool = True, hook: Callable[[str, int], None] | None = None,
           stop_after_epoch: int | None = None, plot: bool = True) -> TrainResult:
-    """Train `cfg` for every seed of `seeds` into the run folder `out` (the same contract as
-    the JAX agents' `train`): resumes from the folder's newest checkpoint that restores completely when it
-    holds the same run (`resume`; `sf2_common.agents.resume` sets damaged ones aside); `fresh` deletes the
-    folder's previous contents first; `hook(event, epoch)` is called at the points of
-    `hostloop.run_epochs`; `stop_after_epoch` ends the run early (after that epoch's checkpoint), as a kill
-    would. Raises `ConfigError` for bad input before anything is built (a `RunFolderError` for a run
-    folder that cannot be used) and `TrainingDiverged` on a NaN/inf loss.
+    """Train one config for every seed (one agent per seed, their envs in one batch) into a run folder.
+
+    Args:
+      cfg: the run's `TrainConfig`.
+      seeds: the seeds, as `parse_seeds` takes them ("0-3", "0,2,5", 7, a sequence of ints).
+      out: the run folder (docs/run-folders.md); one writer at a time (a lock file).
+      resume: resume from the folder's newest checkpoint that restores completely when it holds the same
+        run (`sf2_common.agents.resume` sets damaged ones aside).
+      fresh: delete the folder's previous contents first.
+      progress: show the progress bar.
+      hook: `hook(event, epoch)`, called at the points of `hostloop.run_epochs` (tests simulate a kill).
+      stop_after_epoch: end the run early, after that epoch's checkpoint, as a kill would.
+      plot: write the learning-curve PNG.
+
+    Returns:
+      A `TrainResult`: the run folder, its rows, the final state of all seeds, the seeds, the checkpoint
+      epoch resumed from.
+
+    Raises:
+      ConfigError: bad input, before anything is built.
+      RunFolderError: a run folder that cannot be used (another run's, another core's, in use).
+      TrainingDiverged: a NaN or inf loss (nothing of that epoch is written).
     """
     seeds = common_configs.parse_seeds(seeds)
     configs.validate(cfg, seeds)
