@@ -27,37 +27,13 @@ from sf2_common.errors import ConfigError, ShapeError
 from torch import nn
 
 __all__ = [
-    "ALGOS",
-    "LAYER_NORM_EPS",
-    "MLP",
-    "Psi",
-    "Zeta",
-    "QHead",
-    "TwinQ",
-    "twin_heads",
-    "TD3Policy",
-    "SACPolicy",
-    "ObsNormalizer",
-    "Networks",
-    "make_networks",
-    "lecun_uniform_",
-    "flow_time_embedding",
-    "normalize",
-    "update_normalizer",
-    "psi",
-    "zeta",
-    "zeta_hidden",
-    "velocity",
-    "contract",
-    "velocity_contracted",
-    "q_values",
-    "td3_action",
-    "sac_sample",
-    "sac_distribution",
-    "sac_mode",
-    "zeta_last_layer",
-    "init_normalizer",
-    "check_last",
+    # the JAX core's names, in its order (`init_params` aside: torch modules hold their parameters)
+    "ALGOS", "LAYER_NORM_EPS", "MLP", "TwinQ", "Networks", "make_networks", "init_normalizer",
+    "normalize", "update_normalizer", "flow_time_embedding", "psi", "zeta", "zeta_hidden",
+    "zeta_last_layer", "velocity", "contract", "velocity_contracted", "q_values", "td3_action",
+    "sac_distribution", "sac_sample", "sac_mode", "check_last",
+    # torch's modules and helpers
+    "Psi", "Zeta", "QHead", "twin_heads", "TD3Policy", "SACPolicy", "ObsNormalizer", "lecun_uniform_",
 ]
 
 ALGOS = ("td3", "sac")
@@ -736,7 +712,7 @@ def velocity_contracted(
     nets: Networks,
     x: torch.Tensor,
     k: torch.Tensor,
-    m: torch.Tensor,
+    M: torch.Tensor,
     c: torch.Tensor,
     target: bool = False,
 ) -> torch.Tensor:
@@ -748,7 +724,7 @@ def velocity_contracted(
       nets: the `Networks`.
       x: (B, D).
       k: the flow time (B,).
-      m: (B, D, H) from `contract`.
+      M: (B, D, H) from `contract`.
       c: (B, D) from `contract`.
       target: the target network instead of the online one.
 
@@ -759,12 +735,12 @@ def velocity_contracted(
       ShapeError: `x`, `k`, M or c of another shape.
     """
     h = zeta_hidden(nets, x, k, target)
-    if tuple(m.shape) != (*x.shape, h.shape[-1]) or tuple(c.shape) != tuple(x.shape):
+    if tuple(M.shape) != (*x.shape, h.shape[-1]) or tuple(c.shape) != tuple(x.shape):
         raise ShapeError(
             f"contracted (M, c) must have shapes {(*x.shape, h.shape[-1])} (B, D, H) and {tuple(x.shape)}, "
-            f"found {tuple(m.shape)} and {tuple(c.shape)}"
+            f"found {tuple(M.shape)} and {tuple(c.shape)}"
         )
-    return torch.einsum("bh,bdh->bd", h, m) + c
+    return torch.einsum("bh,bdh->bd", h, M) + c
 
 
 def q_values(nets: Networks, features: torch.Tensor, target: bool = False) -> torch.Tensor:

@@ -48,7 +48,7 @@ ACTOR_PHASES = ("explore", "env_step", "observe", "sample", "step_noise")
 
 __all__ = ["TrainState", "Program", "get_program", "episode_returns", "TrainingDiverged", "TrainResult",
            "train", "evaluate_checkpoint", "evaluate_checkpoint_noises", "seed_keys", "eval_keys",
-           "acting_params", "flatten_params", "WALL_FIELDS"]
+           "acting_params", "flatten_params", "device_note", "EVAL_STREAM", "WALL_FIELDS"]
 
 EVAL_STREAM = 0x5EED  # eval keys: fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), epoch)
 # WALL_FIELDS, TrainingDiverged and the host loop's framework-free helpers (rows, the NaN guard's

@@ -121,6 +121,8 @@ class Program:
         self.sf2 = cfg.sf2_config(self.spec.obs_size, self.spec.action_size)
         self.rep_cls = representations.get(cfg.representation)
         self.sched = common_configs.schedule(cfg)
+        # the order an SGD step computes its losses in (names the first NaN when several appear at once)
+        self.loss_order = ("critic_loss", self.rep_cls.aux_loss_name, "alpha_loss", "actor_loss")
 
     # ------------------------------------------------------------------ setup
     def learner_precision(self):
@@ -260,10 +262,6 @@ class Program:
             alive *= 1.0 - nxt.get("done").view(s, n).to(alive.dtype)
             obs = nxt.get("observation").view(s, n, -1)
         return ret.cpu().numpy()
-
-    def loss_order(self, state: TrainState) -> tuple[str, ...]:
-        """The order the SGD step computes its losses in (ties of the NaN guard's report)."""
-        return ("critic_loss", state.agents[0].algo.rep.aux_loss_name, "alpha_loss", "actor_loss")
 
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self, state: TrainState) -> dict:
@@ -426,7 +424,7 @@ class _Session:
         _save(self.ckpt, self.program, self.state, epoch, env_steps, self.state.seeds)
 
     def loss_order(self) -> tuple[str, ...]:
-        return self.program.loss_order(self.state)
+        return self.program.loss_order
 
     def finish(self) -> None:
         _write_final(self.run, self.state)
