@@ -337,3 +337,13 @@ def test_numerics_environment_keeps_the_variables_that_change_the_numbers():
         "environment: XLA_FLAGS='--xla_gpu_deterministic_ops=true'"
     assert hostloop.environment_line({}) == \
         "environment: none of XLA_FLAGS, NVIDIA_TF32_OVERRIDE, CUBLAS_WORKSPACE_CONFIG set"
+
+
+def test_folders_of_one_label_with_different_configs_are_different_methods(tmp_path):
+    a = _write_run(tmp_path / "a", "SAC", [0, 10], [[0.0, 1.0]])
+    b = _write_run(tmp_path / "b", "SAC", [0, 10], [[0.0, 3.0]])
+    conf = RunFolder(b).read_config()
+    conf["config"]["adam_eps"] = 1e-5
+    RunFolder(b).write_config(conf)
+    rows = {r["method"]: r["final_return"] for r in plotting.final_table([a, b])}
+    assert rows == {"SAC (adam_eps=None)": 1.0, "SAC (adam_eps=1e-05)": 3.0}

@@ -125,8 +125,10 @@ def _limit_to_lines(ax, lines) -> None:
 
 
 def _load(run_dirs) -> dict[tuple[str, str], list[tuple[np.ndarray, dict]]]:
-    """{(task, method label): [(steps, {seed: returns}), ...]} over run folders."""
-    out = defaultdict(list)
+    """{(task, method label): [(steps, {seed: returns}), ...]} over run folders. Folders of one label and
+    task whose configs differ (say, Adam's ε) are different methods: each label then names the fields in
+    which they differ, "SAC (adam_eps=1e-05)"."""
+    found = defaultdict(list)
     for d in run_dirs:
         run = RunFolder(d)
         conf = run.read_config()
@@ -136,7 +138,14 @@ def _load(run_dirs) -> dict[tuple[str, str], list[tuple[np.ndarray, dict]]]:
         steps, per_seed = curves(run.read_rows(strict=True))   # a damaged file: RunFolderError
         if per_seed:
             label = conf.get("label") or method_label(c["algo"], c["representation"])
-            out[(c["task"], label)].append((steps, per_seed))
+            found[(c["task"], label)].append((c, steps, per_seed))
+    out = defaultdict(list)
+    for (task, label), items in found.items():
+        fields = sorted(set().union(*(c for c, _, _ in items)))
+        differ = [f for f in fields if len({repr(c.get(f)) for c, _, _ in items}) > 1]
+        for c, steps, per_seed in items:
+            name = f"{label} ({', '.join(f'{f}={c.get(f)}' for f in differ)})" if differ else label
+            out[(task, name)].append((steps, per_seed))
     return out
 
 
