@@ -1,20 +1,15 @@
 """The packages as a user outside this repository gets them: builds every package's sdist and wheel, checks
-them, installs both cores (and sf2-baselines, which adds nothing heavy) from the wheel folder into a fresh
-virtual environment in a temporary directory outside the checkout (their other dependencies from the
-package index; `-c constraints.txt` keeps torch the CPU build), and runs the README's API examples there,
-with the checkout nowhere on sys.path. `tox -e wheels` runs it (and so `tox` and CI).
+them, installs both cores (and sf2-baselines) from the wheel folder into a fresh virtual environment in a
+temporary directory outside the checkout (`-c constraints.txt` keeps torch the CPU build), and runs the
+README's API examples and `sf2-jax --help` / `sf2-torch --help` there. `tox -e wheels` runs it.
 
     python scripts/check_wheels.py [--keep]      # --keep: leave the temporary folder and print its path
 
-It fails (exit status 1, every problem listed) when
-- the packages' `__version__`s differ, or a package's built version is not its `__version__`;
-- a Requires-Dist holds a direct reference (`name @ URL`, `file://`), or names a sibling package at any
-  other specifier than `==` the repository's version;
-- a wheel or sdist lacks the LICENSE (identical to the root's), or its metadata does not say MIT;
-- `twine check --strict` fails, an install fails, a module imports from outside the new environment, an
-  example fails, or `sf2-jax --help` / `sf2-torch --help` (the cores' commands, no [train] needed) fails.
-It prints each wheel's Requires-Dist lines and the time of each phase.
-"""
+It fails (exit status 1, every problem listed) when the packages' versions differ; a Requires-Dist holds a
+direct reference or names a sibling at anything but `==` the repository's version; a wheel or sdist lacks
+the root's LICENSE or does not say MIT; `twine check --strict` fails; an install or example fails; or a
+module imports from outside the new environment. It prints each wheel's Requires-Dist lines and the time
+of each phase."""
 
 from __future__ import annotations
 

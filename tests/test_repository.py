@@ -136,6 +136,41 @@ def test_the_checks_catch_what_they_should():
     assert all(ISSUE.search(x) for x in (f"{i} 12", f"{i.title()} #6", f"{i}s 3"))
     assert not ISSUE.search(f"{i}s/86")
 
+
+MODULE_DOC_LINES = 15   # a module docstring says what the module is for; manuals and records live in docs/
+DATE = re.compile(r"\b20\d\d-[01]\d-[0-3]\d\b")
+
+
+def _docstrings(tree):
+    """(name, line, text) of the module's, every class's and every function's docstring."""
+    import ast
+
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
+            doc = ast.get_docstring(node, clean=False)
+            if doc:
+                yield getattr(node, "name", "module"), getattr(node, "lineno", 1), doc
+
+
+def test_docstrings_are_short_and_hold_no_dates():
+    """Every tracked Python module's docstring is at most 15 lines, and no docstring holds a date: what
+    was measured when, and why something was decided, go to docs/decisions/ and the results' READMEs."""
+    import ast
+
+    problems = []
+    for path in _tracked():
+        text = _text(path) if path.endswith(".py") else None
+        if text is None:
+            continue
+        tree = ast.parse(text)
+        for name, line, doc in _docstrings(tree):
+            if name == "module" and len(doc.strip().splitlines()) > MODULE_DOC_LINES:
+                problems.append(f"{path}: module docstring of {len(doc.strip().splitlines())} lines")
+            if date := DATE.search(doc):
+                problems.append(f"{path}:{line}: {name}'s docstring holds a date ({date.group(0)})")
+    assert not problems, "\n".join(problems)
+
+
 if __name__ == "__main__":
     test_cited_repository_paths_exist()
     test_no_issue_numbers()

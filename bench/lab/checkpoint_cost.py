@@ -4,18 +4,11 @@ and in the background (`save(wait=False)`, what the trainers do), and for `resto
     python -m bench.lab.checkpoint_cost --task CheetahRun --algo sac --repr none --seeds 10 [--repeats 3]
         [--framework jax|torch]
 
-The state is the `paper` preset's (1M env steps) for that many seeds, built from the program's abstract
-state: float leaves hold random normals, except that each replay buffer (a leaf whose axis 1 is
-`max_replay_size`) is filled only in its first `--fill` of that axis (default 1,001,088 / 4,194,304: the
-end of a 1M-step run; the rest stays zero, as in a run), so the files compress as a real run's last
-checkpoint does. Per repeat: `save` awaited; `save(wait=False)` until it returns (the arrays copied to the
-host) and then `finish` (the rest of the write, which a run overlaps with its next epochs); `restore`.
-Medians over the repeats after one warm-up. `--framework torch`: the torch trainer's state
-(`Program.init`, each seed's replay buffer filled as far with random transitions;
-sf2_torch/agents/checkpoint.py, whose `save(wait=False)` copies the state to the host and writes it in a
-thread). docs/decisions/background-checkpoints.md records what it measured; `python -m bench.lab.eval_share`'s
-`save_wait_s` reads what a finished run waited.
-"""
+The state is the `paper` preset's for that many seeds, built from the program's abstract state: random
+normals, each replay buffer filled only in its first `--fill` rows (the end of a 1M-step run), so the files
+compress as a real run's last checkpoint does. Per repeat: `save` awaited; `save(wait=False)` until it
+returns, then `finish`; `restore`. Medians over the repeats after one warm-up.
+docs/decisions/background-checkpoints.md records what it measured."""
 
 from __future__ import annotations
 

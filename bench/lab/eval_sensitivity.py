@@ -2,21 +2,13 @@
 
     python -m bench.lab.eval_sensitivity --task FishSwim --algo sac --repr sim --seeds 0-4 --out OUT
 
-The trainer's own evaluation program (`Program.evaluate`, the `paper` preset) of the initial policy (the
-epoch-0 evaluation of a run) three times: with the parameters as initialized, again with them (the program
-repeats itself: every difference must be 0), and with every acting parameter moved one float32 ulp up
-(`nextafter`). The ulp stands in for what differs between two GPU processes of one config: their autotuned
-GEMM kernels round the actor's products differently (results/fig7-td3/README.md, "reproducible in
-distribution"). The episodes are closed loop (each action depends on the last observation), which is
-where a last-bit difference can grow: results/fig7-sac/README.md "FishSwim" has two runs of one config
-whose epoch-0 evaluations differed by up to 2.4 return points. For contrast, the same episodes open loop:
-actions drawn uniformly in [-1, 1] whatever the observation, then the same actions one ulp up.
-
-`--set FIELD=VALUE` overrides a preset field; by default `num_eval_envs=16` (one episode each; the preset's
-128 take minutes on a CPU) and `max_replay_size=16384` (the buffer is not used by an evaluation and would
-otherwise allocate 0.75 GB per seed). Writes sensitivity.csv (one row per seed and episode), sensitivity.md
-and machine.json to `--out`.
-"""
+The trainer's own evaluation program of the initial policy, three times: as initialized, again (every
+difference must be 0), and with every acting parameter one float32 ulp up (`nextafter`), which stands in
+for two GPU processes whose autotuned GEMMs round the actor's products differently
+(docs/decisions/gpu-determinism.md). The episodes are closed loop, where a last-bit difference can grow;
+for contrast the same episodes open loop (uniform random actions, then the same actions one ulp up).
+`--set FIELD=VALUE` overrides a preset field (defaults here: `num_eval_envs=16`, `max_replay_size=16384`).
+Writes sensitivity.csv (one row per seed and episode), sensitivity.md and machine.json to `--out`."""
 
 from __future__ import annotations
 

@@ -2,20 +2,12 @@
 
     python -m bench.lab.eval_share results/fig7-td3/runs/HopperHop/*/seeds-0-4 [--markdown] [--epochs A-B]
 
-Per run folder (metrics.jsonl of the first seed: every seed of a run shares one program and one clock):
-the whole run's wall time (the last row's `walltime`, resumptions included), the evaluations after
-epoch 0 (`eval_seconds` summed; with the batched evaluation each row holds its share of its batch's
-time, so the sum is the batches' time), the training epochs (`epoch_seconds` summed), the evaluations'
-share, and the run's env steps/s over all seeds; with them the seeds, the GPU (config.json's "hardware",
-that of the run's first start; "not recorded" before run folders named it) and how many times `train`
-started in the folder (train.log: 2 = cut by a time limit and resumed once), and `save_wait_s`, the seconds
-train.log says the run waited for checkpoint writes (Orbax's "Waiting for previous save to complete took X
-seconds" lines, which it writes for waits over 1 s only, so a lower bound; whole runs only: None with
---epochs or without a train.log; sf2_jax/agents/checkpoint.py). docs/physics.md "Evaluation
-latency" and the studies' READMEs (their cost tables) use it.
-`--epochs A-B`: the same over epochs A+1..B only (wall time from epoch A's row to epoch B's): the rate of a
-stretch of a run, e.g. after the run it shared its GPU with had finished.
-"""
+Per run folder (metrics.jsonl of the first seed: the seeds of a run share one program and one clock): the
+whole run's wall time, the evaluations after epoch 0 (`eval_seconds` summed), the training epochs
+(`epoch_seconds` summed), the evaluations' share, env steps/s over all seeds, the seeds, the GPU
+(config.json's "hardware"), how many times `train` started in the folder (train.log), and `save_wait_s`,
+the seconds train.log says the run waited for checkpoint writes (a lower bound: Orbax logs waits over 1 s
+only). `--epochs A-B`: the same over epochs A+1..B only, the rate of a stretch of a run."""
 
 from __future__ import annotations
 

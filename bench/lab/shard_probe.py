@@ -3,18 +3,11 @@
     SF2_SHARD_SEEDS=1 python -m bench.lab.shard_probe --programs init
     SF2_SHARD_SEEDS=1 python -m bench.lab.shard_probe --programs epoch,evaluate
 
-Why a run's seeds are sharded under GSPMD (docs/decisions/sharded-seeds.md): on two GPUs the process
-with `SF2_SHARD_SEEDS=1` died with SIGSEGV inside XLA's `shardy-xla` pass while compiling its first
-program, `init`; `Program._program` now builds sharded programs with the GSPMD partitioner, and `--shardy`
-switches back to Shardy once they are built, before they compile (the crash's reproduction). This builds
-the `--config` preset's `Program` for one task/algorithm/representation and `--seeds` seeds and runs the
-listed programs with the seeds spread over the "seed" mesh (`Program.mesh`), printing `ok <program>` after
-each: a crash of XLA kills the process, so give each suspect its own process
-(scripts/gpu-host/gpu_shard_probe.sh).
-`init` not listed: the state comes from the one-device `init` and `Program.place` spreads it, the way
-around a sharded `init` that cannot compile. Then `epoch` runs epoch 1 (compile, random prefill) and
-`evaluate` one evaluation, each sharded.
-"""
+Builds the `--config` preset's `Program` for one task, algorithm and representation and `--seeds` seeds,
+and runs the listed programs with the seeds spread over the "seed" mesh (`Program.mesh`), printing
+`ok <program>` after each; a crash of XLA kills the process, so give each suspect its own process
+(scripts/gpu-host/gpu_shard_probe.sh). Sharded programs compile with GSPMD; `--shardy` switches back to
+Shardy, whose pass crashed on two GPUs (docs/decisions/sharded-seeds.md)."""
 
 from __future__ import annotations
 

@@ -2,35 +2,15 @@
 
     python -m bench.lab.shardy_repro --case cholesky-shard-map        # one case per process: a crash kills it
 
-On GPUs the trainer's sharded `init` (SF2_SHARD_SEEDS=1, `Program.mesh`) died with SIGSEGV in the
-`shardy-xla` pass (docs/decisions/sharded-seeds.md); under GSPMD it compiles. The module that pass was
-handed (the `shardy/…/00.input_module.mlir` of XLA's dump, `scripts/gpu-host/gpu_shard_probe.sh programs`)
-holds one custom call with a Shardy sharding rule: cuSOLVER's batched Cholesky factorization
-(`cusolver_potrf_ffi`, from MJX's mass-matrix solve in the env reset), inside the `shard_map` body. On CPUs
-the same factorization is a LAPACK custom call, and the CPU compiles the trainer under Shardy. Each case
-here is a few lines of JAX around that one operation, so the one that crashes is the report:
-
-- `cholesky-shard-map`: `shard_map(vmap(jnp.linalg.cholesky))` over a one-axis mesh of the local devices
-  (the trainer's layout: seeds × envs × 2 × 2 mass matrices), under Shardy (JAX's default);
-- `cholesky-shard-map-gspmd`: the same under GSPMD (`jax_use_shardy_partitioner=False`, what
-  `Program._program` switches to);
-- `cholesky-jit`: `jit(vmap(cholesky))` of an array sharded over the mesh, no `shard_map`, under Shardy;
-- `matmul-shard-map`: `shard_map` of a batched matmul, no custom call, under Shardy (the control);
-- `reset-shard-map`: `shard_map(vmap(reset))` of MuJoCo Playground's AcrobotSwingup (MJX, the trainer's
-  env: Playground's task, Brax's wrappers), `--envs` envs per seed, its observations out, under Shardy;
-- `reset-state-shard-map`: the same with the whole env state out of the `shard_map`, as the trainer's
-  `init` returns it. The dumped module passes zero-size arrays across the `shard_map` boundary hundreds of
-  times (MJX's state has empty fields for what AcrobotSwingup lacks, e.g. (seeds, envs, 0) contacts);
-- `zero-size-shard-map`: the smallest form of that: a `shard_map` whose input and output include a
-  (seeds, envs, 0) array beside a non-empty one.
-
-On two H100s the first five cases ran under Shardy without a crash; the last two **crash** (SIGSEGV;
-docs/decisions/sharded-seeds.md has the evidence): a `shard_map` with a zero-size array crossing its
-boundary is the smallest program found that kills the pass. Keeping the
-trainer's zero-size arrays out of its `shard_map` did not stop its crash (the programs make more inside).
-
-Prints the case, the devices and `ok` with the result's checksum; exit status 139 is the crash.
-"""
+On GPUs the trainer's sharded `init` died with SIGSEGV in the `shardy-xla` pass; under GSPMD it compiles
+(docs/decisions/sharded-seeds.md). Each case is a few lines of JAX around one suspect, under Shardy unless
+named: `cholesky-shard-map` (cuSOLVER's batched Cholesky from MJX's mass-matrix solve, inside a
+`shard_map`), `cholesky-shard-map-gspmd` (the same under GSPMD), `cholesky-jit` (no `shard_map`),
+`matmul-shard-map` (the control), `reset-shard-map` (Playground's AcrobotSwingup reset, observations out),
+`reset-state-shard-map` (the whole env state out, with its zero-size fields), `zero-size-shard-map` (a
+`shard_map` with a (seeds, envs, 0) array crossing its boundary). The last two crash: a zero-size array
+crossing a `shard_map` boundary is the smallest program found that kills the pass.
+Prints the case, the devices and `ok` with the result's checksum; exit status 139 is the crash."""
 
 from __future__ import annotations
 

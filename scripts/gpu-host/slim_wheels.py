@@ -5,10 +5,10 @@ all, this repository included): drops from the wheels in FOLDER what training ne
 
 mujoco: `mujoco/experimental/` (15.7 MB compressed), `mujoco/testdata/`, the C headers and the filament
 renderer's and the viewer's extension modules (2.5 MB; only `mujoco.mjrf` and `mujoco.viewer` import them,
-and training imports neither: checked with a train and an eval that block them, 2026-11-25); mujoco-mjx:
+and training imports neither: checked with a train and an eval that block them); mujoco-mjx:
 `mujoco/mjx/test_data/` (6.5 MB); playground: the locomotion and manipulation robots' assets (7.6 MB; their
 Python modules stay, as the registry imports them). The seven DM Control tasks of the studies load and step
-with what is left (checked with Python 3.12, the host's, on 2026-11-23). pip installs such a wheel: it
+with what is left (checked with Python 3.12, the host's). pip installs such a wheel: it
 writes its own RECORD.
 """
 

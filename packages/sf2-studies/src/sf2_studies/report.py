@@ -219,7 +219,7 @@ def coverage(family: str, tasks: list[str], methods: list[str], got: dict) -> Co
     common seeds); the aggregate takes the seed set S, among the seeds common to all those tasks and each
     task's own common seeds, that scores the most seeds × tasks (every task whose common seeds include
     S), ties to more tasks, then to the first candidate. So one method's first seed group on a new task
-    does not cut a study's interim aggregate to that group's seeds on every task (fig7-sac, 2026-11-26:
+    does not cut a study's interim aggregate to that group's seeds on every task (in fig7-sac,
     SAC+SPR's seeds 0-4 on HopperHop would have turned 5 tasks × 15 seeds into 6 × 5); the task is left
     out and named, until its seeds catch up."""
     common = {t: set.intersection(*(set(got[(t, m)]) for m in methods)) for t in tasks
@@ -533,7 +533,7 @@ def _first_difference(first: tuple | None) -> str:
 def _md_seed_counts(study: Study, data: list[RunData]) -> list[str]:
     """Seeds finished per (task, method) of the study's seeds, the missing ones named; a flag where
     methods of a family have unequal seed counts on a task, and one where a task's normalization rests on
-    some of the study's methods only (fig7-sac, 2026-11-26: SAC+SPR's first seeds on HopperHop raised the
+    some of the study's methods only (in fig7-sac, SAC+SPR's first seeds on HopperHop raised the
     task's largest AUC from SAC's best to its own, and SAC+SF² − SAC there went from −0.171 to −0.048 in
     normalized AUC, −2.95 to −3.46 in returns)."""
     tasks = list(study.tasks)

@@ -1,20 +1,15 @@
-"""Where a run folder resumes, decided once for both trainers (docs/run-folders.md, "Recovery").
+"""Where a run folder resumes, decided once for both trainers (docs/run-folders.md, "Recovery rules").
 
-The rule: resume from the newest checkpoint that restores completely. Each core supplies its
-checkpointer (`all()`: the epochs on disk; `path(epoch)`: a checkpoint's folder) and `restore(epoch)`,
-which raises `CheckpointDamaged` for a checkpoint whose files are not what was written and
-`CheckpointMismatch` for one that does not fit the program (never worked around: it propagates).
+The rule: resume from the newest checkpoint that restores completely. Each core supplies its checkpointer
+(`all()`: the epochs on disk; `path(epoch)`: a checkpoint's folder) and `restore(epoch)`, which raises
+`CheckpointDamaged` for a checkpoint whose files are not what was written and `CheckpointMismatch` for one
+that does not fit the program (never worked around: it propagates).
 
-A damaged checkpoint newer than the one used is reported (path and reason) and set aside, never
-deleted: it moves to `damaged/<time>/checkpoints/<epoch>` with a copy of metrics.jsonl as it was and the
-reasons. metrics.jsonl then keeps the rows of the epochs up to the checkpoint used (the resumed run
-writes the others again, identically), so its rows equal an uninterrupted run's. Every check comes
-before any change: when the folder cannot be resumed (no checkpoint restores but rows of trained epochs
-exist, or metrics.jsonl lacks rows the checkpoint was written after) a `RunFolderError` says so and the
-folder is left as it was. The changes are ordered so that a kill between any two of them leads the next
-resume to the same result: the record of what is set aside, the moves, then one atomic rewrite of
-metrics.jsonl.
-"""
+A damaged newer checkpoint is reported and set aside in `damaged/<time>/` with a copy of metrics.jsonl,
+never deleted; metrics.jsonl then keeps the rows up to the checkpoint used, so its rows equal an
+uninterrupted run's. Every check comes before any change, and the changes are ordered (the record of what
+is set aside, the moves, one atomic rewrite of metrics.jsonl) so that a kill between any two leads the
+next resume to the same result."""
 
 from __future__ import annotations
 

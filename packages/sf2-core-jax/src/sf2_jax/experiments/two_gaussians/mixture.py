@@ -2,21 +2,11 @@
 
 Components (Table 2, Appendix E.2): p⁽¹⁾ = N(−2.0, 0.3²) carries weight γ, p⁽²⁾ = N(2.0, 0.7²) carries
 1 − γ. Why this way round: Appendix A.3 writes p_mix = γ p⁽¹⁾ + (1 − γ) p⁽²⁾ with the table's "first
-Gaussian" (μ₁, σ₁) as p⁽¹⁾, and Table 2's "mixture probability 0.01" is the weight 1 − γ of the second
-component at the paper's γ = 0.99 (Appendix A.1, footnote 1). This is the role γ has in SF² (eq. 1 and 3):
-γ weights the bootstrapped successor part (here p⁽¹⁾) and 1 − γ the observed transition P(s′|s, a)
-(here p⁽²⁾), so as γ → 1 a learner that samples the mixture almost never sees the second component.
-
-W1 (`wasserstein1`): in one dimension W1(Pₙ, P) = ∫₀¹ |Fₙ⁻¹(u) − F⁻¹(u)| du. Neither a large sample of
-the mixture nor a quantile grid is needed: with the sorted samples x₍₁₎ ≤ … ≤ x₍ₙ₎ and the mixture's
-quantiles qᵢ = F⁻¹(i/n) (q₀ = −∞, qₙ = +∞) it is the finite sum
-    W1 = Σᵢ ∫_{qᵢ₋₁}^{qᵢ} |x₍ᵢ₎ − y| dF(y),
-and each term is closed-form through F and the partial mean
-M(y) = ∫_{−∞}^y t dF(t) = Σⱼ wⱼ(μⱼΦ(zⱼ) − σⱼφ(zⱼ)), zⱼ = (y − μⱼ)/σⱼ. So the true-mixture side carries
-no Monte Carlo error at all (a large reference sample of size M would add an error of order M^(−1/2));
-the quantiles come from bisection to float64 resolution.
-Everything here is numpy/scipy (float64) and runs on the host.
-"""
+Gaussian" as p⁽¹⁾, and Table 2's "mixture probability 0.01" is the weight 1 − γ of the second component at
+the paper's γ = 0.99 (Appendix A.1, footnote 1). This is the role γ has in SF² (eq. 1 and 3): γ weights
+the bootstrapped successor part (here p⁽¹⁾) and 1 − γ the observed transition (here p⁽²⁾), so as γ → 1 a
+learner that samples the mixture almost never sees the second component.
+`wasserstein1` is exact, in closed form (its docstring derives it). numpy/scipy, float64, on the host."""
 
 from __future__ import annotations
 
@@ -88,8 +78,19 @@ class Mixture:
 
 
 def wasserstein1(samples, mixture: Mixture) -> np.ndarray:
-    """Exact W1 between the empirical distribution of `samples` (..., n) and `mixture` (module docstring).
-    Returns an array of the leading shape (...)."""
+    """Exact W1 between the empirical distribution of `samples` (..., n) and `mixture` (below).
+    Returns an array of the leading shape (...).
+
+    In one dimension W1(Pₙ, P) = ∫₀¹ |Fₙ⁻¹(u) − F⁻¹(u)| du. Neither a large sample of
+    the mixture nor a quantile grid is needed: with the sorted samples x₍₁₎ ≤ … ≤ x₍ₙ₎ and the mixture's
+    quantiles qᵢ = F⁻¹(i/n) (q₀ = −∞, qₙ = +∞) it is the finite sum
+        W1 = Σᵢ ∫_{qᵢ₋₁}^{qᵢ} |x₍ᵢ₎ − y| dF(y),
+    and each term is closed-form through F and the partial mean
+    M(y) = ∫_{−∞}^y t dF(t) = Σⱼ wⱼ(μⱼΦ(zⱼ) − σⱼφ(zⱼ)), zⱼ = (y − μⱼ)/σⱼ. So the true-mixture side carries
+    no Monte Carlo error at all (a large reference sample of size M would add an error of order M^(−1/2));
+    the quantiles come from bisection to float64 resolution.
+    Everything here is numpy/scipy (float64) and runs on the host.
+    """
     x = np.sort(np.asarray(samples, dtype=np.float64), axis=-1)
     n = x.shape[-1]
     if n < 1:

@@ -1,24 +1,18 @@
 """The four generative models of Appendix A.2–A.3, as pure JAX functions of (params, opt_state, key).
 
-Every network is the core's `sf2_jax.networks.MLP` without LayerNorm: Dense → ReLU per hidden layer
-(width 256, Table 2), then a last Dense. Flow matching uses the core's conventions: the path
-φ_k(ε, x) = k·x + (1 − k)·ε with target velocity x − ε (`sf2_jax.losses.explicit_mixture_loss`), and
-samples are `sf2_jax.ode.integrate` from ε ~ N(0, 1) over k ∈ [0, 1] in 100 Euler steps (Table 2).
-
-- `fm_implicit` — flow matching on samples of the mixture: each step draws B samples of p_mix (component
-  labels ~ Bernoulli(γ)) and minimises mean_b‖u(φ_k(ε, x), k) − (x − ε)‖² (Section 2, "Flow Matching").
-- `fm_explicit` — the explicit mixture objective of Appendix A.3: each step draws B samples of each
-  component and minimises γ·L₁ + (1 − γ)·L₂ (`explicit_mixture_loss`), as SF²'s eq. (3) pairs every tuple
-  with one transition term and one bootstrap term.
-- `vae` — Gaussian encoder q(z|x) and Gaussian decoder N(x; μ(z), σ(z)²) with a learned σ, standard-normal
-  prior, one reparameterised z per sample; loss = −log-likelihood + KL. Samples: z ~ N(0, I),
-  x ~ N(μ(z), σ(z)²) (the decoder's noise included: that is the model's distribution).
-- `gan` — generator x = G(z), discriminator logit D(x), non-saturating losses (Goodfellow et al. 2014);
-  each step one discriminator update, then one generator update against the updated discriminator.
-
-The VAE and the GAN learn from mixture samples (they have no explicit-mixture form). Latent size 2 for
-both. Every model uses Adam (optax) with the learning rate of Table 2.
-"""
+Every network is the core's `sf2_jax.networks.MLP` without LayerNorm (width 256, Table 2). Flow matching
+uses the core's conventions: the path φ_k(ε, x) = k·x + (1 − k)·ε with target velocity x − ε, and samples
+are `sf2_jax.ode.integrate` from ε ~ N(0, 1) over k ∈ [0, 1] in 100 Euler steps (Table 2).
+- `fm_implicit`: flow matching on samples of the mixture (Section 2, "Flow Matching").
+- `fm_explicit`: the explicit mixture objective of Appendix A.3, γ·L₁ + (1 − γ)·L₂ on samples of each
+  component (`sf2_jax.losses.explicit_mixture_loss`), as SF²'s eq. (3) pairs every tuple with one
+  transition term and one bootstrap term.
+- `vae`: Gaussian encoder and decoder with a learned σ, standard-normal prior; loss = −log-likelihood + KL;
+  samples include the decoder's noise.
+- `gan`: non-saturating losses (Goodfellow et al. 2014), one discriminator then one generator update per
+  step.
+The VAE and the GAN learn from mixture samples (they have no explicit-mixture form); latent size 2; Adam
+with Table 2's learning rate."""
 
 from __future__ import annotations
 
