@@ -7,7 +7,7 @@ step (CheetahRun's does at reset: the same wrapper, but four times the tracing t
 
 import jax
 import jax.numpy as jnp
-from sf2_jax.agents.envs import make_envs
+from sf2_jax.agents.envs import env_spec
 
 
 def _types(state):
@@ -16,7 +16,7 @@ def _types(state):
 
 
 def test_reset_and_step_keep_strong_types():
-    spec = make_envs("CartpoleSwingupSparse", 1000, 1)
+    spec = env_spec("CartpoleSwingupSparse", 1000, 1)
     raw = spec.train_env.env
     keys = jax.ShapeDtypeStruct((3, 2), jnp.uint32)
     action = jax.ShapeDtypeStruct((3, spec.action_size), jnp.float32)

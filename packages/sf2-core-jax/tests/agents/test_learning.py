@@ -25,7 +25,7 @@ from sf2_jax.agents.trainer import train
 
 
 def _random_policy_returns(cfg, n=64, seed=123):
-    spec = envs.make_envs(cfg.task, cfg.episode_length, cfg.action_repeat)
+    spec = envs.env_spec(cfg.task, cfg.episode_length, cfg.action_repeat)
 
     @jax.jit
     def run(key):

@@ -11,7 +11,7 @@ count as zeros. The TD3 and SAC losses are written once against a `critic` (defa
 Gradient contract: the caller calls `loss.backward(inputs=...)` with the trained groups' parameters;
 targets are evaluated under `torch.no_grad()`. The TD target y and SAC's α are constants in every case.
 `check_batch` and `check_noise` are the losses' shape checks, public for the baselines' losses (the JAX
-core's `sf2_jax.losses` has the same functions).
+core's `losses` has the same functions).
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 `integrate` is Algorithm 1's inner loop (lines 6–10): explicit midpoint (2 evaluations per step) or Euler
 (1 per step) from flow time 0 to a per-sample end time, in exactly `denoising_steps` steps. The authors'
 loop runs one more step of zero width, which changes nothing but costs two evaluations, so it is not
-reproduced. The JAX core's `sf2_jax.ode` has the same function, names and messages.
+reproduced. The JAX core's `ode` has the same function, names and messages.
 """
 
 from __future__ import annotations

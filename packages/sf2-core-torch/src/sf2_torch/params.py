@@ -4,7 +4,7 @@ A canonical mapping is a flat ``dict[str, numpy.ndarray]``: dot-joined names (``
 ``q.head_1.dense_0.bias``, ``obs_norm.mean``, ``log_alpha``), kernels stored (in, out) as flax does
 (`nn.Linear.weight` is transposed on the way in and out), LayerNorm ``scale``/``bias``. The modules use the
 canonical layer names, so one converter serves the core's `Networks`, the baselines' networks and an
-agent's groups. Loading one mapping into `sf2_torch` and `sf2_jax` (`sf2_jax.params`, the same functions)
+agent's groups. Loading one mapping into `sf2_torch` and the JAX core (its `params`, the same functions)
 gives networks that compute the same numbers. `save` and `load` read and write ``.npz`` or
 ``.safetensors`` files (`sf2_common.paramfile`, shared by both cores).
 """

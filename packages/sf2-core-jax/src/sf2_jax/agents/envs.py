@@ -28,7 +28,7 @@ from sf2_common.errors import ConfigError
 
 __all__ = [
     "PAPER_TASKS", "PAPER_BUDGETS", "PAPER_ACTION_REPEAT", "valid_tasks", "validate_task",
-    "paper_budget", "paper_action_repeat", "EnvSpec", "make_envs", "StrongTypes", "strong_types",
+    "paper_budget", "paper_action_repeat", "EnvSpec", "env_spec", "StrongTypes", "strong_types",
 ]
 
 
@@ -46,7 +46,7 @@ class EnvSpec:
 
 
 @functools.lru_cache(maxsize=16)
-def make_envs(task: str, episode_length: int, action_repeat: int) -> EnvSpec:
+def env_spec(task: str, episode_length: int, action_repeat: int) -> EnvSpec:
     """Load a task with the MJX backend, wrapped for training and for evaluation.
 
     Both use Playground's `wrap_for_brax_training` (auto-reset, truncation flag); the evaluator runs exactly

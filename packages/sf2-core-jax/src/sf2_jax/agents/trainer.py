@@ -95,7 +95,7 @@ class Program:
 
     def __init__(self, cfg: TrainConfig):
         self.cfg = cfg
-        self.spec = envs.make_envs(cfg.task, cfg.episode_length, cfg.action_repeat)
+        self.spec = envs.env_spec(cfg.task, cfg.episode_length, cfg.action_repeat)
         self.sf2 = cfg.sf2_config(self.spec.obs_size, self.spec.action_size)
         self.algo = make_algorithm(cfg.algo, self.sf2, representations.get(cfg.representation))
         self.buffer = ReplayBuffer(cfg.max_replay_size, self.spec.obs_size, self.spec.action_size)

@@ -3,7 +3,7 @@
 The losses are the core's (`sf2_torch.losses`, with `critic=` the representation's critic); this module
 schedules them: one SGD step in the authors' order (docs/core-contract.md "One SGD step"), every random
 input drawn up front by `step_noise` (keys `noise_keys()`, the JAX agents' too) so `sgd_step` is pure.
-The vocabulary is sf2_jax.agents.algorithms' (docs/core-contract.md "Agents: the plug-in vocabulary");
+The vocabulary is the JAX agents' (docs/core-contract.md "Agents: the plug-in vocabulary");
 torch methods update the modules the algorithm holds in place and take a `torch.Generator` where JAX takes
 a PRNG key. Each loss's gradient lands only in the groups it trains (`loss.backward(inputs=...)`); one
 Adam per trained group (`shared_adam = False` gives ψ's aux step a second one, `optimizers["psi:aux"]`).

@@ -4,7 +4,7 @@
 never looks inside one, and every group it returns is saved, restored and trained by name. `none`
 (vanilla TD3/SAC, `NoRepresentation`) and `sf2` (`SF2Representation`) are here; the baselines (Sim,
 SimLap, SPR) subclass `Representation` in sf2-baselines. `register`, `get`, `names` and `REGISTRY` select
-one by name (`--repr NAME`). The vocabulary is sf2_jax.agents.representations' (docs/core-contract.md
+one by name (`--repr NAME`). The vocabulary is the JAX agents' (docs/core-contract.md
 "Agents: the plug-in vocabulary"); torch methods act on the modules the representation holds and take a
 `torch.Generator` where JAX takes a PRNG key.
 """
