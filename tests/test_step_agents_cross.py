@@ -8,13 +8,10 @@ Q(s, a), whose noise is explicit too). Every group of the agent (the algorithm's
 loaded into both agents; fresh Adam states; the same batches. After every step the test compares every
 parameter and target (canonical names), every Adam first and second moment, and the step's metrics.
 
-Noise: `sf2_jax.agents.algorithms.Algorithm.step_noise(key, batch)` draws every random input of the JAX
-step; the test hands the same arrays, under the same names (`noise_keys()` of both agents), to both
-`sgd_step`s.
-
-Tolerances: tests/cross_bridge.py, docs/parity.md (float64 1e-10 relative; float32 the "grad" bound
-5e-4, since Adam divides by √v̂ + ε and amplifies the rounding differences of the gradients). The largest
-differences per term are printed at the end of the cross run.
+Noise: the JAX step's `Algorithm.step_noise(key, batch)` draws every random input; the test hands the same
+arrays, under the same names (`noise_keys()` of both agents), to both `sgd_step`s. Tolerances:
+tests/cross_bridge.py, docs/parity.md (float64 1e-10 relative; float32 the "grad" bound 5e-4, since Adam
+divides by √v̂ + ε and amplifies the rounding differences of the gradients).
 """
 
 from __future__ import annotations

@@ -161,8 +161,8 @@ def test_evaluation_under_observation_noise(reference, tmp_path, capsys, monkeyp
 
 
 def _cond_program(cfg):
-    """A `Program` with the plain formulation that `Program._actor_step` replaced (until 2026-11-27): the
-    prefill and training branches as `lax.cond`s, so only the taken one runs."""
+    """A `Program` with the plain formulation that `Program._actor_step` replaced: the prefill and training
+    branches as `lax.cond`s, so only the taken one runs."""
     import jax.numpy as jnp
     from sf2_jax import networks
     from sf2_jax.agents.trainer import Program
