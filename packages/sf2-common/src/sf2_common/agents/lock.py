@@ -93,15 +93,19 @@ class FolderLock:
         if inherited is not None:
             self.fd, self.owned = inherited, False
             return self
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = _describe(_read(fd) or {})
-            os.close(fd)
-            raise RunFolderBusy(
-                f"run folder {self.folder} is in use by {holder}: one process writes a run folder at a time. "
-                f"Wait for it to end, or use another --out; nothing was changed") from None
+        while True:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                holder = _describe(_read(fd) or {})
+                os.close(fd)
+                raise RunFolderBusy(
+                    f"run folder {self.folder} is in use by {holder}: one process writes a run folder at a "
+                    f"time. Wait for it to end, or use another --out; nothing was changed") from None
+            if _same_file(fd, self.path):
+                break
+            os.close(fd)   # its holder removed the file while releasing it: take the new one
         stale = _read(fd)
         if stale:
             (say or _stderr)(f"{self.folder}: taking over the lock of {_describe(stale)}, which is gone")
@@ -113,13 +117,14 @@ class FolderLock:
         return self
 
     def release(self) -> None:
-        """Give the lock back (an inherited one stays with the parent). Clean releases empty the file, so
-        the next holder finds no stale holder named in it."""
+        """Give the lock back (an inherited one stays with the parent): the lock file is removed while the
+        lock is still held, so a folder keeps no lock file once its writer is done; a holder that was
+        killed leaves it, naming itself, for the next one to take over."""
         if self.fd is None:
             return
         if self.owned:
             try:
-                os.ftruncate(self.fd, 0)
+                self.path.unlink(missing_ok=True)
             finally:
                 os.close(self.fd)
         self.fd, self.owned = None, False
@@ -133,16 +138,23 @@ class FolderLock:
         if not text or not text.isdigit():
             return None
         try:
-            mine, theirs = os.fstat(int(text)), os.stat(self.path)
+            return int(text) if _same_file(int(text), self.path) else None
         except OSError:
             return None
-        return int(text) if (mine.st_dev, mine.st_ino) == (theirs.st_dev, theirs.st_ino) else None
 
     def __enter__(self) -> FolderLock:
         return self.acquire()
 
     def __exit__(self, *exc) -> None:
         self.release()
+
+
+def _same_file(fd: int, path: Path) -> bool:
+    try:
+        mine, there = os.fstat(fd), os.stat(path)
+    except OSError:
+        return False
+    return (mine.st_dev, mine.st_ino) == (there.st_dev, there.st_ino)
 
 
 def _stderr(message: str) -> None:
