@@ -39,7 +39,9 @@ def main(argv=None) -> int:
 
     from sf2_common.agents.hostloop import WALL_FIELDS
     from sf2_common.agents.runfolder import RunFolder
-    from sf2_common.testing import FAULTS, cli_args, damage, folder_digest, kill9
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "support"))
+    from sf2_testing import FAULTS, cli_args, damage, folder_digest, kill9
 
     module = f"sf2_{args.framework}.cli"
     cli = importlib.import_module(module)

@@ -10,7 +10,7 @@ from sf2_common.agents.configs import TrainConfig
 from sf2_common.agents.evaluation import EVAL_KEY_BASE, CheckpointEvaluator, open_evaluation
 from sf2_common.agents.runfolder import RunFolder
 from sf2_common.errors import ConfigError
-from sf2_common.testing import folder_digest
+from sf2_testing import folder_digest
 
 CFG = TrainConfig(num_timesteps=96, num_envs=4, num_evals=4, min_replay_size=4, num_eval_envs=3)
 

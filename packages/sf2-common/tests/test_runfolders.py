@@ -20,7 +20,7 @@ from sf2_common.agents.configs import TrainConfig, schedule
 from sf2_common.agents.resume import resume_run
 from sf2_common.agents.runfolder import RunFolder, RunFolderError, RunFolderMismatch
 from sf2_common.agents.runlog import library_log
-from sf2_common.testing import FAULTS, damage, folder_digest
+from sf2_testing import FAULTS, damage, folder_digest
 
 SEEDS = (0, 1)
 # 3 epochs (96 env steps / 4 envs over num_evals − 1 = 3 epochs)

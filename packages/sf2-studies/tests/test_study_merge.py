@@ -14,11 +14,11 @@ from sf2_common.agents import tasks as task_table
 from sf2_common.agents.configs import TrainConfig, schedule
 from sf2_common.agents.runfolder import RunFolder, RunFolderError
 from sf2_common.fileio import read_text
-from sf2_common.testing import folder_digest
 from sf2_studies import merge as merging
 from sf2_studies import spec
 from sf2_studies.folder import StudyFolder
 from sf2_studies.spec import StudyError
+from sf2_testing import folder_digest
 
 STUDY = """
 name = "merging"

@@ -1,11 +1,7 @@
-"""`SF2Config`: sizes and loss hyperparameters of SF², validated on construction. Both cores re-export this
-one class (`sf2_jax.SF2Config is sf2_torch.SF2Config`), so their fields, defaults and messages cannot drift.
-
-Defaults follow the paper's Appendix E Table 1, except where the authors' published runs differ
-(`tau_zeta` = 0.05 and `learning_rate` = 1e-3; docs/core-contract.md lists every such place; the field's
-comment says so). Names follow docs/core-contract.md "Notation": `gamma_su` is γ_su of eq. (3),
-`denoising_steps` is T of Algorithm 1's ODE.
-"""
+"""`SF2Config`: sizes and loss hyperparameters of SF², validated on construction; both cores re-export this
+one class, so their fields, defaults and messages cannot drift. Defaults follow the paper's Table 1
+except where the authors' runs differ (docs/core-contract.md lists each); `gamma_su` is γ_su of eq. (3),
+`denoising_steps` is T of Algorithm 1's ODE."""
 
 from __future__ import annotations
 

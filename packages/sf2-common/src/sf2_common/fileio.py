@@ -1,12 +1,7 @@
-"""Atomic file writes for everything a run or study folder holds (config.json, metrics.jsonl, study.json,
-study.toml, checkpoint manifests, evaluation results, files that come back from another host): the data
-goes to a temporary file in the same folder, is synced, then renamed over the final name, so a crash or a
-`kill -9` never leaves a half-written file under that name (docs/run-folders.md).
-
-A study folder keeps its finished runs' metrics.jsonl and obs_noise.json gzip-compressed (`compress`:
-`study merge` and `study compress` do it; `metrics.jsonl.gz` is 4-5× smaller, which is what lets a
-repository's results travel to a GPU host within its size limit). Every reader of this project goes through
-`stored` / `read_text`, which take either form; `zcat` and pandas read the .gz too."""
+"""Atomic file writes for everything a run or study folder holds: the data goes to a temporary file in the
+same folder, is synced, then renamed over the final name, so a kill never leaves a half-written file.
+A study folder keeps its finished runs' metrics.jsonl and obs_noise.json gzip-compressed (`compress`);
+every reader goes through `stored` / `read_text`, which take either form."""
 
 from __future__ import annotations
 

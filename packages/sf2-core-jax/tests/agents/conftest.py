@@ -50,9 +50,9 @@ def float32_jax():
 
 @pytest.fixture(scope="session")
 def agent_core():
-    """The JAX agents, for the contract tests of `sf2_common.contract` (test_contract.py)."""
-    from sf2_common.contract import AgentCore
+    """The JAX agents, for the contract tests of `sf2_testing.contract` (test_contract.py)."""
     from sf2_jax.agents import configs, envs, representations, trainer
+    from sf2_testing.contract import AgentCore
 
     return AgentCore("jax", configs, trainer, envs, representations)
 

@@ -11,10 +11,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from sf2_common.testing import kill_and_resume, strip_wall
 from sf2_jax.agents import trainer
 from sf2_jax.agents.checkpoint import Checkpointer
 from sf2_jax.agents.trainer import TrainingDiverged, get_program, train
+from sf2_testing import kill_and_resume, strip_wall
 
 # Vmapping over the snapshot axis changes the shapes of the policy's matmuls (a batch dimension more),
 # which may round differently in the last bit; a 60-step episode keeps such a difference near float32

@@ -16,7 +16,10 @@ import numpy as np
 import pytest
 from sf2_common.agents.checkpoints import CheckpointDamaged
 from sf2_common.agents.runfolder import RunFolderError
-from sf2_common.testing import (
+from sf2_jax import cli
+from sf2_jax.agents.checkpoint import Checkpointer
+from sf2_jax.agents.trainer import get_program, train
+from sf2_testing import (
     FAULTS,
     check_cli_resume,
     check_two_writers,
@@ -27,9 +30,6 @@ from sf2_common.testing import (
     kill_and_resume,
     strip_wall,
 )
-from sf2_jax import cli
-from sf2_jax.agents.checkpoint import Checkpointer
-from sf2_jax.agents.trainer import get_program, train
 
 
 def _assert_same_state(a, b):

@@ -1,17 +1,17 @@
 """Bad input gets a clear error (exit status 2 from the CLI) before anything is compiled. The same contract
-through the API (bad input, presets, seeds, the schedule) is `sf2_common.contract` (test_contract.py)."""
+through the API (bad input, presets, seeds, the schedule) is `sf2_testing.contract` (test_contract.py)."""
 
 from __future__ import annotations
 
 import pytest
-from sf2_common.testing import (
+from sf2_jax import cli
+from sf2_jax.agents import representations, trainer
+from sf2_testing import (
     BAD_TRAIN_INPUTS,
     check_baselines_resolve,
     check_cli_misuse,
     cli_error,
 )
-from sf2_jax import cli
-from sf2_jax.agents import representations, trainer
 
 
 @pytest.fixture(autouse=True)

@@ -8,9 +8,9 @@ import json
 import jax
 import numpy as np
 import pytest
-from sf2_common.testing import KILL_POINTS, check_cli_eval, check_obs_noise_eval, kill_and_resume, strip_wall
 from sf2_jax import cli
 from sf2_jax.agents.trainer import TrainingDiverged, train
+from sf2_testing import KILL_POINTS, check_cli_eval, check_obs_noise_eval, kill_and_resume, strip_wall
 
 
 def _seed_rows(rows, seed):
@@ -149,7 +149,7 @@ def test_a_torch_run_folder_is_refused(tiny_cfg, tmp_path, capsys):
 
 
 def test_evaluation_under_observation_noise(reference, tmp_path, capsys, monkeypatch):
-    """`sf2_common.testing.check_obs_noise_eval` on a copy of the reference run (paper App. C.2.2)."""
+    """`sf2_testing.check_obs_noise_eval` on a copy of the reference run (paper App. C.2.2)."""
     import shutil
 
     from sf2_jax.agents import trainer as trainer_module

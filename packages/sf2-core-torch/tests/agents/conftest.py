@@ -70,8 +70,8 @@ TINY = dict(
 
 @pytest.fixture(scope="session")
 def agent_core():
-    """The torch agents, for the contract tests of `sf2_common.contract` (test_torch_contract.py)."""
-    from sf2_common.contract import AgentCore
+    """The torch agents, for the contract tests of `sf2_testing.contract` (test_torch_contract.py)."""
+    from sf2_testing.contract import AgentCore
     from sf2_torch.agents import configs, envs, representations, trainer
 
     return AgentCore("torch", configs, trainer, envs, representations, own_fields=configs.TORCH_FIELDS)

@@ -15,7 +15,7 @@ import pytest
 import torch
 from sf2_common.agents.checkpoints import CheckpointDamaged
 from sf2_common.agents.runfolder import RunFolderError
-from sf2_common.testing import (
+from sf2_testing import (
     FAULTS,
     check_cli_resume,
     check_two_writers,

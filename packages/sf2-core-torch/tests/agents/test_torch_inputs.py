@@ -1,6 +1,6 @@
 """Bad input gets a clear error (exit status 2 from the CLI) before anything is built; `sf2-torch` takes the
 same flags as `sf2-jax`; the torch-only fields. The same contract through the API (bad input, presets,
-seeds, the schedule, configs equal across frameworks) is `sf2_common.contract` (test_torch_contract.py)."""
+seeds, the schedule, configs equal across frameworks) is `sf2_testing.contract` (test_torch_contract.py)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import dataclasses
 import importlib.util
 
 import pytest
-from sf2_common.testing import (
+from sf2_testing import (
     BAD_TRAIN_INPUTS,
     check_baselines_resolve,
     check_cli_misuse,

@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 import torch
-from sf2_common.testing import KILL_POINTS, check_cli_eval, check_obs_noise_eval, kill_and_resume, strip_wall
+from sf2_testing import KILL_POINTS, check_cli_eval, check_obs_noise_eval, kill_and_resume, strip_wall
 from sf2_torch import cli
 from sf2_torch.agents.trainer import TrainingDiverged, train
 
@@ -222,7 +222,7 @@ def test_a_jax_run_folder_is_refused(tiny_cfg, tmp_path, capsys):
 
 
 def test_evaluation_under_observation_noise(reference, tmp_path, capsys, monkeypatch):
-    """`sf2_common.testing.check_obs_noise_eval` on a copy of the reference run (paper App. C.2.2)."""
+    """`sf2_testing.check_obs_noise_eval` on a copy of the reference run (paper App. C.2.2)."""
     import shutil
 
     from sf2_torch.agents import trainer as trainer_module

@@ -1,11 +1,7 @@
-"""The framework-free parts of the SF² agents, shared by `sf2_jax.agents` and `sf2_torch.agents`.
-
-Modules: `configs` (TrainConfig, presets, parsing, validation), `tasks` (the DM Control task table),
-`registry` (representations by name, entry points), `runfolder`, `plotting`, `hostloop` (the training
-loop's framework-free helpers), `resume` (where a run folder resumes), `checkpoints` (damaged vs
-mismatched checkpoints, the file manifest), `runlog` (library noise into train.log). `EXPORTS` and
-`lazy_getattr` give both cores' `agents` packages the same lazily imported top-level names.
-"""
+"""The framework-free parts of the SF² agents, shared by `sf2_jax.agents` and `sf2_torch.agents`: configs
+and presets, the task table, the representation registry, run folders, the lock, where a run resumes,
+checkpoint checks, the host loop, evaluation, plots. `EXPORTS` and `lazy_getattr` give both cores' `agents`
+packages the same lazily imported top-level names."""
 
 from __future__ import annotations
 

@@ -1,18 +1,9 @@
-"""What both cores' checkpointers share, framework-free: the two ways a checkpoint can fail to restore,
-and the file manifest that tells them apart.
-
-- `CheckpointDamaged`: the checkpoint's files are not what was written (truncated, garbled, missing,
-  unreadable). The resume rule (`sf2_common.agents.resume`) sets such a checkpoint aside and falls back
-  to the newest one that restores completely.
-- `CheckpointMismatch`: the files are intact but do not fit the program (another config, seed count or
-  code version): bad input, reported and never worked around.
-
-The manifest (`sf2-manifest.json` in the checkpoint's folder) lists every file the checkpoint holds with
-its size and CRC-32, written as the save's last step once all other files are complete; `verify` checks
-it before a framework reads anything, so damage is reported as one clear error naming the file (Orbax
-would otherwise fail deep inside its asynchronous reader). A checkpoint without a manifest (written
-before manifests existed) is read by the framework alone.
-"""
+"""What both cores' checkpointers share: the two ways a checkpoint fails to restore, and the file manifest
+that tells them apart. `CheckpointDamaged`: its files are not what was written (the resume rule sets it
+aside); `CheckpointMismatch`: intact but not fitting the program (bad input, never worked around). The
+manifest (`sf2-manifest.json`, written last) lists every file with its size and CRC-32; `verify` checks it
+before a framework reads anything, so damage is one error naming the file. A checkpoint without a
+manifest is read by the framework alone."""
 
 from __future__ import annotations
 

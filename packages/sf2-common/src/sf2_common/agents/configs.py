@@ -30,26 +30,17 @@ __all__ = [
 ]
 
 ALGOS = ("td3", "sac")
-# `learner_precision` → what the learner's matmuls compute with (the physics stays fp32 `highest`). JAX:
-# the `jax.default_matmul_precision` the learner is traced under (BF16_BF16_F32: bf16 inputs, fp32
-# accumulation and output); torch: TF32 matmuls, or bf16 autocast. docs/core-contract.md "Precision".
+# `learner_precision` → JAX's matmul precision of the learner (torch: TF32, bf16 autocast); core-contract.md
 LEARNER_PRECISIONS = {"highest": "highest", "tensorfloat32": "tensorfloat32", "bfloat16": "BF16_BF16_F32"}
 _SF2_DEFAULTS = {f.name: f.default for f in fields(SF2Config)}
-# Fields added after run folders were written, with the value every older run trained with (then a module
-# constant): a folder whose config.json lacks one holds the same run as a config with that value
-# (`RunFolder.check_compatible`), so it resumes and joins a study as before.
+# Fields added after run folders were written, with the value every older run trained with
 ADDED_FIELDS = {name: _SF2_DEFAULTS[name] for name in ("spr_augmentation_std", "shared_adam")}
 SF2_FIELDS = tuple(name for name in _SF2_DEFAULTS if name not in ("obs_size", "action_size"))
-# Adam's ε as the authors' trainers build it: every TD3 optimizer `eps=1e-5`, every SAC optimizer optax's
-# default 1e-8 (the temperature's Adam is 1e-8 in both cores whatever this is).
+# Adam's ε as the authors' trainers build it (SAC: optax's default; the temperature's is 1e-8 always)
 PAPER_ADAM_EPS = {"td3": 1e-5, "sac": 1e-8}
-# Preset values that changed after run folders were written: (algo, field) -> (old value, new value). A
-# folder whose config holds the old value where the preset now gives the new one holds the same run and
-# resumes with its own value (`superseded_values`).
+# Preset values changed since run folders were written, (algo, field) -> (old, new): such folders keep theirs
 SUPERSEDED = {("sac", "adam_eps"): (1e-5, PAPER_ADAM_EPS["sac"])}
-# The presets: each one's own field values; then the values it takes per task (`TASK_VALUES`: field →
-# the task table's function of the task) and per algorithm family (`FAMILY_VALUES`: field → {algo:
-# value}); then the overrides. docs/decisions/presets.md says why.
+# Each preset's values, then its per-task and per-family values, then the overrides (decisions/presets.md)
 PRESETS = {
     "paper": dict(checkpoint_every=10, learner_precision="tensorfloat32"),
     "quick": dict(num_timesteps=80_000, num_envs=16, num_evals=9, num_eval_envs=10, deterministic_eval=True,

@@ -1,19 +1,9 @@
-"""The training host loop of `sf2_jax.agents.trainer` and `sf2_torch.agents.trainer`, framework-free:
-`run_epochs` drives a framework's `Session` (train an epoch, evaluate, save a checkpoint) through the
-schedule, and writes metric rows, the NaN guard's message, the learning-curve PNG and the progress bar;
-`run_title`, `versions` and `hardware` help the trainers set a run up (where it resumes:
-`sf2_common.agents.resume`).
-
-Both trainers thus run the same order per epoch (train → NaN guard → evaluate → append rows →
-checkpoint), so a run folder written by either has the same rows; only the programs that train and
-evaluate differ. A session that can evaluate several epochs in one program (`BatchedEvaluation`: the JAX
-trainer) evaluates the epochs between two checkpoints together, just before the checkpoint: an evaluation
-is ~1000 sequential env steps whose latency, not arithmetic, sets its pace on a GPU (docs/physics.md
-"Evaluation latency"), so ten of them vmapped cost little more than one. Each epoch is still evaluated
-from its own parameters with its own keys, and its rows are written before the checkpoint that follows
-it, so what a resume finds is as in the per-epoch order. tqdm is imported only when a progress bar is
-shown.
-"""
+"""The training host loop of both trainers, framework-free: `run_epochs` drives a framework's `Session`
+(train an epoch, evaluate, save a checkpoint) through the schedule and writes the metric rows, the NaN
+guard's message, the learning curve and the progress bar, so both cores run the same order per epoch
+(train → NaN guard → evaluate → append rows → checkpoint) and write the same rows. A `BatchedEvaluation`
+session (the JAX trainer) evaluates the epochs between two checkpoints in one program, each from its own
+parameters and keys, its rows written before the checkpoint (docs/decisions/batched-evaluation.md)."""
 
 from __future__ import annotations
 

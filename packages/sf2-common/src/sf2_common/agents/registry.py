@@ -1,16 +1,9 @@
-"""The representation registry of one framework: `--repr NAME` → the `Representation` class.
-
-A representation is selectable when it was `register`ed in this process (the core's own `none` and `sf2`,
-a test's or the bench's variants) or when an installed distribution declares it as an entry point of the
-framework's group, `sf2.representations.jax` or `sf2.representations.torch`:
-
-    [project.entry-points."sf2.representations.jax"]          # pyproject.toml of sf2-baselines
-    sim = "sf2_baselines.jax.representations:SimRepresentation"
-
-`names()` lists entry points without importing them; `get(name)` imports one only when it is asked for,
-so `import sf2_jax.agents` stays cheap and never imports a baseline it does not use. An unknown name is a
-`ConfigError` that lists the valid names and, when sf2-baselines is not installed, how to install it.
-"""
+"""The representation registry of one framework: `--repr NAME` → the `Representation` class. A
+representation is selectable when it was `register`ed in this process (the core's `none` and `sf2`, a
+test's variants) or when an installed distribution declares it as an entry point of the group
+`sf2.representations.jax` or `sf2.representations.torch` (sf2-baselines does). `names()` lists entry
+points without importing them; `get(name)` imports one when asked; an unknown name is a `ConfigError`
+listing the valid names and, without sf2-baselines, how to install it."""
 
 from __future__ import annotations
 

@@ -1,19 +1,9 @@
-"""A run folder: `config.json` (resolved config, seeds, schedule, versions), `metrics.jsonl` (one row per
-evaluation and seed), `checkpoints/` (the framework's own format: Orbax for sf2_jax, torch files for
-sf2_torch, each with the file manifest of `sf2_common.agents.checkpoints`), `learning_curve.png`,
-`final/params_seed{S}.npz`, `train.log` (what the libraries log, and the run's own notices) and, only
-after a damaged checkpoint was found, `damaged/` (what was set aside). The same layout for both cores;
-docs/run-folders.md describes it with the recovery rules.
-
-Nothing a user made is deleted implicitly: `config.json` identifies the run, so a folder holding a run's
-files without a readable `config.json` is an error naming what is missing (`RunFolderError`), never a
-fresh start over its contents; only `clear()` (`--fresh`) discards, and it says what it discards.
-
-metrics.jsonl is append-safe: every row is one JSON line written with flush + fsync; a reader skips a
-torn last line (a kill mid-write) and keeps the first row of each (epoch, seed). When a run resumes from
-checkpoint e, rows of epochs after e are dropped (they will be produced again, identically), so no row is
-lost or duplicated whatever moment the run was killed at (`sf2_common.agents.resume`).
-"""
+"""A run folder (the same layout for both cores; docs/run-folders.md): `config.json` identifies the run,
+`metrics.jsonl` holds one row per evaluation and seed, `checkpoints/`, `learning_curve.png`, `final/`,
+`train.log` and, after a recovery, `damaged/`. Nothing a user made is deleted implicitly: a folder holding a
+run's files without a readable `config.json` is a `RunFolderError`; only `clear()` (`--fresh`) discards,
+and it says what. metrics.jsonl is append-safe (flush + fsync per row; a torn last line is skipped; the
+first row of each (epoch, seed) is kept), and a resume drops the rows after its checkpoint, saying so."""
 
 from __future__ import annotations
 

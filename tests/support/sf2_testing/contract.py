@@ -4,7 +4,7 @@ Each core's agents tests import these tests (test_contract.py, test_torch_contra
 conftest.py gives them the core as the `agent_core` fixture (an `AgentCore`). The contract: bad input is
 refused with a `ConfigError` naming it before anything is built or written; presets, overrides, seeds
 and the schedule are as documented; switching framework changes nothing of a run's shared config. The
-command-line tests stay in each core's test_inputs (`sf2_common.testing` holds their shared cases).
+command-line tests stay in each core's test_inputs (`sf2_testing` holds their shared cases).
 """
 
 from __future__ import annotations
@@ -13,10 +13,10 @@ from dataclasses import dataclass
 from types import ModuleType
 
 import pytest
-
 from sf2_common.agents import configs as common_configs
 from sf2_common.errors import ConfigError
-from sf2_common.testing import check_paper_preset
+
+from sf2_testing import check_paper_preset
 
 __all__ = ["AgentCore", "BAD_RUNS", "test_bad_input_is_refused_before_anything_is_built", "test_presets",
            "test_schedule_and_seeds", "test_presets_equal_across_frameworks"]

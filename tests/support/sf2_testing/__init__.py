@@ -1,8 +1,8 @@
-"""Helpers for both cores' agent tests: the CLI's bad-input cases (the same flags and messages in
-`sf2-jax` and `sf2-torch`, both built from `sf2_common.cli`) and how a test runs one; the kill-and-resume
-protocol (both trainers run `sf2_common.agents.hostloop`, so a kill lands at the same points): in-process
-at the host loop's hook points, and a real `kill -9` of a CLI process (`kill9`), also in the middle of a
-checkpoint's save; the run-folder faults of docs/run-folders.md (`damage`, `folder_digest`)."""
+"""sf2_testing, the shared test support of every package (not shipped; pytest.ini puts it on the path):
+the CLI's bad-input cases (the same flags and messages in `sf2-jax` and `sf2-torch`) and how a test runs
+one; the kill-and-resume protocol (both trainers run `sf2_common.agents.hostloop`, so a kill lands at the
+same points), in-process at the host loop's hook points and as a real `kill -9` of a CLI process, also in
+the middle of a checkpoint's save; the run-folder faults of docs/run-folders.md; two writers at once."""
 
 from __future__ import annotations
 
@@ -127,7 +127,6 @@ def check_obs_noise_eval(trainer, main, capsys, monkeypatch, run) -> None:
 
     import numpy as np
     import pytest
-
     from sf2_common.errors import ConfigError
 
     plain = trainer.evaluate_checkpoint(run)
@@ -181,7 +180,6 @@ def kill_and_resume(train, cfg, out, event: str, epoch: int, expected_resume):
     caller compares it with an uninterrupted run). The exception stands for SIGKILL: the folder is left as
     it was at that point (`kill9` checks this with a real one)."""
     import pytest
-
     from sf2_common.agents import checkpoints
 
     def hook(e, n):
