@@ -1,7 +1,7 @@
 """Regenerate the printed output that README.md shows for its main command (the Quick start).
 
-Runs the README's quick-start training command (the part after the install) in a new temporary folder,
-as a user would from the repository root, and writes what it printed to stdout, with the wall time and the
+Runs the README's quick-start training command (the part after the install) in a new temporary working
+folder, and writes what it printed to stdout, with the wall time and the
 commit, between the README's markers `<!-- quickstart-output -->` and `<!-- /quickstart-output -->`.
 `--check` compares instead and exits 1 when the README shows something else.
 
@@ -38,16 +38,14 @@ def quickstart_command(readme: str) -> list[str]:
 
 
 def run(argv: list[str]) -> tuple[str, float]:
-    """Run the command with `--out` in a new temporary folder; its stdout and wall time in seconds."""
+    """Run the command in a new temporary working folder (its `--out` lands there); stdout and seconds."""
+    argv = [sys.executable if argv[0] in ("python", "python3") else argv[0], *argv[1:]]
     with tempfile.TemporaryDirectory() as tmp:
-        i = argv.index("--out") + 1
-        argv = [*argv[:i], str(Path(tmp) / Path(argv[i]).name), *argv[i + 1:]]
-        argv[0] = sys.executable if argv[0] in ("python", "python3") else argv[0]
         start = time.perf_counter()
-        done = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True)
+        done = subprocess.run(argv, cwd=tmp, capture_output=True, text=True)
         if done.returncode != 0:
             raise SystemExit(f"the quick start failed (exit {done.returncode}):\n{done.stderr[-3000:]}")
-        return done.stdout.replace(tmp + "/", ""), time.perf_counter() - start
+        return done.stdout, time.perf_counter() - start
 
 
 def block(stdout: str, seconds: float) -> str:
