@@ -285,7 +285,15 @@ def test_library_noise_goes_to_the_run_log(tmp_path, capfd):
     assert sys.unraisablehook is hook and logging.getLogger("absl").propagate
 
 
-def test_the_paper_preset_gives_each_family_its_authors_adam_eps():
+@pytest.fixture
+def cheetah_only(monkeypatch):
+    """The task table without Playground (not installed in this package's tests): CheetahRun alone."""
+    from sf2_common.agents import tasks
+
+    monkeypatch.setattr(tasks, "valid_tasks", lambda: ("CheetahRun",))
+
+
+def test_the_paper_preset_gives_each_family_its_authors_adam_eps(cheetah_only):
     from sf2_common.agents.configs import make_config
 
     assert make_config("paper", "CheetahRun", "td3", "sf2").adam_eps == 1e-5
@@ -294,7 +302,7 @@ def test_the_paper_preset_gives_each_family_its_authors_adam_eps():
     assert make_config("quick", "CheetahRun", "sac", "sf2").adam_eps == 1e-5   # the quick preset is ours
 
 
-def test_a_folder_trained_with_a_superseded_preset_value_keeps_it(tmp_path, capsys):
+def test_a_folder_trained_with_a_superseded_preset_value_keeps_it(tmp_path, capsys, cheetah_only):
     from sf2_common.agents.configs import make_config
 
     now = make_config("paper", "CheetahRun", "sac", "sf2")
