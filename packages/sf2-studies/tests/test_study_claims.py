@@ -241,3 +241,56 @@ def test_projected_half_width_at_the_study_seeds_by_hand(tmp_path):
     (c,) = claims.evaluate(study.claims[0], study, _rows(scores))[1]
     assert c.study_seeds == 16
     assert c.projected == pytest.approx((c.upper - c.lower) / 2 * (5 / 16) ** 0.5)
+
+
+EQUIVALENCE = """
+[[claims]]
+text = "SF² learns like TD3"
+method = "td3-sf2"
+equivalent_to = ["td3"]
+margin = {margin}
+statistic = "Mean"
+tasks = ["T1"]
+"""
+
+
+def test_an_equivalence_claim_is_two_one_sided_tests_within_its_margin(tmp_path):
+    """SF² scores 0.5 on each of 3 seeds, TD3 scores (0, 0.3, 0.6). A bootstrap resample of TD3's seeds is 3
+    draws from them, 27 equally likely: their sum in units of 0.3 is 0..6 with counts 1, 3, 6, 7, 6, 3, 1,
+    so TD3's mean is 0 with probability 1/27 (3.7%), at most 0.1 with 4/27 (14.8%), 0.6 with 1/27 and at
+    least 0.5 with 4/27. Its 5th and 95th percentiles are 0.1 and 0.5, so the 90% interval of SF² − TD3 is
+    [0.0, 0.4] around 0.2 (the 95% one, from the 2.5th and 97.5th percentiles 0 and 0.6, is [−0.1, 0.5]):
+    equivalent within ±0.5, not shown equivalent within ±0.3."""
+    scores = {("T1", "TD3+SF²"): {0: 0.5, 1: 0.5, 2: 0.5}, ("T1", "TD3"): {0: 0.0, 1: 0.3, 2: 0.6},
+              ("T2", "TD3+SF²"): {0: 0.5}, ("T2", "TD3"): {0: 0.5}}
+    for margin, verdict in ((0.5, "equivalent"), (0.3, "not shown equivalent")):
+        study = loads(STUDY.replace('seeds = "0-4"', 'seeds = "0-2"') + EQUIVALENCE.format(margin=margin),
+                      tmp_path / "s.toml")
+        (claim,) = study.claims
+        assert (claim.equivalence, claim.margin, claim.confidence) == (True, margin, 0.90)
+        got, (c,) = claims.evaluate(claim, study, _rows(scores))
+        assert (got, c.verdict) == (verdict, verdict)
+        assert c.difference == pytest.approx(0.2)
+        assert (c.lower, c.upper) == (pytest.approx(0.0, abs=1e-12), pytest.approx(0.4))
+        lines = claims.markdown(claims.check(study, _rows(scores)))
+        assert f"Verdict: **{verdict}** within ±{margin:g} " in "\n".join(lines)
+        assert "Δ Mean [90% CI]" in "\n".join(lines)
+        (row,) = claims.csv_rows(claims.check(study, _rows(scores)))
+        assert (row["margin"], row["confidence"], row["verdict"]) == (margin, 0.90, verdict)
+    superiority = CLAIM.replace('above = ["td3"]', 'above = ["td3"]\nstatistic = "Mean"\ntasks = ["T1"]')
+    study = loads(STUDY.replace('seeds = "0-4"', 'seeds = "0-2"') + superiority, tmp_path / "a.toml")
+    (above,) = claims.evaluate(study.claims[0], study, _rows(scores))[1]
+    assert (above.lower, above.upper) == (pytest.approx(-0.1), pytest.approx(0.5))
+
+
+@pytest.mark.parametrize("entry,message", [
+    ('above = ["td3"]\nequivalent_to = ["td3"]', "give either above"),
+    ('equivalent_to = ["td3"]', "margin = None is invalid: an equivalence claim needs a margin > 0"),
+    ('equivalent_to = ["td3"]\nmargin = -0.1', "margin = -0.1 is invalid"),
+    ('above = ["td3"]\nmargin = 0.1', "margin belongs to an equivalence claim"),
+    ('equivalent_to = ["td3-sf2"]\nmargin = 0.1', "equivalent_to names the claim's own method 'td3-sf2'"),
+])
+def test_bad_equivalence_claims_name_the_problem(tmp_path, entry, message):
+    text = STUDY + '\n[[claims]]\ntext = "x"\nmethod = "td3-sf2"\n' + entry + "\n"
+    with pytest.raises(StudyError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        loads(text, tmp_path / "s.toml")

@@ -3,8 +3,10 @@
 
 Each comparison is the difference of a statistic of the normalized AUC (method − other) with its 95%
 bootstrap interval (rliable) and P(method > other); supported (interval above 0), contradicted (below),
-not resolved (holds 0), cannot decide (a task lacks finished seeds, or fewer than `MIN_SEEDS`). The
-fields, the rules and the projected half-width are documented in docs/study-files.md "Claims"."""
+not resolved (holds 0), cannot decide (a task lacks finished seeds, or fewer than `MIN_SEEDS`). An
+equivalence claim (`equivalent_to`, `margin`) is two one-sided tests at 5% each: equivalent when the 90%
+interval lies inside (−margin, +margin), else not shown equivalent. The fields, the rules and the
+projected half-width are documented in docs/study-files.md "Claims"."""
 
 from __future__ import annotations
 
@@ -16,11 +18,13 @@ from .base import StudyError, seeds_text
 __all__ = ["Claim", "Comparison", "parse", "evaluate", "check", "markdown", "csv_rows", "VERDICTS",
            "CSV_FIELDS"]
 
-VERDICTS = ("supported", "contradicted", "not resolved", "cannot decide")
+VERDICTS = ("supported", "contradicted", "not resolved", "equivalent", "not shown equivalent",
+            "cannot decide")
 CSV_FIELDS = ("claim", "scope", "method", "other", "score", "statistic", "tasks", "missing_tasks", "seeds",
               "difference", "lower", "upper", "p_improvement", "verdict", "projected_half_width",
-              "difference_auc")
-_KEYS = ("text", "method", "above", "tasks", "statistic", "per_task", "score")
+              "difference_auc", "margin", "confidence")
+_KEYS = ("text", "method", "above", "equivalent_to", "margin", "tasks", "statistic", "per_task", "score")
+EQUIVALENCE_CONFIDENCE = 0.90   # two one-sided tests at 5% each ⇔ the 90% interval inside the margin
 SCORES = ("normalized_auc", "obs_noise")
 
 
@@ -33,6 +37,15 @@ class Claim:
     statistic: str               # a key of stats.STATISTICS
     per_task: bool
     score: str = "normalized_auc"   # or "obs_noise" (SCORES)
+    margin: float | None = None     # an equivalence claim: `above` then holds `equivalent_to`'s methods
+
+    @property
+    def equivalence(self) -> bool:
+        return self.margin is not None
+
+    @property
+    def confidence(self) -> float:
+        return EQUIVALENCE_CONFIDENCE if self.equivalence else stats.CONFIDENCE
 
     def scores_what(self) -> str:
         return ("normalized AUC" if self.score == "normalized_auc" else
@@ -86,16 +99,27 @@ def parse(entries, where: str, methods, tasks, evaluation=None) -> tuple[Claim, 
         method = e.get("method")
         if method not in names:
             fail(f"method = {method!r} is not a method of the study; valid: {valid}")
-        above = e.get("above")
+        if ("above" in e) == ("equivalent_to" in e):
+            fail("give either above (the methods the claim says it beats) or equivalent_to (the methods it "
+                 "is claimed to learn like, with a margin)")
+        key = "above" if "above" in e else "equivalent_to"
+        above = e[key]
         if isinstance(above, str):
             above = [above]
         if not isinstance(above, list) or not above:
-            fail("above: the methods the claim says it beats, e.g. above = [\"td3-none\"]")
+            fail(f"{key}: a list of the study's methods, e.g. {key} = [\"td3-none\"]")
         for a in above:
             if a not in names:
-                fail(f"above names {a!r}, not a method of the study; valid: {valid}")
+                fail(f"{key} names {a!r}, not a method of the study; valid: {valid}")
             if names[a] == names[method]:
-                fail(f"above names the claim's own method {a!r}")
+                fail(f"{key} names the claim's own method {a!r}")
+        margin = e.get("margin")
+        if key == "above" and margin is not None:
+            fail("margin belongs to an equivalence claim (equivalent_to)")
+        if key == "equivalent_to" and (isinstance(margin, bool) or not isinstance(margin, (int, float))
+                                       or not 0 < margin < float("inf")):
+            fail(f"margin = {margin!r} is invalid: an equivalence claim needs a margin > 0 on the claim's "
+                 f"score, fixed before the runs (e.g. margin = 0.1 of the normalized AUC)")
         claim_tasks = e.get("tasks", "all")
         if claim_tasks == "all":
             claim_tasks = list(tasks)
@@ -118,12 +142,14 @@ def parse(entries, where: str, methods, tasks, evaluation=None) -> tuple[Claim, 
             fail("score = \"obs_noise\" over several tasks needs per_task = true (the AUC over checkpoints "
                  "is in each task's return units)")
         out.append(Claim(text.strip(), names[method], tuple(dict.fromkeys(names[a] for a in above)),
-                         tuple(t for t in tasks if t in claim_tasks), statistic, per_task, score))
+                         tuple(t for t in tasks if t in claim_tasks), statistic, per_task, score,
+                         None if margin is None else float(margin)))
     return tuple(out)
 
 
 # ------------------------------------------------------------------------------------------- verdicts
-def _compare(scope: str, method: str, other: str, tasks, rows, statistic: str) -> Comparison:
+def _compare(scope: str, method: str, other: str, tasks, rows, statistic: str,
+             margin: float | None = None) -> Comparison:
     def scores(label):
         return {t: {r["seed"]: r["score"] for r in rows if r["method"] == label and r["task"] == t}
                 for t in tasks}
@@ -138,10 +164,14 @@ def _compare(scope: str, method: str, other: str, tasks, rows, statistic: str) -
                           "cannot decide")
     x = [[mine[t][s] for t in have] for s in seeds]
     y = [[theirs[t][s] for t in have] for s in seeds]
-    point, lo, hi = stats.difference_interval(x, y, statistic, resamples=stats.RESAMPLES)
+    confidence = stats.CONFIDENCE if margin is None else EQUIVALENCE_CONFIDENCE
+    point, lo, hi = stats.difference_interval(x, y, statistic, resamples=stats.RESAMPLES,
+                                              confidence=confidence)
     p = stats.probability_of_improvement(x, y)
     if missing or lo is None:
         verdict = "cannot decide"
+    elif margin is not None:
+        verdict = "equivalent" if -margin < lo and hi < margin else "not shown equivalent"
     elif lo > 0:
         verdict = "supported"
     elif hi < 0:
@@ -151,9 +181,15 @@ def _compare(scope: str, method: str, other: str, tasks, rows, statistic: str) -
     return Comparison(scope, method, other, tuple(have), missing, seeds, point, lo, hi, p, verdict)
 
 
-def overall(comparisons) -> str:
-    """A claim's verdict from its comparisons' (module docstring)."""
+def overall(comparisons, equivalence: bool = False) -> str:
+    """A claim's verdict from its comparisons' (module docstring): contradicted if one is, else cannot
+    decide if one cannot, else supported if all are, else not resolved; an equivalence claim: cannot decide
+    if one cannot, else equivalent if all are, else not shown equivalent."""
     verdicts = [c.verdict for c in comparisons]
+    if equivalence:
+        if "cannot decide" in verdicts:
+            return "cannot decide"
+        return "equivalent" if all(v == "equivalent" for v in verdicts) else "not shown equivalent"
     for v in ("contradicted", "cannot decide"):
         if v in verdicts:
             return v
@@ -177,12 +213,13 @@ def evaluate(claim: Claim, study, rows: list[dict], noise_rows=()) -> tuple[str,
             at = [{**r, "score": r["auc"]} for r in noise_rows if r["noise"] == level]
             scopes += ([(f"{t} · noise {level:g}", (t,), at) for t in claim.tasks] if claim.per_task else
                        [(f"noise {level:g}", claim.tasks, at)])
-    comparisons = [_compare(scope, label[claim.method], label[other], tasks, scored, claim.statistic)
+    comparisons = [_compare(scope, label[claim.method], label[other], tasks, scored, claim.statistic,
+                            claim.margin)
                    for scope, tasks, scored in scopes for other in claim.above]
     comparisons = [dataclasses.replace(c, projected=projected_half_width(c, len(study.seeds)),
                                        study_seeds=len(study.seeds),
                                        difference_auc=difference_auc(c, claim, rows)) for c in comparisons]
-    return overall(comparisons), comparisons
+    return overall(comparisons, claim.equivalence), comparisons
 
 
 def difference_auc(c: Comparison, claim: Claim, rows: list[dict]) -> float | None:
@@ -251,6 +288,10 @@ def markdown(checked) -> list[str]:
              "narrow to if the remaining seeds spread as these do; \"Δ beyond\" means the difference is "
              "larger than it (the rest of the seeds may resolve it), \"Δ within\" smaller (they likely "
              "will not). A planning figure, not a test (sf2_studies/claims.py)."
+             + (" **Equivalence claims** (two one-sided tests at 5% each): the 90% interval of the "
+                "difference inside (−margin, +margin), the margin fixed in the study file before the runs: "
+                "**equivalent**; else **not shown equivalent**." if any(c.equivalence for c, *_ in checked)
+                else "")
              + (" **Δ AUC (returns)**, for a comparison on one task: the same statistic's difference of the "
                 "AUC before normalization (the mean return over training). The normalization is per task and "
                 "affine, so the verdict is the same; it shows how large a normalized difference is in "
@@ -260,14 +301,16 @@ def markdown(checked) -> list[str]:
     for i, (claim, verdict, comps) in enumerate(checked, 1):
         counts = ", ".join(f"{v} {n}" for v in VERDICTS if (n := sum(c.verdict == v for c in comps)))
         plural = "s" * (len(comps) > 1)
+        within = f" within ±{claim.margin:g}" if claim.equivalence else ""
         lines += [f"**Claim {i}** — {claim.text}", "",
-                  f"Verdict: **{verdict}** ({counts} of {len(comps)} comparison{plural}).", ""]
+                  f"Verdict: **{verdict}**{within} ({counts} of {len(comps)} comparison{plural}).", ""]
         shown = [c for c in comps if c.seeds]
         project = max((c.study_seeds for c in shown if c.projected is not None), default=0)
         raw = any(c.difference_auc is not None for c in shown)
         if shown:
             lines += [f"Scores: {claim.scores_what()}.", "",
-                      f"| scope | comparison | tasks with both | seeds | Δ {claim.statistic} [95% CI] | "
+                      f"| scope | comparison | tasks with both | seeds | Δ {claim.statistic} "
+                      f"[{claim.confidence:.0%} CI] | "
                       + (f"Δ {claim.statistic} AUC (returns) | " if raw else "")
                       + "P(claimed > other) | verdict |"
                       + (f" at {project} seeds (projected) |" if project else ""),
@@ -308,5 +351,6 @@ def csv_rows(checked) -> list[dict]:
                         "missing_tasks": ";".join(c.missing), "seeds": seeds_text(c.seeds) if c.seeds else "",
                         "difference": c.difference, "lower": c.lower, "upper": c.upper,
                         "p_improvement": c.p_improvement, "verdict": c.verdict,
-                        "projected_half_width": c.projected, "difference_auc": c.difference_auc})
+                        "projected_half_width": c.projected, "difference_auc": c.difference_auc,
+                        "margin": claim.margin, "confidence": claim.confidence})
     return out

@@ -158,12 +158,14 @@ def _difference(agg, x, y):
     return agg(np.asarray(x, dtype=float)) - agg(np.asarray(y, dtype=float))
 
 
-def difference_interval(x, y, statistic: str = "IQM", resamples: int = RESAMPLES, seed: int = SEED):
+def difference_interval(x, y, statistic: str = "IQM", resamples: int = RESAMPLES, seed: int = SEED,
+                        confidence: float = CONFIDENCE):
     """Normalized scores x (n_x, n_tasks) and y (n_y, n_tasks) of two methods on the same tasks → (point,
     lower, upper) of statistic(x) − statistic(y) (`STATISTICS`: rliable's aggregate IQM, median or mean)
-    with its 95% percentile bootstrap interval: rliable's `get_interval_estimates` on the pair, i.e. its
-    `StratifiedIndependentBootstrap` (each method's seeds resampled independently within each task).
-    lower = upper = None when either method has fewer than `MIN_SEEDS` seeds."""
+    with its `confidence` percentile bootstrap interval (95%; an equivalence test takes 90%): rliable's
+    `get_interval_estimates` on the pair, i.e. its `StratifiedIndependentBootstrap` (each method's seeds
+    resampled independently within each task). lower = upper = None when either method has fewer than
+    `MIN_SEEDS` seeds."""
     library, _ = require_rliable()
     agg = _aggregate(statistic)    # resolved once: `fn` runs once per bootstrap resample
 
@@ -176,7 +178,7 @@ def difference_interval(x, y, statistic: str = "IQM", resamples: int = RESAMPLES
         return point, None, None
     with global_seed(seed):
         _, i = library.get_interval_estimates({"d": (x, y)}, fn, reps=resamples,
-                                              confidence_interval_size=CONFIDENCE)
+                                              confidence_interval_size=confidence)
     return point, float(i["d"][0][0]), float(i["d"][1][0])
 
 
