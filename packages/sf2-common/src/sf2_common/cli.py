@@ -274,13 +274,21 @@ def plot_command(args) -> int:
 
 
 def tasks_command(args) -> int:
-    """`tasks`: the valid tasks with the paper preset's budget and action repeat; exit status 0."""
+    """`tasks`: the valid tasks with their kind (Playground DM Control, MinAtar) and the paper preset's
+    budget and action repeat; without Playground, its kind's install line instead of its tasks; exit
+    status 0."""
     from sf2_common.agents import tasks
 
-    print(f"{'task':24} {'paper budget':>12} {'action repeat':>13}  in paper")
-    for task in tasks.valid_tasks():
-        print(f"{task:24} {tasks.paper_budget(task):>12,} {tasks.paper_action_repeat(task):>13}  "
-              f"{'yes' if task in tasks.PAPER_TASKS else ''}")
+    try:
+        names, missing = tasks.valid_tasks(), None
+    except ImportError:
+        names, missing = tuple(tasks.TASKS), tasks.KINDS["playground"]
+    print(f"{'task':24} {'kind':22} {'paper budget':>12} {'action repeat':>13}  in paper")
+    for task in names:
+        print(f"{task:24} {tasks.task_kind(task).label:22} {tasks.paper_budget(task):>12,} "
+              f"{tasks.paper_action_repeat(task):>13}  {'yes' if task in tasks.PAPER_TASKS else ''}")
+    if missing is not None:
+        print(f"({missing.label} tasks: not installed; {missing.install})")
     return 0
 
 

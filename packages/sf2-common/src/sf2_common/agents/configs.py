@@ -159,6 +159,7 @@ def make_config(preset: str, task: str, algo: str = "td3", representation: str =
     if preset not in PRESETS:
         raise ConfigError(f"unknown config preset {preset!r}; valid presets: {', '.join(PRESETS)}")
     tasks.validate_task(task)
+    tasks.check_algo(task, algo)   # a task of another trainer's kind: refused before any preset value
     values = dict(task=task, algo=algo, representation=representation, **PRESETS[preset])
     values.update({name: value_of(task) for name, value_of in TASK_VALUES.get(preset, {}).items()})
     values.update({name: by_algo[algo] for name, by_algo in FAMILY_VALUES.get(preset, {}).items()
@@ -311,6 +312,8 @@ def validate(cfg: TrainConfig, seeds, registry) -> TrainConfig:
     representation `Registry` (the representation must exist there and support the algorithm). Raises
     `ConfigError`."""
     tasks.validate_task(cfg.task)
+    tasks.check_algo(cfg.task, cfg.algo)   # the task-kind hook: MinAtar takes `ppo`, Playground td3/sac
+    tasks.check_installed(cfg.task)
     if cfg.algo not in ALGOS:
         bad_field("algo", cfg.algo, f"must be one of {', '.join(ALGOS)}")
     known = registry.names()
