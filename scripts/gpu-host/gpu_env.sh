@@ -19,12 +19,12 @@ export PYTHONPATH=/tmp/site:$PWD/packages/sf2-common/src:$PWD/packages/sf2-studi
 # pyproject.toml).
 python3 - <<'PY' || return 1
 import pathlib, tomllib
-for package in ("sf2-baselines", "sf2-studies"):
+for package in ("sf2-baselines", "sf2-studies", "sf2-core-jax", "sf2-core-torch"):
     project = tomllib.load(open(f"packages/{package}/pyproject.toml", "rb"))["project"]
     info = pathlib.Path(f"/tmp/site/{package.replace('-', '_')}-0+src.dist-info")
     info.mkdir(parents=True, exist_ok=True)
     (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {package}\nVersion: 0+src\n")
     (info / "entry_points.txt").write_text("".join(
         f"[{group}]\n" + "".join(f"{k} = {v}\n" for k, v in eps.items()) + "\n"
-        for group, eps in project["entry-points"].items()))
+        for group, eps in project.get("entry-points", {}).items()))
 PY

@@ -333,3 +333,63 @@ def test_finish_within_starts_only_runs_forecast_to_end_in_time(tmp_path, monkey
     assert not outcome.deferred and len(outcome.done) == 2            # nothing to forecast from: all start
     # the first to finish had no forecast at its start (no finished run then): its line says none
     assert re.search(r": done after \d+s\n", log.getvalue()), log.getvalue()
+
+
+MIXED = """
+name = "two-cores"
+seeds = "0-1"
+tasks = ["A"]
+[[methods]]
+label = "TD3 (jax)"
+name = "td3"
+algo = "td3"
+representation = "none"
+[[methods]]
+label = "TD3 (torch)"
+name = "td3-torch"
+algo = "td3"
+representation = "none"
+framework = "torch"
+"""
+
+
+def test_a_method_with_its_own_framework_trains_on_that_core(tmp_path, monkeypatch):
+    """Two methods of one config, one on the running core and one on another: two runs (not one shared
+    folder), each run by its own core's CLI; the other core's Backend comes from `backend_of`, and a core that
+    is not installed is an error naming the method."""
+    from sf2_common.agents import tasks as task_table
+    from sf2_common.errors import ConfigError
+
+    (tmp_path / "fake_sf2_cli.py").write_text(FAKE_CLI)
+    (tmp_path / "fake_torch_cli.py").write_text(FAKE_CLI.replace("child.json", "torch-child.json"))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(task_table, "validate_task", lambda task: task)
+
+    def make(preset, task, algo, rep, overrides):
+        return TrainConfig(task=task, algo=algo, representation=rep, num_timesteps=1000, num_envs=4,
+                           min_replay_size=8, num_evals=3)
+
+    jax_core = runner.Backend("sf2-fake", "jax", "fake_sf2_cli", make, lambda cfg, seeds: cfg)
+    torch_core = runner.Backend("sf2-faketorch", "torch", "fake_torch_cli", make, lambda cfg, seeds: cfg)
+    study = spec.loads(MIXED, tmp_path / "s.toml")
+    assert [m.framework for m in study.methods] == [None, "torch"]
+    runs = spec.resolve(study, make, jax_core.validate, {"torch": torch_core}.__getitem__)
+    assert [(r.folder, r.cli_module) for r in runs] == [("td3", None), ("td3-torch", "fake_torch_cli")]
+    folder = StudyFolder(tmp_path / "study")
+    folder.open(study, "jax", runs)
+    jobs, done = runner.plan(study, folder, runs)
+    env = {"PATH": "/usr/bin:/bin", "PYTHONPATH": str(tmp_path) + ":" + ":".join(sys.path),
+           "CUDA_VISIBLE_DEVICES": ""}
+    assert runner.run_local(study, folder, jobs, done, backend=jax_core, base_env=env, progress=False,
+                            poll=0.05).ok
+    assert (folder.path_of(runs[0]) / "child.json").exists()
+    assert (folder.path_of(runs[1]) / "torch-child.json").exists()
+
+    def missing(name):
+        raise ConfigError(f"framework {name!r} is not installed")
+
+    with pytest.raises(spec.StudyError, match="method 'TD3 \\(torch\\)' on task A: framework 'torch' is not"):
+        spec.resolve(study, make, jax_core.validate, missing)
+    bad = MIXED.replace('framework = "torch"', 'framework = "tf"')
+    with pytest.raises(spec.StudyError, match="framework = 'tf' is not one of jax, torch"):
+        spec.loads(bad, tmp_path / "bad.toml")

@@ -23,11 +23,13 @@ from sf2_common.agents.hostloop import TrainingDiverged
 from sf2_common.agents.runfolder import RunFolder
 from sf2_common.errors import ConfigError
 
-__all__ = ["Backend", "COMMANDS_GROUP", "PLUGINS", "compile_cache", "new_parser", "add_train_parser",
-           "add_shared_parsers", "plugin_commands", "resolve_configs", "train_runs", "print_table",
-           "eval_command", "expand_runs", "plot_command", "tasks_command", "join_negative_values", "run"]
+__all__ = ["Backend", "BACKENDS_GROUP", "backend_of", "COMMANDS_GROUP", "PLUGINS", "compile_cache",
+           "new_parser", "add_train_parser", "add_shared_parsers", "plugin_commands", "resolve_configs",
+           "train_runs", "print_table", "eval_command", "expand_runs", "plot_command", "tasks_command",
+           "join_negative_values", "run"]
 
 COMMANDS_GROUP = "sf2.commands"
+BACKENDS_GROUP = "sf2.backends"   # each core's `backend()`, for a study whose methods run on another core
 # commands other packages provide: name → how to get them (said when one is asked for and absent)
 PLUGINS = {"study": "the study commands come with sf2-studies: pip install packages/sf2-studies"}
 _RUN_FIELDS_SKIPPED = ("task", "algo", "representation")
@@ -42,6 +44,29 @@ class Backend:
     cli_module: str                 # "sf2_jax.cli": children run `python -m cli_module train ...`
     make_config: Callable           # (preset, task, algo, representation, overrides) -> TrainConfig
     validate: Callable              # (cfg, seeds) -> cfg, raises ConfigError
+
+
+def backend_of(name: str, running: Backend) -> Backend:
+    """The `Backend` of the core `name` ("jax", "torch"): `running` itself, or the installed core's.
+
+    Args:
+      name: the framework a study's method runs on.
+      running: the backend of the core running the command.
+
+    Returns:
+      That core's `Backend` (from the entry point group `sf2.backends`).
+
+    Raises:
+      ConfigError: that core is not installed; the message says how to install it.
+    """
+    if name == running.name:
+        return running
+    found = {ep.name: ep for ep in metadata.entry_points(group=BACKENDS_GROUP)}
+    if name not in found:
+        have = ", ".join(sorted(found)) or "none"
+        raise ConfigError(f"framework {name!r} is not installed (installed: {have}); pip install "
+                          f"packages/sf2-core-{name}[train] beside {running.prog}")
+    return found[name].load()()
 
 
 def compile_cache(prog: str, cache_env: str) -> str:

@@ -238,7 +238,10 @@ def _resolve(backend, study):
     platforms = os.environ.get("JAX_PLATFORMS")
     os.environ["JAX_PLATFORMS"] = "cpu"
     try:
-        return spec.resolve(study, backend.make_config, backend.validate)
+        from sf2_common.cli import backend_of
+
+        return spec.resolve(study, backend.make_config, backend.validate,
+                            functools.partial(backend_of, running=backend))
     finally:
         if platforms is None:
             os.environ.pop("JAX_PLATFORMS")

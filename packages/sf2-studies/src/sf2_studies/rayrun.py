@@ -107,8 +107,8 @@ def run_ray(study: Study, folder: StudyFolder, jobs: list[Job], done: list[Job],
     for job in jobs:
         rel = str(job.path.relative_to(folder.path))
         commands = [[("{out}" if a == str(job.path) else a) for a in argv] for argv in job.commands]
-        refs[task.remote(backend.cli_module, commands, str(folder.path.absolute()), state["id"], rel,
-                         shared_fs)] = job
+        refs[task.remote(job.run.cli_module or backend.cli_module, commands, str(folder.path.absolute()),
+                         state["id"], rel, shared_fs)] = job
     total_steps = sum(j.total_steps for j in jobs + done)
     view = Progress(study.name, len(jobs) + len(done), total_steps, enabled=progress, stream=stream)
     view.event(f"{study.name}: {len(jobs)} run(s) dispatched to Ray ({address}; {num_gpus} GPU and "

@@ -338,7 +338,8 @@ def run_local(study: Study, folder: StudyFolder, jobs: list[Job], done: list[Job
     def _next(slot: _Slot) -> None:
         argv = slot.queue.pop(0)
         # the child inherits the lock: the folder stays locked between a job's commands
-        slot.proc = spawn(backend.cli_module, argv, {**slot.env, **slot.fd.child_env()}, slot.job.path / LOG,
+        cli_module = slot.job.run.cli_module or backend.cli_module
+        slot.proc = spawn(cli_module, argv, {**slot.env, **slot.fd.child_env()}, slot.job.path / LOG,
                           pass_fds=(slot.fd.fd,))
 
     def release(slot: _Slot) -> None:

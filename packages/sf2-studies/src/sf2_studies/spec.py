@@ -37,7 +37,7 @@ _TOP = ("name", "description", "framework", "preset", "seeds", "seeds_per_run", 
 # Keys that change what a report says but no run: a study folder accepts a study file that differs from its
 # copy only in these (folder.py, merge.py), so claims and report settings can be added to a running study.
 RUN_NEUTRAL = ("description", "report", "claims")
-_METHOD = ("label", "name", "algo", "representation", "overrides")
+_METHOD = ("label", "name", "algo", "representation", "overrides", "framework")
 _SWEEP = ("field", "values", "title", "methods")
 _EVALUATION = ("obs_noise", "checkpoints", "episodes", "deterministic")
 _REPORT = ("figures", "final_window", "curve_statistic")
@@ -67,6 +67,7 @@ class Method:
     representation: str
     overrides: tuple[tuple[str, str], ...]   # (field, value as the CLI's --set takes it)
     sweep: tuple[str, str, str] | None = None  # (field, value, base label) of a sweep's method
+    framework: str | None = None       # the core it trains on; None: the one running the study
 
     @property
     def family(self) -> str:
@@ -193,6 +194,7 @@ class Run:
     argv: tuple[str, ...]    # the `train` arguments after `--out DIR`
     seeds: tuple[int, ...]
     group: str | None = None  # the seed group's folder under the method's ('seeds-0-4'), or None
+    cli_module: str | None = None   # the CLI its children run; None: the running core's
 
     @property
     def rel(self) -> str:
@@ -419,9 +421,14 @@ def _method(table, where: str, entry: str) -> Method:
     name = table.get("name", slug(label))
     if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]*", name):
         raise StudyError(f"{where}: {entry}: name {name!r} is not a folder name (letters, digits, . _ -)")
+    framework = table.get("framework")
+    if framework is not None and framework not in FRAMEWORKS:
+        raise StudyError(f"{where}: {entry}: framework = {framework!r} is not one of {', '.join(FRAMEWORKS)} "
+                         f"(or leave it out: the core that runs the study)")
     return Method(label=label, name=name, algo=table["algo"].strip(),
                   representation=table["representation"].strip(),
-                  overrides=_overrides(table.get("overrides", {}), where, f"{entry}.overrides"))
+                  overrides=_overrides(table.get("overrides", {}), where, f"{entry}.overrides"),
+                  framework=framework)
 
 
 def _evaluation(table, where: str) -> Evaluation | None:
@@ -465,11 +472,14 @@ def _report(table, where: str, sweeps, evaluation) -> ReportSettings:
 
 
 # ------------------------------------------------------------------------------------------- resolution
-def resolve(study: Study, make_config: Callable, validate: Callable) -> list[Run]:
+def resolve(study: Study, make_config: Callable, validate: Callable,
+            backend_of: Callable | None = None) -> list[Run]:
     """The runs of `study`: each method's config on each task,
     built with the framework's `make_config(preset, task, algo, representation, overrides)` and checked
-    with its `validate(cfg, seeds)`, before anything is compiled. Methods with identical configs on a
-    task share one run (the first one's folder). Raises `StudyError` naming the file and the entry."""
+    with its `validate(cfg, seeds)`, before anything is compiled; a method with its own `framework` uses
+    `backend_of(framework)`'s (a `sf2_common.cli.Backend`) and runs that core's CLI. Methods with identical
+    configs on a task share one run (the first one's folder). Raises `StudyError` naming the file and the
+    entry."""
     where = study.path
     from sf2_common.agents import tasks as task_table
 
@@ -483,12 +493,18 @@ def resolve(study: Study, make_config: Callable, validate: Callable) -> list[Run
     for task, method in study.select():
         overrides = dict(study.overrides)
         overrides.update(method.overrides)
+        make, check, cli_module = make_config, validate, None
         try:
-            cfg = make_config(study.preset, task, method.algo, method.representation, overrides)
-            cfg = validate(cfg, study.seeds)
+            if method.framework is not None:
+                if backend_of is None:
+                    raise ConfigError(f"framework = {method.framework!r} needs the command of a core")
+                other = backend_of(method.framework)
+                make, check, cli_module = other.make_config, other.validate, other.cli_module
+            cfg = make(study.preset, task, method.algo, method.representation, overrides)
+            cfg = check(cfg, study.seeds)
         except ConfigError as err:
             raise StudyError(f"{where}: method {method.label!r} on task {task}: {err}") from None
-        key = (task, _config_key(cfg))
+        key = (task, cli_module, _config_key(cfg))
         if key in runs:
             old = runs[key]
             if method.sweep is None and all(m.sweep is None for m in old.methods):
@@ -500,7 +516,7 @@ def resolve(study: Study, make_config: Callable, validate: Callable) -> list[Run
                 "--config", study.preset, "--seeds", seeds_text(study.seeds),
                 *[a for k, v in overrides.items() for a in ("--set", f"{k}={v}")])
         runs[key] = Run(task=task, folder=method.name, methods=(method,), config=cfg, argv=argv,
-                        seeds=study.seeds)
+                        seeds=study.seeds, cli_module=cli_module)
         order.append(key)
     return [group for k in order for group in _split(study, runs[k])]
 
