@@ -172,7 +172,9 @@ def _run(backend, args, command: str) -> int:
         for job in jobs:
             state = "partial" if job.done_steps else "new"
             eta = f" (≈ {duration(forecast.seconds(job))})" if forecast.known else ""
-            steps = " ; ".join(f"{backend.prog} {' '.join(c)}" for c in job.commands)
+            module = job.run.cli_module
+            prog = backend.prog if module is None else "sf2-" + module.split(".")[0].removeprefix("sf2_")
+            steps = " ; ".join(f"{prog} {' '.join(c)}" for c in job.commands)
             print(f"  {state:8} {job.name}{eta}: {steps}")
         where = "here" + "".join(f" and in {p}" for p in args.forecast_from)
         workers = args.workers or len(runner.visible_gpus(base_env)) or 1   # as run_local's slots
