@@ -29,9 +29,12 @@
 # CPU train and eval with them blocked run as before (2026-11-25).
 # The archive $OUT/<name>.tar.gz is a study folder (no checkpoints); merge it here with
 #   sf2-jax study merge <name>.tar.gz --into results/<name>   then   sf2-jax study report results/<name>
+# <name> is the study file's name, or with STUDY_RESULTS=results/<folder> that folder's (a study file run
+# into a second folder, e.g. fig7-sac.toml into results/fig7-sac-eps1e-8).
 set -uo pipefail
 study=$1; limit=$2; shift 2
-name=$(basename "$study" .toml)
+results=${STUDY_RESULTS:-results/$(basename "$study" .toml)}
+name=$(basename "$results")
 folder=/tmp/study-$name
 source scripts/gpu-host/gpu_env.sh || exit 1
 # A new host starts from the runs this repository already holds (results/<name>), so finished runs are
@@ -39,8 +42,8 @@ source scripts/gpu-host/gpu_env.sh || exit 1
 # The first line says which: a fresh host where the previous command's host was meant to be kept (a lease
 # that went back between calls) means that command's unfinished runs start again here.
 if [ ! -d "$folder" ]; then
-  echo "host $(hostname): fresh (no $folder); runs start from results/$name's finished ones"
-  if [ -d "results/$name/runs" ]; then cp -r "results/$name" "$folder"; fi
+  echo "host $(hostname): fresh (no $folder); runs start from $results's finished ones"
+  if [ -d "$results/runs" ]; then cp -r "$results" "$folder"; fi
 else
   echo "host $(hostname): kept from an earlier command ($folder is here; its unfinished runs resume)"
 fi
