@@ -30,7 +30,7 @@ from sf2_jax.ode import integrate
 __all__ = [
     "Batch", "Critic", "sf2_critic", "flow_loss", "explicit_mixture_loss", "td3_critic_loss",
     "td3_actor_loss", "sac_critic_loss", "sac_actor_loss", "sac_alpha_loss", "ema_update", "check_batch",
-    "check_noise",
+    "check_noise", "flow_field_loss", "velocity_fields",
 ]
 
 sg = jax.lax.stop_gradient
@@ -126,17 +126,101 @@ def _require_sac(nets: nw.Networks) -> None:
 
 
 # ------------------------------------------------------------------------------------------------ flow
+def flow_field_loss(cfg, online: Callable, target: Callable | None, x1, eps, flow_time, truncation):
+    """The flow loss of SF² (eq. 3–4, Algorithm 1) over any velocity field: the vector, image and latent
+    flows all compute it here.
+
+    L_flow = mean_b m_b[(1 − γ_su) ℓ_P + γ_su ℓ_B], m_b = 1 − truncation_b, with
+    ℓ_P = Σ_d (u(x_k, k) − (x1 − ε))²_d, x_k = k x1 + (1 − k) ε (the transition term);
+    ℓ_B = Σ_d (u(x̂, k) − sg(ū(x̂, k)))²_d, x̂ = sg(the ODE solution from ε over [0, k] under ū,
+    `denoising_steps` steps of `integrator`) (the bootstrap term). With γ_su = 0 the bootstrap branch is
+    skipped (loss_boot = 0).
+
+    Args:
+      cfg: the `SF2Config` (gamma_su, denoising_steps, integrator).
+      online: `online(*xs)` → the online velocity u(x, k) = ζ(x, k)ψ(s, a) at each x of `xs` (each (B, D), at
+        the flow time k = `flow_time`), stacked (len(xs), B, D) or as a sequence (`velocity_fields`).
+      target: `target(x, k)` → ū(x, k) = ζ̄(x, k)ψ̄(s′, ā′) (B, D) at any flow time; None when γ_su = 0.
+      x1: the flow's data point (B, D): normalize(s′), a flattened grid s′, or a latent z′.
+      eps: ε (B, D) ~ N(0, I).
+      flow_time: k (B,) ~ U(0, 1).
+      truncation: (B,) 1 where the time limit cut the episode.
+
+    Returns:
+      (loss, {"loss_p": mean_b m_b ℓ_P, "loss_boot": mean_b m_b ℓ_B}).
+    """
+    k = flow_time
+    x_k = k[:, None] * x1 + (1 - k[:, None]) * eps
+    mask = 1 - truncation
+    if cfg.gamma_su == 0:
+        (u_p,) = online(x_k)
+        loss_p = jnp.mean(mask * jnp.sum((u_p - (x1 - eps)) ** 2, axis=-1))
+        return loss_p, {"loss_p": loss_p, "loss_boot": jnp.zeros_like(loss_p)}
+
+    x_hat = sg(integrate(target, eps, k, cfg.denoising_steps, cfg.integrator))
+    u_p, u_b = online(x_k, x_hat)
+    loss_p = jnp.sum((u_p - (x1 - eps)) ** 2, axis=-1)
+    loss_b = jnp.sum((u_b - sg(target(x_hat, k))) ** 2, axis=-1)
+    loss = jnp.mean(mask * ((1 - cfg.gamma_su) * loss_p + cfg.gamma_su * loss_b))
+    return loss, {"loss_p": jnp.mean(mask * loss_p), "loss_boot": jnp.mean(mask * loss_b)}
+
+
+def velocity_fields(nets: nw.Networks, params: nw.Params, features, next_features, flow_time):
+    """The online and target velocity fields of the vector ζ, as `flow_field_loss` takes them.
+
+    With `cfg.contract_zeta` (the fast path, docs/core-contract.md "Networks") ζ's last layer is contracted
+    with ψ once (M, c) and with ψ̄′ once (M̄, c̄), reused for every evaluation, and the online evaluations at
+    several points go through ζ's hidden layers as one batch; otherwise (the oracle) ζ (B, D, F) is
+    materialized at each point.
+
+    Args:
+      nets: the `Networks` (its `cfg` and ζ; `sf2_jax.networks_image.latent_networks` for the latent flow).
+      params: parameters with the groups `zeta` and `target_zeta`.
+      features: ψ(s, a) (B, F).
+      next_features: ψ̄(s′, ā′) (B, F), already without gradient; None: no target field.
+      flow_time: k (B,), the online field's flow time.
+
+    Returns:
+      (online, target): `online(*xs)` → ζ(x, k)ψ at each x, stacked (len(xs), B, D); `target(x, k)` →
+      ζ̄(x, k)ψ̄′ (B, D), or None.
+
+    Raises:
+      ShapeError: features of another last dimension.
+    """
+    k = flow_time
+    b = tuple(jnp.shape(features)[:-1])
+    if nets.cfg.contract_zeta:
+        M, c = nw.contract(nets, params, features)
+
+        def online(*xs):   # ζ(x, k)ψ at every x of `xs`: one hidden-layer pass over all of them
+            h = nw.zeta_hidden(nets, params, jnp.concatenate(xs), jnp.concatenate([k] * len(xs)))
+            return jnp.einsum("nbh,bdh->nbd", h.reshape(len(xs), *b, h.shape[-1]), M) + c
+    else:
+        def online(*xs):
+            return [nw.velocity(nets, params, x, k, features) for x in xs]
+
+    if next_features is None:
+        return online, None
+    if nets.cfg.contract_zeta:
+        M_bar, c_bar = nw.contract(nets, params, next_features, target=True)
+
+        def target(x, kk):
+            return nw.velocity_contracted(nets, params, x, kk, M_bar, c_bar, target=True)
+    else:
+        def target(x, kk):
+            return nw.velocity(nets, params, x, kk, next_features, target=True)
+    return online, target
+
+
 def flow_loss(nets: nw.Networks, params: nw.Params, batch: Batch, next_action, eps, flow_time):
     """The flow loss of SF² (eq. 3–4, Algorithm 1), trained on ψ and ζ.
 
     L_flow = mean_b m_b[(1 − γ_su) ℓ_P + γ_su ℓ_B], with
     ℓ_P = Σ_d (ζ(x_k, k)ψ − (s̄′ − ε))²_d, x_k = k s̄′ + (1 − k) ε, s̄′ = normalize(s′), ψ = ψ(s, a);
     ℓ_B = Σ_d (ζ(x̂, k)ψ − sg(ζ̄(x̂, k)ψ̄′))²_d, ψ̄′ = ψ̄(s′, ā′), x̂ the ODE solution from ε over [0, k] under
-    the target field ζ̄ψ̄′ (`denoising_steps` steps of `integrator`).
-    With `cfg.contract_zeta` (the fast path, docs/core-contract.md "Networks") ζ's last layer is contracted
-    with ψ once (M, c) and with ψ̄′ once (M̄, c̄) and reused for every evaluation; the two online evaluations
-    go through ζ's hidden layers as one batch of 2B. Otherwise (the oracle) ζ (B, D, F) is materialized at
-    each point. With γ_su = 0 the bootstrap branch is skipped and loss_boot = 0.
+    the target field ζ̄ψ̄′ (`denoising_steps` steps of `integrator`): `flow_field_loss` with x1 = s̄′ and
+    the fields of `velocity_fields` (the fast path with `cfg.contract_zeta`, else the plain oracle).
+    With γ_su = 0 the bootstrap branch is skipped and loss_boot = 0.
 
     Args:
       nets: the `Networks` (its `cfg`: sizes and hyperparameters; its algo: the policy).
@@ -162,40 +246,11 @@ def flow_loss(nets: nw.Networks, params: nw.Params, batch: Batch, next_action, e
 
     next_obs_n = nw.normalize(batch.next_obs, p["obs_norm"])
     features = nw.psi(nets, p, batch.obs, batch.action)
-    k = flow_time
-    x_k = k[:, None] * next_obs_n + (1 - k[:, None]) * eps
-    if cfg.contract_zeta:
-        M, c = nw.contract(nets, p, features)
-
-        def online(*xs):   # ζ(x, k)ψ at every x of `xs`: one hidden-layer pass over all of them
-            h = nw.zeta_hidden(nets, p, jnp.concatenate(xs), jnp.concatenate([k] * len(xs)))
-            return jnp.einsum("nbh,bdh->nbd", h.reshape(len(xs), *b, h.shape[-1]), M) + c
-    else:
-        def online(*xs):
-            return [nw.velocity(nets, p, x, k, features) for x in xs]
-
-    mask = 1 - batch.truncation
-    if cfg.gamma_su == 0:
-        (u_p,) = online(x_k)
-        loss_p = jnp.mean(mask * jnp.sum((u_p - (next_obs_n - eps)) ** 2, axis=-1))
-        return loss_p, {"loss_p": loss_p, "loss_boot": jnp.zeros_like(loss_p)}
-
-    next_features = sg(nw.psi(nets, p, batch.next_obs, next_action, target=True))
-    if cfg.contract_zeta:
-        M_bar, c_bar = nw.contract(nets, p, next_features, target=True)
-
-        def target_velocity(x, kk):
-            return nw.velocity_contracted(nets, p, x, kk, M_bar, c_bar, target=True)
-    else:
-        def target_velocity(x, kk):
-            return nw.velocity(nets, p, x, kk, next_features, target=True)
-
-    x_hat = sg(integrate(target_velocity, eps, k, cfg.denoising_steps, cfg.integrator))
-    u_p, u_b = online(x_k, x_hat)
-    loss_p = jnp.sum((u_p - (next_obs_n - eps)) ** 2, axis=-1)
-    loss_b = jnp.sum((u_b - sg(target_velocity(x_hat, k))) ** 2, axis=-1)
-    loss = jnp.mean(mask * ((1 - cfg.gamma_su) * loss_p + cfg.gamma_su * loss_b))
-    return loss, {"loss_p": jnp.mean(mask * loss_p), "loss_boot": jnp.mean(mask * loss_b)}
+    next_features = None
+    if cfg.gamma_su != 0:
+        next_features = sg(nw.psi(nets, p, batch.next_obs, next_action, target=True))
+    online, target = velocity_fields(nets, p, features, next_features, flow_time)
+    return flow_field_loss(cfg, online, target, next_obs_n, eps, flow_time, batch.truncation)
 
 
 def explicit_mixture_loss(velocity_fn: Callable, x1, x2, eps1, eps2, k1, k2, weight):

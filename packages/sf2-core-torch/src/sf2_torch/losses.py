@@ -17,7 +17,7 @@ core's `losses` has the same functions).
 from __future__ import annotations
 
 import numbers
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from typing import NamedTuple
 
 import torch
@@ -41,7 +41,7 @@ from .networks import (
 __all__ = [
     "Batch", "Critic", "sf2_critic", "flow_loss", "explicit_mixture_loss", "td3_critic_loss",
     "td3_actor_loss", "sac_critic_loss", "sac_actor_loss", "sac_alpha_loss", "ema_update", "check_batch",
-    "check_noise",
+    "check_noise", "flow_field_loss", "velocity_fields",
 ]
 
 Critic = Callable[..., torch.Tensor]  # critic(obs, action, target=False) -> (B, 2)
@@ -118,22 +118,107 @@ def _sq_norm(x: torch.Tensor) -> torch.Tensor:
 
 
 # ------------------------------------------------------------------------------------------------ flow
-@torch.no_grad()
-def _bootstrap_target(nets, batch, next_action, eps, flow_time, contracted: bool):
-    """(x̂, sg(ζ̄(x̂, k)ψ̄′)): the target field ζ̄ψ̄′ integrated from ε to k, and its velocity at (x̂, k)."""
-    cfg = nets.cfg
-    feats_bar = psi(nets, batch.next_obs, next_action, target=True)
-    if contracted:
-        m_bar, c_bar = contract(nets, feats_bar, target=True)
+def flow_field_loss(
+    cfg,
+    online: Callable[..., Sequence[torch.Tensor]],
+    target: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None,
+    x1: torch.Tensor,
+    eps: torch.Tensor,
+    flow_time: torch.Tensor,
+    truncation: torch.Tensor,
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """The flow loss of SF² (eq. 3–4, Algorithm 1) over any velocity field: the vector, image and latent
+    flows all compute it here.
 
-        def field(x, k):
-            return velocity_contracted(nets, x, k, m_bar, c_bar, target=True)
+    L_flow = mean_b m_b[(1 − γ_su) ℓ_P + γ_su ℓ_B], m_b = 1 − truncation_b, with
+    ℓ_P = Σ_d (u(x_k, k) − (x1 − ε))²_d, x_k = k x1 + (1 − k) ε (the transition term);
+    ℓ_B = Σ_d (u(x̂, k) − sg(ū(x̂, k)))²_d, x̂ = sg(the ODE solution from ε over [0, k] under ū,
+    `denoising_steps` steps of `integrator`) (the bootstrap term). With γ_su = 0 the bootstrap branch is
+    skipped (loss_boot = 0).
+
+    Args:
+      cfg: the `SF2Config` (gamma_su, denoising_steps, integrator).
+      online: `online(*xs)` → the online velocity u(x, k) = ζ(x, k)ψ(s, a) at each x of `xs` (each (B, D), at
+        the flow time k = `flow_time`), a sequence of (B, D) (`velocity_fields`).
+      target: `target(x, k)` → ū(x, k) = ζ̄(x, k)ψ̄(s′, ā′) (B, D) at any flow time, evaluated under
+        `torch.no_grad()`; None when γ_su = 0.
+      x1: the flow's data point (B, D): normalize(s′), a flattened grid s′, or a latent z′.
+      eps: ε (B, D) ~ N(0, I).
+      flow_time: k (B,) ~ U(0, 1).
+      truncation: (B,) 1 where the time limit cut the episode.
+
+    Returns:
+      (loss, {"loss_p": mean_b m_b ℓ_P, "loss_boot": mean_b m_b ℓ_B}).
+    """
+    k = flow_time[:, None]
+    x_k = k * x1 + (1.0 - k) * eps
+    target_p = x1 - eps
+    mask = 1.0 - truncation
+    bootstrap = cfg.gamma_su > 0.0
+    if bootstrap:
+        with torch.no_grad():
+            x_hat = ode.integrate(target, eps, flow_time, cfg.denoising_steps, cfg.integrator)
+            u_bar = target(x_hat, flow_time)
+        u_p, u_b = online(x_k, x_hat)
     else:
-        def field(x, k):
-            return velocity(nets, x, k, feats_bar, target=True)
+        (u_p,) = online(x_k)
 
-    x_hat = ode.integrate(field, eps, flow_time, cfg.denoising_steps, cfg.integrator)
-    return x_hat, field(x_hat, flow_time)
+    loss_p = _sq_norm(u_p - target_p)
+    mean_p = torch.mean(mask * loss_p).detach()
+    if not bootstrap:
+        loss = torch.mean(mask * ((1.0 - cfg.gamma_su) * loss_p))
+        return loss, {"loss_p": mean_p, "loss_boot": torch.zeros_like(mean_p)}
+    loss_b = _sq_norm(u_b - u_bar)
+    loss = torch.mean(mask * ((1.0 - cfg.gamma_su) * loss_p + cfg.gamma_su * loss_b))
+    return loss, {"loss_p": mean_p, "loss_boot": torch.mean(mask * loss_b).detach()}
+
+
+def velocity_fields(nets: Networks, features: torch.Tensor, next_features: torch.Tensor | None,
+                    flow_time: torch.Tensor):
+    """The online and target velocity fields of the vector ζ, as `flow_field_loss` takes them.
+
+    With `cfg.contract_zeta` (the fast path, docs/core-contract.md "Networks") ζ's last layer is contracted
+    with ψ once (M, c) and with ψ̄′ once (M̄, c̄), reused for every evaluation, and the online evaluations at
+    several points go through ζ's hidden layers as one batch; otherwise (the oracle) ζ (B, D, F) is
+    materialized at each point.
+
+    Args:
+      nets: the `Networks` (its `cfg` and ζ; `sf2_torch.networks_image.latent_networks` for the latent flow).
+      features: ψ(s, a) (B, F).
+      next_features: ψ̄(s′, ā′) (B, F), without gradient; None: no target field.
+      flow_time: k (B,), the online field's flow time.
+
+    Returns:
+      (online, target): `online(*xs)` → ζ(x, k)ψ at each x, a sequence of (B, D); `target(x, k)` →
+      ζ̄(x, k)ψ̄′ (B, D), or None.
+
+    Raises:
+      ShapeError: features of another last dimension.
+    """
+    if nets.cfg.contract_zeta:
+        m, c = contract(nets, features)
+
+        def online(*xs):   # ζ(x, k)ψ at every x of `xs`: one hidden-layer pass over all of them
+            if len(xs) == 1:
+                return (velocity_contracted(nets, xs[0], flow_time, m, c),)
+            h = zeta_hidden(nets, torch.cat(xs), torch.cat([flow_time] * len(xs)))
+            return tuple(torch.einsum("nbh,bdh->nbd", h.view(len(xs), -1, h.shape[-1]), m) + c)
+    else:
+        def online(*xs):
+            return tuple(velocity(nets, x, flow_time, features) for x in xs)
+
+    if next_features is None:
+        return online, None
+    if nets.cfg.contract_zeta:
+        with torch.no_grad():
+            m_bar, c_bar = contract(nets, next_features, target=True)
+
+        def target(x, kk):
+            return velocity_contracted(nets, x, kk, m_bar, c_bar, target=True)
+    else:
+        def target(x, kk):
+            return velocity(nets, x, kk, next_features, target=True)
+    return online, target
 
 
 def flow_loss(
@@ -144,11 +229,9 @@ def flow_loss(
     L_flow = mean_b m_b[(1 − γ_su) ℓ_P + γ_su ℓ_B], with
     ℓ_P = Σ_d (ζ(x_k, k)ψ − (s̄′ − ε))²_d, x_k = k s̄′ + (1 − k) ε, s̄′ = normalize(s′), ψ = ψ(s, a);
     ℓ_B = Σ_d (ζ(x̂, k)ψ − sg(ζ̄(x̂, k)ψ̄′))²_d, ψ̄′ = ψ̄(s′, ā′), x̂ the ODE solution from ε over [0, k] under
-    the target field ζ̄ψ̄′ (`denoising_steps` steps of `integrator`).
-    With `cfg.contract_zeta` (the fast path, docs/core-contract.md "Networks") ζ's last layer is contracted
-    with ψ once (M, c) and with ψ̄′ once (M̄, c̄) and reused for every evaluation; the two online evaluations
-    go through ζ's hidden layers as one batch of 2B. Otherwise (the oracle) ζ (B, D, F) is materialized at
-    each point. With γ_su = 0 the bootstrap branch is skipped and loss_boot = 0.
+    the target field ζ̄ψ̄′ (`denoising_steps` steps of `integrator`): `flow_field_loss` with x1 = s̄′ and
+    the fields of `velocity_fields` (the fast path with `cfg.contract_zeta`, else the plain oracle).
+    With γ_su = 0 the bootstrap branch is skipped and loss_boot = 0.
 
     Args:
       nets: the `Networks` (its `cfg`: sizes and hyperparameters; its algo: the policy).
@@ -168,39 +251,16 @@ def flow_loss(
     check_noise("next_action", next_action, bs, cfg.action_size, "action_size")
     check_noise("eps", eps, bs, cfg.obs_size, "obs_size")
     _check_same("flow_time", flow_time, bs, "(B,)")
-    (b,) = bs
     next_action = next_action.detach()
 
     next_obs_n = normalize(batch.next_obs, nets.obs_norm)
     features = psi(nets, batch.obs, batch.action)
-    k = flow_time[:, None]
-    x_k = k * next_obs_n + (1.0 - k) * eps
-    target_p = next_obs_n - eps
-    mask = 1.0 - batch.truncation
-    bootstrap = cfg.gamma_su > 0.0
-    if cfg.contract_zeta:
-        m, c = contract(nets, features)
-        if bootstrap:
-            x_hat, u_bar = _bootstrap_target(nets, batch, next_action, eps, flow_time, contracted=True)
-            h = zeta_hidden(nets, torch.cat([x_k, x_hat]), torch.cat([flow_time, flow_time]))
-            u = torch.einsum("nbh,bdh->nbd", h.view(2, b, h.shape[-1]), m) + c
-            u_p, u_b = u[0], u[1]
-        else:
-            u_p = velocity_contracted(nets, x_k, flow_time, m, c)
-    else:
-        u_p = velocity(nets, x_k, flow_time, features)
-        if bootstrap:
-            x_hat, u_bar = _bootstrap_target(nets, batch, next_action, eps, flow_time, contracted=False)
-            u_b = velocity(nets, x_hat, flow_time, features)
-
-    loss_p = _sq_norm(u_p - target_p)
-    mean_p = torch.mean(mask * loss_p).detach()
-    if not bootstrap:
-        loss = torch.mean(mask * ((1.0 - cfg.gamma_su) * loss_p))
-        return loss, {"loss_p": mean_p, "loss_boot": torch.zeros_like(mean_p)}
-    loss_b = _sq_norm(u_b - u_bar)
-    loss = torch.mean(mask * ((1.0 - cfg.gamma_su) * loss_p + cfg.gamma_su * loss_b))
-    return loss, {"loss_p": mean_p, "loss_boot": torch.mean(mask * loss_b).detach()}
+    next_features = None
+    if cfg.gamma_su > 0.0:
+        with torch.no_grad():
+            next_features = psi(nets, batch.next_obs, next_action, target=True)
+    online, target = velocity_fields(nets, features, next_features, flow_time)
+    return flow_field_loss(cfg, online, target, next_obs_n, eps, flow_time, batch.truncation)
 
 
 def explicit_mixture_loss(
