@@ -37,8 +37,9 @@ def build_parser():
 
 
 def backend() -> common.Backend:
-    """What a plugin command (`study`) gets from this core."""
-    return common.Backend(PROG, "jax", __name__, make_config, validate)
+    """What a plugin command (`study`) gets from this core (its module by name: `__name__` is "__main__"
+    when the command runs as `python -m sf2_jax.cli`)."""
+    return common.Backend(PROG, "jax", "sf2_jax.cli", make_config, validate)
 
 
 def resolve_configs(args):

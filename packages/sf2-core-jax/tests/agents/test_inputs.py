@@ -70,3 +70,15 @@ def test_checkpoint_of_another_program_is_bad_input(capsys, monkeypatch):
     monkeypatch.setattr(trainer, "evaluate_checkpoint", mismatch)
     assert cli.main(["eval", "/nonexistent"]) == 2
     assert "sf2-jax eval: error: checkpoint 3 does not fit this program" in capsys.readouterr().err
+
+
+def test_the_backend_names_the_cli_module_under_python_m():
+    """A study's children run `python -m <cli_module>`: the module by name, also when this CLI itself runs
+    as `python -m sf2_jax.cli` (where its `__name__` is "__main__")."""
+    import subprocess
+    import sys
+
+    code = ("import runpy; g = runpy.run_module('sf2_jax.cli', run_name='not_the_module_name'); "
+            "print(g['backend']().cli_module)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.stdout.strip() == "sf2_jax.cli", out.stderr[-2000:]

@@ -42,7 +42,7 @@ def build_parser():
 
 def backend() -> common.Backend:
     """What a plugin command (`study`) gets from this core: its TrainConfig, with the torch fields."""
-    return common.Backend(prog=PROG, name="torch", cli_module=__name__, make_config=make_config,
+    return common.Backend(prog=PROG, name="torch", cli_module="sf2_torch.cli", make_config=make_config,
                           validate=validate)
 
 

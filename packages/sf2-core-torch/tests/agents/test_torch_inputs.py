@@ -123,3 +123,15 @@ def test_cli_flags_equal_sf2_jax():
 def test_train_config_fields_are_documented():
     names = [f.name for f in dataclasses.fields(configs.TrainConfig)]
     assert names[-3:] == list(configs.TORCH_FIELDS)
+
+
+def test_the_backend_names_the_cli_module_under_python_m():
+    """A study's children run `python -m <cli_module>`: the module by name, also when this CLI itself runs
+    as `python -m sf2_torch.cli` (where its `__name__` is "__main__")."""
+    import subprocess
+    import sys
+
+    code = ("import runpy; g = runpy.run_module('sf2_torch.cli', run_name='not_the_module_name'); "
+            "print(g['backend']().cli_module)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.stdout.strip() == "sf2_torch.cli", out.stderr[-2000:]
