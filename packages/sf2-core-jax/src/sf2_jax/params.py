@@ -2,8 +2,10 @@
 
 A canonical mapping is a flat ``dict[str, numpy.ndarray]``: dot-joined names (``psi.dense_0.kernel``,
 ``q.head_1.dense_0.bias``, ``obs_norm.mean``, ``log_alpha``), kernels stored (in, out), LayerNorm
-``scale``/``bias``; the groups are `networks.init_params`'s. Loading one mapping into `sf2_jax` and
-`sf2_torch` (`sf2_torch.params`, the same functions) gives networks that compute the same numbers.
+``scale``/``bias``, conv kernels (height, width, in, out) (HWIO); the groups are `networks.init_params`'s
+(`networks_image.init_image_params`' for the MinAtar system's `ImageNetworks`). Loading one mapping into
+`sf2_jax` and `sf2_torch` (`sf2_torch.params`, the same functions) gives networks that compute the same
+numbers.
 `to_canonical` / `from_canonical` convert, `validate` and `expected_shapes` check against networks, `save`
 and `load` read and write ``.npz`` or ``.safetensors`` files (`sf2_common.paramfile`, shared by both cores).
 """
@@ -22,6 +24,7 @@ from sf2_common.config import SF2Config
 from sf2_common.errors import ParamsError
 
 from sf2_jax import networks as nw
+from sf2_jax import networks_image as nwi
 
 __all__ = ["to_canonical", "from_canonical", "validate", "expected_shapes", "save", "load", "FORMATS",
            "canonical_shapes", "unflatten"]
@@ -69,11 +72,16 @@ def canonical_shapes(tree) -> dict[str, tuple[int, ...]]:
 
 
 @functools.lru_cache(maxsize=64)
-def _expected(nets: nw.Networks) -> dict[str, tuple[int, ...]]:
-    return canonical_shapes(jax.eval_shape(lambda: nw.init_params(nets, jax.random.key(0))))
+def _expected(nets) -> dict[str, tuple[int, ...]]:
+    init = nwi.init_image_params if isinstance(nets, nwi.ImageNetworks) else nw.init_params
+    return canonical_shapes(jax.eval_shape(lambda: init(nets, jax.random.key(0))))
 
 
-def _networks(nets_or_cfg, algo: str | None) -> nw.Networks:
+def _networks(nets_or_cfg, algo: str | None):
+    if isinstance(nets_or_cfg, nwi.ImageNetworks):
+        if algo is not None:
+            raise ParamsError(f"algo={algo!r} given with image networks (method {nets_or_cfg.method!r})")
+        return nets_or_cfg
     if isinstance(nets_or_cfg, nw.Networks):
         if algo is not None and algo != nets_or_cfg.algo:
             raise ParamsError(f"algo={algo!r} given with networks made for algo={nets_or_cfg.algo!r}")
@@ -89,8 +97,8 @@ def expected_shapes(nets_or_cfg, algo: str | None = None) -> dict[str, tuple[int
     """The canonical names and shapes of networks' parameters.
 
     Args:
-      nets_or_cfg: the `networks.Networks`, or an `SF2Config` with `algo`.
-      algo: "td3" or "sac", with a config (with networks: None or theirs).
+      nets_or_cfg: the `networks.Networks` or `networks_image.ImageNetworks`, or an `SF2Config` with `algo`.
+      algo: "td3" or "sac", with a config (with networks: None or theirs; None with image networks).
 
     Returns:
       {canonical name: shape}, as `networks.init_params` gives them.
@@ -114,16 +122,18 @@ def validate(flat: Mapping, nets_or_cfg, algo: str | None = None) -> None:
     """
     nets = _networks(nets_or_cfg, algo)
     cfg = nets.cfg
-    paramfile.check_shapes(flat, _expected(nets), f"the networks (algo {nets.algo!r}, obs_size "
-                           f"{cfg.obs_size}, action_size {cfg.action_size}, feature_size {cfg.feature_size})")
+    kind = (f"method {nets.method!r}, obs_shape {nets.obs_shape}" if isinstance(nets, nwi.ImageNetworks)
+            else f"algo {nets.algo!r}, obs_size {cfg.obs_size}")
+    paramfile.check_shapes(flat, _expected(nets), f"the networks ({kind}, action_size {cfg.action_size}, "
+                           f"feature_size {cfg.feature_size})")
 
 
-def from_canonical(flat: Mapping, nets: nw.Networks, dtype=None) -> dict:
+def from_canonical(flat: Mapping, nets, dtype=None) -> dict:
     """The params dict of a canonical mapping, validated against the networks first.
 
     Args:
       flat: {canonical name: array}.
-      nets: the `networks.Networks` the parameters are for.
+      nets: the `networks.Networks` (or `networks_image.ImageNetworks`) the parameters are for.
       dtype: cast every array to it (e.g. `jnp.float64`); None keeps each array's dtype (as JAX
         canonicalizes it).
 
