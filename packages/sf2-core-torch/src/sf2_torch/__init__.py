@@ -2,14 +2,15 @@
 
 Modules (same names as the JAX core; docs/core-contract.md): `networks` (ψ, ζ, twin Q, TD3 and SAC
 policies, observation normalizer, flow-time embedding), `ode` (`integrate`), `losses` (pure losses with
-explicit noise, `ema_update`), `params` (canonical interchange). `SF2Config` and the errors are
-`sf2_common`'s, shared with the JAX core.
+explicit noise, `ema_update`), `params` (canonical interchange); `networks_image` and `losses_onpolicy`:
+the MinAtar system's (docs/minatar.md). `SF2Config` and the errors are `sf2_common`'s, shared with the JAX
+core.
 """
 
 from sf2_common.config import SF2Config
 from sf2_common.errors import ConfigError, ParamsError, ShapeError
 
-from . import losses, networks, ode, params
+from . import losses, losses_onpolicy, networks, networks_image, ode, params
 from .losses import Batch
 from .networks import Networks, make_networks
 
@@ -17,5 +18,5 @@ __version__ = "0.2.0"
 
 __all__ = [
     "SF2Config", "ConfigError", "ShapeError", "ParamsError", "Batch", "Networks", "make_networks",
-    "networks", "ode", "losses", "params", "__version__",
+    "networks", "ode", "losses", "params", "networks_image", "losses_onpolicy", "__version__",
 ]

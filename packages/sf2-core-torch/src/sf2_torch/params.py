@@ -2,9 +2,10 @@
 
 A canonical mapping is a flat ``dict[str, numpy.ndarray]``: dot-joined names (``psi.dense_0.kernel``,
 ``q.head_1.dense_0.bias``, ``obs_norm.mean``, ``log_alpha``), kernels stored (in, out) as flax does
-(`nn.Linear.weight` is transposed on the way in and out), LayerNorm ``scale``/``bias``. The modules use the
-canonical layer names, so one converter serves the core's `Networks`, the baselines' networks and an
-agent's groups. Loading one mapping into `sf2_torch` and the JAX core (its `params`, the same functions)
+(`nn.Linear.weight` is transposed on the way in and out), conv kernels (height, width, in, out) (HWIO,
+`nn.Conv2d.weight` permuted), LayerNorm ``scale``/``bias``. The modules use the canonical layer names, so
+one converter serves the core's `Networks` and `ImageNetworks`, the baselines' networks and an agent's
+groups. Loading one mapping into `sf2_torch` and the JAX core (its `params`, the same functions)
 gives networks that compute the same numbers. `save` and `load` read and write ``.npz`` or
 ``.safetensors`` files (`sf2_common.paramfile`, shared by both cores).
 """
@@ -46,8 +47,15 @@ def _module(nets) -> nn.Module:
     return _Groups(nets) if isinstance(nets, Mapping) else nets
 
 
-def _slots(nets, buffers: bool = True) -> Iterator[tuple[str, torch.Tensor, bool]]:
-    """(canonical name, tensor, stored transposed) for every parameter (and buffer) of `nets`.
+# The canonical axes of a torch tensor, by layout: a Linear weight (out, in) is stored (in, out), a Conv2d
+# weight (out, in, kh, kw) is stored HWIO (kh, kw, in, out); torch's tensor is canonical.permute(_TO_TORCH).
+_TO_CANONICAL = {"linear": (1, 0), "conv": (2, 3, 1, 0)}
+_TO_TORCH = {"linear": (1, 0), "conv": (3, 2, 0, 1)}
+
+
+def _slots(nets, buffers: bool = True) -> Iterator[tuple[str, torch.Tensor, str | None]]:
+    """(canonical name, tensor, layout: "linear", "conv" or None (stored as is)) for every parameter (and
+    buffer) of `nets`.
 
     Order: module registration order, the root's own entries (`log_alpha`) last.
     """
@@ -56,24 +64,27 @@ def _slots(nets, buffers: bool = True) -> Iterator[tuple[str, torch.Tensor, bool
         prefix = f"{mod_name}." if mod_name else ""
         for leaf, p in module.named_parameters(recurse=False):
             if isinstance(module, nn.Linear) and leaf == "weight":
-                yield f"{prefix}kernel", p, True
+                yield f"{prefix}kernel", p, "linear"
+            elif isinstance(module, nn.Conv2d) and leaf == "weight":
+                yield f"{prefix}kernel", p, "conv"
             elif isinstance(module, nn.LayerNorm) and leaf == "weight":
-                yield f"{prefix}scale", p, False
+                yield f"{prefix}scale", p, None
             else:
-                yield f"{prefix}{leaf}", p, False
+                yield f"{prefix}{leaf}", p, None
         if buffers:
             for leaf, b in module.named_buffers(recurse=False):
-                yield f"{prefix}{leaf}", b, False
+                yield f"{prefix}{leaf}", b, None
 
 
-def _canonical_shape(tensor: torch.Tensor, transposed: bool) -> tuple[int, ...]:
+def _canonical_shape(tensor: torch.Tensor, layout: str | None) -> tuple[int, ...]:
     shape = tuple(tensor.shape)
-    return shape[::-1] if transposed else shape
+    return shape if layout is None else tuple(shape[i] for i in _TO_CANONICAL[layout])
 
 
-def _to_numpy(tensor: torch.Tensor, transposed: bool) -> np.ndarray:
+def _to_numpy(tensor: torch.Tensor, layout: str | None) -> np.ndarray:
     arr = tensor.detach().cpu().numpy()
-    return arr.T.copy() if transposed else arr.copy()  # a copy even where .T is already contiguous
+    # a copy even where the transpose is already contiguous
+    return arr.copy() if layout is None else arr.transpose(_TO_CANONICAL[layout]).copy()
 
 
 def to_canonical(nets, grads: bool = False) -> dict[str, np.ndarray]:
@@ -86,15 +97,16 @@ def to_canonical(nets, grads: bool = False) -> dict[str, np.ndarray]:
         parameters, left out).
 
     Returns:
-      {dot-joined name: numpy array}, copies (never views of the modules' memory), kernels (in, out).
+      {dot-joined name: numpy array}, copies (never views of the modules' memory), kernels (in, out), conv
+      kernels HWIO.
     """
     out: dict[str, np.ndarray] = {}
-    for name, tensor, transposed in _slots(nets, buffers=not grads):
+    for name, tensor, layout in _slots(nets, buffers=not grads):
         if grads:
             g = tensor.grad
-            out[name] = _to_numpy(torch.zeros_like(tensor) if g is None else g, transposed)
+            out[name] = _to_numpy(torch.zeros_like(tensor) if g is None else g, layout)
         else:
-            out[name] = _to_numpy(tensor, transposed)
+            out[name] = _to_numpy(tensor, layout)
     return out
 
 
@@ -123,17 +135,16 @@ def expected_shapes(nets_or_cfg, algo: str | None = None) -> dict[str, tuple[int
       TypeError: neither networks, a mapping of groups nor a config.
     """
     nets = _networks_for(nets_or_cfg, algo)
-    return {name: _canonical_shape(t, tr) for name, t, tr in _slots(nets)}
+    return {name: _canonical_shape(t, layout) for name, t, layout in _slots(nets)}
 
 
 def _describe(nets: nn.Module) -> str:
     cfg, algo = getattr(nets, "cfg", None), getattr(nets, "algo", None)
     if cfg is None:
         return type(nets).__name__
-    return (
-        f"algo={algo!r}, obs_size={cfg.obs_size}, action_size={cfg.action_size}, "
-        f"feature_size={cfg.feature_size}"
-    )
+    kind = (f"method={nets.method!r}, obs_shape={nets.obs_shape}" if hasattr(nets, "method")
+            else f"algo={algo!r}, obs_size={cfg.obs_size}")
+    return f"{kind}, action_size={cfg.action_size}, feature_size={cfg.feature_size}"
 
 
 def validate(flat: Mapping[str, object], nets_or_cfg, algo: str | None = None) -> None:
@@ -196,9 +207,9 @@ def from_canonical(flat: Mapping[str, object], nets):
     """
     validate(flat, nets)
     with torch.no_grad():
-        for name, tensor, transposed in _slots(nets):
+        for name, tensor, layout in _slots(nets):
             src = torch.tensor(np.asarray(flat[name]))
-            tensor.copy_(src.T if transposed else src)
+            tensor.copy_(src if layout is None else src.permute(_TO_TORCH[layout]))
     return nets
 
 
