@@ -167,8 +167,8 @@ def test_bad_study_files_exit_2_before_anything_runs(tmp_path, capsys):
     err = _bad(tmp_path, capsys, smoke.replace('representation = "sf2"', 'representation = "sf3"'))
     assert "bad.toml: method 'TD3+SF²' on task CartpoleBalance" in err and "must be one of none, sf2" in err
     err = _bad(tmp_path, capsys, smoke.replace('algo = "td3"\nrepresentation = "sf2"',
-                                               'algo = "ppo"\nrepresentation = "sf2"'))
-    assert "method 'TD3+SF²'" in err and "algo = 'ppo'" in err and "td3, sac" in err
+                                               'algo = "dqn"\nrepresentation = "sf2"'))
+    assert "method 'TD3+SF²'" in err and "algo = 'dqn'" in err and "td3, sac" in err
     err = _bad(tmp_path, capsys, smoke.replace("num_envs = 4", "num_env = 4"))
     assert "unknown config field 'num_env'" in err and "num_envs" in err
     err = _bad(tmp_path, capsys, smoke.replace('\nname = "smoke"', '\nname = "smoke"\nframework = "torch"'))
