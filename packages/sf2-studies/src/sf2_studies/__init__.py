@@ -3,12 +3,12 @@ framework. One module per job:
 
 - `spec`: study files (TOML), checked before anything is compiled
 - `folder`: the study folder (its study file, state, one run folder per training program)
-- `runner`: the runs on this host, one child process of the framework's CLI per GPU (or CPU worker)
+- `runner`, `progress`: the runs on this host (a core CLI child per GPU or CPU worker), their progress line
 - `rayrun`: the runs as Ray tasks on a cluster (extra `ray`)
-- `progress`: the one progress line of a study run
 - `stats`: AUC, normalization, rliable aggregates and bootstrap intervals
 - `report`, `figures`: results.csv, summary.md and the paper's figures
 - `compare`: several studies' aggregates and claim verdicts side by side (`study compare`)
+- `export`: every run of a study folder as one long table, CSV or Parquet (`study export`)
 - `merge`: runs of other study folders or their archives joined into one (`study merge`)
 - `commands`: the `study` subcommand of `sf2-jax` / `sf2-torch` (entry point group `sf2.commands`)
 

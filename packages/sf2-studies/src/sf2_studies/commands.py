@@ -8,6 +8,7 @@
     PROG study merge SOURCE... --into DIR [--partial]
     PROG study compress DIR
     PROG study compare DIR... --out DIR
+    PROG study export DIR --out FILE.csv|FILE.parquet
 
 Bad input exits with status 2 and writes nothing; `run` exits 0 when every selected run is done, 1 if one
 failed or was held by another process. FILE may also name a file in ./studies/ (`smoke`)."""
@@ -94,6 +95,14 @@ def add_parser(sub, prog: str) -> None:
                         "`study merge` read either form, as do zcat and pandas). `study merge` does this to "
                         "the runs it writes. Unfinished runs are left as they are.")
     c.add_argument("dir", help="study folder")
+    x = ssub.add_parser("export", help="every run of a study folder as one long table (CSV or Parquet)",
+                        description="Write one row per task, method, seed and evaluation (env step, eval "
+                        "return) of every run folder, finished or not (column `finished`), with the study's "
+                        "name, the commit of the git repository the folder lies in and the config fields "
+                        "that differ between runs: the table rliable and openrlbenchmark users load. "
+                        "Parquet needs pyarrow.")
+    x.add_argument("dir", help="study folder")
+    x.add_argument("--out", required=True, metavar="FILE", help="the table: FILE.csv or FILE.parquet")
 
 
 def _study_file(text: str) -> Path:
@@ -128,6 +137,8 @@ def main(backend: Backend, args) -> int:
             return _merge(backend, args)
         if args.study_command == "compress":
             return _compress(backend, args)
+        if args.study_command == "export":
+            return _export(args)
         return _run(backend, args, command)
     except ImportError as err:   # an extra that is not installed: the message names it
         raise StudyError(str(err)) from None
@@ -275,6 +286,17 @@ def _compare(args, command: str) -> int:
 
     for path in compare(args.dirs, args.out, command).values():
         print(f"wrote {path}")
+    return 0
+
+
+def _export(args) -> int:
+    from .export import export
+
+    done = export(args.dir, args.out)
+    where = (f"commit {done.commit} (HEAD of the git repository holding {args.dir})" if done.commit else
+             f"no commit ({args.dir} lies in no git repository)")
+    print(f"wrote {done.path}: {done.rows} rows of {done.runs} run folder(s)"
+          + (f", {done.unfinished} unfinished" if done.unfinished else "") + f"; {where}")
     return 0
 
 

@@ -31,7 +31,8 @@ CSV_FIELDS = ("task", "method", "family", "seed", "auc", "normalized_auc", "fina
 
 @dataclasses.dataclass
 class GroupData:
-    """One run folder of a (task, method): a seed group, or all seeds without `seeds_per_run`."""
+    """One run folder of a (task, method): a seed group, or all seeds without `seeds_per_run`; its curves
+    whether finished or not (`study export`, export.py, writes them all)."""
 
     seeds: tuple[int, ...]
     path: Path
@@ -39,6 +40,9 @@ class GroupData:
     progress: str                     # "partial (epoch 3 of 5)" or "not started" for an incomplete run
     hardware: str = ""                # config.json's "hardware" (its first session's), "" if not recorded
     environment: dict | None = None   # config.json's "environment" (None: not recorded)
+    config: dict = dataclasses.field(default_factory=dict)      # config.json's "config" ({}: none yet)
+    steps: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))   # its evaluations' env steps
+    returns: dict[int, np.ndarray] = dataclasses.field(default_factory=dict)   # seed → eval returns at steps
 
 
 @dataclasses.dataclass
@@ -93,7 +97,7 @@ def _group(seeds, path: Path):
     wall = max((r.get("walltime", 0.0) for r in rows), default=0.0)
     env = conf.get("environment")
     group = GroupData(tuple(seeds), path, finished, progress, str(conf.get("hardware", "")),
-                      env if isinstance(env, dict) else None)
+                      env if isinstance(env, dict) else None, dict(conf.get("config") or {}), steps, per_seed)
     return group, steps, per_seed, wall, noise
 
 
