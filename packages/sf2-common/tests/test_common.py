@@ -87,13 +87,89 @@ def test_spr_augmentation_std_is_checked_and_older_run_folders_keep_resuming(tmp
         with pytest.raises(ConfigError, match=f"spr_augmentation_std = {bad!r} is invalid"):
             configs.validate(cfg.replace(spr_augmentation_std=bad), (0,), reg)
     run = RunFolder(tmp_path / "old")
-    old = {k: v for k, v in cfg.to_dict().items() if k != "spr_augmentation_std"}
+    # written before spr_augmentation_std and the PPO fields existed
+    old = {k: v for k, v in cfg.to_dict().items()
+           if k != "spr_augmentation_std" and k not in configs.PPO_FIELDS}
     run.write_config({"config": old, "seeds": [0]})
-    assert configs.ADDED_FIELDS == {"spr_augmentation_std": 0.05, "shared_adam": True}
+    assert configs.ADDED_FIELDS == {"spr_augmentation_std": 0.05, "shared_adam": True, "rollout_length": 128,
+                                    "update_epochs": 3, "minibatch_size": 4096, "clip_eps": 0.2,
+                                    "entropy_coef": 0.01, "value_coef": 0.5, "max_grad_norm": 0.5,
+                                    "td_lambda": 0.95, "critic": "q"}
     assert cfg.spr_augmentation_std == 0.05
     assert run.check_compatible(cfg.to_dict(), (0,)) is True
     with pytest.raises(RunFolderMismatch, match="spr_augmentation_std: 0.05 \\(folder\\) vs 0.1 \\(now\\)"):
         run.check_compatible(cfg.replace(spr_augmentation_std=0.1).to_dict(), (0,))
+
+
+def _ppo_reg():
+    """A registry whose `none` takes ppo (the on-policy trainer's representations are the cores')."""
+    r = registry.Registry("nothing-installed-under-this-group", baselines=())
+    r.register(type("NoRep", (), {"name": "none", "label": "", "supported_algos": ("ppo",)}))
+    return r
+
+
+def test_ppo_paper_preset_is_pgx_example_with_the_papers_discount(known_tasks):
+    """`paper` for a MinAtar game (docs/minatar.md): pgx's PPO (4096 envs × 128 steps, 3 epochs of
+    minibatches of 4096, Adam 3e-4 with ε 1e-5, grad clip 0.5, clip 0.2, entropy 0.01, value 0.5, λ 0.95),
+    γ = γ_su = 0.9, 20M env steps in 39 updates with an evaluation of 128 greedy episodes (capped at
+    10,000 steps) after each, ψ's own Adam state; the off-policy presets keep their values."""
+    cfg = configs.make_config("paper", "minatar-breakout", algo="ppo", representation="none")
+    got = {k: getattr(cfg, k) for k in (
+        "num_envs", "rollout_length", "update_epochs", "minibatch_size", "learning_rate", "adam_eps",
+        "max_grad_norm", "clip_eps", "entropy_coef", "value_coef", "td_lambda", "discount", "gamma_su",
+        "num_timesteps", "num_evals", "num_eval_envs", "deterministic_eval", "episode_length", "shared_adam",
+        "critic", "feature_size", "hidden_sizes", "zeta_hidden_sizes", "action_repeat")}
+    assert got == dict(num_envs=4096, rollout_length=128, update_epochs=3, minibatch_size=4096,
+                       learning_rate=3e-4, adam_eps=1e-5, max_grad_norm=0.5, clip_eps=0.2, entropy_coef=0.01,
+                       value_coef=0.5, td_lambda=0.95, discount=0.9, gamma_su=0.9, num_timesteps=20_000_000,
+                       num_evals=40, num_eval_envs=128, deterministic_eval=True, episode_length=10_000,
+                       shared_adam=False, critic="q", feature_size=256, hidden_sizes=(256, 256),
+                       zeta_hidden_sizes=(64, 64), action_repeat=1)
+    s = configs.schedule(cfg)
+    # 524,288 env steps per update, 3 × 128 SGD steps each; ceil(20M / 524,288) = 39 updates, one per epoch
+    assert (s.env_steps_per_actor_step, s.sgd_steps_per_actor_step, s.prefill_actor_steps, s.num_epochs,
+            s.actor_steps_per_epoch, s.eval_actor_steps) == (524_288, 384, 0, 39, 1, 10_000)
+    assert s.total_env_steps == 39 * 524_288
+    for preset in ("paper", "quick"):
+        off = configs.make_config(preset, "PendulumSwingup", algo="sac")
+        assert off.episode_length == 1000 and {k: getattr(off, k) for k in configs.PPO_FIELDS} == {
+            k: configs.ADDED_FIELDS[k] for k in configs.PPO_FIELDS}
+        assert configs.schedule(off).sgd_steps_per_actor_step == off.grad_updates_per_step
+
+
+def test_ppo_quick_preset_and_its_schedule():
+    cfg = configs.make_config("quick", "minatar-breakout", algo="ppo", representation="none")
+    assert {k: getattr(cfg, k) for k in configs.PPO_VALUES["quick"]} == configs.PPO_VALUES["quick"]
+    s = configs.schedule(cfg)
+    batch = cfg.num_envs * cfg.rollout_length
+    assert s.env_steps_per_actor_step == batch and s.prefill_actor_steps == 0
+    assert s.sgd_steps_per_actor_step == cfg.update_epochs * batch // cfg.minibatch_size
+    assert s.num_epochs == cfg.num_evals - 1 and s.total_env_steps >= cfg.num_timesteps
+    assert s.env_steps_after(s.num_epochs) == s.total_env_steps
+
+
+@pytest.mark.parametrize("changes,text", [
+    (dict(minibatch_size=300), "minibatch_size = 300 is invalid: must divide the rollout's num_envs × "
+                               "rollout_length = 32 × 32 = 1024 transitions"),
+    (dict(minibatch_size=2048), "minibatch_size = 2048 is invalid: must divide"),
+    (dict(rollout_length=0), "rollout_length = 0 is invalid: must be an int >= 1"),
+    (dict(update_epochs=1.5), "update_epochs = 1.5 is invalid: must be an int >= 1"),
+    (dict(clip_eps=0.0), "clip_eps = 0.0 is invalid: must satisfy 0 < clip_eps <= 1"),
+    (dict(td_lambda=1.5), "td_lambda = 1.5 is invalid: must satisfy 0 <= td_lambda <= 1"),
+    (dict(entropy_coef=-0.01), "entropy_coef = -0.01 is invalid: must be a finite number >= 0"),
+    (dict(value_coef=0), "value_coef = 0 is invalid: must be a finite number > 0"),
+    (dict(max_grad_norm=float("inf")), "max_grad_norm = inf is invalid: must be a finite number > 0"),
+    (dict(critic="a"), "critic = 'a' is invalid: must be 'q' (Q(s, a) with λ-returns: PPO-Q) or 'v'"),
+    (dict(action_repeat=2), "action_repeat = 2 is invalid: must be 1"),
+], ids=lambda v: str(v)[:40])
+def test_ppo_fields_are_checked_before_anything_is_built(changes, text):
+    cfg = configs.make_config("quick", "minatar-breakout", algo="ppo", representation="none",
+                              overrides=changes)
+    with pytest.raises(ConfigError) as err:
+        configs.validate(cfg, (0,), _ppo_reg())
+    assert f"config field {text}" in str(err.value), str(err.value)
+    assert configs.validate(configs.make_config("quick", "minatar-breakout", algo="ppo",
+                                                representation="none"), (0,), _ppo_reg())
 
 
 def test_parsing_follows_the_field_types():

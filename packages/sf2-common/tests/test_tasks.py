@@ -78,8 +78,8 @@ def test_the_off_policy_trainers_refuse_minatar_tasks_before_compiling(playgroun
 
 
 def test_a_playground_task_is_refused_for_ppo(playground):
-    """`ppo` is not in ALGOS yet; the task-kind hook refuses the pairing already, ahead of ALGOS."""
-    assert "ppo" not in configs.ALGOS
+    """`ppo` is the on-policy trainer's algo; the task-kind hook refuses it for Playground tasks."""
+    assert "ppo" in configs.ALGOS and "ppo" in configs.ONPOLICY_ALGOS
     msg = ("task 'CheetahRun' is a Playground DM Control task: Playground DM Control tasks take the "
            "off-policy trainer (--algo td3 or --algo sac); --algo ppo is the MinAtar tasks' on-policy "
            "trainer")

@@ -90,12 +90,13 @@ def add_train_parser(sub, prog: str, config_class, seeds_help: str, cache_env: s
     `seeds_help` says how the core runs several seeds, `cache_env` names the compilation cache's variable."""
     t = sub.add_parser("train", help="train one or more methods over several seeds",
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    t.add_argument("--task", required=True, help="Playground DM Control task, e.g. CartpoleBalance "
-                   f"(`{prog} tasks` lists them)")
-    t.add_argument("--algo", default="td3", help="td3 or sac")
+    t.add_argument("--task", required=True, help="Playground DM Control task, e.g. CartpoleBalance, or a "
+                   f"MinAtar game, e.g. minatar-breakout (`{prog} tasks` lists them)")
+    t.add_argument("--algo", default="td3", help="td3 or sac (Playground); ppo (MinAtar)")
     t.add_argument("--repr", default="sf2", dest="representation",
                    help="representation: none (vanilla), sf2; with sf2-baselines installed also sim, simlap, "
-                   "simlap_authors, spr; a comma list trains each and compares them")
+                   "simlap_authors, spr; with ppo: none, sf2, sf2-ae; a comma list trains each and compares "
+                   "them")
     t.add_argument("--config", default="quick", help="preset: paper (Table 1 + the authors' settings) or "
                    "quick (small networks and budget for a CPU)")
     t.add_argument("--seeds", default="0", help=f"e.g. 0-3 or 0,2,5; {seeds_help}")

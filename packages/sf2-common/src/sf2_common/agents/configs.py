@@ -5,8 +5,9 @@ value and what is valid.
 Written once for both cores: each core's `agents.configs` binds `make_config` and `validate` to its own
 `TrainConfig` (JAX: this one; torch: a subclass with its run fields) and representation registry. The
 SF² network/loss fields are those of `sf2_common.config.SF2Config` (same names and defaults) minus
-`obs_size`/`action_size`, which come from the task. Why the presets hold what they hold:
-docs/decisions/presets.md.
+`obs_size`/`action_size`, which come from the task. `--algo ppo` (the on-policy trainer of MinAtar
+tasks) adds the PPO fields and its own preset values (`PPO_VALUES`, docs/minatar.md). Why the presets hold
+what they hold: docs/decisions/presets.md.
 """
 
 from __future__ import annotations
@@ -27,17 +28,23 @@ __all__ = [
     "TrainConfig", "PRESETS", "ALGOS", "SF2_FIELDS", "make_config", "parse_overrides", "parse_value",
     "parse_seeds", "validate", "Schedule", "schedule", "ConfigError", "bad_field", "LEARNER_PRECISIONS",
     "ADDED_FIELDS", "PAPER_ADAM_EPS", "SUPERSEDED", "superseded_values", "TASK_VALUES", "FAMILY_VALUES",
+    "ONPOLICY_ALGOS", "CRITICS", "PPO_FIELDS", "PPO_VALUES",
 ]
 
-ALGOS = ("td3", "sac")
+ALGOS = ("td3", "sac", "ppo")
+ONPOLICY_ALGOS = ("ppo",)   # the on-policy trainer's (sf2_jax.agents.onpolicy); the others are off-policy
+CRITICS = ("q", "v")        # PPO's critic: Q(s, a) with λ-returns (PPO-Q), or V(s) with GAE (PPO)
 # `learner_precision` → JAX's matmul precision of the learner (torch: TF32, bf16 autocast); core-contract.md
 LEARNER_PRECISIONS = {"highest": "highest", "tensorfloat32": "tensorfloat32", "bfloat16": "BF16_BF16_F32"}
 _SF2_DEFAULTS = {f.name: f.default for f in fields(SF2Config)}
 # Fields added after run folders were written, with the value every older run trained with
 ADDED_FIELDS = {name: _SF2_DEFAULTS[name] for name in ("spr_augmentation_std", "shared_adam")}
+# (the PPO fields are added below, with their defaults: no off-policy run uses them)
 SF2_FIELDS = tuple(name for name in _SF2_DEFAULTS if name not in ("obs_size", "action_size"))
+PPO_FIELDS = ("rollout_length", "update_epochs", "minibatch_size", "clip_eps", "entropy_coef", "value_coef",
+              "max_grad_norm", "td_lambda", "critic")
 # Adam's ε as the authors' trainers build it (SAC: optax's default; the temperature's is 1e-8 always)
-PAPER_ADAM_EPS = {"td3": 1e-5, "sac": 1e-8}
+PAPER_ADAM_EPS = {"td3": 1e-5, "sac": 1e-8, "ppo": 1e-5}
 # Preset values changed since run folders were written, (algo, field) -> (old, new): such folders keep theirs
 SUPERSEDED = {("sac", "adam_eps"): (1e-5, PAPER_ADAM_EPS["sac"])}
 # Each preset's values, then its per-task and per-family values, then the overrides (decisions/presets.md)
@@ -48,9 +55,27 @@ PRESETS = {
                   feature_size=32, hidden_sizes=(64, 64), q_hidden_size=64, zeta_hidden_sizes=(64, 64),
                   embedding_size=16, tau=0.02),
 }
-TASK_VALUES = {"paper": {"num_timesteps": tasks.paper_budget, "action_repeat": tasks.paper_action_repeat},
-               "quick": {"action_repeat": tasks.paper_action_repeat}}
-FAMILY_VALUES = {"paper": {"adam_eps": PAPER_ADAM_EPS}}
+# PPO's values per preset (`--algo ppo`, MinAtar): `paper` is pgx's MinAtar PPO example (an evaluation after
+# each of its 39 updates) with the paper's γ = 0.9 and docs/minatar.md's networks; `quick` learns Breakout
+# on a CPU in minutes (docs/minatar.md)
+PPO_VALUES = {
+    "paper": dict(num_envs=4096, rollout_length=128, update_epochs=3, minibatch_size=4096, learning_rate=3e-4,
+                  clip_eps=0.2, entropy_coef=0.01, value_coef=0.5, max_grad_norm=0.5, td_lambda=0.95,
+                  discount=0.9, gamma_su=0.9, num_evals=40, num_eval_envs=128, deterministic_eval=True,
+                  shared_adam=False,
+                  feature_size=256, hidden_sizes=(256, 256), q_hidden_size=256, zeta_hidden_sizes=(64, 64)),
+    "quick": dict(num_timesteps=200_000, num_envs=32, rollout_length=32, update_epochs=2, minibatch_size=256,
+                  learning_rate=1e-3, num_evals=11, num_eval_envs=64, discount=0.9, gamma_su=0.9,
+                  shared_adam=False, feature_size=32, hidden_sizes=(64,), q_hidden_size=64,
+                  zeta_hidden_sizes=(16,), embedding_size=8),
+}
+TASK_VALUES = {"paper": {"num_timesteps": tasks.paper_budget, "action_repeat": tasks.paper_action_repeat,
+                         "episode_length": lambda task: tasks.task_kind(task).episode_length},
+               "quick": {"action_repeat": tasks.paper_action_repeat,
+                         "episode_length": lambda task: tasks.task_kind(task).episode_length}}
+FAMILY_VALUES = {"paper": {"adam_eps": PAPER_ADAM_EPS,
+                           **{name: {"ppo": v} for name, v in PPO_VALUES["paper"].items()}},
+                 "quick": {name: {"ppo": v} for name, v in PPO_VALUES["quick"].items()}}
 
 
 @dataclass(frozen=True)
@@ -75,6 +100,17 @@ class TrainConfig:
     min_replay_size: int = 8192   # prefill with uniform random actions
     max_replay_size: int = 4_194_304
     normalize_observations: bool = True
+    # on-policy updates (--algo ppo; docs/minatar.md): each update acts `rollout_length` steps in every env,
+    # then trains `update_epochs` passes over that rollout in minibatches of `minibatch_size` transitions
+    rollout_length: int = 128
+    update_epochs: int = 3
+    minibatch_size: int = 4096
+    clip_eps: float = 0.2         # PPO's ratio clip (and the V critic's value clip)
+    entropy_coef: float = 0.01
+    value_coef: float = 0.5       # the critic loss's weight
+    max_grad_norm: float = 0.5    # each loss's gradient clipped to this global norm over what it trains
+    td_lambda: float = 0.95       # λ of the critic's λ-returns and of the advantages
+    critic: str = "q"             # "q": Q(s, a) and λ-returns (PPO-Q, SF²); "v": V(s) and GAE (PPO)
     # networks and losses: the fields of SF2Config
     feature_size: int = _SF2_DEFAULTS["feature_size"]
     hidden_sizes: tuple[int, ...] = _SF2_DEFAULTS["hidden_sizes"]
@@ -140,6 +176,9 @@ class TrainConfig:
         if unknown:
             raise ConfigError(f"unknown config fields {unknown}; valid fields: {sorted(known)}")
         return cls(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items()})
+
+
+ADDED_FIELDS.update({f.name: f.default for f in fields(TrainConfig) if f.name in PPO_FIELDS})
 
 
 # ------------------------------------------------------------------------------------------- presets
@@ -267,7 +306,11 @@ class Schedule:
     `prefill_actor_steps` of them act uniformly at random and do no SGD (the prefill), every later one
     acts with exploration noise and is followed by `grad_updates_per_step` SGD steps. Evaluation
     happens before the first epoch and after each. Env steps are counted after action repeat, as
-    Brax does, and include the prefill; the total is num_timesteps rounded up to whole epochs."""
+    Brax does, and include the prefill; the total is num_timesteps rounded up to whole epochs.
+
+    With `--algo ppo` an actor step is one on-policy update: `rollout_length` steps of all `num_envs` envs,
+    then `update_epochs` × (num_envs · rollout_length / minibatch_size) SGD steps; there is no prefill and
+    an evaluation episode lasts at most `episode_length` steps."""
 
     env_steps_per_actor_step: int   # num_envs · action_repeat
     prefill_actor_steps: int        # ceil(min_replay_size / num_envs)
@@ -277,6 +320,7 @@ class Schedule:
     env_steps_per_epoch: int
     total_env_steps: int            # ≥ num_timesteps
     eval_actor_steps: int           # ceil(episode_length / action_repeat): one evaluation episode
+    sgd_steps_per_actor_step: int   # grad_updates_per_step (ppo: update_epochs × minibatches)
 
     def env_steps_after(self, epoch: int) -> int:
         """Env steps done once epoch `epoch` ends (0: none)."""
@@ -288,13 +332,17 @@ class Schedule:
 
 
 def schedule(cfg: TrainConfig) -> Schedule:
-    per = cfg.num_envs * cfg.action_repeat
-    prefill = -(-cfg.min_replay_size // cfg.num_envs)
+    """The `Schedule` of `cfg` (its docstring); `--algo ppo`'s actor step is one on-policy update."""
+    onpolicy = cfg.algo in ONPOLICY_ALGOS
+    per = cfg.num_envs * (cfg.rollout_length if onpolicy else cfg.action_repeat)
+    prefill = 0 if onpolicy else -(-cfg.min_replay_size // cfg.num_envs)
     epochs = max(cfg.num_evals - 1, 1)
     total_actor = -(-cfg.num_timesteps // per)
     steps = -(-total_actor // epochs)
+    sgd = (cfg.update_epochs * max(cfg.num_envs * cfg.rollout_length // cfg.minibatch_size, 1) if onpolicy
+           else cfg.grad_updates_per_step)
     return Schedule(per, prefill, prefill * per, epochs, steps, steps * per, epochs * steps * per,
-                    -(-cfg.episode_length // cfg.action_repeat))
+                    -(-cfg.episode_length // cfg.action_repeat), sgd)
 
 
 # ------------------------------------------------------------------------------------------- validation
@@ -337,10 +385,12 @@ def validate(cfg: TrainConfig, seeds, registry) -> TrainConfig:
             bad_field(name, getattr(cfg, name), "must be a bool")
     if cfg.action_repeat > cfg.episode_length:
         bad_field("action_repeat", cfg.action_repeat, f"must be <= episode_length ({cfg.episode_length})")
-    if cfg.max_replay_size < cfg.num_envs:
+    if cfg.algo in ONPOLICY_ALGOS:
+        _validate_onpolicy(cfg)
+    elif cfg.max_replay_size < cfg.num_envs:
         bad_field("max_replay_size", cfg.max_replay_size, f"must hold one step of all envs (>= num_envs = "
                   f"{cfg.num_envs})")
-    if cfg.min_replay_size > cfg.max_replay_size:
+    elif cfg.min_replay_size > cfg.max_replay_size:
         bad_field("min_replay_size", cfg.min_replay_size,
                   f"must be <= max_replay_size ({cfg.max_replay_size})")
     if cfg.learner_precision not in LEARNER_PRECISIONS:
@@ -363,6 +413,34 @@ def validate(cfg: TrainConfig, seeds, registry) -> TrainConfig:
     parse_seeds(seeds)
     cfg.sf2_config(1, 1)  # network and loss fields: SF2Config's own validation (placeholder sizes)
     return cfg
+
+
+def _validate_onpolicy(cfg: TrainConfig) -> None:
+    """The PPO fields (`--algo ppo`): sizes, rates, the critic, and minibatches that split the rollout."""
+    for name in ("rollout_length", "update_epochs", "minibatch_size"):
+        v = getattr(cfg, name)
+        if not _is_int(v) or v < 1:
+            bad_field(name, v, "must be an int >= 1")
+    if cfg.action_repeat != 1:
+        bad_field("action_repeat", cfg.action_repeat, "must be 1: the on-policy trainer steps each game once "
+                  "per action")
+    batch = cfg.num_envs * cfg.rollout_length
+    if batch % cfg.minibatch_size:
+        bad_field("minibatch_size", cfg.minibatch_size, f"must divide the rollout's num_envs × "
+                  f"rollout_length = {cfg.num_envs} × {cfg.rollout_length} = {batch} transitions")
+    for name, low, high, text in (("clip_eps", 0, 1, "0 < clip_eps <= 1"),
+                                  ("td_lambda", None, 1, "0 <= td_lambda <= 1"),
+                                  ("entropy_coef", None, math.inf, "a finite number >= 0"),
+                                  ("value_coef", 0, math.inf, "a finite number > 0"),
+                                  ("max_grad_norm", 0, math.inf, "a finite number > 0")):
+        v = getattr(cfg, name)
+        ok = (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v <= high
+              and (v >= 0 if low is None else v > low))
+        if not ok:
+            bad_field(name, v, f"must be {text}" if text[0].isalpha() else f"must satisfy {text}")
+    if cfg.critic not in CRITICS:
+        bad_field("critic", cfg.critic, "must be 'q' (Q(s, a) with λ-returns: PPO-Q) or 'v' (V(s) with GAE: "
+                  "PPO)")
 
 
 def _algos(registry, name: str) -> tuple[str, ...]:

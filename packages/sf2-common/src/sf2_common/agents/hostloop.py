@@ -35,8 +35,9 @@ def diverged_message(first_bad: dict, sched, epoch: int, seeds, cfg, last_ckpt,
                      order=()) -> str | None:
     """The message naming the first non-finite loss of the epoch: lowest SGD step, then the order the
     SGD step computes them in (`order`), or None if every metric is finite. `first_bad[name][seed]` is
-    the index (local actor step · grad_updates_per_step + update) of the first non-finite value, or −1."""
-    G = cfg.grad_updates_per_step
+    the index (local actor step · SGD steps per actor step + update) of the first non-finite value, or −1
+    (`sched.sgd_steps_per_actor_step`: grad_updates_per_step, or an on-policy update's SGD steps)."""
+    G = sched.sgd_steps_per_actor_step
     rank = {name: i for i, name in enumerate(order)}
     problems = []
     for name, idx in first_bad.items():

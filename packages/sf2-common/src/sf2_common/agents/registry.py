@@ -19,11 +19,14 @@ INSTALL_BASELINES = "pip install packages/sf2-baselines"
 
 
 class Registry:
-    """Representations of one framework ("jax" or "torch"): registered classes, then entry points."""
+    """Representations of one framework ("jax" or "torch"): registered classes, then entry points. A
+    trainer with representations of its own (the on-policy trainer's) has its own registry: its entry-point
+    `group`, and the `baselines` its error messages say how to install (none)."""
 
-    def __init__(self, framework: str):
+    def __init__(self, framework: str, group: str | None = None, baselines: tuple[str, ...] = BASELINES):
         self.framework = framework
-        self.group = GROUP.format(framework=framework)
+        self.group = group or GROUP.format(framework=framework)
+        self.baselines = baselines
         self._classes: dict[str, type] = {}
         self._entry_points: dict[str, metadata.EntryPoint] | None = None
 
@@ -73,7 +76,7 @@ class Registry:
         """'must be one of none, sf2, sim, ...', with the install line when the baselines are missing."""
         names = self.names()
         text = f"must be one of {', '.join(names)}"
-        missing = [b for b in BASELINES if b not in names]
+        missing = [b for b in self.baselines if b not in names]
         if missing:
             text += (f" (the baselines {', '.join(missing)} come with sf2-baselines: "
                      f"{INSTALL_BASELINES})")
