@@ -48,7 +48,7 @@ ACTOR_PHASES = ("explore", "env_step", "observe", "sample", "step_noise")
 
 __all__ = ["TrainState", "Program", "get_program", "episode_returns", "TrainingDiverged", "TrainResult",
            "train", "evaluate_checkpoint", "evaluate_checkpoint_noises", "seed_keys", "eval_keys",
-           "acting_params", "flatten_params", "device_note", "EVAL_STREAM", "WALL_FIELDS"]
+           "acting_params", "flatten_params", "device_note", "EVAL_STREAM", "WALL_FIELDS", "run_training"]
 
 EVAL_STREAM = 0x5EED  # eval keys: fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), epoch)
 # WALL_FIELDS, TrainingDiverged and the host loop's framework-free helpers (rows, the NaN guard's
@@ -430,6 +430,42 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
     """
     seeds = configs.parse_seeds(seeds)
     configs.validate(cfg, seeds, representations.REGISTRY)
+    return run_training(cfg, seeds, out, program_of=get_program, session_of=_Session, label=_label,
+                        hardware=_hardware(len(seeds)), versions=_versions(), note=device_note(len(seeds)),
+                        resume=resume, fresh=fresh, progress=progress, hook=hook,
+                        stop_after_epoch=stop_after_epoch, plot=plot)
+
+
+def run_training(cfg: TrainConfig, seeds: tuple[int, ...], out, *, program_of: Callable, session_of: Callable,
+                 label: Callable[[TrainConfig], str], hardware: str, versions: dict, note: str | None = None,
+                 resume: bool = True, fresh: bool = False, progress: bool = True,
+                 hook: Callable[[str, int], None] | None = None, stop_after_epoch: int | None = None,
+                 plot: bool = True) -> TrainResult:
+    """The run-folder half of a JAX trainer's `train` (this module's and `onpolicy`'s), for a config and
+    seeds already validated: the lock, the folder's checks and config.json, the resume from the newest
+    checkpoint that restores completely, then `hostloop.run_epochs`.
+
+    Args:
+      cfg: the run's `TrainConfig`, validated.
+      seeds: the seeds, parsed.
+      out: the run folder.
+      program_of: `program_of(cfg)` → the trainer's program, with `abstract_state(seeds)` (the state's
+        shapes, a checkpoint's template) and `place(state)` (a restored state where the programs keep it).
+      session_of: `session_of(program, checkpointer, run, seeds, state)` → its `hostloop.Session` (`state`
+        None: it starts one).
+      label: `label(cfg)` → the method's label, e.g. "TD3+SF²".
+      hardware: what the run trains on (`hostloop.hardware`).
+      versions: the libraries' versions, for config.json.
+      note: a line said once the program is built, or None.
+      resume, fresh, progress, hook, stop_after_epoch, plot: as `train`'s.
+
+    Returns:
+      The `TrainResult`.
+
+    Raises:
+      RunFolderError: a run folder that cannot be used.
+      TrainingDiverged: a NaN or inf loss.
+    """
     run = RunFolder(out)
     run.check_usable()
     lock = FolderLock(run.path, "sf2-jax train").acquire(say=run.say)   # one writer per run folder
@@ -440,25 +476,23 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
         cfg = run.keep_trained_values(cfg)
         existing = run.check_compatible(cfg.to_dict(), seeds)
         sched = configs.schedule(cfg)
-        hardware = _hardware(len(seeds))
         env = hostloop.numerics_environment()
         if not existing:
             run.write_config({"config": cfg.to_dict(), "seeds": list(seeds),
-                              "schedule": dataclasses.asdict(sched), "label": _label(cfg),
-                              "versions": _versions(), "hardware": hardware, "environment": env})
+                              "schedule": dataclasses.asdict(sched), "label": label(cfg),
+                              "versions": versions, "hardware": hardware, "environment": env})
         run.log(f"hardware: {hardware}")
         run.log(hostloop.environment_line(env))
-        program = get_program(cfg)
-        note = device_note(len(seeds))
+        program = program_of(cfg)
         if note:
             run.say(note)
         ckpt = Checkpointer(run.checkpoint_dir, keep=cfg.keep_checkpoints)
-        title = hostloop.run_title(_label(cfg), cfg.task, seeds)
+        title = hostloop.run_title(label(cfg), cfg.task, seeds)
         try:
             res = resume_run(run, ckpt, lambda e: ckpt.restore(e, program.abstract_state(seeds)), seeds=seeds,
                              sched=sched, existing=existing, resume=resume)
             state = None if res.restored is None else program.place(res.restored[0])
-            session = _Session(program, ckpt, run, seeds, state)
+            session = session_of(program, ckpt, run, seeds, state)
             rows = hostloop.run_epochs(session, cfg=cfg, sched=sched, seeds=seeds, run=run, title=title,
                                        rows=res.rows, start=res.start, last=res.epoch, walltime=res.walltime,
                                        progress=progress, hook=hook, stop_after_epoch=stop_after_epoch,
