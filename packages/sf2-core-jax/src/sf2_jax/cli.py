@@ -1,17 +1,18 @@
-"""`sf2-jax`: train, evaluate and plot TD3/SAC agents, vanilla, with SF² or a baseline, on MuJoCo Playground.
+"""`sf2-jax`: train, evaluate and plot TD3/SAC agents (vanilla, SF², a baseline) on MuJoCo Playground and
+PPO agents (PPO-Q, PPO, SF² w/o or w AE) on MinAtar.
 
-    sf2-jax train --task CartpoleBalance --algo td3 --repr sf2 --config quick --seeds 0-3 --out runs/cp
     sf2-jax train --task CartpoleBalance --algo td3 --repr sf2,none --config quick --seeds 0-1 --out runs/cmp
-    sf2-jax eval runs/cp [--epoch N] [--episodes 20] [--stochastic]
+    sf2-jax train --task minatar-breakout --algo ppo --repr sf2-ae --config quick --seeds 0-1 --out runs/mb
+    sf2-jax eval runs/mb [--epoch N] [--episodes 20] [--stochastic]
     sf2-jax plot runs/cmp/td3-sf2 runs/cmp/td3-none --out curves.png
     sf2-jax tasks
 
-Every `TrainConfig` field can be overridden, either with its own flag (`--batch-size 128`,
-`--hidden-sizes 64,64`) or with `--set batch_size=128` (repeatable). `--repr` takes none, sf2 and, with
-sf2-baselines installed (`pip install packages/sf2-baselines`), sim, simlap, simlap_authors, spr. Bad input
-(unknown task, algo or representation, a combination that does not exist, a budget smaller than the
-prefill, ...) is reported before anything is compiled; exit status 2. A NaN/inf loss stops the run with
-exit status 3. `study` comes with sf2-studies. The parts shared with `sf2-torch` are `sf2_common.cli`.
+Every `TrainConfig` field can be overridden with its own flag (`--batch-size 128`) or `--set
+batch_size=128` (repeatable). `--repr` takes none, sf2 and, with sf2-baselines installed, sim, simlap,
+simlap_authors, spr; with `--algo ppo` none, sf2, sf2-ae. A MinAtar task trains with the on-policy trainer
+(`sf2_jax.agents.onpolicy`), any other with the off-policy one; `eval` picks the folder's. Bad input is
+reported before anything is compiled (exit status 2); a NaN/inf loss stops the run (3). `study` comes with
+sf2-studies. The parts shared with `sf2-torch` are `sf2_common.cli`.
 """
 
 from __future__ import annotations
@@ -47,9 +48,21 @@ def resolve_configs(args):
     return common.resolve_configs(args, TrainConfig, make_config, validate)
 
 
+def _onpolicy(task: str) -> bool:
+    """Whether `task`'s kind trains with the on-policy trainer (MinAtar) rather than the off-policy one."""
+    from sf2_common.agents.tasks import task_kind
+
+    return task_kind(task).trainer == "on-policy"
+
+
 def train(args) -> int:
-    """`sf2-jax train`: the JAX trainer on every config of the arguments."""
+    """`sf2-jax train`: the JAX trainer of the task's kind on every config of the arguments."""
     cfgs, seeds = resolve_configs(args)
+    if _onpolicy(cfgs[0].task):
+        from sf2_jax.agents import onpolicy
+
+        labels = {(c.algo, c.representation): onpolicy.method_label(c) for c in cfgs}
+        return common.train_runs(args, cfgs, seeds, onpolicy.train, lambda algo, rep: labels[(algo, rep)])
     from sf2_common.agents.plotting import method_label
 
     from sf2_jax.agents import representations
@@ -59,11 +72,30 @@ def train(args) -> int:
                              lambda algo, rep: method_label(algo, rep, representations.REGISTRY))
 
 
-def evaluate(args) -> int:
-    """`sf2-jax eval`: a checkpoint of a run folder the JAX trainer wrote."""
+def _trainer_of(run):
+    """The trainer module that wrote the run folder `run` (the off-policy one when it holds no readable
+    config: its evaluation names that problem)."""
+    from sf2_common.agents.runfolder import RunFolder, RunFolderError
+    from sf2_common.agents.tasks import TASKS
+
+    try:
+        conf = RunFolder(run).read_config()
+    except (RunFolderError, OSError):
+        conf = None
+    task = conf["config"].get("task") if conf else None
+    if isinstance(task, str) and task in TASKS and _onpolicy(task):
+        from sf2_jax.agents import onpolicy
+
+        return onpolicy
     from sf2_jax.agents import trainer
 
-    return common.eval_command(args, trainer.evaluate_checkpoint, trainer.evaluate_checkpoint_noises,
+    return trainer
+
+
+def evaluate(args) -> int:
+    """`sf2-jax eval`: a checkpoint of a run folder a JAX trainer wrote, by that trainer."""
+    module = _trainer_of(args.run)
+    return common.eval_command(args, module.evaluate_checkpoint, module.evaluate_checkpoint_noises,
                                common.compile_cache(PROG, CACHE_ENV))
 
 

@@ -1,11 +1,11 @@
-"""SF² agents: TD3 and SAC, vanilla or on SF² features, trained on MuJoCo Playground DM Control tasks.
-
+"""SF² agents: TD3 and SAC, vanilla or on SF² features, on MuJoCo Playground DM Control; PPO on MinAtar.
 Needs the `[train]` extra (brax, playground, orbax-checkpoint, matplotlib, tqdm). Modules:
 `envs` (tasks), `representations` (the pluggable interface: `none`, `sf2`; sf2-baselines adds `sim`,
-`simlap`, `spr`), `algorithms` (TD3, SAC), `replay`, `trainer` (the one training loop), `checkpoint`
-(Orbax), `minatar` (pgx's MinAtar games, batched, for the on-policy trainer: the `[minatar]` extra). The
-framework-free parts (TrainConfig and its presets, run folders, plots, the host loop) are
-`sf2_common.agents`. The CLI is `sf2_jax.cli` (`sf2-jax`).
+`simlap`, `spr`), `algorithms` (TD3, SAC), `replay`, `trainer` (the off-policy training loop), `checkpoint`
+(Orbax), `minatar` (pgx's MinAtar games, batched: the `[minatar]` extra), `onpolicy` (PPO-Q and PPO,
+`--algo ppo`) and its `representations_onpolicy` (`none`, `sf2`, `sf2-ae`). The framework-free parts
+(TrainConfig and its presets, run folders, plots, the host loop) are `sf2_common.agents`. The CLI is
+`sf2_jax.cli` (`sf2-jax`).
 
     from sf2_jax.agents import make_config, train
     cfg = make_config("quick", "CartpoleBalance", algo="td3", representation="sf2")

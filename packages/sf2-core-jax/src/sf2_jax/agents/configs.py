@@ -1,6 +1,7 @@
 """The JAX agents' `TrainConfig`: `sf2_common.agents.configs.TrainConfig` as it is (the JAX agents add no
 run fields; the same fields, defaults, presets, parsing and messages as the torch agents'), with
-`make_config` and `validate` bound to it and to the JAX agents' representation registry. Everything else
+`make_config` and `validate` bound to it and to the JAX agents' representation registries (the off-policy
+trainer's, and the on-policy trainer's for `--algo ppo`). Everything else
 (parsing, seeds, the schedule) is `sf2_common.agents.configs`.
 """
 
@@ -21,7 +22,18 @@ def make_config(preset: str, task: str, algo: str = "td3", representation: str =
 
 def validate(cfg: TrainConfig, seeds=(0,)) -> TrainConfig:
     """Check everything that can be checked without building a program (the representation against the
-    JAX agents' registry). Raises `ConfigError`."""
-    from . import representations
+    registry of the algorithm's trainer: the off-policy `representations.REGISTRY`, or for `--algo ppo`
+    `representations_onpolicy.REGISTRY`, whose representations also name the critics they take). Raises
+    `ConfigError`."""
+    if cfg.algo not in _configs.ONPOLICY_ALGOS:
+        from . import representations
 
-    return _configs.validate(cfg, seeds, representations.REGISTRY)
+        return _configs.validate(cfg, seeds, representations.REGISTRY)
+    from . import representations_onpolicy as onpolicy_reprs
+
+    _configs.validate(cfg, seeds, onpolicy_reprs.REGISTRY)
+    rep = onpolicy_reprs.get(cfg.representation)
+    if cfg.critic not in rep.critics:
+        _configs.bad_field("critic", cfg.critic, f"representation {cfg.representation!r} takes critic "
+                           f"{' or '.join(repr(c) for c in rep.critics)} (SF² trains ψ through Q(s, a))")
+    return cfg

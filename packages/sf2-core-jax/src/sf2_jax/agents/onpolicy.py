@@ -1,0 +1,432 @@
+"""The on-policy trainer (`--algo ppo`, MinAtar; docs/minatar.md): PPO with a Q(s, a) or V critic, and SF².
+
+PureJaxRL's pattern. An update acts `rollout_length` steps in every env (a `lax.scan` over the batched
+`minatar` env), computes λ-returns (critic "q") or GAE (critic "v") and trains `update_epochs` passes of
+minibatches; an epoch, the updates between two evaluations, is one `lax.scan` of updates: one compiled
+program, vmapped over seeds, its state donated, with no host sync inside. One SGD step takes the critic's
+loss, the representation's own losses (`representations_onpolicy`), the actor's PPO loss, then the EMA of
+the targets; each loss's gradient is clipped to `max_grad_norm` (global norm over the groups it trains), and
+each group has its own Adam state (ψ's flow step a second one unless `shared_adam`). An evaluation runs the
+greedy (`deterministic_eval`) or sampled policy for one episode on `num_eval_envs` fresh envs per seed, at
+most `episode_length` steps. Run folders, resume, the NaN guard and the rows are the off-policy trainer's
+(`trainer.run_training`, `sf2_common.agents.hostloop`).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import warnings
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from sf2_common.agents import configs, hostloop
+from sf2_common.agents.configs import TrainConfig
+from sf2_common.agents.evaluation import CheckpointEvaluator, CheckpointJob
+from sf2_common.agents.registry import aux_states
+from sf2_common.errors import ConfigError
+
+from sf2_jax import losses_onpolicy as lo
+from sf2_jax import networks_image as nwi
+
+from . import minatar
+from .checkpoint import Checkpointer
+from .configs import validate
+from .representations_onpolicy import REGISTRY, OnPolicyBatch
+from .trainer import (  # _seed_map: one seed runs unvmapped; _write_final: final/params_seed<S>.npz
+    TrainingDiverged,
+    TrainResult,
+    _seed_map,
+    _write_final,
+    eval_keys,
+    run_training,
+    seed_keys,
+)
+
+__all__ = ["OnPolicyState", "Rollout", "Program", "get_program", "train", "method_label",
+           "evaluate_checkpoint", "evaluate_checkpoint_noises", "TrainingDiverged", "TrainResult"]
+
+
+class OnPolicyState(NamedTuple):
+    """One seed's training state (a leading seed axis in a run's state).
+
+    Attributes:
+      params: {group: params} (`representations_onpolicy`: actor, critic or ψ/Q/ζ/targets, encoder/decoder).
+      opt_state: {group or "psi:aux": Adam state}.
+      env_state: the `minatar.EnvState` of the `num_envs` training envs.
+      key: the training key.
+      env_steps: env steps done.
+      updates: on-policy updates done.
+    """
+
+    params: dict
+    opt_state: dict
+    env_state: Any
+    key: jax.Array
+    env_steps: jax.Array
+    updates: jax.Array
+
+
+class Rollout(NamedTuple):
+    """One update's rollout, (T, N) leading axes (T = rollout_length steps of N envs); grids as uint8.
+
+    Attributes:
+      obs, action, reward, terminal, truncation: s_t, a_t, r_t and how the step ended its episode.
+      next_obs: s′ before any reset.
+      next_sample: an action drawn from π(·|s′) at rollout time (a′ where none was taken at s′).
+      log_prob, value, next_value: log π(a_t|s_t), the critic's value of s_t and of s′, at rollout time.
+      episode_return: the completed episode's return where the step ended one, else 0.
+      done: 1 where the step ended an episode (terminal or truncation).
+    """
+
+    obs: jax.Array
+    action: jax.Array
+    reward: jax.Array
+    terminal: jax.Array
+    truncation: jax.Array
+    next_obs: jax.Array
+    next_sample: jax.Array
+    log_prob: jax.Array
+    value: jax.Array
+    next_value: jax.Array
+    episode_return: jax.Array
+    done: jax.Array
+
+
+class Program:
+    """The compiled pieces of one config (module docstring): `init`, `epoch`, `evaluate`, each over the seed
+    axis (`trainer._seed_map`). Build with `get_program(cfg)`."""
+
+    def __init__(self, cfg: TrainConfig):
+        self.cfg = cfg
+        self.env = minatar.make(cfg.task, cfg.episode_length)
+        shape = self.env.spec.obs_shape
+        self.sf2 = cfg.sf2_config(math.prod(shape), self.env.spec.num_actions)
+        self.rep = REGISTRY.get(cfg.representation)(self.sf2, shape, cfg.critic)
+        self.sched = configs.schedule(cfg)
+        self.num_minibatches = cfg.num_envs * cfg.rollout_length // cfg.minibatch_size
+        self._adam = optax.adam(cfg.learning_rate, eps=cfg.adam_eps)
+        self._clip = optax.clip_by_global_norm(cfg.max_grad_norm)
+        self.aux_states = aux_states(cfg, self.rep)   # {aux group: its Adam state's name in opt_state}
+        self.trained = tuple(dict.fromkeys(("actor", *self.rep.critic_groups, *self.rep.aux_groups)))
+        # the order an SGD step computes its losses in (names the first NaN when several appear at once)
+        self.loss_order = ("critic_loss", *(name for name, _ in self.rep.aux_losses), "actor_loss")
+        self._programs: dict[tuple, Callable] = {}
+
+    # ------------------------------------------------------------------ host entry points
+    def precision(self):
+        """The matmul precision every program is traced at (`cfg.learner_precision`; the games have none)."""
+        return jax.default_matmul_precision(configs.LEARNER_PRECISIONS[self.cfg.learner_precision])
+
+    def _program(self, name: str, n_seeds: int, *static):
+        key = (name, n_seeds == 1, *static)
+        if key not in self._programs:
+            fn, in_axes = {"init": (self._init_one, (0,)), "epoch": (self._epoch_one, (0,)),
+                           "evaluate": (functools.partial(self._eval_one, *static), (0, 0))}[name]
+            self._programs[key] = jax.jit(_seed_map(fn, in_axes, n_seeds),
+                                          donate_argnums=(0,) if name == "epoch" else ())
+        return self._programs[key]
+
+    def init(self, seeds) -> OnPolicyState:
+        """The initial state of every seed (leading axis: the seed)."""
+        with self.precision():
+            return self._program("init", len(seeds))(seed_keys(seeds))
+
+    def abstract_state(self, seeds) -> OnPolicyState:
+        """The shapes and dtypes of `init(seeds)` (a checkpoint's template)."""
+        with self.precision():
+            return jax.eval_shape(jax.vmap(self._init_one), seed_keys(seeds))
+
+    def place(self, state):
+        """A restored state where the programs keep it: the default device, as it is."""
+        return state
+
+    def epoch(self, state: OnPolicyState, epoch: int) -> tuple[OnPolicyState, dict, dict]:
+        """Train epoch `epoch` (`actor_steps_per_epoch` updates). Returns (state, metric means, first
+        non-finite index of each loss: update · SGD steps per update + SGD step, or −1)."""
+        del epoch   # every update is alike: no prefill
+        with self.precision(), warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=".*donated buffers were not usable.*")
+            return self._program("epoch", state.key.shape[0])(state)
+
+    def evaluate(self, params, seeds, epoch: int, n: int | None = None, obs_noise: float = 0.0) -> jax.Array:
+        """Episode returns (n_seeds, n) of the policy in `params` (its "actor" group suffices): one episode on
+        each of `n` (default `num_eval_envs`) fresh envs per seed, drawn with the evaluation key of `epoch`
+        (`trainer.eval_keys`); `obs_noise` > 0 adds Gaussian noise of that std to what the policy sees."""
+        n = self.cfg.num_eval_envs if n is None else int(n)
+        with self.precision():
+            program = self._program("evaluate", len(seeds), n, float(obs_noise), self.cfg.deterministic_eval)
+            return program(params["actor"], eval_keys(seeds, epoch))
+
+    # ------------------------------------------------------------------ per-seed pieces (vmapped)
+    def _init_one(self, key) -> OnPolicyState:
+        k_params, k_env, k_train = jax.random.split(key, 3)
+        params = self.rep.init(k_params)
+        opt_state = {g: self._adam.init(params[g]) for g in self.trained}
+        opt_state.update({state: self._adam.init(params[g]) for g, state in self.aux_states.items()
+                          if state != g})
+        env_state = self.env.reset(jax.random.split(k_env, self.cfg.num_envs))
+        zero = jnp.zeros((), jnp.int32)
+        return OnPolicyState(params, opt_state, env_state, k_train, zero, zero)
+
+    def _act_step(self, params, env_state, key):
+        """One step of every training env under the current policy, and what the update needs of it."""
+        rep = self.rep
+        k_act, k_next, k_env = jax.random.split(key, 3)
+        obs = env_state.obs
+        logits = rep.logits(params, obs)
+        value = rep.values(params, obs, logits)
+        action = jax.random.categorical(k_act, logits).astype(jnp.int32)
+        env_state, tr = self.env.step(env_state, action, k_env)
+        next_logits = rep.logits(params, tr.next_obs)
+        done = tr.terminal | tr.truncation
+        f32 = jnp.float32
+        return env_state, Rollout(
+            obs=obs.astype(jnp.uint8), action=action, reward=tr.reward, terminal=tr.terminal.astype(f32),
+            truncation=tr.truncation.astype(f32), next_obs=tr.next_obs.astype(jnp.uint8),
+            next_sample=jax.random.categorical(k_next, next_logits).astype(jnp.int32),
+            log_prob=nwi.categorical_log_prob(logits, action), value=value,
+            next_value=rep.values(params, tr.next_obs, next_logits),
+            episode_return=jnp.where(done, tr.episode_return, 0.0), done=done.astype(f32))
+
+    def _loss_step(self, params, opt_state, loss_fn, groups, states=None):
+        """One Adam step of `groups` on `loss_fn(params)` → (objective, {metric: scalar}), its gradient
+        clipped to `max_grad_norm` (global norm over `groups`); `states[group]` names a group's Adam state
+        (default: its own). Returns (params, opt_state, metrics)."""
+        def objective(trained):
+            return loss_fn({**params, **trained})
+
+        (_, metrics), grads = jax.value_and_grad(objective, has_aux=True)({g: params[g] for g in groups})
+        grads, _ = self._clip.update(grads, self._clip.init(grads))
+        params, opt_state = dict(params), dict(opt_state)
+        for g in groups:
+            name = (states or {}).get(g, g)
+            updates, opt_state[name] = self._adam.update(grads[g], opt_state[name], params[g])
+            params[g] = optax.apply_updates(params[g], updates)
+        return params, opt_state, metrics
+
+    def _sgd_step(self, params, opt_state, mb: OnPolicyBatch, key):
+        """The critic's step, the representation's (in `aux_losses`' order), the actor's, the targets' EMA."""
+        cfg, rep = self.cfg, self.rep
+
+        def critic(p):
+            loss, aux = rep.critic_loss(p, mb, cfg.clip_eps)
+            return cfg.value_coef * loss, {"critic_loss": loss, **aux}
+
+        params, opt_state, metrics = self._loss_step(params, opt_state, critic, rep.critic_groups)
+        noise = rep.aux_noise(key, mb)
+        for name, groups in rep.aux_losses:
+            def own(p, name=name):
+                loss, aux = rep.aux_loss(name, p, mb, noise)
+                return loss, {name: loss, **aux}
+
+            params, opt_state, m = self._loss_step(params, opt_state, own, groups, self.aux_states)
+            metrics.update(m)
+
+        def actor(p):
+            loss, aux = lo.ppo_policy_loss(rep.nets, p, mb.obs, mb.action, mb.log_prob, mb.advantage,
+                                           cfg.clip_eps, cfg.entropy_coef)
+            return loss, {"actor_loss": loss, **aux}
+
+        params, opt_state, m = self._loss_step(params, opt_state, actor, ("actor",))
+        metrics.update(m)
+        for target, (online, tau) in rep.targets().items():
+            params[target] = optax.incremental_update(params[online], params[target], tau)
+        return params, opt_state, metrics
+
+    def _update(self, state: OnPolicyState, _):
+        """One on-policy update: the rollout, its returns and advantages, `update_epochs` × minibatches."""
+        cfg = self.cfg
+        T, N = cfg.rollout_length, cfg.num_envs
+        key, k_roll, k_perm, k_sgd = jax.random.split(state.key, 4)
+        env_state, ro = jax.lax.scan(functools.partial(self._act_step, state.params), state.env_state,
+                                     jax.random.split(k_roll, T))
+        # a′: the action taken at s′; drawn from π(·|s′) where none was (an episode's or the rollout's end)
+        last = jnp.zeros((T, N), bool).at[-1].set(True)
+        next_action = jnp.where((ro.done > 0) | last, ro.next_sample, jnp.roll(ro.action, -1, axis=0))
+        reward = ro.reward * cfg.reward_scaling
+        discount = 1.0 - ro.terminal
+        if cfg.critic == "q":
+            target = lo.lambda_returns(reward, discount, ro.truncation, ro.next_value, cfg.discount,
+                                       cfg.td_lambda)
+            advantage = target - ro.value
+        else:
+            advantage, target = lo.gae(reward, discount, ro.truncation, ro.value, ro.next_value, cfg.discount,
+                                       cfg.td_lambda)
+        data = OnPolicyBatch(obs=ro.obs, action=ro.action, reward=reward, discount=discount,
+                             truncation=ro.truncation, next_obs=ro.next_obs, next_action=next_action,
+                             log_prob=ro.log_prob, value=ro.value, advantage=advantage, target=target)
+        flat = jax.tree_util.tree_map(lambda x: x.reshape((T * N,) + x.shape[2:]), data)
+        E, K = cfg.update_epochs, self.num_minibatches
+        perms = jax.vmap(lambda k: jax.random.permutation(k, T * N))(jax.random.split(k_perm, E))
+
+        def sgd(carry, xs):
+            idx, k = xs
+            mb = jax.tree_util.tree_map(lambda x: jnp.take(x, idx, axis=0), flat)
+            mb = mb._replace(obs=mb.obs.astype(jnp.float32), next_obs=mb.next_obs.astype(jnp.float32))
+            params, opt_state, metrics = self._sgd_step(*carry, mb, k)
+            return (params, opt_state), metrics
+
+        (params, opt_state), metrics = jax.lax.scan(
+            sgd, (state.params, state.opt_state),
+            (perms.reshape(E * K, cfg.minibatch_size), jax.random.split(k_sgd, E * K)))
+        state = OnPolicyState(params, opt_state, env_state, key, state.env_steps + T * N, state.updates + 1)
+        return state, (metrics, jnp.sum(ro.episode_return), jnp.sum(ro.done))
+
+    def _epoch_one(self, state: OnPolicyState):
+        state, (metrics, returns, episodes) = jax.lax.scan(self._update, state, None,
+                                                           length=self.sched.actor_steps_per_epoch)
+        means = {name: jnp.mean(m) for name, m in metrics.items()}       # m: (updates, SGD steps)
+        first_bad = {}
+        for name in self.loss_order:
+            finite = jnp.isfinite(metrics[name]).reshape(-1)
+            first_bad[name] = jnp.where(jnp.all(finite), -1, jnp.argmin(finite))
+        count = jnp.sum(episodes)
+        means["train_return"] = jnp.sum(returns) / jnp.maximum(count, 1.0)
+        means["train_episodes"] = count
+        sched = self.sched
+        means["sgd_steps"] = jnp.asarray(sched.actor_steps_per_epoch * sched.sgd_steps_per_actor_step)
+        return state, means, first_bad
+
+    def _eval_one(self, n: int, obs_noise: float, deterministic: bool, actor, key):
+        """Returns (n,) of one episode on each of n fresh envs: a `lax.while_loop` until every episode
+        ended (a terminal, or the truncation at `episode_length` steps)."""
+        params = {"actor": actor}
+        k_reset, k_run = jax.random.split(key)
+
+        def running(carry):
+            _, _, alive, t, _ = carry
+            return jnp.any(alive) & (t < self.cfg.episode_length)
+
+        def step(carry):
+            env_state, ret, alive, t, k = carry
+            k, k_act, k_env, k_noise = jax.random.split(k, 4)
+            obs = env_state.obs
+            if obs_noise:   # its own key: the acting and the games' randomness stay the noise-free run's
+                obs = obs + obs_noise * jax.random.normal(k_noise, obs.shape, obs.dtype)
+            logits = self.rep.logits(params, obs)
+            action = jnp.argmax(logits, axis=-1) if deterministic else jax.random.categorical(k_act, logits)
+            env_state, tr = self.env.step(env_state, action.astype(jnp.int32), k_env)
+            ret = ret + jnp.where(alive, tr.reward, 0.0)
+            return env_state, ret, alive & ~(tr.terminal | tr.truncation), t + 1, k
+
+        carry = (self.env.reset(jax.random.split(k_reset, n)), jnp.zeros((n,), jnp.float32),
+                 jnp.ones((n,), bool), jnp.zeros((), jnp.int32), k_run)
+        return jax.lax.while_loop(running, step, carry)[1]
+
+
+@functools.lru_cache(maxsize=8)
+def get_program(cfg: TrainConfig) -> Program:
+    """The compiled pieces of one config, cached (the last 8 configs'): runs with equal configs reuse them.
+
+    Args:
+      cfg: the run's `TrainConfig` (frozen, hashable), `--algo ppo` on a MinAtar task.
+
+    Returns:
+      Its `Program`.
+
+    Raises:
+      ConfigError: not a MinAtar task, pgx not installed, or an unknown representation.
+    """
+    return Program(cfg)
+
+
+def method_label(cfg: TrainConfig) -> str:
+    """'PPO-Q+SF² w AE', 'PPO-Q', 'PPO' (critic "v"), ...: the method's label in tables and plots."""
+    rep = REGISTRY.label(cfg.representation)
+    return ("PPO-Q" if cfg.critic == "q" else "PPO") + (f"+{rep}" if rep else "")
+
+
+def _versions() -> dict:
+    return hostloop.versions(("jax", "jaxlib", "flax", "optax", "orbax-checkpoint", "pgx", "sf2-core-jax",
+                              "sf2-common"))
+
+
+def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = False, progress: bool = True,
+          hook: Callable[[str, int], None] | None = None, stop_after_epoch: int | None = None,
+          plot: bool = True) -> TrainResult:
+    """Train one `--algo ppo` config for every seed (one vmapped program) into a run folder.
+
+    Args:
+      cfg: the run's `TrainConfig`.
+      seeds: the seeds, as `parse_seeds` takes them ("0-3", "0,2,5", 7, a sequence of ints).
+      out: the run folder (docs/run-folders.md); one writer at a time (a lock file).
+      resume: resume from the folder's newest checkpoint that restores completely.
+      fresh: delete the folder's previous contents first.
+      progress: show the progress bar.
+      hook: `hook(event, epoch)`, called at the points of `hostloop.run_epochs` (tests simulate a kill).
+      stop_after_epoch: end the run early, after that epoch's checkpoint, as a kill would.
+      plot: write the learning-curve PNG.
+
+    Returns:
+      A `TrainResult`: the run folder, its rows, the final `OnPolicyState` of all seeds, the seeds, the
+      checkpoint epoch resumed from.
+
+    Raises:
+      ConfigError: bad input (also an off-policy algo), before anything is compiled.
+      RunFolderError: a run folder that cannot be used (another run's, another core's, in use).
+      TrainingDiverged: a NaN or inf loss (nothing of that epoch is written).
+    """
+    seeds = configs.parse_seeds(seeds)
+    validate(cfg, seeds)
+    if cfg.algo not in configs.ONPOLICY_ALGOS:
+        raise ConfigError(f"algo {cfg.algo!r} is the off-policy trainer's (sf2_jax.agents.trainer.train); "
+                          f"the on-policy trainer takes {', '.join(configs.ONPOLICY_ALGOS)}")
+    devices = jax.devices()[:1]
+    return run_training(cfg, seeds, out, program_of=get_program, session_of=_Session, label=method_label,
+                        hardware=hostloop.hardware(d.device_kind for d in devices if d.platform != "cpu"),
+                        versions=_versions(), resume=resume, fresh=fresh, progress=progress, hook=hook,
+                        stop_after_epoch=stop_after_epoch, plot=plot)
+
+
+class _Session:
+    """The `sf2_common.agents.hostloop.Session` of one run: the vmapped state of all seeds."""
+
+    def __init__(self, program: Program, ckpt: Checkpointer, run, seeds, state):
+        self.program, self.ckpt, self.run, self.seeds, self.state = program, ckpt, run, seeds, state
+
+    def start(self) -> None:
+        self.state = self.program.init(self.seeds)
+
+    def train_epoch(self, epoch: int):
+        self.state, means, first_bad = self.program.epoch(self.state, epoch)
+        return jax.device_get(means), first_bad
+
+    def evaluate(self, epoch: int) -> np.ndarray:
+        return np.asarray(self.program.evaluate(self.state.params, self.seeds, epoch))
+
+    def save(self, epoch: int, env_steps: int) -> None:
+        # written in the background while the next epoch trains (checkpoint.py)
+        self.ckpt.save(epoch, self.state, {"env_steps": env_steps, "seeds": list(self.seeds)}, wait=False)
+
+    def loss_order(self) -> tuple[str, ...]:
+        return self.program.loss_order
+
+    def finish(self) -> None:
+        _write_final(self.run, self.state, self.seeds)
+
+
+def _restore_acting(ckpt: Checkpointer, job: CheckpointJob):
+    """(the actor's parameters, meta) of checkpoint `job.epoch`; the rest of the state is dropped."""
+    state, meta = ckpt.restore(job.epoch, get_program(job.cfg).abstract_state(job.seeds))
+    return state.params["actor"], meta
+
+
+def _act(actor, job: CheckpointJob) -> list[np.ndarray]:
+    """Episode returns (seeds, episodes) per noise std of `job`: the run's own evaluation of that epoch
+    (its key, `num_eval_envs` envs) when `job.episodes` is None, else `job.episodes` fresh envs."""
+    program = get_program(job.eval_cfg)
+    epoch, n = (job.epoch, None) if job.episodes is None else (job.key, job.episodes)
+    return [np.asarray(program.evaluate({"actor": actor}, job.seeds, epoch, n, noise))
+            for noise in job.noises]
+
+
+# evaluate_checkpoint(out, epoch, num_eval_envs, deterministic, obs_noise) and evaluate_checkpoint_noises(...,
+# noises): the framework-free half is sf2_common.agents.evaluation's (documented there)
+_EVALUATOR = CheckpointEvaluator("jax", TrainConfig, Checkpointer, _restore_acting, _act)
+evaluate_checkpoint = _EVALUATOR.evaluate_checkpoint
+evaluate_checkpoint_noises = _EVALUATOR.evaluate_checkpoint_noises

@@ -1,0 +1,262 @@
+"""The on-policy trainer (`--algo ppo` on MinAtar Breakout; small sizes, CPU): each representation learns
+above the random policy; the same seeds give the same rows; vmapped seeds equal seeds one by one;
+kill-and-resume equals the uninterrupted run; the NaN guard; `sf2-jax train` and `eval` through the CLI;
+bad input refused before compiling (exit status 2). The mechanics run one tiny SF² w AE config (it has
+every part: the critic on ψ, the flow and autoencoder losses, ψ's two Adam states, the targets), compiled
+once per seed count for the whole module."""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+pytest.importorskip("pgx")
+
+from sf2_jax import cli  # noqa: E402
+from sf2_jax.agents import make_config, minatar, onpolicy, trainer  # noqa: E402
+from sf2_jax.agents.onpolicy import TrainingDiverged, train  # noqa: E402
+from sf2_testing import KILL_POINTS, check_cli_eval, cli_args, kill_and_resume, strip_wall  # noqa: E402
+
+TASK = "minatar-breakout"
+
+
+def _seed_rows(rows, seed):
+    return [r for r in strip_wall(rows) if r["seed"] == seed]
+
+
+def _leaves(tree, index=None):
+    return [np.asarray(x if index is None else x[index]) for x in jax.tree_util.tree_leaves(tree)]
+
+
+def _assert_same(a, b, index_a=None, index_b=None):
+    la, lb = _leaves(a, index_a), _leaves(b, index_b)
+    assert len(la) == len(lb)
+    for x, y in zip(la, lb):
+        np.testing.assert_array_equal(x, y)
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    """SF² w AE, seconds per run: 4 envs × 8 steps per update, 2 epochs of 2 minibatches of 16 (4 SGD steps
+    per update), 2 updates per epoch, 3 epochs; episodes truncated at 40 steps (training and evaluation);
+    16-wide networks."""
+    return make_config("quick", TASK, algo="ppo", representation="sf2-ae", overrides=dict(
+        num_envs=4, rollout_length=8, minibatch_size=16, update_epochs=2, num_timesteps=4 * 8 * 2 * 3,
+        num_evals=4, num_eval_envs=3, episode_length=40, feature_size=8, hidden_sizes=(16,),
+        q_hidden_size=16, zeta_hidden_sizes=(8,), embedding_size=4))
+
+
+@pytest.fixture(scope="module")
+def reference(tiny, tmp_path_factory):
+    """An uninterrupted single-seed run."""
+    return train(tiny, (0,), tmp_path_factory.mktemp("ref"), progress=False)
+
+
+@pytest.fixture(scope="module")
+def both(tiny, tmp_path_factory):
+    """Seeds 0 and 1 in one vmapped program."""
+    return train(tiny, (0, 1), tmp_path_factory.mktemp("both"), progress=False)
+
+
+def test_reference_run_folder(reference):
+    run = reference.run
+    conf = json.loads(run.config_path.read_text())
+    assert conf["label"] == "PPO-Q+SF² w AE" and conf["schedule"]["sgd_steps_per_actor_step"] == 4
+    rows = run.read_rows()
+    assert [r["epoch"] for r in rows] == [0, 1, 2, 3]
+    assert [r["env_steps"] for r in rows] == [0, 64, 128, 192]
+    assert [r.get("sgd_steps") for r in rows] == [None, 8, 8, 8]
+    for name in ("critic_loss", "q", "flow_loss", "loss_p", "loss_boot", "ae_loss", "bce_per_cell",
+                 "actor_loss", "policy_loss", "entropy", "approx_kl", "clip_fraction", "train_return",
+                 "train_episodes", "sps"):
+        assert np.isfinite(rows[-1][name]), name
+    assert sum(r["train_episodes"] for r in rows[1:]) > 0 and rows[-1]["eval_return_std"] >= 0
+    state = reference.state
+    assert set(state.opt_state) == {"actor", "psi", "q", "psi:aux", "zeta", "encoder", "decoder"}
+    assert int(state.updates[0]) == 6 and int(state.env_steps[0]) == 192
+    # the targets moved by EMA (τ = 0.02, τ_ζ = 0.05) towards ψ and ζ, which trained
+    for target, online in (("target_psi", "psi"), ("target_zeta", "zeta")):
+        t, o = _leaves(state.params[target]), _leaves(state.params[online])
+        assert any(not np.array_equal(a, b) for a, b in zip(t, o))
+    flat = np.load(run.final_dir / "params_seed0.npz")
+    assert {"actor.head.dense_0.kernel", "encoder.torso.conv_0.kernel", "target_psi.head.dense_0.bias",
+            "target_zeta.dense_0.kernel"} <= set(flat), sorted(flat)
+
+
+def test_same_seed_same_rows(reference, tiny, tmp_path):
+    again = train(tiny, (0,), tmp_path / "again", progress=False)
+    assert strip_wall(again.rows) == strip_wall(reference.rows)
+    _assert_same(again.state, reference.state)
+
+
+def _assert_close_rows(a, b):
+    assert [(r["epoch"], r["seed"], r["env_steps"]) for r in a] == [(r["epoch"], r["seed"], r["env_steps"])
+                                                                    for r in b]
+    for ra, rb in zip(a, b):
+        assert set(ra) == set(rb)
+        for k in ra:
+            np.testing.assert_allclose(ra[k], rb[k], rtol=1e-4, atol=1e-5, err_msg=k)
+
+
+def test_vmapped_seeds_equal_seeds_one_by_one(reference, both, tiny, tmp_path):
+    """Seeds 0 and 1 in one vmapped program equal seed 0 alone and seed 1 alone: exactly across programs
+    of >= 2 seeds ((0, 1) vs (2, 0)), up to float32 rounding against a one-seed program (no vmap: XLA
+    orders some reductions differently; the off-policy trainer's test says more)."""
+    swapped = train(tiny, (2, 0), tmp_path / "swapped", progress=False)
+    one = train(tiny, (1,), tmp_path / "one", progress=False)
+    assert _seed_rows(both.rows, 0) == _seed_rows(swapped.rows, 0)
+    _assert_same(both.state, swapped.state, 0, 1)
+    assert _seed_rows(both.rows, 0) != _seed_rows(both.rows, 1)   # the seeds really differ
+    _assert_close_rows(_seed_rows(both.rows, 0), _seed_rows(reference.rows, 0))
+    _assert_close_rows(_seed_rows(both.rows, 1), _seed_rows(one.rows, 1))
+    for x, y in zip(_leaves(both.state.params, 1), _leaves(one.state.params, 0)):
+        np.testing.assert_allclose(x, y, rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize("kill,expected_resume", KILL_POINTS)
+def test_kill_and_resume_equals_uninterrupted(reference, tiny, tmp_path, kill, expected_resume):
+    """Killed at each of `KILL_POINTS` (a torn last metrics line too), the resumed run has exactly the
+    uninterrupted run's rows and final state (parameters, Adam states, env states, keys)."""
+    resumed = kill_and_resume(train, tiny, tmp_path / "killed", *kill, expected_resume)
+    assert strip_wall(resumed.run.read_rows()) == strip_wall(reference.rows)
+    _assert_same(resumed.state, reference.state)
+
+
+def test_finished_run_is_not_retrained(reference, tiny):
+    again = train(tiny, (0,), reference.run.path, progress=False)
+    assert again.resumed_from == 3 and strip_wall(again.rows) == strip_wall(reference.rows)
+
+
+def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tiny, tmp_path, monkeypatch):
+    """A NaN in the Q head at the start of epoch 3 makes the critic's loss non-finite at that epoch's first
+    SGD step (16: epochs 1 and 2 hold SGD steps 0-15); the run stops naming it and keeps checkpoint 2."""
+    program = onpolicy.get_program(tiny)
+    real_epoch = program.epoch
+
+    def poisoned_epoch(state, epoch):
+        if epoch == 3:
+            q = jax.tree_util.tree_map(lambda x: x * jnp.nan, state.params["q"])
+            state = state._replace(params={**state.params, "q": q})
+        return real_epoch(state, epoch)
+
+    monkeypatch.setattr(program, "epoch", poisoned_epoch)
+    with pytest.raises(TrainingDiverged) as err:
+        train(tiny, (0,), tmp_path / "nan", progress=False)
+    msg = str(err.value)
+    assert "loss 'critic_loss' became NaN/inf at gradient step 16 (env step 160, epoch 3, seed 0)" in msg, msg
+    assert "last good checkpoint (epoch 2) is kept" in msg, msg
+    rows = [json.loads(line) for line in (tmp_path / "nan" / "metrics.jsonl").read_text().splitlines()]
+    assert [r["epoch"] for r in rows] == [0, 1, 2]
+
+
+def test_cli_trains_two_seeds_and_evaluates(both, tiny, tmp_path, capsys, monkeypatch):
+    """`sf2-jax train --task minatar-breakout --algo ppo --repr sf2-ae --config quick --seeds 0-1` (with the
+    tiny config's fields as flags) gives the API's rows; `sf2-jax eval` replays the last evaluation, acts
+    on fresh envs with --episodes, and refuses --episodes 0 (`check_cli_eval`)."""
+    monkeypatch.setenv("SF2_JAX_COMPILE_CACHE", "")
+    out = tmp_path / "cli"
+    args = cli_args(tiny, out)
+    args[args.index("--seeds") + 1] = "0-1"
+    assert cli.main(args) == 0
+    assert "PPO-Q+SF² w AE" in capsys.readouterr().out
+    rows = json.loads("[" + ",".join((out / "metrics.jsonl").read_text().splitlines()) + "]")
+    assert strip_wall(rows) == strip_wall(both.rows)
+    last = [r for r in rows if r["seed"] == 0][-1]
+    check_cli_eval(cli.main, capsys, out, tiny.num_eval_envs, last["eval_return"])
+
+
+def _refuse(*args, **kwargs):
+    raise AssertionError("a program was built: validation did not stop the bad input first")
+
+
+@pytest.mark.parametrize("args,texts", [
+    (["--task", "CartpoleBalance", "--algo", "ppo", "--repr", "none"],
+     ["task 'CartpoleBalance' is a Playground DM Control task", "--algo ppo is the MinAtar tasks'"]),
+    (["--task", TASK, "--algo", "td3", "--repr", "none"],
+     ["task 'minatar-breakout' is a MinAtar task: MinAtar tasks take the on-policy trainer (--algo ppo)"]),
+    (["--task", TASK, "--algo", "ppo", "--repr", "none", "--set", "minibatch_size=100"],
+     ["minibatch_size = 100 is invalid: must divide the rollout's num_envs × rollout_length = 32 × 32 = "
+      "1024"]),
+    (["--task", TASK, "--algo", "ppo", "--repr", "none,sf2", "--critic", "v"],
+     ["critic = 'v' is invalid: representation 'sf2' takes critic 'q'"]),
+    (["--task", TASK, "--algo", "ppo", "--repr", "spr"],
+     ["representation = 'spr' is invalid: must be one of none, sf2, sf2-ae"]),
+    (["--task", "CartpoleBalance", "--algo", "td3", "--repr", "sf2-ae"],
+     ["representation = 'sf2-ae' is invalid: must be one of none, sf2"]),
+], ids=["ppo on Playground", "td3 on MinAtar", "minibatch", "sf2 with V", "off-policy repr", "ppo repr"])
+def test_bad_input_exits_2_before_compiling(args, texts, capsys, monkeypatch):
+    """Refused with exit status 2, naming the problem, before a program of either trainer is built and
+    before `--out` is created (`cli_error` points it at a folder that must not appear)."""
+    from sf2_testing import cli_error
+
+    monkeypatch.setattr(onpolicy, "get_program", _refuse)
+    monkeypatch.setattr(trainer, "get_program", _refuse)
+    err = cli_error(cli.main, capsys, *args)
+    for text in texts:
+        assert text in err, err
+    if "ppo" in args:   # the on-policy trainer's registry has no baselines to install
+        assert "sf2-baselines" not in err, err
+
+
+def test_off_policy_algo_is_refused_by_the_on_policy_trainer(tmp_path):
+    from sf2_common.errors import ConfigError
+
+    cfg = make_config("quick", "CartpoleBalance", algo="td3", representation="none")
+    with pytest.raises(ConfigError, match="algo 'td3' is the off-policy trainer's"):
+        train(cfg, (0,), tmp_path / "x", progress=False)
+    assert not (tmp_path / "x").exists()
+
+
+# ------------------------------------------------------------------------------------------- learning
+RANDOM_EPISODES = 4096
+K = 5   # standard errors of the difference between the trained and the random mean
+
+
+@pytest.fixture(scope="module")
+def random_policy():
+    """The uniformly random policy's returns on the evaluation's protocol (fresh envs, one episode each,
+    capped at the episode limit): (mean, standard deviation of one episode, max) over 4096 episodes."""
+    env = minatar.make(TASK)
+    n = RANDOM_EPISODES
+
+    @jax.jit
+    def run(key):
+        k_reset, k_run = jax.random.split(key)
+
+        def step(carry):
+            state, ret, alive, t, k = carry
+            k, k_act, k_env = jax.random.split(k, 3)
+            action = jax.random.randint(k_act, (n,), 0, env.spec.num_actions)
+            state, tr = env.step(state, action, k_env)
+            alive_next = alive & ~(tr.terminal | tr.truncation)
+            return state, ret + jnp.where(alive, tr.reward, 0.0), alive_next, t + 1, k
+
+        carry = (env.reset(jax.random.split(k_reset, n)), jnp.zeros(n), jnp.ones(n, bool), 0, k_run)
+        return jax.lax.while_loop(lambda c: jnp.any(c[2]) & (c[3] < env.spec.episode_length), step, carry)[1]
+
+    returns = np.asarray(run(jax.random.PRNGKey(123)))
+    return float(returns.mean()), float(returns.std()), float(returns.max())
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("representation", ["none", "sf2", "sf2-ae"])
+def test_quick_preset_learns_breakout(representation, random_policy, tmp_path):
+    """The `quick` preset itself (keys are split per update, so this is the start of `sf2-jax train
+    --config quick`), cut to 40 updates (40,960 env steps; 15-50 s of training on a 2-core CPU), beats the
+    random policy by K = 5 standard errors of the difference of the two means: the trained mean over its
+    64 greedy episodes minus the random mean over 4096 episodes, each episode with the random policy's
+    standard deviation (under "no better than random", the trained mean's spread too). The random policy
+    returns 0.38 ± 0.64 (at most 5), so the threshold is 0.79; seeds 0-2 of `none` reach 3.2-3.3."""
+    mean, std, _ = random_policy
+    updates = 40
+    cfg = make_config("quick", TASK, algo="ppo", representation=representation,
+                      overrides=dict(num_timesteps=updates * 1024, num_evals=2))
+    threshold = mean + K * std * np.sqrt(1 / cfg.num_eval_envs + 1 / RANDOM_EPISODES)
+    result = train(cfg, (0,), tmp_path / representation, progress=False, plot=False)
+    final = result.rows[-1]
+    assert final["env_steps"] == updates * cfg.num_envs * cfg.rollout_length
+    assert final["eval_return"] > threshold, (final["eval_return"], threshold, mean, std)
