@@ -19,7 +19,8 @@ from sf2_common.errors import ConfigError
 from sf2_testing import check_paper_preset
 
 __all__ = ["AgentCore", "BAD_RUNS", "test_bad_input_is_refused_before_anything_is_built", "test_presets",
-           "test_schedule_and_seeds", "test_presets_equal_across_frameworks"]
+           "test_schedule_and_seeds", "test_presets_equal_across_frameworks",
+           "test_ppo_presets_equal_across_frameworks"]
 
 
 @dataclass(frozen=True)
@@ -59,6 +60,10 @@ BAD_RUNS = [
      ["learning_rate = -0.001 is invalid", "> 0"]),
     ("negative augmentation", dict(overrides={"spr_augmentation_std": -0.05}), "0",
      ["spr_augmentation_std = -0.05 is invalid", ">= 0"]),
+    ("ppo on a Playground task", dict(algo="ppo"), "0",
+     ["task 'CartpoleBalance' is a Playground DM Control task", "--algo ppo is the MinAtar tasks'"]),
+    ("td3 on a MinAtar task", dict(task="minatar-breakout"), "0",
+     ["task 'minatar-breakout' is a MinAtar task: MinAtar tasks take the on-policy trainer (--algo ppo)"]),
     ("seeds backwards", dict(), "3-1", ["seeds '3-1' are invalid"]),
     ("seeds repeated", dict(), "0,0", ["duplicates"]),
     ("negative seed", dict(), -1, ["seeds (-1,) are invalid"]),
@@ -134,3 +139,15 @@ def test_presets_equal_across_frameworks(agent_core, preset, task):
     mine = agent_core.configs.make_config(preset, task, "sac", "sf2").to_dict()
     assert set(mine) - set(shared) == set(agent_core.own_fields)
     assert {k: v for k, v in mine.items() if k not in agent_core.own_fields} == shared
+
+
+@pytest.mark.parametrize("preset", ["paper", "quick"])
+@pytest.mark.parametrize("representation", ["none", "sf2"])
+def test_ppo_presets_equal_across_frameworks(agent_core, preset, representation):
+    """`--algo ppo` configs (MinAtar, docs/minatar.md) are sf2_common's in every core, field for field, with
+    the PPO fields of the preset (pgx's example for `paper`)."""
+    shared = common_configs.make_config(preset, "minatar-breakout", "ppo", representation).to_dict()
+    mine = agent_core.configs.make_config(preset, "minatar-breakout", "ppo", representation).to_dict()
+    assert {k: v for k, v in mine.items() if k not in agent_core.own_fields} == shared
+    assert {k: shared[k] for k in common_configs.PPO_VALUES[preset]} == {
+        k: list(v) if isinstance(v, tuple) else v for k, v in common_configs.PPO_VALUES[preset].items()}

@@ -202,12 +202,14 @@ def test_bad_input_exits_2_before_compiling(args, texts, capsys, monkeypatch):
         assert "sf2-baselines" not in err, err
 
 
-def test_off_policy_algo_is_refused_by_the_on_policy_trainer(tmp_path):
+def test_each_trainer_refuses_the_others_algo(tiny, tmp_path):
     from sf2_common.errors import ConfigError
 
     cfg = make_config("quick", "CartpoleBalance", algo="td3", representation="none")
     with pytest.raises(ConfigError, match="algo 'td3' is the off-policy trainer's"):
         train(cfg, (0,), tmp_path / "x", progress=False)
+    with pytest.raises(ConfigError, match="algo 'ppo' is the on-policy trainer's"):
+        trainer.train(tiny, (0,), tmp_path / "x", progress=False)
     assert not (tmp_path / "x").exists()
 
 

@@ -34,6 +34,7 @@ from sf2_common.agents.hostloop import WALL_FIELDS, TrainingDiverged
 from sf2_common.agents.lock import FolderLock
 from sf2_common.agents.resume import resume_run
 from sf2_common.agents.runfolder import RunFolder
+from sf2_common.errors import ConfigError
 
 from sf2_jax import networks
 from sf2_jax.losses import Batch
@@ -429,6 +430,9 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
       TrainingDiverged: a NaN or inf loss (nothing of that epoch is written).
     """
     seeds = configs.parse_seeds(seeds)
+    if cfg.algo in configs.ONPOLICY_ALGOS:
+        raise ConfigError(f"algo {cfg.algo!r} is the on-policy trainer's (sf2_jax.agents.onpolicy.train); "
+                          f"this off-policy trainer takes td3 and sac")
     configs.validate(cfg, seeds, representations.REGISTRY)
     return run_training(cfg, seeds, out, program_of=get_program, session_of=_Session, label=_label,
                         hardware=_hardware(len(seeds)), versions=_versions(), note=device_note(len(seeds)),
