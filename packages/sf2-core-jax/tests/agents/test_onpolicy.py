@@ -1,13 +1,14 @@
 """The on-policy trainer (`--algo ppo` on MinAtar Breakout; small sizes, CPU): each representation learns
 above the random policy; the same seeds give the same rows; vmapped seeds equal seeds one by one;
-kill-and-resume equals the uninterrupted run; the NaN guard; `sf2-jax train` and `eval` through the CLI;
-bad input refused before compiling (exit status 2). The mechanics run one tiny SF² w AE config (it has
-every part: the critic on ψ, the flow and autoencoder losses, ψ's two Adam states, the targets), compiled
-once per seed count for the whole module."""
+kill-and-resume equals the uninterrupted run; the NaN guard; `sf2-jax train` and `eval` (also under
+observation noise) through the CLI; bad input refused before compiling (exit status 2). The mechanics
+run one tiny SF² w AE config (it has every part: the critic on ψ, the flow and autoencoder losses, ψ's two
+Adam states, the targets), compiled once per seed count for the whole module."""
 
 from __future__ import annotations
 
 import json
+import shutil
 
 import jax
 import jax.numpy as jnp
@@ -167,6 +168,39 @@ def test_cli_trains_two_seeds_and_evaluates(both, tiny, tmp_path, capsys, monkey
     assert strip_wall(rows) == strip_wall(both.rows)
     last = [r for r in rows if r["seed"] == 0][-1]
     check_cli_eval(cli.main, capsys, out, tiny.num_eval_envs, last["eval_return"])
+
+
+def test_evaluation_under_observation_noise(reference, tmp_path, capsys, monkeypatch):
+    """`eval --obs-noise` of a ppo run folder (paper App. C.2.2): std 0 is the plain evaluation; a std > 0
+    changes what the policy sees (its own key: the sampled actions' and the games' draws stay the plain
+    run's), reproducibly; several stds from one restore; `--save` writes obs_noise.json. Sampled actions
+    on 32 fresh envs: the tiny greedy policy returns 0 whatever it sees."""
+    from sf2_jax.agents.checkpoint import Checkpointer
+
+    monkeypatch.setenv("SF2_JAX_COMPILE_CACHE", "")
+    run = reference.run.path
+    kw = dict(num_eval_envs=32, deterministic=False)
+    plain = onpolicy.evaluate_checkpoint(run, **kw)
+    assert plain["checkpoints"] == [2, 3] and plain["deterministic"] is False
+    assert onpolicy.evaluate_checkpoint(run, obs_noise=0.0, **kw)["returns"] == plain["returns"]
+    noisy = onpolicy.evaluate_checkpoint(run, obs_noise=1.0, **kw)
+    assert noisy["returns"] != plain["returns"]
+    assert onpolicy.evaluate_checkpoint(run, obs_noise=1.0, **kw)["returns"] == noisy["returns"]
+    both = onpolicy.evaluate_checkpoint_noises(run, None, 32, False, (0.0, 1.0))
+    assert [r["returns"] for r in both] == [plain["returns"], noisy["returns"]]
+    copy = tmp_path / "run"
+    shutil.copytree(run, copy)
+    restored = []
+    real_restore = Checkpointer.restore
+
+    def counting_restore(self, epoch, *args, **kwargs):
+        restored.append(epoch)
+        return real_restore(self, epoch, *args, **kwargs)
+
+    monkeypatch.setattr(Checkpointer, "restore", counting_restore)
+    assert cli.main(["eval", str(copy), "--obs-noise", "0,1", "--checkpoints", "2", "--save"]) == 0
+    assert restored == [3, 2] and (copy / "obs_noise.json").exists()
+    assert "noise std" in capsys.readouterr().out
 
 
 def _refuse(*args, **kwargs):
