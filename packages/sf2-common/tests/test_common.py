@@ -148,6 +148,23 @@ def test_ppo_quick_preset_and_its_schedule():
     assert s.env_steps_after(s.num_epochs) == s.total_env_steps
 
 
+@pytest.mark.parametrize("timesteps,evals,expected", [
+    (20_000_000, 40, (39, 1)),        # the paper preset: an evaluation after each of 39 updates
+    (5_000_000, 40, (10, 1)),         # 10 updates: 10 epochs, not 39 epochs of one update each (20.4M)
+    (50 * 524_288, 40, (25, 2)),      # 50 updates: 25 epochs of 2, not 39 of 2 (78 updates)
+    (11 * 524_288, 11, (6, 2)),       # 11 updates over at most 10 epochs: 6 of 2 (one update more)
+])
+def test_ppo_schedule_keeps_the_budget(timesteps, evals, expected):
+    """With updates of 524,288 env steps `num_evals` is an upper bound: the epochs split the updates
+    evenly and the budget is rounded up by less than one epoch's updates."""
+    cfg = configs.TrainConfig(task="minatar-breakout", algo="ppo", num_envs=4096, rollout_length=128,
+                              num_evals=evals, num_timesteps=timesteps)
+    s = configs.schedule(cfg)
+    updates = -(-timesteps // 524_288)
+    assert (s.num_epochs, s.actor_steps_per_epoch) == expected
+    assert updates <= s.total_env_steps // 524_288 < updates + s.actor_steps_per_epoch
+
+
 @pytest.mark.parametrize("changes,text", [
     (dict(minibatch_size=300), "minibatch_size = 300 is invalid: must divide the rollout's num_envs × "
                                "rollout_length = 32 × 32 = 1024 transitions"),

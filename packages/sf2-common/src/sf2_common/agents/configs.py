@@ -309,8 +309,10 @@ class Schedule:
     Brax does, and include the prefill; the total is num_timesteps rounded up to whole epochs.
 
     With `--algo ppo` an actor step is one on-policy update: `rollout_length` steps of all `num_envs` envs,
-    then `update_epochs` × (num_envs · rollout_length / minibatch_size) SGD steps; there is no prefill and
-    an evaluation episode lasts at most `episode_length` steps."""
+    then `update_epochs` × (num_envs · rollout_length / minibatch_size) SGD steps; there is no prefill, an
+    evaluation episode lasts at most `episode_length` steps, and `num_evals` is an upper bound: the epochs
+    are as many as splitting the updates evenly allows, so the budget is rounded up by less than one
+    epoch's updates (num_evals − 1 epochs of 1 update each would be 39 updates for any budget under it)."""
 
     env_steps_per_actor_step: int   # num_envs · action_repeat
     prefill_actor_steps: int        # ceil(min_replay_size / num_envs)
@@ -339,6 +341,9 @@ def schedule(cfg: TrainConfig) -> Schedule:
     epochs = max(cfg.num_evals - 1, 1)
     total_actor = -(-cfg.num_timesteps // per)
     steps = -(-total_actor // epochs)
+    if onpolicy:   # updates are large: fewer epochs rather than a budget rounded up by up to an epoch each
+        epochs = -(-total_actor // -(-total_actor // min(epochs, total_actor)))
+        steps = -(-total_actor // epochs)
     sgd = (cfg.update_epochs * max(cfg.num_envs * cfg.rollout_length // cfg.minibatch_size, 1) if onpolicy
            else cfg.grad_updates_per_step)
     return Schedule(per, prefill, prefill * per, epochs, steps, steps * per, epochs * steps * per,
