@@ -180,7 +180,7 @@ def test_ppo_schedule_keeps_the_budget(timesteps, evals, expected):
     (dict(action_repeat=2), "action_repeat = 2 is invalid: must be 1"),
 ], ids=lambda v: str(v)[:40])
 def test_ppo_fields_are_checked_before_anything_is_built(changes, text, monkeypatch):
-    # this package's tests run without pgx (tox's `common` env): the installation check is tests/test_tasks'
+    # this package's tests run without pgx (tox's `common` env): test_tasks.py tests the installation check
     monkeypatch.setattr(configs.tasks, "check_installed", lambda task: None)
     cfg = configs.make_config("quick", "minatar-breakout", algo="ppo", representation="none",
                               overrides=changes)
