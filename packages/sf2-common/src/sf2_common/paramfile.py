@@ -18,7 +18,7 @@ import numpy as np
 from .errors import ParamsError
 from .fileio import atomic_write
 
-__all__ = ["FORMATS", "save_arrays", "load_arrays", "check_shapes"]
+__all__ = ["FORMATS", "save_arrays", "load_arrays"]
 
 FORMATS = (".npz", ".safetensors")
 
@@ -74,27 +74,3 @@ def load_arrays(path) -> dict[str, np.ndarray]:
     except (Exception, zipfile.BadZipFile) as err:  # noqa: BLE001 - every reader failure is a ParamsError
         raise ParamsError(f"cannot read parameter file {str(path)!r} (corrupt or not a {fmt} parameter "
                           f"file): {err}") from err
-
-
-def check_shapes(flat: Mapping, expected: Mapping[str, tuple[int, ...]], what: str) -> None:
-    """Raise `ParamsError` naming every missing, unexpected and misshaped entry of the canonical mapping
-    `flat` against `expected` ({name: shape}); `what` says what it should match (the message's head)."""
-    if not isinstance(flat, Mapping):
-        raise ParamsError(f"canonical parameters must be a mapping name → array, got {type(flat).__name__}")
-    missing = [name for name in expected if name not in flat]
-    unexpected = sorted(name for name in flat if name not in expected)
-    misshaped = [(name, shape, tuple(np.shape(flat[name]))) for name, shape in expected.items()
-                 if name in flat and tuple(np.shape(flat[name])) != tuple(shape)]
-    if not (missing or unexpected or misshaped):
-        return
-    lines = [f"canonical parameters do not match {what}:"]
-    if missing:
-        lines.append(f"  missing ({len(missing)}):")
-        lines += [f"    {name} (expected shape {expected[name]})" for name in missing]
-    if unexpected:
-        lines.append(f"  unexpected ({len(unexpected)}):")
-        lines += [f"    {name} (shape {tuple(np.shape(flat[name]))})" for name in unexpected]
-    if misshaped:
-        lines.append(f"  misshaped ({len(misshaped)}):")
-        lines += [f"    {name}: expected shape {shape}, found {found}" for name, shape, found in misshaped]
-    raise ParamsError("\n".join(lines))

@@ -27,7 +27,7 @@ from sf2_jax import networks as nw
 from sf2_jax import networks_image as nwi
 
 __all__ = ["to_canonical", "from_canonical", "validate", "expected_shapes", "save", "load", "FORMATS",
-           "canonical_shapes", "unflatten"]
+           "canonical_shapes", "unflatten", "check_shapes"]
 
 FORMATS = paramfile.FORMATS
 
@@ -124,8 +124,40 @@ def validate(flat: Mapping, nets_or_cfg, algo: str | None = None) -> None:
     cfg = nets.cfg
     kind = (f"method {nets.method!r}, obs_shape {nets.obs_shape}" if isinstance(nets, nwi.ImageNetworks)
             else f"algo {nets.algo!r}, obs_size {cfg.obs_size}")
-    paramfile.check_shapes(flat, _expected(nets), f"the networks ({kind}, action_size {cfg.action_size}, "
-                           f"feature_size {cfg.feature_size})")
+    check_shapes(flat, _expected(nets), f"the networks ({kind}, action_size {cfg.action_size}, "
+                 f"feature_size {cfg.feature_size})")
+
+
+def check_shapes(flat: Mapping, expected: Mapping[str, tuple[int, ...]], what: str) -> None:
+    """Check a canonical mapping against expected names and shapes (the baselines' `validate` uses it too).
+
+    Args:
+      flat: {canonical name: array}.
+      expected: {canonical name: shape}.
+      what: what `flat` should match, the head of the message ("the networks (algo 'td3', ...)").
+
+    Raises:
+      ParamsError: naming every missing, unexpected and misshaped entry (expected and found shapes).
+    """
+    if not isinstance(flat, Mapping):
+        raise ParamsError(f"canonical parameters must be a mapping name → array, got {type(flat).__name__}")
+    missing = [name for name in expected if name not in flat]
+    unexpected = sorted(name for name in flat if name not in expected)
+    misshaped = [(name, shape, tuple(np.shape(flat[name]))) for name, shape in expected.items()
+                 if name in flat and tuple(np.shape(flat[name])) != tuple(shape)]
+    if not (missing or unexpected or misshaped):
+        return
+    lines = [f"canonical parameters do not match {what}:"]
+    if missing:
+        lines.append(f"  missing ({len(missing)}):")
+        lines += [f"    {name} (expected shape {expected[name]})" for name in missing]
+    if unexpected:
+        lines.append(f"  unexpected ({len(unexpected)}):")
+        lines += [f"    {name} (shape {tuple(np.shape(flat[name]))})" for name in unexpected]
+    if misshaped:
+        lines.append(f"  misshaped ({len(misshaped)}):")
+        lines += [f"    {name}: expected shape {shape}, found {found}" for name, shape, found in misshaped]
+    raise ParamsError("\n".join(lines))
 
 
 def from_canonical(flat: Mapping, nets, dtype=None) -> dict:

@@ -13,9 +13,8 @@ import functools
 from collections.abc import Mapping
 
 import jax
-from sf2_common import paramfile
 from sf2_common.errors import ParamsError
-from sf2_jax.params import canonical_shapes, load, save, to_canonical, unflatten
+from sf2_jax.params import canonical_shapes, check_shapes, load, save, to_canonical, unflatten
 
 from . import sim, spr
 
@@ -44,8 +43,8 @@ def expected_shapes(nets) -> dict[str, tuple[int, ...]]:
 def validate(flat: Mapping, nets) -> None:
     """Raise `ParamsError` naming every missing, unexpected and misshaped entry of `flat`."""
     cfg = nets.cfg
-    paramfile.check_shapes(flat, _expected(nets), f"the {type(nets).__name__} (algo {nets.algo!r}, obs_size "
-                           f"{cfg.obs_size}, action_size {cfg.action_size}, feature_size {cfg.feature_size})")
+    check_shapes(flat, _expected(nets), f"the {type(nets).__name__} (algo {nets.algo!r}, obs_size "
+                 f"{cfg.obs_size}, action_size {cfg.action_size}, feature_size {cfg.feature_size})")
 
 
 def from_canonical(flat: Mapping, nets, dtype=None) -> dict:
