@@ -3,7 +3,8 @@
 SF²'s flow loss over images (w/o AE) and over an autoencoder's latents (w AE), both `losses.
 flow_field_loss` (the vector flow loss's code), the autoencoder's cross-entropy, the expected-SARSA
 λ-return and GAE over a (T, N) rollout (reverse scans), and PPO's clipped policy loss, Q critic loss and
-clipped V critic loss; docs/core-contract.md "On-policy losses". Batches are `losses.Batch` with grids
+clipped V critic loss; FPO's flow-policy losses and Euler sampling (docs/fpo.md), over any velocity field
+`velocity(x, τ)`; docs/core-contract.md "On-policy losses". Batches are `losses.Batch` with grids
 (B, H, W, C) and integer actions (B,); means divide by B. Each loss returns `(loss, aux)`, `aux` a dict of
 scalars, and stops the gradient of every group it does not train (the caller takes `jax.grad` with respect
 to the trained groups). The torch core's `sf2_torch.losses_onpolicy` has the same functions and messages.
@@ -22,7 +23,8 @@ from sf2_jax.losses import Batch, _trainable, check_noise, flow_field_loss, velo
 
 __all__ = [
     "check_image_batch", "image_flow_loss", "latent_flow_loss", "autoencoder_loss", "lambda_returns", "gae",
-    "ppo_policy_loss", "q_critic_loss", "v_critic_loss",
+    "ppo_policy_loss", "q_critic_loss", "v_critic_loss", "cfm_losses", "fpo_ratio", "fpo_policy_loss",
+    "flow_policy_sample",
 ]
 
 sg = jax.lax.stop_gradient
@@ -400,3 +402,134 @@ def v_critic_loss(nets: nwi.ImageNetworks, params: nwi.Params, obs, old_value, t
     v_clipped = old_value + jnp.clip(v - old_value, -clip_eps, clip_eps)
     loss = 0.5 * jnp.mean(jnp.maximum((v - target) ** 2, (v_clipped - target) ** 2))
     return loss, {"v": sg(jnp.mean(v))}
+
+
+# ------------------------------------------------------------------------------------------------ FPO
+def _check_fpo_pairs(action, eps, flow_time) -> tuple[int, int, int]:
+    shape = tuple(jnp.shape(action))
+    if len(shape) != 2:
+        raise ShapeError(f"action must have shape (B, A) (B samples of A action dimensions), found {shape}")
+    b, a = shape
+    if len(jnp.shape(eps)) != 3 or tuple(jnp.shape(eps))[::2] != (b, a):
+        raise ShapeError(f"eps must have shape (B, n, A) = ({b}, n, {a}) (n (ε, τ) pairs per action), found "
+                         f"{tuple(jnp.shape(eps))}")
+    n = jnp.shape(eps)[1]
+    if tuple(jnp.shape(flow_time)) != (b, n):
+        raise ShapeError(f"flow_time must have shape (B, n) = ({b}, {n}), one τ per ε, found "
+                         f"{tuple(jnp.shape(flow_time))}")
+    return b, n, a
+
+
+def cfm_losses(velocity, action, eps, flow_time):
+    """FPO's per-pair conditional flow-matching losses of a velocity-field policy at stored (ε, τ) pairs.
+
+    The authors' convention (τ = 1 noise, τ = 0 the action) and output mode: x_τ = τ ε + (1 − τ) a,
+    u = velocity(x_τ, τ), the predicted noise ε̂ = x_τ + (1 − τ) u, ℓ = mean_d (ε − ε̂)²_d
+    = (1 − τ)² mean_d (ε − a − u)²_d.
+
+    Args:
+      velocity: u(x, τ) for x (B, n, A) and τ (B, n), returning (B, n, A); the policy at its observations.
+      action: a (B, A), the actions taken (before any squashing).
+      eps: ε (B, n, A) ~ N(0, I), drawn at rollout time.
+      flow_time: τ (B, n) in [0, 1], drawn at rollout time.
+
+    Returns:
+      ℓ (B, n).
+
+    Raises:
+      ShapeError: inputs of mismatched shapes.
+    """
+    _check_fpo_pairs(action, eps, flow_time)
+    tau = flow_time[..., None]
+    x = tau * eps + (1.0 - tau) * action[:, None, :]
+    eps_hat = x + (1.0 - tau) * velocity(x, flow_time)
+    return jnp.mean((eps - eps_hat) ** 2, axis=-1)
+
+
+def fpo_ratio(old_losses, new_losses):
+    """FPO's likelihood-ratio surrogate ρ = exp(mean_n ℓ_old − mean_n ℓ_new), the losses averaged over the n
+    pairs before the exponential (the authors' `average_losses_before_exp`).
+
+    Args:
+      old_losses: ℓ_old (B, n), `cfm_losses` at rollout time.
+      new_losses: ℓ (B, n), `cfm_losses` of the current policy at the same pairs.
+
+    Returns:
+      ρ (B,).
+
+    Raises:
+      ShapeError: the two of different shapes, or not (B, n).
+    """
+    if len(jnp.shape(new_losses)) != 2 or tuple(jnp.shape(old_losses)) != tuple(jnp.shape(new_losses)):
+        raise ShapeError(f"old_losses and new_losses must have one shape (B, n), found "
+                         f"{tuple(jnp.shape(old_losses))} and {tuple(jnp.shape(new_losses))}")
+    return jnp.exp(jnp.mean(old_losses, axis=-1) - jnp.mean(new_losses, axis=-1))
+
+
+def fpo_policy_loss(velocity, action, eps, flow_time, old_losses, advantage, clip_eps=0.05):
+    """FPO's clipped surrogate loss, trained on the policy's velocity field.
+
+    Â = (A − mean_b A) / (std_b A + 1e-8) over the minibatch, ρ = `fpo_ratio`(ℓ_old, `cfm_losses`(…)),
+    loss = −mean_b min(ρÂ, clip(ρ, 1 − ε, 1 + ε)Â) (no entropy term).
+
+    Args:
+      velocity: u(x, τ) as in `cfm_losses`, closing over the trained parameters.
+      action: a (B, A).
+      eps: ε (B, n, A), stored at rollout time.
+      flow_time: τ (B, n), stored at rollout time.
+      old_losses: ℓ_old (B, n), stored at rollout time.
+      advantage: A (B,), before normalization.
+      clip_eps: ε in (0, 1].
+
+    Returns:
+      (loss, {"policy_loss": loss, "ratio": mean ρ, "clip_fraction": the fraction with |ρ − 1| > ε,
+      "cfm_loss": mean ℓ}).
+
+    Raises:
+      ConfigError: ε outside (0, 1].
+      ShapeError: inputs of mismatched shapes.
+    """
+    b, n, _ = _check_fpo_pairs(action, eps, flow_time)
+    _check_per_sample("advantage", advantage, (b,))
+    if tuple(jnp.shape(old_losses)) != (b, n):
+        raise ShapeError(f"old_losses must have shape (B, n) = ({b}, {n}), found "
+                         f"{tuple(jnp.shape(old_losses))}")
+    _check_rate("clip_eps", clip_eps, low_open=True)
+    losses = cfm_losses(velocity, action, eps, flow_time)
+    ratio = fpo_ratio(sg(old_losses), losses)
+    adv = sg((advantage - jnp.mean(advantage)) / (jnp.std(advantage) + ADVANTAGE_EPS))
+    loss = -jnp.mean(jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - clip_eps, 1 + clip_eps) * adv))
+    aux = {"policy_loss": loss, "ratio": jnp.mean(ratio),
+           "clip_fraction": jnp.mean((jnp.abs(ratio - 1) > clip_eps).astype(ratio.dtype)),
+           "cfm_loss": jnp.mean(losses)}
+    return loss, jax.tree_util.tree_map(sg, aux)
+
+
+def flow_policy_sample(velocity, noise, steps: int = 10):
+    """An action of a velocity-field policy: Euler integration from noise at τ = 1 to τ = 0.
+
+    x_0 = noise; x_{k+1} = x_k − (1/K) u(x_k, τ_k), τ_k = 1 − k/K, k = 0..K−1; the action is x_K.
+
+    Args:
+      velocity: u(x, τ) for x (B, A) and τ (B,), returning (B, A); the policy at its observations.
+      noise: x_0 (B, A) ~ N(0, I).
+      steps: K >= 1.
+
+    Returns:
+      The action (B, A) (before any squashing).
+
+    Raises:
+      ConfigError: `steps` not an int >= 1.
+      ShapeError: `noise` not (B, A).
+    """
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+        raise ConfigError(f"steps={steps!r} is invalid: must be an int >= 1")
+    if len(jnp.shape(noise)) != 2:
+        raise ShapeError(f"noise must have shape (B, A), found {tuple(jnp.shape(noise))}")
+    ones = jnp.ones(jnp.shape(noise)[:1], noise.dtype)
+
+    def step(x, k):
+        tau = 1.0 - k / steps
+        return x - velocity(x, tau * ones) / steps, None
+
+    return jax.lax.scan(step, noise, jnp.arange(steps, dtype=noise.dtype))[0]

@@ -3,7 +3,8 @@
 SF²'s flow loss over images (w/o AE) and over an autoencoder's latents (w AE), both `losses.
 flow_field_loss` (the vector flow loss's code), the autoencoder's cross-entropy, the expected-SARSA
 λ-return and GAE over a (T, N) rollout (reverse scans), and PPO's clipped policy loss, Q critic loss and
-clipped V critic loss; docs/core-contract.md "On-policy losses". Batches are `losses.Batch` with grids
+clipped V critic loss; FPO's flow-policy losses and Euler sampling (docs/fpo.md), over any velocity field
+`velocity(x, τ)`; docs/core-contract.md "On-policy losses". Batches are `losses.Batch` with grids
 (B, H, W, C) and integer actions (B,); means divide by B. Each loss returns `(loss, aux)`, `aux` a dict of
 detached 0-d tensors; the caller calls `loss.backward(inputs=...)` with the trained groups' parameters
 (targets, the λ-return and the latent z′ carry no gradient). The JAX core's `sf2_jax.losses_onpolicy` has
@@ -22,7 +23,8 @@ from .losses import Batch, check_noise, flow_field_loss, velocity_fields
 
 __all__ = [
     "check_image_batch", "image_flow_loss", "latent_flow_loss", "autoencoder_loss", "lambda_returns", "gae",
-    "ppo_policy_loss", "q_critic_loss", "v_critic_loss",
+    "ppo_policy_loss", "q_critic_loss", "v_critic_loss", "cfm_losses", "fpo_ratio", "fpo_policy_loss",
+    "flow_policy_sample",
 ]
 
 ADVANTAGE_EPS = 1e-8   # PureJaxRL's (A − mean) / (std + 1e-8)
@@ -399,3 +401,137 @@ def v_critic_loss(nets: nwi.ImageNetworks, obs: torch.Tensor, old_value: torch.T
     v_clipped = old_value + torch.clamp(v - old_value, -clip_eps, clip_eps)
     loss = 0.5 * torch.mean(torch.maximum((v - target).square(), (v_clipped - target).square()))
     return loss, {"v": v.mean().detach()}
+
+
+# ------------------------------------------------------------------------------------------------ FPO
+def _check_fpo_pairs(action: torch.Tensor, eps: torch.Tensor, flow_time: torch.Tensor
+                     ) -> tuple[int, int, int]:
+    shape = tuple(action.shape)
+    if len(shape) != 2:
+        raise ShapeError(f"action must have shape (B, A) (B samples of A action dimensions), found {shape}")
+    b, a = shape
+    if eps.dim() != 3 or tuple(eps.shape)[::2] != (b, a):
+        raise ShapeError(f"eps must have shape (B, n, A) = ({b}, n, {a}) (n (ε, τ) pairs per action), found "
+                         f"{tuple(eps.shape)}")
+    n = eps.shape[1]
+    if tuple(flow_time.shape) != (b, n):
+        raise ShapeError(f"flow_time must have shape (B, n) = ({b}, {n}), one τ per ε, found "
+                         f"{tuple(flow_time.shape)}")
+    return b, n, a
+
+
+def cfm_losses(velocity, action: torch.Tensor, eps: torch.Tensor, flow_time: torch.Tensor) -> torch.Tensor:
+    """FPO's per-pair conditional flow-matching losses of a velocity-field policy at stored (ε, τ) pairs.
+
+    The authors' convention (τ = 1 noise, τ = 0 the action) and output mode: x_τ = τ ε + (1 − τ) a,
+    u = velocity(x_τ, τ), the predicted noise ε̂ = x_τ + (1 − τ) u, ℓ = mean_d (ε − ε̂)²_d
+    = (1 − τ)² mean_d (ε − a − u)²_d.
+
+    Args:
+      velocity: u(x, τ) for x (B, n, A) and τ (B, n), returning (B, n, A); the policy at its observations.
+      action: a (B, A), the actions taken (before any squashing).
+      eps: ε (B, n, A) ~ N(0, I), drawn at rollout time.
+      flow_time: τ (B, n) in [0, 1], drawn at rollout time.
+
+    Returns:
+      ℓ (B, n).
+
+    Raises:
+      ShapeError: inputs of mismatched shapes.
+    """
+    _check_fpo_pairs(action, eps, flow_time)
+    tau = flow_time[..., None]
+    x = tau * eps + (1.0 - tau) * action[:, None, :]
+    eps_hat = x + (1.0 - tau) * velocity(x, flow_time)
+    return torch.mean((eps - eps_hat) ** 2, dim=-1)
+
+
+def fpo_ratio(old_losses: torch.Tensor, new_losses: torch.Tensor) -> torch.Tensor:
+    """FPO's likelihood-ratio surrogate ρ = exp(mean_n ℓ_old − mean_n ℓ_new), the losses averaged over the n
+    pairs before the exponential (the authors' `average_losses_before_exp`).
+
+    Args:
+      old_losses: ℓ_old (B, n), `cfm_losses` at rollout time.
+      new_losses: ℓ (B, n), `cfm_losses` of the current policy at the same pairs.
+
+    Returns:
+      ρ (B,).
+
+    Raises:
+      ShapeError: the two of different shapes, or not (B, n).
+    """
+    if new_losses.dim() != 2 or tuple(old_losses.shape) != tuple(new_losses.shape):
+        raise ShapeError(f"old_losses and new_losses must have one shape (B, n), found "
+                         f"{tuple(old_losses.shape)} and {tuple(new_losses.shape)}")
+    return torch.exp(old_losses.mean(dim=-1) - new_losses.mean(dim=-1))
+
+
+def fpo_policy_loss(velocity, action: torch.Tensor, eps: torch.Tensor, flow_time: torch.Tensor,
+                    old_losses: torch.Tensor, advantage: torch.Tensor, clip_eps=0.05
+                    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """FPO's clipped surrogate loss, trained on the policy's velocity field.
+
+    Â = (A − mean_b A) / (std_b A + 1e-8) over the minibatch, ρ = `fpo_ratio`(ℓ_old, `cfm_losses`(…)),
+    loss = −mean_b min(ρÂ, clip(ρ, 1 − ε, 1 + ε)Â) (no entropy term).
+
+    Args:
+      velocity: u(x, τ) as in `cfm_losses`, through the trained parameters.
+      action: a (B, A).
+      eps: ε (B, n, A), stored at rollout time.
+      flow_time: τ (B, n), stored at rollout time.
+      old_losses: ℓ_old (B, n), stored at rollout time.
+      advantage: A (B,), before normalization.
+      clip_eps: ε in (0, 1].
+
+    Returns:
+      (loss, {"policy_loss": loss, "ratio": mean ρ, "clip_fraction": the fraction with |ρ − 1| > ε,
+      "cfm_loss": mean ℓ}).
+
+    Raises:
+      ConfigError: ε outside (0, 1].
+      ShapeError: inputs of mismatched shapes.
+    """
+    b, n, _ = _check_fpo_pairs(action, eps, flow_time)
+    _check_per_sample("advantage", advantage, (b,))
+    if tuple(old_losses.shape) != (b, n):
+        raise ShapeError(f"old_losses must have shape (B, n) = ({b}, {n}), found "
+                         f"{tuple(old_losses.shape)}")
+    _check_rate("clip_eps", clip_eps, low_open=True)
+    losses = cfm_losses(velocity, action, eps, flow_time)
+    ratio = fpo_ratio(old_losses.detach(), losses)
+    advantage = advantage.detach()
+    adv = (advantage - advantage.mean()) / (advantage.std(correction=0) + ADVANTAGE_EPS)
+    loss = -torch.mean(torch.minimum(ratio * adv, torch.clamp(ratio, 1 - clip_eps, 1 + clip_eps) * adv))
+    with torch.no_grad():
+        aux = {"policy_loss": loss.detach(), "ratio": ratio.mean(),
+               "clip_fraction": torch.mean(((ratio - 1).abs() > clip_eps).to(ratio.dtype)),
+               "cfm_loss": losses.mean()}
+    return loss, aux
+
+
+def flow_policy_sample(velocity, noise: torch.Tensor, steps: int = 10) -> torch.Tensor:
+    """An action of a velocity-field policy: Euler integration from noise at τ = 1 to τ = 0.
+
+    x_0 = noise; x_{k+1} = x_k − (1/K) u(x_k, τ_k), τ_k = 1 − k/K, k = 0..K−1; the action is x_K.
+
+    Args:
+      velocity: u(x, τ) for x (B, A) and τ (B,), returning (B, A); the policy at its observations.
+      noise: x_0 (B, A) ~ N(0, I).
+      steps: K >= 1.
+
+    Returns:
+      The action (B, A) (before any squashing).
+
+    Raises:
+      ConfigError: `steps` not an int >= 1.
+      ShapeError: `noise` not (B, A).
+    """
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+        raise ConfigError(f"steps={steps!r} is invalid: must be an int >= 1")
+    if noise.dim() != 2:
+        raise ShapeError(f"noise must have shape (B, A), found {tuple(noise.shape)}")
+    ones = torch.ones(noise.shape[:1], dtype=noise.dtype, device=noise.device)
+    x = noise
+    for k in range(steps):
+        x = x - velocity(x, (1.0 - k / steps) * ones) / steps
+    return x
