@@ -1,12 +1,11 @@
-"""A run folder (the same layout for both cores; docs/run-folders.md): `config.json` identifies the run,
-`metrics.jsonl` holds one row per evaluation and seed, `checkpoints/`, `learning_curve.png`, `final/`,
-`train.log` and, after a recovery, `damaged/`. Nothing a user made is deleted implicitly: a folder holding a
-run's files without a readable `config.json` is a `RunFolderError`; only `clear()` (`--fresh`) discards,
-and it says what. metrics.jsonl is append-safe (flush + fsync per row; a torn last line is skipped; the
-first row of each (epoch, seed) is kept), and a resume drops the rows after its checkpoint, saying so."""
+"""A run folder, one layout for both cores (docs/run-folders.md): `config.json` identifies the run,
+`metrics.jsonl` holds one row per evaluation and seed (append-safe: fsync per row, a torn last line and
+repeated (epoch, seed) rows skipped), then `checkpoints/`, `learning_curve.png`, `final/`, `train.log` and
+`damaged/`. Nothing is deleted implicitly: only `clear()` (`--fresh`) discards, and it says what."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -24,8 +23,7 @@ __all__ = ["RunFolder", "RunFolderError", "RunFolderMismatch"]
 
 
 class RunFolderError(ConfigError):
-    """A run folder that cannot be used as it is: the message names the path and what is wrong with it,
-    and nothing in the folder was changed (the CLIs exit with status 2)."""
+    """A run folder that cannot be used as it is (the message names the path; nothing was changed)."""
 
 
 class RunFolderMismatch(RunFolderError):
@@ -34,7 +32,7 @@ class RunFolderMismatch(RunFolderError):
 
 def framework_of(conf: dict) -> str:
     """"torch" or "jax": the core that wrote a run folder's config.json (sf2-jax writes no "framework"
-    entry; sf2-torch's versions name torch). Each core's train and eval refuse the other's folders."""
+    entry; sf2-torch's versions name torch)."""
     if "framework" in conf:
         return conf["framework"]
     return "torch" if "torch" in conf.get("versions", {}) else "jax"
@@ -56,47 +54,24 @@ class RunFolder:
         self.path = Path(path)
 
     # ------------------------------------------------------------------ paths
-    @property
-    def config_path(self) -> Path:
-        return self.path / self.CONFIG
-
-    @property
-    def metrics_path(self) -> Path:
-        return self.path / self.METRICS
-
-    @property
-    def checkpoint_dir(self) -> Path:
-        return self.path / self.CHECKPOINTS
-
-    @property
-    def curve_path(self) -> Path:
-        return self.path / self.CURVE
-
-    @property
-    def final_dir(self) -> Path:
-        return self.path / self.FINAL
-
-    @property
-    def log_path(self) -> Path:
-        return self.path / self.LOG
-
-    @property
-    def damaged_dir(self) -> Path:
-        return self.path / self.DAMAGED
+    config_path = property(lambda self: self.path / self.CONFIG)
+    metrics_path = property(lambda self: self.path / self.METRICS)
+    checkpoint_dir = property(lambda self: self.path / self.CHECKPOINTS)
+    curve_path = property(lambda self: self.path / self.CURVE)
+    final_dir = property(lambda self: self.path / self.FINAL)
+    log_path = property(lambda self: self.path / self.LOG)
+    damaged_dir = property(lambda self: self.path / self.DAMAGED)
 
     # ------------------------------------------------------------------ the folder itself
     def check_usable(self) -> None:
-        """Raise `RunFolderError` unless the folder exists and can be written, or can be created: the path
-        is a regular file, lies under one, or is on a read-only or forbidden location. Leaves nothing
-        behind (a probe folder is created and removed); the run folder itself is created later."""
+        """Raise `RunFolderError` unless the folder can be written or created (not a file, under none,
+        not read-only or forbidden); a probe folder is created and removed, nothing else."""
         path = self.path
         if path.exists() and not path.is_dir():
             raise RunFolderError(f"run folder {path} is a file, not a folder; pass a folder (a new one "
                                  f"is created)")
         probe_in = path
-        while not probe_in.exists():
-            if probe_in.parent == probe_in:
-                break
+        while not probe_in.exists() and probe_in.parent != probe_in:
             probe_in = probe_in.parent
         if probe_in.exists() and not probe_in.is_dir():
             raise RunFolderError(f"run folder {path} cannot be created: {probe_in} is a file, not a folder")
@@ -105,10 +80,6 @@ class RunFolder:
         except OSError as err:
             what = "written" if probe_in == path else f"created (in {probe_in})"
             raise RunFolderError(f"run folder {path} cannot be {what}: {err.strerror or err}") from None
-
-    def run_files(self) -> list[str]:
-        """The names of `RUN_FILES` that exist in the folder."""
-        return [name for name in self.RUN_FILES if (self.path / name).exists()]
 
     def clear(self, say=None) -> list[str]:
         """Delete what a run wrote here (config, metrics, curve, log, checkpoints, final parameters and
@@ -121,9 +92,9 @@ class RunFolder:
                 if (self.path / name).exists()]
         if not gone:
             return []
-        detail = {self.CHECKPOINTS: _listing(self.checkpoint_dir),
-                  self.METRICS: _row_count(self.metrics_path),
-                  self.METRICS_GZ: _row_count(self.metrics_path)}
+        rows = self._line_count()
+        rows = "" if rows is None else f" ({rows} row{'s' if rows != 1 else ''})"
+        detail = {self.CHECKPOINTS: _listing(self.checkpoint_dir), self.METRICS: rows, self.METRICS_GZ: rows}
         what = ", ".join(n + detail.get(n, "") for n in gone)
         (say or _stderr)(f"--fresh: discarding {what} in {self.path}")
         for name in gone:
@@ -166,16 +137,13 @@ class RunFolder:
         return conf
 
     def preflight(self) -> dict | None:
-        """Everything checkable about the folder without the run's config: raises `RunFolderError` if it
-        cannot be used (`check_usable`), if its config.json cannot be read, if it holds a run's files
-        without a config.json, if a line of metrics.jsonl other than a torn last one is not a row, or if
-        metrics.jsonl lacks rows that even the oldest checkpoint was written after. Returns the folder's
-        config (None: the folder holds no run). Changes nothing."""
+        """The folder's config (None: it holds no run) after every check that needs no config of the run:
+        `RunFolderError` if it is unusable, its config.json unreadable or missing beside a run's files, a
+        metrics row (other than a torn last line) garbled, or rows missing before the oldest checkpoint."""
         self.check_usable()
         old = self.read_config()
         if old is None:
-            found = self.run_files()
-            if found:
+            if found := [name for name in self.RUN_FILES if (self.path / name).exists()]:
                 raise RunFolderError(
                     f"{self.path} holds a run's files ({', '.join(found)}) but no {self.CONFIG}, which "
                     f"identifies the run; nothing was changed. Restore {self.CONFIG}, use another --out, or "
@@ -188,17 +156,15 @@ class RunFolder:
         return old
 
     def check_framework(self, framework: str) -> None:
-        """`RunFolderMismatch` if the folder holds a run another core ("jax", "torch") trained: each core's
-        train refuses the other's folders (`framework_of`)."""
+        """`RunFolderMismatch` if the folder holds a run another core ("jax", "torch") trained."""
         conf = self.read_config()
         if conf is not None and framework_of(conf) != framework:
             raise RunFolderMismatch(f"run folder {self.path} holds a run of sf2-{framework_of(conf)}; use "
                                     f"another --out (or --fresh to overwrite it)")
 
     def check_compatible(self, config: dict, seeds) -> bool:
-        """True if the folder already holds this run (resume), False if it is new or holds no run. Raises
-        what `preflight` raises, and `RunFolderMismatch` naming the differing fields if the folder holds
-        another run."""
+        """True if the folder holds this run (resume), False if it holds none; raises what `preflight`
+        raises, or `RunFolderMismatch` naming the differing fields."""
         old = self.preflight()
         if old is None:
             return False
@@ -217,22 +183,16 @@ class RunFolder:
                 + ". Use another --out, or --fresh to overwrite it.")
         return True
 
-    def kept_values(self, config: dict) -> dict:
-        """The fields whose preset value changed since this folder's run was written and that the run
-        keeps (`configs.superseded_values`): {field: the folder's value}; {} for a new folder."""
-        old = self.read_config()
-        return {} if old is None else superseded_values(old["config"], config)
-
     def keep_trained_values(self, cfg):
-        """`cfg` (a `TrainConfig`) with the values this folder's run keeps (`kept_values`), said in one
-        line; `cfg` itself when there are none or the folder's config cannot be read (`preflight` names
-        that problem)."""
+        """`cfg` (a `TrainConfig`) with the superseded preset values this folder's run keeps
+        (`configs.superseded_values`), said in one line; `cfg` itself when there are none or the config
+        cannot be read (`preflight` names that problem)."""
+        now = cfg.to_dict()
         try:
-            kept = self.kept_values(cfg.to_dict())
+            old = self.read_config()
         except RunFolderError:
             return cfg
-        if kept:
-            now = cfg.to_dict()
+        if kept := ({} if old is None else superseded_values(old["config"], now)):
             self.say(f"{self.path} was trained with " + ", ".join(
                 f"{k} = {v!r} (the preset now gives {now[k]!r})" for k, v in kept.items())
                 + "; it keeps its values (another --out, or --fresh, trains with the preset's)")
@@ -245,9 +205,8 @@ class RunFolder:
 
     # ------------------------------------------------------------------ metrics
     def read_rows(self, strict: bool = False) -> list[dict]:
-        """The rows of metrics.jsonl or of its compressed form metrics.jsonl.gz (none if neither exists),
-        the first of each (epoch, seed). A torn last line (a kill mid-write) is skipped. Any other line that
-        is not a row is skipped too, or, with `strict`, a `RunFolderError` naming the file and the line."""
+        """The rows of metrics.jsonl (or .gz; none if neither exists), the first of each (epoch, seed). A
+        torn last line is skipped; any other non-row too, or with `strict` a `RunFolderError` naming it."""
         path = stored(self.metrics_path)
         if path is None:
             return []
@@ -269,21 +228,17 @@ class RunFolder:
                 problem = None if isinstance(row, dict) and "epoch" in row and "seed" in row else \
                     "a JSON value without 'epoch' and 'seed'"
             except json.JSONDecodeError as err:
-                row, problem = None, f"not JSON: {err.msg}"
                 if i == last:
                     continue  # a torn line from a kill mid-write
-            if problem:
-                if strict:
-                    raise RunFolderError(
-                        f"{path} line {i + 1} is not a metrics row ({problem}); the file was edited or "
-                        f"damaged. Nothing was changed: repair or delete that line, or pass --fresh to "
-                        f"train again from scratch.")
-                continue
-            key = (row["epoch"], row["seed"])
-            if key in seen:
-                continue
-            seen.add(key)
-            rows.append(row)
+                problem = f"not JSON: {err.msg}"
+            if problem and strict:
+                raise RunFolderError(
+                    f"{path} line {i + 1} is not a metrics row ({problem}); the file was edited or "
+                    f"damaged. Nothing was changed: repair or delete that line, or pass --fresh to "
+                    f"train again from scratch.")
+            if not problem and (key := (row["epoch"], row["seed"])) not in seen:
+                seen.add(key)
+                rows.append(row)
         return rows
 
     def check_rows(self, rows: list[dict], epoch: int, seeds) -> None:
@@ -304,7 +259,7 @@ class RunFolder:
         rewrite drops is said in one line (`say`): rows of later epochs, duplicates, a torn last line."""
         unique = self.read_rows()
         rows = [r for r in unique if r.get("epoch", 1 << 62) <= last_epoch]
-        lines = self._line_count()
+        lines = self._line_count() or 0
         self.path.mkdir(parents=True, exist_ok=True)
         expand(self.metrics_path)   # a compressed one becomes plain (and the .gz goes) before the rewrite
         atomic_write(self.metrics_path, "".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
@@ -316,13 +271,13 @@ class RunFolder:
                      f"({'; '.join(parts)}); {len(rows)} kept")
         return rows
 
-    def _line_count(self) -> int:
-        """The non-blank lines of metrics.jsonl (or its .gz); 0 if it cannot be read."""
+    def _line_count(self) -> int | None:
+        """The non-blank lines of metrics.jsonl (or its .gz): 0 if neither exists, None if unreadable."""
         path = stored(self.metrics_path)
         try:
             return 0 if path is None else sum(1 for line in read_text(path).splitlines() if line.strip())
         except (OSError, UnicodeDecodeError):
-            return 0
+            return None
 
     def append_rows(self, rows: list[dict]) -> None:
         expand(self.metrics_path)   # appending continues a compressed file's rows, never a new file
@@ -340,11 +295,8 @@ class RunFolder:
 
     def log(self, message: str) -> None:
         """Append a timestamped line to train.log (a failure to write it is ignored)."""
-        try:
-            with open(self.log_path, "a") as f:
-                f.write(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {message}\n")
-        except OSError:
-            pass
+        with contextlib.suppress(OSError), open(self.log_path, "a") as f:
+            f.write(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {message}\n")
 
     def checkpoint_epochs(self) -> list[int]:
         """The epochs of the checkpoint folders (`checkpoints/<epoch>/`, both cores' layout)."""
@@ -357,11 +309,9 @@ class RunFolder:
         stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
         for n in range(1000):
             dest = self.damaged_dir / (stamp if n == 0 else f"{stamp}-{n}")
-            try:
+            with contextlib.suppress(FileExistsError):
                 dest.mkdir(parents=True)
                 return dest
-            except FileExistsError:
-                continue
         raise RunFolderError(f"cannot create a new folder in {self.damaged_dir}")
 
 
@@ -373,14 +323,6 @@ def _listing(folder: Path) -> str:
     names = sorted((p.name for p in folder.iterdir()), key=lambda n: (not n.isdigit(), n.zfill(12))) \
         if folder.is_dir() else []
     return f" ({', '.join(names)})" if names else ""
-
-
-def _row_count(path: Path) -> str:
-    try:
-        n = sum(1 for line in read_text(path).splitlines() if line.strip())
-    except (OSError, UnicodeDecodeError):
-        return ""
-    return f" ({n} row{'s' if n != 1 else ''})"
 
 
 def _ranges(epochs: list[int]) -> str:
