@@ -18,7 +18,7 @@ from collections.abc import Callable
 from importlib import metadata
 from pathlib import Path
 
-from sf2_common.agents import configs, plotting
+from sf2_common.agents import configs, loggers, plotting
 from sf2_common.agents.hostloop import TrainingDiverged
 from sf2_common.agents.runfolder import RunFolder
 from sf2_common.errors import ConfigError
@@ -107,6 +107,9 @@ def add_train_parser(sub, prog: str, config_class, seeds_help: str, cache_env: s
     t.add_argument("--no-resume", action="store_true",
                    help="refuse to continue a run folder that holds checkpoints")
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
+    t.add_argument("--log", default=None, metavar="SINKS", help="also log every metrics.jsonl row to "
+                   "tensorboard, wandb, or tensorboard,wandb (in the run folder; wandb offline unless "
+                   "WANDB_MODE is set; docs/agents.md, Loggers)")
     t.add_argument("--stop-after-epoch", type=int, default=None, help=argparse.SUPPRESS)
     t.add_argument("--compile-cache", default=compile_cache(prog, cache_env),
                    help="folder for JAX's persistent compilation cache, reused by later runs of the same "
@@ -191,6 +194,7 @@ def train_runs(args, cfgs, seeds, train: Callable, method_label: Callable) -> in
     """`train`: each of `resolve_configs`' configs into its run folder with the core's `train`, then the
     final-return table (`method_label(algo, representation)` names each method); exit status 0."""
     out = Path(args.out)
+    log = loggers.parse_log(args.log)   # a missing package stops here, before anything is compiled
     several = len(cfgs) > 1
     plan = [(cfg, out / f"{cfg.algo}-{cfg.representation}" if several else out) for cfg in cfgs]
     RunFolder(out).check_usable()
@@ -206,7 +210,7 @@ def train_runs(args, cfgs, seeds, train: Callable, method_label: Callable) -> in
         print(f"== {label} on {cfg.task}, seeds {','.join(map(str, seeds))} → {folder}", file=sys.stderr)
         t0 = time.time()
         result = train(cfg, seeds, folder, resume=not args.no_resume, fresh=args.fresh,
-                       progress=not args.no_progress, stop_after_epoch=args.stop_after_epoch)
+                       progress=not args.no_progress, stop_after_epoch=args.stop_after_epoch, log=log)
         # the training's own wall time (a rerun of a finished run takes seconds)
         seconds[label] = max((r.get("walltime", 0.0) for r in result.rows), default=time.time() - t0)
         folders.append(folder)

@@ -15,6 +15,7 @@ from typing import Protocol
 
 import numpy as np
 
+from .loggers import Sinks
 from .runlog import library_log
 
 __all__ = [
@@ -202,7 +203,7 @@ class BatchedEvaluation(Protocol):
 def run_epochs(session: Session, *, cfg, sched, seeds, run, title: str, rows: list[dict], start: int,
                last: int | None, walltime: float = 0.0, progress: bool = True,
                hook: Callable[[str, int], None] | None = None, stop_after_epoch: int | None = None,
-               plot: bool = True) -> list[dict]:
+               plot: bool = True, log=()) -> list[dict]:
     """The host loop of both trainers, from epoch `start` (0: evaluate the initial policy and write
     checkpoint 0 first) to the end of the schedule or `stop_after_epoch`. Per epoch: train → NaN guard
     (`TrainingDiverged` before anything of the epoch is written) → evaluate → append rows → `hook("rows")`
@@ -213,13 +214,14 @@ def run_epochs(session: Session, *, cfg, sched, seeds, run, title: str, rows: li
     together before each checkpoint (module docstring): "evaluate" and "rows" are then called once per
     batch, with its last epoch. `rows` (the folder's rows so far) and `last` (the latest checkpoint) come
     from a resume; `walltime` is the wall time the run had already spent. What libraries log goes to the
-    run's train.log (`sf2_common.agents.runlog`). Returns all rows."""
-    bar = progress_bar(progress, sched.total_env_steps, sched.env_steps_after(max(start - 1, 0)), title)
+    run's train.log (`sf2_common.agents.runlog`). `log` names the sinks (tensorboard, wandb) that get
+    every row too, as `hook("rows")` begins (`sf2_common.agents.loggers`). Returns all rows."""
     t_start = time.time() - walltime
-    with library_log(run):
+    with library_log(run), Sinks(log, run, seeds, cfg, rows) as sinks:
+        bar = progress_bar(progress, sched.total_env_steps, sched.env_steps_after(max(start - 1, 0)), title)
         try:
             return _run_epochs(session, bar, t_start, cfg=cfg, sched=sched, seeds=seeds, run=run, title=title,
-                               rows=rows, start=start, last=last, hook=hook,
+                               rows=rows, start=start, last=last, hook=sinks.hook(hook),
                                stop_after_epoch=stop_after_epoch, plot=plot)
         finally:
             bar.close()

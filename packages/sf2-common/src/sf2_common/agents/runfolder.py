@@ -49,6 +49,7 @@ class RunFolder:
     DAMAGED = "damaged"
     # what a run writes besides config.json: a folder holding any of these holds a run
     RUN_FILES = (METRICS, METRICS_GZ, CHECKPOINTS, FINAL, CURVE)
+    LOGGERS = ("loggers.json", "tensorboard", "wandb")   # `--log`'s (sf2_common.agents.loggers)
 
     def __init__(self, path):
         self.path = Path(path)
@@ -82,13 +83,13 @@ class RunFolder:
             raise RunFolderError(f"run folder {path} cannot be {what}: {err.strerror or err}") from None
 
     def clear(self, say=None) -> list[str]:
-        """Delete what a run wrote here (config, metrics, curve, log, checkpoints, final parameters and
-        set-aside damaged checkpoints: `--fresh`); other files in the folder stay. Says what it discards
-        (`say`, default: print to stderr) and returns the names."""
+        """Delete what a run wrote here (config, metrics, curve, log, checkpoints, final parameters,
+        set-aside damaged checkpoints and the `LOGGERS`' files: `--fresh`); other files in the folder
+        stay. Says what it discards (`say`, default: print to stderr) and returns the names."""
         if not self.path.exists():
             return []
         self.check_usable()
-        gone = [name for name in (self.CONFIG, *self.RUN_FILES, self.LOG, self.DAMAGED)
+        gone = [name for name in (self.CONFIG, *self.RUN_FILES, self.LOG, self.DAMAGED, *self.LOGGERS)
                 if (self.path / name).exists()]
         if not gone:
             return []

@@ -348,7 +348,7 @@ def _versions() -> dict:
 
 def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = False, progress: bool = True,
           hook: Callable[[str, int], None] | None = None, stop_after_epoch: int | None = None,
-          plot: bool = True) -> TrainResult:
+          plot: bool = True, log=()) -> TrainResult:
     """Train one `--algo ppo` config for every seed (one vmapped program) into a run folder.
 
     Args:
@@ -361,6 +361,7 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
       hook: `hook(event, epoch)`, called at the points of `hostloop.run_epochs` (tests simulate a kill).
       stop_after_epoch: end the run early, after that epoch's checkpoint, as a kill would.
       plot: write the learning-curve PNG.
+      log: the sinks every metrics row also goes to (`sf2_common.agents.loggers`): tensorboard, wandb.
 
     Returns:
       A `TrainResult`: the run folder, its rows, the final `OnPolicyState` of all seeds, the seeds, the
@@ -380,7 +381,7 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
     return run_training(cfg, seeds, out, program_of=get_program, session_of=_Session, label=method_label,
                         hardware=hostloop.hardware(d.device_kind for d in devices if d.platform != "cpu"),
                         versions=_versions(), resume=resume, fresh=fresh, progress=progress, hook=hook,
-                        stop_after_epoch=stop_after_epoch, plot=plot)
+                        stop_after_epoch=stop_after_epoch, plot=plot, log=log)
 
 
 class _Session:

@@ -27,7 +27,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from sf2_common.agents import configs, hostloop, plotting
+from sf2_common.agents import configs, hostloop, loggers, plotting
 from sf2_common.agents.configs import TrainConfig
 from sf2_common.agents.evaluation import CheckpointEvaluator, CheckpointJob
 from sf2_common.agents.hostloop import WALL_FIELDS, TrainingDiverged
@@ -405,7 +405,7 @@ def device_note(n_seeds: int) -> str | None:
 
 def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = False,
           progress: bool = True, hook: Callable[[str, int], None] | None = None,
-          stop_after_epoch: int | None = None, plot: bool = True) -> TrainResult:
+          stop_after_epoch: int | None = None, plot: bool = True, log=()) -> TrainResult:
     """Train one config for every seed (one vmapped program) into a run folder.
 
     Args:
@@ -419,6 +419,8 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
       hook: `hook(event, epoch)`, called at the points of `hostloop.run_epochs` (tests simulate a kill).
       stop_after_epoch: end the run early, after that epoch's checkpoint, as a kill would.
       plot: write the learning-curve PNG.
+      log: the sinks every metrics row also goes to: "tensorboard", "wandb", both comma-separated, or a
+        sequence of them (`sf2_common.agents.loggers`).
 
     Returns:
       A `TrainResult`: the run folder, its rows, the final state of all seeds, the seeds, the checkpoint
@@ -437,14 +439,14 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
     return run_training(cfg, seeds, out, program_of=get_program, session_of=_Session, label=_label,
                         hardware=_hardware(len(seeds)), versions=_versions(), note=device_note(len(seeds)),
                         resume=resume, fresh=fresh, progress=progress, hook=hook,
-                        stop_after_epoch=stop_after_epoch, plot=plot)
+                        stop_after_epoch=stop_after_epoch, plot=plot, log=log)
 
 
 def run_training(cfg: TrainConfig, seeds: tuple[int, ...], out, *, program_of: Callable, session_of: Callable,
                  label: Callable[[TrainConfig], str], hardware: str, versions: dict, note: str | None = None,
                  resume: bool = True, fresh: bool = False, progress: bool = True,
                  hook: Callable[[str, int], None] | None = None, stop_after_epoch: int | None = None,
-                 plot: bool = True) -> TrainResult:
+                 plot: bool = True, log=()) -> TrainResult:
     """The run-folder half of a JAX trainer's `train` (this module's and `onpolicy`'s), for a config and
     seeds already validated: the lock, the folder's checks and config.json, the resume from the newest
     checkpoint that restores completely, then `hostloop.run_epochs`.
@@ -461,7 +463,7 @@ def run_training(cfg: TrainConfig, seeds: tuple[int, ...], out, *, program_of: C
       hardware: what the run trains on (`hostloop.hardware`).
       versions: the libraries' versions, for config.json.
       note: a line said once the program is built, or None.
-      resume, fresh, progress, hook, stop_after_epoch, plot: as `train`'s.
+      resume, fresh, progress, hook, stop_after_epoch, plot, log: as `train`'s.
 
     Returns:
       The `TrainResult`.
@@ -470,6 +472,7 @@ def run_training(cfg: TrainConfig, seeds: tuple[int, ...], out, *, program_of: C
       RunFolderError: a run folder that cannot be used.
       TrainingDiverged: a NaN or inf loss.
     """
+    log = loggers.parse_log(log)
     run = RunFolder(out)
     run.check_usable()
     lock = FolderLock(run.path, "sf2-jax train").acquire(say=run.say)   # one writer per run folder
@@ -500,7 +503,7 @@ def run_training(cfg: TrainConfig, seeds: tuple[int, ...], out, *, program_of: C
             rows = hostloop.run_epochs(session, cfg=cfg, sched=sched, seeds=seeds, run=run, title=title,
                                        rows=res.rows, start=res.start, last=res.epoch, walltime=res.walltime,
                                        progress=progress, hook=hook, stop_after_epoch=stop_after_epoch,
-                                       plot=plot)
+                                       plot=plot, log=log)
         finally:
             ckpt.close()
         return TrainResult(run=run, rows=rows, state=session.state, seeds=seeds, resumed_from=res.epoch)

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import torch
 from sf2_common.agents import configs as common_configs
-from sf2_common.agents import hostloop
+from sf2_common.agents import hostloop, loggers
 from sf2_common.agents.evaluation import CheckpointEvaluator, CheckpointJob
 from sf2_common.agents.hostloop import WALL_FIELDS, TrainingDiverged
 from sf2_common.agents.lock import FolderLock
@@ -329,7 +329,7 @@ def _save(ckpt: Checkpointer, program: Program, state: TrainState, epoch: int, e
 
 def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = False,
           progress: bool = True, hook: Callable[[str, int], None] | None = None,
-          stop_after_epoch: int | None = None, plot: bool = True) -> TrainResult:
+          stop_after_epoch: int | None = None, plot: bool = True, log=()) -> TrainResult:
     """Train one config for every seed (one agent per seed, their envs in one batch) into a run folder.
 
     Args:
@@ -343,6 +343,8 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
       hook: `hook(event, epoch)`, called at the points of `hostloop.run_epochs` (tests simulate a kill).
       stop_after_epoch: end the run early, after that epoch's checkpoint, as a kill would.
       plot: write the learning-curve PNG.
+      log: the sinks every metrics row also goes to: "tensorboard", "wandb", both comma-separated, or a
+        sequence of them (`sf2_common.agents.loggers`).
 
     Returns:
       A `TrainResult`: the run folder, its rows, the final state of all seeds, the seeds, the checkpoint
@@ -357,6 +359,7 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
     configs.validate(cfg, seeds)
     if stop_after_epoch is not None and (not isinstance(stop_after_epoch, int) or stop_after_epoch < 0):
         raise ConfigError(f"stop_after_epoch = {stop_after_epoch!r} is invalid: must be an int >= 0")
+    log = loggers.parse_log(log)
     run = RunFolder(out)
     run.check_usable()
     lock = FolderLock(run.path, "sf2-torch train").acquire(say=run.say)   # one writer per run folder
@@ -392,7 +395,7 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
             rows = hostloop.run_epochs(_Session(program, ckpt, run, state), cfg=cfg, sched=sched, seeds=seeds,
                                        run=run, title=title, rows=res.rows, start=res.start, last=res.epoch,
                                        walltime=res.walltime, progress=progress, hook=hook,
-                                       stop_after_epoch=stop_after_epoch, plot=plot)
+                                       stop_after_epoch=stop_after_epoch, plot=plot, log=log)
         finally:
             ckpt.close()
         return TrainResult(run=run, rows=rows, state=state, seeds=seeds, resumed_from=res.epoch)
