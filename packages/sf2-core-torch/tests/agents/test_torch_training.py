@@ -142,7 +142,7 @@ def test_cli_train_eval_and_plot(reference, tiny_cfg, tmp_path, capsys, monkeypa
     monkeypatch.setenv("SF2_TORCH_COMPILE_CACHE", "")  # keep the conftest's JAX cache folder
     out = tmp_path / "cli"
     args = ["train", "--task", "CartpoleBalance", "--config", "quick", "--seeds", "0", "--out", str(out),
-            "--no-progress"]
+            "--no-progress", "--log", "tensorboard"]
     for name, value in tiny_cfg.to_dict().items():
         if name not in ("task", "algo", "representation"):
             args += [f"--{name.replace('_', '-')}", ",".join(map(str, value)) if isinstance(value, list)
@@ -152,11 +152,27 @@ def test_cli_train_eval_and_plot(reference, tiny_cfg, tmp_path, capsys, monkeypa
     assert strip_wall(json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()) == \
         strip_wall(reference.rows)
     assert reference.rows[-1]["epoch"] == 3
+    _check_tensorboard(out)
     check_cli_eval(cli.main, capsys, reference.run.path, tiny_cfg.num_eval_envs,
                    reference.rows[-1]["eval_return"])
     png = tmp_path / "curves.png"
     assert cli.main(["plot", str(reference.run.path), str(out), "--out", str(png)]) == 0
     assert png.exists() and "TD3+SF²" in capsys.readouterr().out
+
+
+def _check_tensorboard(out):
+    """`--log tensorboard`: TensorBoard's reader gives every metric of metrics.jsonl at each env step
+    (float32)."""
+    from sf2_common.agents.loggers import scalars
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    rows = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    acc = EventAccumulator(str(out / "tensorboard" / "seed0"))
+    acc.Reload()
+    assert sorted(acc.Tags()["scalars"]) == sorted(scalars(rows[-1]))
+    for name in scalars(rows[-1]):
+        assert [(e.step, e.value) for e in acc.Scalars(name)] == \
+            [(r["env_steps"], float(np.float32(r[name]))) for r in rows if name in r]
 
 
 # --------------------------------------------------------------------------------------------- learning
