@@ -1,13 +1,8 @@
-"""`TrainConfig`: everything one training run needs, the `paper` and `quick` presets (data: `PRESETS`),
-CLI overrides, and validation that fails before any compilation with a message naming the field, the
-value and what is valid.
-
-Written once for both cores: each core's `agents.configs` binds `make_config` and `validate` to its own
-`TrainConfig` (JAX: this one; torch: a subclass with its run fields) and representation registry. The
-SF² network/loss fields are those of `sf2_common.config.SF2Config` (same names and defaults) minus
-`obs_size`/`action_size`, which come from the task. `--algo ppo` (the on-policy trainer of MinAtar
-tasks) adds the PPO fields and its own preset values (`PPO_VALUES`, docs/minatar.md). Why the presets hold
-what they hold: docs/decisions/presets.md.
+"""`TrainConfig`: everything one training run needs, the `paper` and `quick` presets (data: `PRESETS`,
+why: docs/decisions/presets.md), CLI overrides, the `Schedule`, and validation that fails before any
+compilation naming the field, the value and what is valid. Each core's `agents.configs` binds
+`make_config` and `validate` to its own `TrainConfig` (torch: a subclass) and registry. The SF² fields are
+`SF2Config`'s minus the task's sizes; `--algo ppo` adds PPO's (`PPO_VALUES`, docs/minatar.md).
 """
 
 from __future__ import annotations
@@ -34,12 +29,11 @@ __all__ = [
 ALGOS = ("td3", "sac", "ppo")
 ONPOLICY_ALGOS = ("ppo",)   # the on-policy trainer's (sf2_jax.agents.onpolicy); the others are off-policy
 CRITICS = ("q", "v")        # PPO's critic: Q(s, a) with λ-returns (PPO-Q), or V(s) with GAE (PPO)
-# `learner_precision` → JAX's matmul precision of the learner (torch: TF32, bf16 autocast); core-contract.md
+# `learner_precision` → JAX's matmul precision (torch: TF32, bf16 autocast); docs/core-contract.md
 LEARNER_PRECISIONS = {"highest": "highest", "tensorfloat32": "tensorfloat32", "bfloat16": "BF16_BF16_F32"}
 _SF2_DEFAULTS = {f.name: f.default for f in fields(SF2Config)}
-# Fields added after run folders were written, with the value every older run trained with
+# Fields added after run folders were written, with the value every older run trained with (and PPO's below)
 ADDED_FIELDS = {name: _SF2_DEFAULTS[name] for name in ("spr_augmentation_std", "shared_adam")}
-# (the PPO fields are added below, with their defaults: no off-policy run uses them)
 SF2_FIELDS = tuple(name for name in _SF2_DEFAULTS if name not in ("obs_size", "action_size"))
 PPO_FIELDS = ("rollout_length", "update_epochs", "minibatch_size", "clip_eps", "entropy_coef", "value_coef",
               "max_grad_norm", "td_lambda", "critic")
@@ -55,9 +49,8 @@ PRESETS = {
                   feature_size=32, hidden_sizes=(64, 64), q_hidden_size=64, zeta_hidden_sizes=(64, 64),
                   embedding_size=16, tau=0.02),
 }
-# PPO's values per preset (`--algo ppo`, MinAtar): `paper` is pgx's MinAtar PPO example (an evaluation after
-# each of its 39 updates) with the paper's γ = 0.9 and docs/minatar.md's networks; `quick` learns Breakout
-# on a CPU in minutes (docs/minatar.md)
+# PPO's values per preset (`--algo ppo`): `paper` is pgx's MinAtar PPO example with the paper's γ = 0.9 and
+# docs/minatar.md's networks; `quick` learns Breakout on a CPU in minutes
 PPO_VALUES = {
     "paper": dict(num_envs=4096, rollout_length=128, update_epochs=3, minibatch_size=4096, learning_rate=3e-4,
                   clip_eps=0.2, entropy_coef=0.01, value_coef=0.5, max_grad_norm=0.5, td_lambda=0.95,
@@ -165,9 +158,7 @@ class TrainConfig:
     @classmethod
     def from_dict(cls, d: dict) -> TrainConfig:
         d = dict(d)
-        if "matmul_precision" in d and "learner_precision" not in d:
-            # run folders written before the physics/learner split: their one precision was the learner's
-            # too (every committed run used `highest`)
+        if "matmul_precision" in d and "learner_precision" not in d:   # a run folder's older name
             legacy = d.pop("matmul_precision")
             d["learner_precision"] = {"high": "tensorfloat32", "float32": "highest",
                                       "default": "bfloat16"}.get(legacy, legacy)
@@ -192,9 +183,8 @@ def superseded_values(folder: dict, now: dict) -> dict:
 
 def make_config(preset: str, task: str, algo: str = "td3", representation: str = "sf2",
                 overrides: dict | None = None, *, config_class: type[TrainConfig] = TrainConfig):
-    """The `preset` for `task` with `overrides` (field → value, already typed or strings) applied, as a
-    `config_class`. Raises `ConfigError` for an unknown preset, task or field; call `validate` for the
-    rest."""
+    """The `preset` for `task` with `overrides` (field → typed value or string) applied, as a `config_class`;
+    `ConfigError` for an unknown preset, task or field (`validate` checks the rest)."""
     if preset not in PRESETS:
         raise ConfigError(f"unknown config preset {preset!r}; valid presets: {', '.join(PRESETS)}")
     tasks.validate_task(task)
@@ -209,14 +199,16 @@ def make_config(preset: str, task: str, algo: str = "td3", representation: str =
 
 
 # ------------------------------------------------------------------------------------------- parsing
+_BOOLS = dict.fromkeys(("1", "true", "yes", "on"), True) | dict.fromkeys(("0", "false", "no", "off"), False)
+
+
 @functools.cache
 def _hints(config_class: type) -> dict:
     return typing.get_type_hints(config_class)
 
 
 def parse_value(name: str, text: str, config_class: type[TrainConfig] = TrainConfig):
-    """Parse the string `text` for the field `name` of `config_class` by the field's type (int, float,
-    bool, str, tuple)."""
+    """`text` parsed by the type (int, float, bool, str, tuple) of the field `name` of `config_class`."""
     hints = _hints(config_class)
     if name not in hints:
         close = [n for n in hints if name.replace("-", "_") == n]
@@ -226,12 +218,9 @@ def parse_value(name: str, text: str, config_class: type[TrainConfig] = TrainCon
     text = text.strip()
     try:
         if kind is bool:
-            low = text.lower()
-            if low in ("1", "true", "yes", "on"):
-                return True
-            if low in ("0", "false", "no", "off"):
-                return False
-            raise ValueError("expected true/false")
+            if text.lower() not in _BOOLS:
+                raise ValueError("expected true/false")
+            return _BOOLS[text.lower()]
         if kind is int:
             value = float(text.replace("_", ""))
             if not value.is_integer():
@@ -277,17 +266,13 @@ def parse_seeds(text) -> tuple[int, ...]:
             if not part:
                 continue
             try:
-                if "-" in part[1:]:
-                    lo, hi = part.split("-", 1)
-                    lo, hi = int(lo), int(hi)
-                    if hi < lo:
-                        raise ValueError
-                    seeds.extend(range(lo, hi + 1))
-                else:
-                    seeds.append(int(part))
+                lo, hi = map(int, part.split("-", 1) if "-" in part[1:] else (part, part))
+                if hi < lo:
+                    raise ValueError
             except ValueError:
                 raise ConfigError(f"seeds {text!r} are invalid: use '0-3', '0,2,5' or '7' "
                                   f"(non-negative ints)") from None
+            seeds.extend(range(lo, hi + 1))
         seeds = tuple(seeds)
     if not seeds:
         raise ConfigError("seeds: at least one seed is needed, e.g. --seeds 0-3")
@@ -301,18 +286,15 @@ def parse_seeds(text) -> tuple[int, ...]:
 # ------------------------------------------------------------------------------------------- schedule
 @dataclass(frozen=True)
 class Schedule:
-    """How the budget splits into epochs. The run is `num_epochs` epochs of `actor_steps_per_epoch`
-    actor steps (each steps all `num_envs` envs once, `action_repeat` physics steps each); the first
-    `prefill_actor_steps` of them act uniformly at random and do no SGD (the prefill), every later one
-    acts with exploration noise and is followed by `grad_updates_per_step` SGD steps. Evaluation
-    happens before the first epoch and after each. Env steps are counted after action repeat, as
-    Brax does, and include the prefill; the total is num_timesteps rounded up to whole epochs.
+    """How the budget splits into epochs: `num_epochs` epochs of `actor_steps_per_epoch` actor steps, each
+    stepping all `num_envs` envs once (`action_repeat` physics steps each). The first `prefill_actor_steps`
+    act uniformly at random without SGD; every later one is followed by `grad_updates_per_step` SGD steps.
+    An evaluation comes before the first epoch and after each. Env steps count after action repeat (as
+    Brax does) and include the prefill; the total is num_timesteps rounded up to whole epochs.
 
-    With `--algo ppo` an actor step is one on-policy update: `rollout_length` steps of all `num_envs` envs,
-    then `update_epochs` × (num_envs · rollout_length / minibatch_size) SGD steps; there is no prefill, an
-    evaluation episode lasts at most `episode_length` steps, and `num_evals` is an upper bound: the epochs
-    are as many as splitting the updates evenly allows, so the budget is rounded up by less than one
-    epoch's updates (num_evals − 1 epochs of 1 update each would be 39 updates for any budget under it)."""
+    `--algo ppo`: an actor step is one update (`rollout_length` steps of all envs, then `update_epochs` ×
+    num_envs · rollout_length / minibatch_size SGD steps), no prefill; `num_evals` is an upper bound: the
+    updates split evenly into epochs, so the budget is rounded up by less than one epoch's updates."""
 
     env_steps_per_actor_step: int   # num_envs · action_repeat
     prefill_actor_steps: int        # ceil(min_replay_size / num_envs)
