@@ -1,12 +1,7 @@
-"""Evaluating a run folder's checkpoint (`sf2-jax eval`, `sf2-torch eval`; observation noise: paper App.
-C.2.2): the framework-free half of both cores' `evaluate_checkpoint` and `evaluate_checkpoint_noises` —
-which run, which checkpoint, how many episodes, the checkpointer's lifetime and the result each std gives.
-A core supplies the rest as a `CheckpointEvaluator`: its checkpointer, how it restores what acting needs
-and how it acts (`sf2_jax.agents.trainer`, `sf2_torch.agents.trainer`).
-
-Every user mistake here is a `ConfigError` or `FileNotFoundError` naming the folder and the valid choices
-(the CLIs exit with status 2); nothing in the folder is written.
-"""
+"""The framework-free half of both cores' `evaluate_checkpoint(_noises)` (`PROG eval`; observation noise:
+paper App. C.2.2): which run, checkpoint and episodes, the checkpointer's lifetime, the result per std. A
+core's `CheckpointEvaluator` supplies its checkpointer, restore and act. A user mistake is a `ConfigError`
+or `FileNotFoundError` naming the folder and the valid choices; nothing in the folder is written."""
 
 from __future__ import annotations
 
@@ -29,8 +24,7 @@ EVAL_KEY_BASE = 10_000
 
 
 def check_obs_noise(value) -> float:
-    """The observation-noise std of an evaluation as a float; `ConfigError` unless a finite number >= 0
-    (both trainers' `evaluate_checkpoint` call this)."""
+    """The observation-noise std of an evaluation as a float; `ConfigError` unless a finite number >= 0."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < float("inf"):
         raise ConfigError(f"obs_noise = {value!r} is invalid: a noise std >= 0")
     return float(value)
@@ -38,8 +32,7 @@ def check_obs_noise(value) -> float:
 
 @dataclass(frozen=True)
 class RunEvaluation:
-    """One evaluation request on one run folder: its config (`cfg`, the core's `TrainConfig`), seeds and
-    the observation-noise stds (validated, in order)."""
+    """One evaluation request on one run folder: its `TrainConfig`, seeds and noise stds (in order)."""
 
     out: str
     run: RunFolder
@@ -72,9 +65,8 @@ class RunEvaluation:
 
     def results(self, epoch: int, meta: dict, returns_per_noise, deterministic: bool,
                 available: list[int]) -> list[dict]:
-        """One dict per noise std (in `noises`' order): {"epoch", "env_steps", "returns": {seed: [episode
-        returns]}, "deterministic", "obs_noise", "checkpoints"}; `returns_per_noise[k][i]` holds seed i's
-        episode returns under noise k."""
+        """One `evaluate_checkpoint` result per noise std, in order; `returns_per_noise[k][i]` holds seed
+        i's episode returns under noise k."""
         return [{"epoch": epoch, "env_steps": meta.get("env_steps"),
                  "returns": {int(s): [float(x) for x in returns[i]] for i, s in enumerate(self.seeds)},
                  "deterministic": deterministic, "obs_noise": noise, "checkpoints": available}
@@ -82,8 +74,8 @@ class RunEvaluation:
 
 
 def open_evaluation(out, framework: str, config_class, noises=(0.0,)) -> RunEvaluation:
-    """The run folder `out` as `framework` ("jax" or "torch") evaluates it; `FileNotFoundError` when it is
-    not a run folder, `ConfigError` when another core trained it or a noise std is invalid."""
+    """The run folder `out` as `framework` ("jax", "torch") evaluates it; `FileNotFoundError` if it is no
+    run folder, `ConfigError` if another core trained it or a noise std is invalid."""
     checked = tuple(check_obs_noise(x) for x in noises)
     run = RunFolder(out)
     conf = run.read_config()
@@ -110,13 +102,10 @@ class CheckpointJob:
 
 @dataclass(frozen=True)
 class CheckpointEvaluator:
-    """A core's half of checkpoint evaluation; its methods are the core's public `evaluate_checkpoint` and
-    `evaluate_checkpoint_noises`.
-
-    `checkpointer(folder, keep)` opens the core's checkpointer (with `all()` and `close()`), which is
-    closed on every path; `restore(checkpointer, job)` returns (what acting needs, the checkpoint's meta);
-    `act(restored, job)` returns one array of episode returns (seeds, episodes) per std of `job.noises`.
-    """
+    """A core's half of checkpoint evaluation; its methods are the core's `evaluate_checkpoint(_noises)`.
+    `checkpointer(folder, keep)` opens the core's checkpointer (`all()`, `close()`; closed on every path),
+    `restore(checkpointer, job)` returns (what acting needs, the checkpoint's meta), `act(restored, job)` one
+    array of episode returns (seeds, episodes) per std of `job.noises`."""
 
     framework: str                                   # "jax" or "torch"
     config_class: type
@@ -151,10 +140,8 @@ class CheckpointEvaluator:
 
     def evaluate_checkpoint_noises(self, out, epoch: int | None = None, num_eval_envs: int | None = None,
                                    deterministic: bool | None = None, noises=(0.0,)) -> list[dict]:
-        """Evaluate one checkpoint at several observation-noise stds from one restore of it.
-
-        The checkpoint holds the run's whole training state (replay buffers included), which one
-        `evaluate_checkpoint` per std would read once per std.
+        """Evaluate one checkpoint at several observation-noise stds from one restore of it (the checkpoint
+        holds the whole training state, replay buffers included).
 
         Args:
           out, epoch, num_eval_envs, deterministic: as `evaluate_checkpoint`'s.
