@@ -1,10 +1,9 @@
 """One writer per run folder: the lock that `train`, `eval --save` and the study runner hold while they write.
 
-The lock is an exclusive `flock` on `RUN/.sf2-lock`; the kernel releases it when its process ends, however it
-ends. The file names its holder (pid, host, command, start time), so a second writer's error can say who
-holds it; a file that names a holder whose lock is gone (a killed process) is taken over with a line saying
-so. A child process inherits its parent's lock when the parent passes the descriptor and names it in
-`SF2_LOCK_FD` (the study runner does, for the `train` it starts in the folder it holds).
+An exclusive `flock` on `RUN/.sf2-lock`, released by the kernel when its process ends, however it ends. The
+file names its holder (pid, host, command, start time) for a second writer's error; a file naming a holder
+whose lock is gone is taken over, saying so. A child inherits the lock from a parent that passes the
+descriptor and names it in `SF2_LOCK_FD` (the study runner, for the `train` it starts).
 """
 
 from __future__ import annotations
@@ -13,11 +12,10 @@ import fcntl
 import json
 import os
 import socket
-import sys
 import time
 from pathlib import Path
 
-from .runfolder import RunFolderError
+from .runfolder import RunFolderError, _stderr
 
 __all__ = ["FolderLock", "RunFolderBusy", "holder_of"]
 
@@ -75,13 +73,10 @@ class FolderLock:
         self.owned = False
 
     def acquire(self, say=None) -> FolderLock:
-        """Take the lock, or inherit it from the parent process (`SF2_LOCK_FD`).
+        """Take the lock, or inherit it from the parent process (`SF2_LOCK_FD`); returns self.
 
         Args:
           say: where the take-over of a stale lock is told (default: stderr).
-
-        Returns:
-          self.
 
         Raises:
           RunFolderBusy: another process holds it; the message names that process.
@@ -117,9 +112,8 @@ class FolderLock:
         return self
 
     def release(self) -> None:
-        """Give the lock back (an inherited one stays with the parent): the lock file is removed while the
-        lock is still held, so a folder keeps no lock file once its writer is done; a holder that was
-        killed leaves it, naming itself, for the next one to take over."""
+        """Give the lock back (an inherited one stays with the parent), removing the lock file while still
+        holding it; a killed holder leaves it, naming itself, for the next one to take over."""
         if self.fd is None:
             return
         if self.owned:
@@ -134,13 +128,8 @@ class FolderLock:
         return {self.ENV: str(self.fd)}
 
     def _inherited(self) -> int | None:
-        text = os.environ.get(self.ENV)
-        if not text or not text.isdigit():
-            return None
-        try:
-            return int(text) if _same_file(int(text), self.path) else None
-        except OSError:
-            return None
+        text = os.environ.get(self.ENV, "")
+        return int(text) if text.isdigit() and _same_file(int(text), self.path) else None
 
     def __enter__(self) -> FolderLock:
         return self.acquire()
@@ -155,7 +144,3 @@ def _same_file(fd: int, path: Path) -> bool:
     except OSError:
         return False
     return (mine.st_dev, mine.st_ino) == (there.st_dev, there.st_ino)
-
-
-def _stderr(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
