@@ -1,9 +1,7 @@
-"""Learning curves: one run folder (per-seed lines, mean and 95% CI band) and several run folders
-(one line and band per method and task), and the final-return table. The band is the 95%
-percentile-bootstrap interval of the mean over seeds (`stats.mean_interval`, rliable); below
-`stats.MIN_SEEDS` seeds there is none, and the plots and tables say so. matplotlib is imported lazily
-(Agg); rliable only when there are enough seeds for an interval. A run folder's method is the `label` its
-trainer wrote into config.json, so plotting needs no framework."""
+"""Learning curves of one run folder (per-seed lines, mean and band) or several (a line and band per method
+and task), and the final-return table. The band is the 95% percentile-bootstrap interval of the mean over
+seeds (`stats.mean_interval`), none below `stats.MIN_SEEDS` seeds. matplotlib (Agg) and rliable are
+imported when needed; a folder's method is the `label` in its config.json, so no framework is needed."""
 
 from __future__ import annotations
 
@@ -25,17 +23,14 @@ __all__ = ["method_label", "mean_ci", "band_label", "curves", "plot_learning_cur
 def method_label(algo: str, representation: str, registry=None) -> str:
     """'TD3+SF²', 'SAC', ... (vanilla has no suffix). The representation's label comes from `registry`
     (the framework's `Registry`); without one, its name stands for it."""
-    if registry is not None:
-        label = registry.label(representation)
-    else:
-        label = "" if representation == "none" else representation
+    label = (registry.label(representation) if registry is not None
+             else "" if representation == "none" else representation)
     return algo.upper() + (f"+{label}" if label else "")
 
 
 def mean_ci(values, resamples: int = stats.RESAMPLES) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """values (n_seeds, n_points) → mean over seeds, lower, upper of the 95% percentile-bootstrap interval
-    of the mean (module docstring); lower = upper = NaN (no interval) below `stats.MIN_SEEDS` seeds, and
-    without rliable (a warning names the extra): a finished training's table and curve never fail on it."""
+    """values (n_seeds, n_points) → (mean over seeds, lower, upper) of the 95% interval of the mean;
+    lower = upper = NaN below `stats.MIN_SEEDS` seeds and without rliable (warned once: never an error)."""
     values = np.asarray(values, dtype=float)
     if stats.informative(values.shape[0]) and _rliable_missing():
         mean = values.mean(axis=0)
@@ -89,6 +84,7 @@ def _plt():
 
 
 def plot_learning_curve(rows: list[dict], path, title: str) -> None:
+    """One run's learning_curve.png (per-seed lines, mean, band), written atomically; none without rows."""
     steps, per_seed = curves(rows)
     if not per_seed:
         return
@@ -125,9 +121,8 @@ def _limit_to_lines(ax, lines) -> None:
 
 
 def _load(run_dirs) -> dict[tuple[str, str], list[tuple[np.ndarray, dict]]]:
-    """{(task, method label): [(steps, {seed: returns}), ...]} over run folders. Folders of one label and
-    task whose configs differ (say, Adam's ε) are different methods: each label then names the fields in
-    which they differ, "SAC (adam_eps=1e-05)"."""
+    """{(task, method label): [(steps, {seed: returns}), ...]} over run folders; folders of one label and
+    task with different configs are different methods, named by what differs: "SAC (adam_eps=1e-05)"."""
     found = defaultdict(list)
     for d in run_dirs:
         run = RunFolder(d)
@@ -150,9 +145,8 @@ def _load(run_dirs) -> dict[tuple[str, str], list[tuple[np.ndarray, dict]]]:
 
 
 def _pool(entries) -> tuple[np.ndarray, np.ndarray]:
-    """Pool the seeds of several folders of one method on the evaluation points (env steps) they all
-    have. Folders of one method with disjoint evaluation points are a user error (different budgets or
-    num_evals): `ValueError`."""
+    """(common env steps, returns (seeds, points)) of several folders of one method; `ValueError` unless
+    they share their evaluation points up to the earliest end (other budgets or num_evals)."""
     common = sorted(set.intersection(*(set(steps.tolist()) for steps, _ in entries)))
     ends = sorted({int(steps[-1]) for steps, _ in entries})
     if not common or common[-1] != ends[0]:
@@ -199,8 +193,8 @@ def plot_runs(run_dirs, path) -> list[dict]:
 
 
 def final_table(run_dirs) -> list[dict]:
-    """Per (task, method): seeds, final eval return (mean over seeds, its 95% bootstrap interval
-    `ci_low`/`ci_high` (NaN below 3 seeds), and each seed's), env steps."""
+    """Per (task, method): seeds, env steps, final eval return (mean over seeds, its 95% interval
+    `ci_low`/`ci_high`, NaN below 3 seeds, and each seed's)."""
     table = []
     for (task, method), entries in sorted(_load(run_dirs).items()):
         steps, mat = _pool(entries)
