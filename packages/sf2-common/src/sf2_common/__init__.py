@@ -1,7 +1,5 @@
-"""sf2_common: the framework-free code that `sf2_jax` and `sf2_torch` share (SF², ICLR 2026): `config`
-(`SF2Config`), `errors`, `agents` (configs and presets, tasks, run folders and their lock, the host loop,
-evaluation, plots) and `cli` (the pieces each core's command line is built from). Only numpy is imported
-eagerly."""
+"""sf2_common: the framework-free code both cores' trainers need (SF², ICLR 2026): `config`, `errors`,
+`agents` (configs, tasks, run folders, the host loop, evaluation, plots) and `cli`'s pieces."""
 
 __version__ = "0.2.0"
 

@@ -1,8 +1,5 @@
-"""Errors raised by sf2_jax and sf2_torch (docs/core-contract.md, "Modules"); both cores re-export these
-classes, so `sf2_jax.ConfigError is sf2_torch.ConfigError`.
-
-All of them subclass `ValueError`, so code that already catches bad values keeps working.
-"""
+"""Errors raised by sf2_jax and sf2_torch (docs/core-contract.md, "Modules"), re-exported by both cores
+(`sf2_jax.ConfigError is sf2_torch.ConfigError`); all subclass `ValueError`."""
 
 from __future__ import annotations
 

@@ -1,7 +1,5 @@
-"""Atomic file writes for everything a run or study folder holds: the data goes to a temporary file in the
-same folder, is synced, then renamed over the final name, so a kill never leaves a half-written file.
-A study folder keeps its finished runs' metrics.jsonl and obs_noise.json gzip-compressed (`compress`);
-every reader goes through `stored` / `read_text`, which take either form."""
+"""Atomic writes (a synced temporary file renamed over the final name: a kill leaves no half-written file)
+and gzip-compressed files (a study folder's finished runs, `compress`) that `stored`/`read_text` read."""
 
 from __future__ import annotations
 
@@ -40,8 +38,7 @@ def _gz(path: Path) -> Path:
 
 
 def stored(path) -> Path | None:
-    """The file that holds `path`'s content: `path` itself, else its compressed form `path.gz`; None if
-    neither exists. (Both exist only for a moment inside `compress` or `expand`; they are then equal.)"""
+    """The file that holds `path`'s content: `path` itself, else `path.gz`; None if neither exists."""
     path = Path(path)
     if path.is_file():
         return path
@@ -49,9 +46,8 @@ def stored(path) -> Path | None:
 
 
 def read_text(path) -> str:
-    """The text of `path` or of `path.gz` (`stored`; a .gz is decompressed, also when named directly).
-    `FileNotFoundError` if neither exists; `OSError` naming the file if the compressed data is damaged
-    (truncated or not gzip)."""
+    """The text of `path` or `path.gz` (`stored`); `FileNotFoundError` if neither exists, `OSError` naming
+    the file if its gzip data is damaged."""
     found = stored(path)
     if found is None:
         raise FileNotFoundError(f"{path} does not exist (nor {_gz(Path(path)).name})")
@@ -64,9 +60,8 @@ def read_text(path) -> str:
 
 
 def compress(path) -> bool:
-    """Replace the file `path` by `path.gz` (gzip level 9, no timestamp: the same content gives the same
-    bytes); True if it did, False if `path` does not exist (already compressed, or never written). The
-    .gz is written atomically before `path` is removed, so a crash leaves one of them whole."""
+    """Replace `path` by `path.gz` (level 9, no timestamp: reproducible bytes; atomic, then `path`
+    removed); False if `path` does not exist."""
     path = Path(path)
     if not path.is_file():
         return False
@@ -76,8 +71,7 @@ def compress(path) -> bool:
 
 
 def expand(path) -> bool:
-    """The inverse of `compress` (before a writer appends to a compressed file): `path` from `path.gz`,
-    then the .gz removed; True if it did, False if there was nothing to expand."""
+    """The inverse of `compress` (before a writer appends); False if there was nothing to expand."""
     path = Path(path)
     if path.is_file() or not _gz(path).is_file():
         return False

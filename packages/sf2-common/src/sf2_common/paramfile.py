@@ -1,10 +1,5 @@
-"""Canonical parameter files (docs/params.md): a flat {dot-name: array} mapping stored as .npz or
-.safetensors, chosen by the file's suffix. Framework-free: each core turns its parameters into numpy
-arrays (`sf2_jax.params.save` / `sf2_torch.params.save`) and back; both read what either wrote.
-
-Writes are atomic (a temporary file in the same folder, then `os.replace`), so a crash never leaves a
-half-written file under the final name; every reader failure is a `ParamsError` naming the file.
-"""
+"""Canonical parameter files (docs/params.md): a flat {dot-name: array} mapping as .npz or .safetensors (by
+suffix), written atomically by both cores' `params.save`; every reader failure is a `ParamsError`."""
 
 from __future__ import annotations
 

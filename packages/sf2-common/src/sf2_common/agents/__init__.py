@@ -1,7 +1,5 @@
-"""The framework-free parts of the SF² agents, shared by `sf2_jax.agents` and `sf2_torch.agents`: configs
-and presets, the task table, the representation registry, run folders, the lock, where a run resumes,
-checkpoint checks, the host loop, evaluation, plots. `EXPORTS` and `lazy_getattr` give both cores' `agents`
-packages the same lazily imported top-level names."""
+"""The framework-free parts of both cores' `agents` (configs, tasks, registry, run folders, lock, resume,
+checkpoints, host loop, evaluation, plots); `EXPORTS` and `lazy_getattr` give both the same lazy names."""
 
 from __future__ import annotations
 
@@ -9,8 +7,7 @@ import importlib
 
 __all__ = ["EXPORTS", "lazy_getattr"]
 
-# name → module that defines it: a module of the core's agents package (the same module names in both
-# cores), or a dotted module path (a name a core takes from sf2_common: "sf2_common.agents.configs")
+# name → the module of the core's agents package that defines it, or a dotted path ("sf2_common.agents.x")
 EXPORTS = {
     "TrainConfig": "configs", "make_config": "configs", "parse_seeds": "configs", "validate": "configs",
     "Representation": "representations", "register": "representations",

@@ -1,9 +1,7 @@
-"""What both cores' checkpointers share: the two ways a checkpoint fails to restore, and the file manifest
-that tells them apart. `CheckpointDamaged`: its files are not what was written (the resume rule sets it
-aside); `CheckpointMismatch`: intact but not fitting the program (bad input, never worked around). The
-manifest (`sf2-manifest.json`, written last) lists every file with its size and CRC-32; `verify` checks it
-before a framework reads anything, so damage is one error naming the file. A checkpoint without a
-manifest is read by the framework alone."""
+"""What both cores' checkpointers share: `CheckpointDamaged` (its files are not what was written: resume
+sets it aside), `CheckpointMismatch` (intact but not this program's: bad input), and the manifest
+(`sf2-manifest.json`, written last: each file's size and CRC-32) that `verify` checks before a framework
+reads anything."""
 
 from __future__ import annotations
 
@@ -41,8 +39,7 @@ def _crc32(path: Path) -> int:
 
 
 def write_manifest(folder) -> None:
-    """List every file under `folder` (size, CRC-32) in `folder/sf2-manifest.json`, written atomically
-    and fsynced: the last step of a save."""
+    """List every file under `folder` (size, CRC-32) in `folder/sf2-manifest.json`: a save's last step."""
     folder = Path(folder)
     files = {}
     for p in sorted(folder.rglob("*")):
@@ -52,9 +49,8 @@ def write_manifest(folder) -> None:
 
 
 def verify(folder, epoch: int) -> bool:
-    """Check checkpoint `epoch` in `folder` against its manifest: True if every listed file is intact,
-    False if there is no manifest (an older checkpoint: the framework's reader decides), and
-    `CheckpointDamaged` naming the first file that is missing, truncated or garbled."""
+    """Check checkpoint `epoch` in `folder` against its manifest: True if intact, False without a manifest
+    (the framework's reader decides), `CheckpointDamaged` naming the first missing or garbled file."""
     folder = Path(folder)
     if not folder.is_dir():
         raise CheckpointDamaged(epoch, folder, "its folder is missing")

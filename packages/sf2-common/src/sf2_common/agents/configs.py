@@ -63,9 +63,8 @@ PPO_VALUES = {
                   zeta_hidden_sizes=(16,), embedding_size=8),
 }
 TASK_VALUES = {"paper": {"num_timesteps": tasks.paper_budget, "action_repeat": tasks.paper_action_repeat,
-                         "episode_length": lambda task: tasks.task_kind(task).episode_length},
-               "quick": {"action_repeat": tasks.paper_action_repeat,
-                         "episode_length": lambda task: tasks.task_kind(task).episode_length}}
+                         "episode_length": tasks.episode_length},
+               "quick": {"action_repeat": tasks.paper_action_repeat, "episode_length": tasks.episode_length}}
 FAMILY_VALUES = {"paper": {"adam_eps": PAPER_ADAM_EPS,
                            **{name: {"ppo": v} for name, v in PPO_VALUES["paper"].items()}},
                  "quick": {name: {"ppo": v} for name, v in PPO_VALUES["quick"].items()}}
@@ -349,6 +348,7 @@ def validate(cfg: TrainConfig, seeds, registry) -> TrainConfig:
     tasks.validate_task(cfg.task)
     tasks.check_algo(cfg.task, cfg.algo)   # the task-kind hook: MinAtar takes `ppo`, Playground td3/sac
     tasks.check_installed(cfg.task)
+    tasks.check_env(cfg.task)              # a user's environment: built and its observations checked
     if cfg.algo not in ALGOS:
         bad_field("algo", cfg.algo, f"must be one of {', '.join(ALGOS)}")
     known = registry.names()

@@ -1,6 +1,5 @@
-"""The run folder's log (`train.log`): what libraries log that a user cannot act on (absl/Orbax's "Waiting
-for previous save to complete took 1.2 seconds", asyncio's reports from Orbax's reader threads) goes
-there instead of between the progress bar's lines, with the run's own notices (`RunFolder.say`)."""
+"""The run folder's log (`train.log`): what libraries log that a user cannot act on (absl, Orbax, asyncio
+from Orbax's threads) goes there with the run's own notices, not between the progress bar's lines."""
 
 from __future__ import annotations
 

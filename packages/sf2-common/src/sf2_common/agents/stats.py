@@ -1,8 +1,6 @@
-"""Bootstrap intervals over seeds, for a run's table and learning curve (and the studies' statistics):
-95% percentile intervals computed by rliable (Agarwal et al., 2021; `get_interval_estimates`), none below
-`MIN_SEEDS` seeds, each under a fixed global seed (docs/decisions/intervals.md). rliable is imported when
-an interval is computed; it comes with sf2-studies.
-"""
+"""95% percentile-bootstrap intervals over seeds by rliable (Agarwal et al., 2021), for a run's table and
+curve and the studies: none below `MIN_SEEDS` seeds, each under a fixed global seed
+(docs/decisions/intervals.md); rliable (from sf2-studies) is imported when an interval is computed."""
 
 from __future__ import annotations
 
