@@ -166,6 +166,9 @@ def test_a_sink_first_used_on_a_resume_logs_the_earlier_rows(tmp_path, wandb_hom
     _loop(run, 2, "tensorboard")
     for seed in SEEDS:
         assert _tensorboard(run, seed) == _expected(run, seed, float32=True)
+    (run.path / loggers.RECORD).write_text('{"logged_epoch": {"tenso')      # damaged: refused, not guessed
+    with pytest.raises(ConfigError, match="loggers.json is not a loggers record .*Delete it with"):
+        loggers.Sinks("tensorboard", run, SEEDS, None, [])
 
 
 def test_bad_or_missing_logger_is_exit_status_2_before_training(tmp_path, monkeypatch, capsys):

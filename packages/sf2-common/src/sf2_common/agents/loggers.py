@@ -77,10 +77,11 @@ class Sinks:
         except FileNotFoundError:
             return {}
         except (OSError, ValueError) as err:
-            raise ConfigError(f"{self.path} cannot be read ({err}); delete it to log every row of "
-                              f"metrics.jsonl again, into new W&B runs") from None
+            record = err
         if not isinstance(record, dict):
-            raise ConfigError(f"{self.path} is not a loggers record; delete it to log every row again")
+            raise ConfigError(f"{self.path} is not a loggers record ({record}). Delete it with "
+                              f"{self.path.parent / 'tensorboard'} and {self.path.parent / 'wandb'} to log "
+                              f"every row of metrics.jsonl again, into new runs")
         return record
 
     def write(self) -> None:
