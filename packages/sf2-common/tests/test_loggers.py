@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import struct
+import time
 
 import numpy as np
 import pytest
@@ -79,6 +80,8 @@ def _wandb_records(path):
         if kind == 0:
             pos += left
             continue
+        if pos + 7 + n > len(data):   # a chunk still being written
+            return
         chunks, pos = chunks + data[pos + 7:pos + 7 + n], pos + 7 + n
         if kind in (1, 4):
             record = pb.Record()
@@ -92,7 +95,13 @@ def _wandb(run, seed):
     run_id = json.loads((run.path / loggers.RECORD).read_text())["wandb_ids"][str(seed)]
     history, ids = {}, []
     for path in run.path.glob(f"wandb/offline-run-*-{run_id}*/run-{run_id}.wandb"):   # "-1": same second
-        for r in _wandb_records(path):
+        records = list(_wandb_records(path))
+        for _ in range(100):   # W&B's service may still be writing the file after `finish()` returned
+            if records and records[-1].WhichOneof("record_type") == "exit":
+                break
+            time.sleep(0.1)
+            records = list(_wandb_records(path))
+        for r in records:
             if r.WhichOneof("record_type") == "run":
                 ids.append(r.run.run_id)
             elif r.WhichOneof("record_type") == "history":
@@ -169,6 +178,15 @@ def test_a_sink_first_used_on_a_resume_logs_the_earlier_rows(tmp_path, wandb_hom
     (run.path / loggers.RECORD).write_text('{"logged_epoch": {"tenso')      # damaged: refused, not guessed
     with pytest.raises(ConfigError, match="loggers.json is not a loggers record .*Delete it with"):
         loggers.Sinks("tensorboard", run, SEEDS, None, [])
+
+
+def test_wandb_that_cannot_start_is_a_config_error(tmp_path, wandb_home, monkeypatch):
+    run = RunFolder(tmp_path / "run")
+    monkeypatch.setenv("WANDB_MODE", "onlin")
+    with pytest.raises(ConfigError, match="W&B cannot start the run of seed 3 with WANDB_MODE=onlin "
+                       ".*unset WANDB_MODE to log offline"):
+        _loop(run, None, "tensorboard,wandb")
+    assert not (run.path / loggers.RECORD).exists() and run.read_rows() == []
 
 
 def test_bad_or_missing_logger_is_exit_status_2_before_training(tmp_path, monkeypatch, capsys):

@@ -64,9 +64,13 @@ class Sinks:
         self.record = self._read() if self.names else {}
         self.logged = self.record.setdefault("logged_epoch", {})
         self.writers = {}
-        for name in self.names:
-            self.writers[name] = (_TensorBoard if name == "tensorboard" else _WandB)(run, seeds, cfg,
-                                                                                      self.record)
+        try:
+            for name in self.names:
+                self.writers[name] = (_TensorBoard if name == "tensorboard" else _WandB)(run, seeds, cfg,
+                                                                                          self.record)
+        except BaseException:
+            self.__exit__()
+            raise
         if self.writers:
             atomic_write(self.path, json.dumps(self.record, indent=2, sort_keys=True) + "\n")
             self.write()
@@ -151,10 +155,15 @@ class _WandB:
         self.runs = {}
         for s in seeds:
             ids.setdefault(str(s), secrets.token_hex(4))
-            self.runs[s] = wandb.init(
-                dir=run.path, id=ids[str(s)], resume="allow", reinit="create_new", mode=mode, project=project,
-                group=str(run.path), name=f"{run.path.name} seed {s}", config={**cfg.to_dict(), "seed": s},
-                settings=wandb.Settings(silent=True, console="off"))
+            try:
+                self.runs[s] = wandb.init(
+                    dir=run.path, id=ids[str(s)], resume="allow", reinit="create_new", mode=mode,
+                    project=project, group=str(run.path), name=f"{run.path.name} seed {s}",
+                    config={**cfg.to_dict(), "seed": s}, settings=wandb.Settings(silent=True, console="off"))
+            except Exception as err:   # a bad WANDB_MODE, online without a login, ...
+                self.close()
+                raise ConfigError(f"--log wandb: W&B cannot start the run of seed {s} with WANDB_MODE={mode} "
+                                  f"({str(err).splitlines()[0]}); unset WANDB_MODE to log offline") from None
 
     def write(self, rows) -> None:
         for r in rows:
