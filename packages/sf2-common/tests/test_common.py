@@ -28,7 +28,8 @@ class _Rep:
 
 @pytest.fixture
 def known_tasks(monkeypatch):
-    monkeypatch.setattr(tasks, "valid_tasks", lambda: ("CartpoleBalance", "PendulumSwingup"))
+    known = dict.fromkeys(("CartpoleBalance", "PendulumSwingup"), "playground")
+    monkeypatch.setattr(tasks, "playground_tasks", lambda: known)
 
 
 @pytest.fixture

@@ -290,7 +290,7 @@ def cheetah_only(monkeypatch):
     """The task table without Playground (not installed in this package's tests): CheetahRun alone."""
     from sf2_common.agents import tasks
 
-    monkeypatch.setattr(tasks, "valid_tasks", lambda: ("CheetahRun",))
+    monkeypatch.setattr(tasks, "playground_tasks", lambda: {"CheetahRun": "playground"})
 
 
 def test_the_paper_preset_gives_each_family_its_authors_adam_eps(cheetah_only):

@@ -35,6 +35,16 @@ BAD_TRAIN_INPUTS = [
     (["--task", "CartpoleBalance", "--algo", "ppo"],
      ["task 'CartpoleBalance' is a Playground DM Control task", "--algo ppo is the MinAtar tasks'"]),
     (["--task", "minatar-breakout", "--algo", "sac"], ["task 'minatar-breakout' is a MinAtar task"]),
+    # users' environments (sf2_testing.toy_env), refused before anything is built or compiled
+    (["--task", "no_such_module:make_env"], ["task 'no_such_module:make_env': module 'no_such_module' cannot "
+                                             "be imported", "'module:callable'"]),
+    (["--task", "sf2_testing.toy_env:make_no_env"], ["module 'sf2_testing.toy_env' has no attribute"]),
+    (["--task", "sf2_testing.toy_env:make_not_env"], ["returned dict, which is not an environment",
+                                                      "it lacks reset, step, observation_size, action_size"]),
+    (["--task", "sf2_testing.toy_env:make_image_env"],
+     ["has image observations {'pixels/view_0': (64, 64, 3)}", "the off-policy trainers take flat state"]),
+    (["--task", "sf2_testing.toy_env:make_discrete_env"],
+     ["has discrete actions (num_actions = 3)", "discrete actions are MinAtar's, with --algo ppo"]),
     (["--task", "CartpoleBalance", "--seeds", "3-1"], ["seeds '3-1' are invalid"]),
     (["--task", "CartpoleBalance", "--seeds", "0,0"], ["duplicates"]),
     (["--task", "CartpoleBalance", "--repr", "sf2,sf2"], ["repeats"]),

@@ -90,8 +90,9 @@ def add_train_parser(sub, prog: str, config_class, seeds_help: str, cache_env: s
     `seeds_help` says how the core runs several seeds, `cache_env` names the compilation cache's variable."""
     t = sub.add_parser("train", help="train one or more methods over several seeds",
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    t.add_argument("--task", required=True, help="Playground DM Control task, e.g. CartpoleBalance, or a "
-                   f"MinAtar game, e.g. minatar-breakout (`{prog} tasks` lists them)")
+    t.add_argument("--task", required=True, help="a Playground task, e.g. CartpoleBalance or Go1Getup; a "
+                   f"MinAtar game, e.g. minatar-breakout (`{prog} tasks` lists them); or your own env, "
+                   "module:callable or an entry point of sf2.tasks (docs/agents.md)")
     t.add_argument("--algo", default="td3", help="td3 or sac (Playground); ppo (MinAtar)")
     t.add_argument("--repr", default="sf2", dest="representation",
                    help="representation: none (vanilla), sf2; with sf2-baselines installed also sim, simlap, "
@@ -304,21 +305,24 @@ def plot_command(args) -> int:
 
 
 def tasks_command(args) -> int:
-    """`tasks`: the valid tasks with their kind (Playground DM Control, MinAtar) and the paper preset's
-    budget and action repeat; without Playground, its kind's install line instead of its tasks; exit
-    status 0."""
+    """`tasks`: the valid tasks with their kind (Playground's suites, MinAtar, users' entry points), the
+    paper preset's budget, episode length and action repeat; without Playground, its install line instead
+    of its tasks; then how to name your own environment; exit status 0."""
     from sf2_common.agents import tasks
 
     try:
         names, missing = tasks.valid_tasks(), None
     except ImportError:
         names, missing = tuple(tasks.TASKS), tasks.KINDS["playground"]
-    print(f"{'task':24} {'kind':22} {'paper budget':>12} {'action repeat':>13}  in paper")
+    print(f"{'task':36} {'kind':23} {'paper budget':>12} {'episode':>7} {'repeat':>6}  in paper")
     for task in names:
-        print(f"{task:24} {tasks.task_kind(task).label:22} {tasks.paper_budget(task):>12,} "
-              f"{tasks.paper_action_repeat(task):>13}  {'yes' if task in tasks.PAPER_TASKS else ''}")
+        print(f"{task:36} {tasks.task_kind(task).label:23} {tasks.paper_budget(task):>12,} "
+              f"{tasks.episode_length(task):>7} {tasks.paper_action_repeat(task):>6}  "
+              f"{'yes' if task in tasks.PAPER_TASKS else ''}".rstrip())
     if missing is not None:
-        print(f"({missing.label} tasks: not installed; {missing.install})")
+        print(f"(Playground tasks: not installed; {missing.install})")
+    print(f"(your own environment: --task module:callable, or an entry point of {tasks.GROUP!r}; "
+          f"docs/agents.md)")
     return 0
 
 

@@ -1,27 +1,34 @@
-"""The task table: which tasks exist, of which kind (MuJoCo Playground DM Control; MinAtar, docs/minatar.md)
-and what the trainers need to know of each (observation and action kinds, the trainer that takes it, the
-episode limit, the paper's per-task settings: Appendix E Table 1; docs/core-contract.md "Agents"). Building
-the environments is each core's own `agents.envs` (JAX: Brax wrappers; torch: a TorchRL env over the same
-JAX env) and `sf2_jax.agents.minatar`.
+"""The task table: which tasks exist, of which kind (MuJoCo Playground's DM Control suite, locomotion and
+manipulation; MinAtar, docs/minatar.md; a user's own environment) and what the trainers need to know of
+each (observation and action kinds, the trainer that takes it, the episode limit, the paper's per-task
+settings: Appendix E Table 1; docs/core-contract.md "Agents"; docs/agents.md "Tasks").
 
 Data-driven: `KINDS` describes each kind, `TASKS` lists the tasks known without an import (MinAtar's);
-every other valid name is Playground's, imported lazily (for the task list and the budgets of tasks
-outside the paper). Neither Playground nor pgx is imported to validate a MinAtar task.
+Playground's names are imported lazily. A user's environment is `module:callable` or a name of the entry
+point group `sf2.tasks`; `env_sizes` checks any environment's observations and actions before anything is
+compiled, and `training_env` builds the batched, time-limited, auto-resetting env both cores step (JAX:
+Brax wrappers; torch: a TorchRL env over it). MinAtar's envs are `sf2_jax.agents.minatar`. Neither
+Playground nor pgx is imported to validate a MinAtar task.
 """
 
 from __future__ import annotations
 
 import difflib
 import functools
+import importlib
 import importlib.util
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from importlib import metadata
 
 from sf2_common.errors import ConfigError
 
 __all__ = [
     "PAPER_TASKS", "PAPER_BUDGETS", "PAPER_ACTION_REPEAT", "valid_tasks", "validate_task",
     "paper_budget", "paper_action_repeat", "TaskKind", "Task", "KINDS", "TASKS", "MINATAR_TASKS",
-    "playground_tasks", "task_kind", "check_algo", "check_installed",
+    "playground_tasks", "task_kind", "check_algo", "check_installed", "episode_length", "GROUP", "OBS_KEY",
+    "task_entry_points", "env_factory", "EnvSizes", "env_sizes", "load_env", "check_env", "training_env",
+    "ObsKey",
 ]
 
 
@@ -41,6 +48,7 @@ class TaskKind:
         list itself imports it.
       install: the command that installs what it needs.
       budget: env steps of the `paper` preset for every task of the kind; None: per task (`paper_budget`).
+      suite: the module of `mujoco_playground.registry` that lists its tasks; None for other kinds.
     """
 
     name: str
@@ -53,6 +61,7 @@ class TaskKind:
     requires: str | None
     install: str
     budget: int | None = None
+    suite: str | None = None
 
 
 @dataclass(frozen=True)
@@ -70,12 +79,25 @@ class Task:
     num_actions: int
 
 
+_TRAIN = 'pip install "packages/sf2-core-jax[train]"'
+# The paper's longest DM Control budget: the `paper` preset's for off-policy tasks without a reference budget
+OFF_POLICY_BUDGET = 10_000_000
+
+
+def _off_policy(name: str, label: str, suite: str | None) -> TaskKind:
+    return TaskKind(name, label, observation="vector", action="continuous", trainer="off-policy",
+                    algos=("td3", "sac"), episode_length=1000, requires=None, install=_TRAIN,
+                    budget=None if suite == "dm_control_suite" else OFF_POLICY_BUDGET, suite=suite)
+
+
 # `ppo` is the on-policy trainer's algo; ALGOS (sf2_common.agents.configs) holds the algos that exist.
 KINDS = {
-    "playground": TaskKind(
-        "playground", "Playground DM Control", observation="vector", action="continuous",
-        trainer="off-policy", algos=("td3", "sac"), episode_length=1000, requires=None,
-        install='pip install "packages/sf2-core-jax[train]"'),
+    # DM Control tasks also take FPO (`--algo fpo`), the on-policy trainer's (docs/fpo.md)
+    "playground": replace(_off_policy("playground", "Playground DM Control", "dm_control_suite"),
+                          algos=("td3", "sac", "fpo")),
+    "locomotion": _off_policy("locomotion", "Playground locomotion", "locomotion"),
+    "manipulation": _off_policy("manipulation", "Playground manipulation", "manipulation"),
+    "user": _off_policy("user", "user environment", None),
     "minatar": TaskKind(
         "minatar", "MinAtar", observation="image", action="discrete", trainer="on-policy", algos=("ppo",),
         episode_length=10_000, requires="pgx", install='pip install "packages/sf2-core-jax[minatar]"',
@@ -110,32 +132,63 @@ PAPER_BUDGETS = {
 PAPER_ACTION_REPEAT = {"PendulumSwingup": 4}
 
 
+GROUP = "sf2.tasks"   # the entry-point group of users' environments: name = "module:callable"
+OBS_KEY = "state"     # the key of a dict observation the agents read (Playground PPO's policy obs_key)
+_USER = (f"or your own environment: module:callable, or a name of the entry-point group {GROUP!r} "
+         f"(docs/agents.md)")
+
+
 @functools.lru_cache(maxsize=1)
-def playground_tasks() -> tuple[str, ...]:
-    """Names of Playground's DM Control suite tasks (state observations), e.g. 'CartpoleBalance'."""
+def playground_tasks() -> dict[str, str]:
+    """{name: kind} of every task in Playground's registries, e.g. 'CartpoleBalance': 'playground'."""
     from mujoco_playground import registry
 
-    return tuple(registry.dm_control_suite.ALL_ENVS)
+    return {name: k.name for k in KINDS.values() if k.suite for name in getattr(registry, k.suite).ALL_ENVS}
+
+
+@functools.lru_cache(maxsize=1)
+def task_entry_points() -> dict[str, metadata.EntryPoint]:
+    """{name: entry point} of the group `GROUP` in the installed distributions (read once per process)."""
+    found: dict[str, metadata.EntryPoint] = {}
+    for ep in metadata.entry_points(group=GROUP):
+        found.setdefault(ep.name, ep)
+    return found
 
 
 def valid_tasks() -> tuple[str, ...]:
-    """Every valid task name: Playground's DM Control suite (imported), then `TASKS` (MinAtar's)."""
-    return playground_tasks() + tuple(TASKS)
+    """Every task name: Playground's (imported), `TASKS` (MinAtar's), then the entry points of `GROUP`."""
+    named = tuple(playground_tasks()) + tuple(TASKS)
+    return named + tuple(sorted(set(task_entry_points()) - set(named)))
+
+
+def _user_task(task: str) -> bool:
+    """Whether `task` (not one of `TASKS`) names a user's environment: an import path, or an entry point
+    whose name is not Playground's (Playground's names come first, where it is installed)."""
+    if ":" in task or task not in task_entry_points():
+        return ":" in task
+    try:
+        return task not in playground_tasks()
+    except ImportError:
+        return True
 
 
 def validate_task(task: str) -> str:
     """Return `task` if it is valid, else raise `ConfigError` listing the valid names by kind.
 
     Args:
-      task: a task name; one of `TASKS` is valid without importing Playground.
+      task: a task name; one of `TASKS` is valid without importing Playground; `module:callable` or an
+        entry point of `GROUP` is valid when its callable imports (it is not called: `check_env`).
 
     Returns:
       `task`.
 
     Raises:
-      ConfigError: an unknown name.
+      ConfigError: an unknown name, or a user's environment that cannot be imported.
     """
     if task in TASKS:
+        return task
+    if isinstance(task, str) and _user_task(task):
+        env_factory(task)
         return task
     tasks = tuple(dict.fromkeys(valid_tasks() + tuple(TASKS)))
     if task in tasks:
@@ -144,12 +197,16 @@ def validate_task(task: str) -> str:
     hint = f" Did you mean {', '.join(close)}?" if close else ""
     by_kind = {k.label: [t for t in tasks if task_kind(t) is k] for k in KINDS.values()}
     listing = "; ".join(f"{label}: {', '.join(names)}" for label, names in by_kind.items() if names)
-    raise ConfigError(f"unknown task {task!r}.{hint} Valid tasks ({listing})")
+    raise ConfigError(f"unknown task {task!r}.{hint} Valid tasks ({listing}); {_USER}")
 
 
 def task_kind(task: str) -> TaskKind:
-    """The `TaskKind` of a valid task name: its `TASKS` row's, else Playground's."""
-    return KINDS[TASKS[task].kind] if task in TASKS else KINDS["playground"]
+    """The `TaskKind` of a valid task name: its `TASKS` row's, a user's environment's, else Playground's."""
+    if task in TASKS:
+        return KINDS[TASKS[task].kind]
+    if _user_task(task):
+        return KINDS["user"]
+    return KINDS[playground_tasks().get(task, "playground")]
 
 
 def check_algo(task: str, algo: str) -> None:
@@ -170,7 +227,9 @@ def check_algo(task: str, algo: str) -> None:
     if algo in kind.algos or not takers:
         return
     names = " or ".join(f"--algo {a}" for a in kind.algos)
-    other = ", ".join(f"{k.label} tasks' {k.trainer} trainer" for k in takers)
+    labels = [k.label for k in takers]
+    other = f"{', '.join(labels[:-1])} and {labels[-1]}" if len(labels) > 1 else labels[0]
+    other += f" tasks' {takers[0].trainer} trainer"     # each algo is one trainer's
     raise ConfigError(f"task {task!r} is a {kind.label} task: {kind.label} tasks take the {kind.trainer} "
                       f"trainer ({names}); --algo {algo} is the {other}")
 
@@ -198,8 +257,9 @@ def check_installed(task: str) -> None:
 
 def paper_budget(task: str) -> int:
     """Env steps for `task`: Table 1 for the paper's tasks; its kind's `budget` where it has one (MinAtar:
-    docs/minatar.md); for the other Playground tasks, Playground's own SAC budget
-    (`dm_control_suite_params.brax_sac_config`), which is what the authors' sweep script would use."""
+    docs/minatar.md; locomotion, manipulation and users' environments: `OFF_POLICY_BUDGET`); for the other
+    DM Control tasks, Playground's own SAC budget (`dm_control_suite_params.brax_sac_config`), which is
+    what the authors' sweep script would use."""
     if task in PAPER_BUDGETS:
         return PAPER_BUDGETS[task]
     if task_kind(task).budget is not None:
@@ -210,4 +270,230 @@ def paper_budget(task: str) -> int:
 
 
 def paper_action_repeat(task: str) -> int:
-    return PAPER_ACTION_REPEAT.get(task, 1)
+    """Action repeat of `task`: Table 1's; a locomotion or manipulation task's Playground env config's
+    (`registry.get_default_config`); 1 otherwise (every DM Control task's config holds 1)."""
+    if task in PAPER_ACTION_REPEAT:
+        return PAPER_ACTION_REPEAT[task]
+    return int(_playground_config(task).action_repeat) if _config_kind(task) else 1
+
+
+def episode_length(task: str) -> int:
+    """The episode limit of `task` in env steps: a locomotion or manipulation task's Playground env
+    config's; its kind's `episode_length` otherwise (DM Control: 1000, every task's config)."""
+    if _config_kind(task):
+        return int(_playground_config(task).episode_length)
+    return task_kind(task).episode_length
+
+
+def _config_kind(task: str) -> bool:
+    return task_kind(task).name in ("locomotion", "manipulation")
+
+
+@functools.lru_cache(maxsize=64)
+def _playground_config(task: str):
+    """Playground's default env config of `task` (read without building the env or its assets)."""
+    from mujoco_playground import registry
+
+    return registry.get_default_config(task)
+
+
+# ------------------------------------------------------------------------------------------- environments
+_INTERFACE = ("an environment has reset(rng) -> state and step(state, action) -> state, the state holding "
+              "obs, reward, done and info, and the ints observation_size and action_size (docs/agents.md)")
+_SUPPORTED = (f"the off-policy trainers take flat state vectors (observation_size an int, or a dict holding "
+              f"one under {OBS_KEY!r}) and continuous actions in [-1, 1] (action_size an int); image "
+              f"observations and discrete actions are MinAtar's, with --algo ppo")
+
+
+@functools.lru_cache(maxsize=32)
+def env_factory(task: str):
+    """The callable that builds `task`'s environment, imported, not called.
+
+    Args:
+      task: a valid task: Playground's name, `module:callable`, or an entry point of `GROUP`.
+
+    Returns:
+      A callable of no arguments returning the environment (Playground's: `registry.load` with the
+      pure-JAX MJX backend, `impl='jax'`).
+
+    Raises:
+      ConfigError: a malformed import path, a module that cannot be imported, a missing or not callable
+        attribute, an entry point that cannot be loaded.
+    """
+    if not _user_task(task):
+        from mujoco_playground import registry
+
+        return functools.partial(registry.load, task, config_overrides={"impl": "jax"})
+    if ":" not in task:
+        ep = task_entry_points()[task]
+        try:
+            factory = ep.load()
+        except (ImportError, AttributeError) as err:
+            raise ConfigError(f"task {task!r} (entry point {ep.value} of {GROUP!r}) could not be imported: "
+                              f"{err}") from err
+    else:
+        module, _, name = task.partition(":")
+        if not module or not name or ":" in name:
+            raise ConfigError(f"task {task!r} is not an import path: expected 'module:callable', e.g. "
+                              f"mypkg.envs:make_env; {_USER}")
+        try:
+            factory = getattr(importlib.import_module(module), name)
+        except ImportError as err:
+            raise ConfigError(f"task {task!r}: module {module!r} cannot be imported ({err}); an import-path "
+                              f"task is 'module:callable' with the module on the Python path") from err
+        except AttributeError:
+            raise ConfigError(f"task {task!r}: module {module!r} has no attribute {name!r}") from None
+    if not callable(factory):
+        raise ConfigError(f"task {task!r}: {factory!r} is not callable; it must be a callable of no "
+                          f"arguments returning the environment")
+    return factory
+
+
+@dataclass(frozen=True)
+class EnvSizes:
+    """What the agents see of an environment.
+
+    Attributes:
+      obs_size: the length of the observation vector.
+      action_size: the number of action dimensions.
+      obs_key: the key of a dict observation the agents read (`OBS_KEY`), or None for a flat one.
+    """
+
+    obs_size: int
+    action_size: int
+    obs_key: str | None
+
+
+def env_sizes(task: str, env) -> EnvSizes:
+    """Check that `env` is one the off-policy trainers can drive, before anything is compiled.
+
+    Args:
+      task: its task name (for messages).
+      env: the environment (`env_factory(task)()`).
+
+    Returns:
+      Its `EnvSizes`: a flat observation, or a dict observation's `OBS_KEY` entry.
+
+    Raises:
+      ConfigError: not an environment, image or other structured observations, discrete actions.
+    """
+    missing = [a for a in ("reset", "step", "observation_size", "action_size") if not hasattr(env, a)]
+    if isinstance(getattr(env, "num_actions", None), int):
+        raise ConfigError(f"task {task!r} has discrete actions (num_actions = {env.num_actions}); "
+                          f"{_SUPPORTED}")
+    if missing:
+        raise ConfigError(f"task {task!r}: its callable returned {type(env).__name__}, which is not an "
+                          f"environment: it lacks {', '.join(missing)}; {_INTERFACE}")
+    obs, key = env.observation_size, None
+    if isinstance(obs, Mapping) and OBS_KEY in obs:
+        obs, key = obs[OBS_KEY], OBS_KEY
+    shapes = list(obs.values()) if isinstance(obs, Mapping) else [obs]
+    if any(isinstance(s, (tuple, list)) and len(s) > 1 for s in shapes):
+        raise ConfigError(f"task {task!r} has image observations {env.observation_size}; {_SUPPORTED}")
+    if isinstance(obs, (tuple, list)) and len(obs) == 1:
+        obs = obs[0]
+    if isinstance(obs, Mapping) or not _positive_int(obs):
+        raise ConfigError(f"task {task!r} has observations {env.observation_size}, which the agents cannot "
+                          f"read; {_SUPPORTED}")
+    if not _positive_int(env.action_size):
+        raise ConfigError(f"task {task!r} has action_size {env.action_size!r}; {_SUPPORTED}")
+    return EnvSizes(int(obs), int(env.action_size), key)
+
+
+def _positive_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and v >= 1
+
+
+@functools.lru_cache(maxsize=16)
+def load_env(task: str):
+    """`task`'s environment, built once per process, and its checked `EnvSizes`.
+
+    Args:
+      task: a valid task of an off-policy kind.
+
+    Returns:
+      (env, `env_sizes(task, env)`).
+
+    Raises:
+      ConfigError: as `env_factory` and `env_sizes`; a callable that needs arguments.
+    """
+    factory = env_factory(task)
+    try:
+        env = factory()
+    except TypeError as err:
+        raise ConfigError(f"task {task!r}: calling {factory!r} with no arguments failed: {err}") from err
+    return env, env_sizes(task, env)
+
+
+def check_env(task: str) -> None:
+    """Build and check a user's environment (`load_env`); Playground's are checked when built.
+
+    Args:
+      task: a valid task.
+
+    Raises:
+      ConfigError: as `load_env`.
+    """
+    if task not in TASKS and _user_task(task):
+        load_env(task)
+
+
+def training_env(task: str, episode_length: int, action_repeat: int):
+    """`task`'s environment as both cores' trainers step it: batched, cut after `episode_length` env steps
+    with `info['truncation']` set, each action repeated `action_repeat` times, reset to its first state
+    when done (Playground's `wrap_for_brax_training`; Brax's `training.wrap` for a Brax env), and a dict
+    observation's `OBS_KEY` entry as its observation (`ObsKey`).
+
+    Args:
+      task: a valid task of an off-policy kind.
+      episode_length: env steps per episode.
+      action_repeat: physics steps per env step.
+
+    Returns:
+      (the wrapped env, its `EnvSizes`).
+
+    Raises:
+      ConfigError: as `load_env`.
+    """
+    env, sizes = load_env(task)
+    from brax.envs.base import Env as BraxEnv
+
+    if isinstance(env, BraxEnv):
+        from brax.envs.wrappers import training
+
+        wrapped = training.wrap(env, episode_length=episode_length, action_repeat=action_repeat)
+    else:
+        from mujoco_playground import wrapper
+
+        wrapped = wrapper.wrap_for_brax_training(env, episode_length=episode_length,
+                                                 action_repeat=action_repeat)
+    return (wrapped if sizes.obs_key is None else ObsKey(wrapped, sizes.obs_key)), sizes
+
+
+class ObsKey:
+    """A batched env whose states carry `obs[key]` as their observation: the whole observation rides in
+    `info[ObsKey.FULL]` and is handed back to the wrapped env's `step`, so the env and its auto-reset see
+    the observations they made."""
+
+    FULL = "sf2_full_obs"
+
+    def __init__(self, env, key: str):
+        self.env, self.key = env, key
+
+    def reset(self, rng):
+        return self._select(self.env.reset(rng))
+
+    def step(self, state, action):
+        info = dict(state.info)
+        obs = info.pop(self.FULL)
+        return self._select(self.env.step(state.replace(obs=obs, info=info), action))
+
+    def _select(self, state):
+        return state.replace(obs=state.obs[self.key], info={**state.info, self.FULL: state.obs})
+
+    @property
+    def observation_size(self) -> int:
+        return self.env.observation_size[self.key][-1]
+
+    def __getattr__(self, name):          # action_size, unwrapped, ...
+        return getattr(self.env, name)

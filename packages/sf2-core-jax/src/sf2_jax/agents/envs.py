@@ -1,10 +1,10 @@
-"""Tasks and env creation. The task table (which MuJoCo Playground DM Control tasks exist, the paper's
+"""Tasks and env creation. The task table (Playground's tasks and users' environments, the paper's
 per-task budgets and action repeat: Appendix E Table 1; docs/core-contract.md "Agents") is
-`sf2_common.agents.tasks`, re-exported here. Environments always use the pure-JAX MJX backend
-(`config_overrides={'impl': 'jax'}`) and are wrapped with Playground's `wrap_for_brax_training`
-(Brax's VmapWrapper + EpisodeWrapper(episode_length, action_repeat) + auto-reset to the cached first
-state; `state.info['truncation']` is 1 on the step an episode is cut by the time limit). Nothing in
-the wrapper stack uses pmap-era JAX APIs, so it works under jax >= 0.10.
+`sf2_common.agents.tasks`, re-exported here; envs are built by its `training_env`: Playground's tasks with
+the pure-JAX MJX backend (`config_overrides={'impl': 'jax'}`), wrapped with Playground's
+`wrap_for_brax_training` (Brax's VmapWrapper + EpisodeWrapper(episode_length, action_repeat) + auto-reset
+to the cached first state; `state.info['truncation']` is 1 on the step an episode is cut by the time
+limit). Nothing in the wrapper stack uses pmap-era JAX APIs, so it works under jax >= 0.10.
 
 Playground is imported lazily, so `import sf2_jax.agents` stays cheap.
 """
@@ -21,10 +21,10 @@ from sf2_common.agents.tasks import (
     PAPER_TASKS,
     paper_action_repeat,
     paper_budget,
+    training_env,
     valid_tasks,
     validate_task,
 )
-from sf2_common.errors import ConfigError
 
 __all__ = [
     "PAPER_TASKS", "PAPER_BUDGETS", "PAPER_ACTION_REPEAT", "valid_tasks", "validate_task",
@@ -53,7 +53,7 @@ def env_spec(task: str, episode_length: int, action_repeat: int) -> EnvSpec:
     one episode per env and ignores the resets.
 
     Args:
-      task: a MuJoCo Playground DM Control task (`valid_tasks`).
+      task: a Playground task or a user's environment (`validate_task`).
       episode_length: env steps per episode (the time limit; `truncation` is set where it cuts).
       action_repeat: physics steps per env step.
 
@@ -61,22 +61,14 @@ def env_spec(task: str, episode_length: int, action_repeat: int) -> EnvSpec:
       Its `EnvSpec`, cached per (task, episode_length, action_repeat).
 
     Raises:
-      ConfigError: an unknown task, or one with structured observations.
+      ConfigError: an unknown task, or one whose observations or actions the agents cannot take
+        (`sf2_common.agents.tasks.env_sizes`).
     """
     validate_task(task)
-    from mujoco_playground import registry, wrapper
-
-    env = registry.load(task, config_overrides={"impl": "jax"})
-    obs_size = env.observation_size
-    if not isinstance(obs_size, int):
-        raise ConfigError(f"task {task!r} has structured observations {obs_size}; only flat state "
-                          f"observations are supported")
-    train_env = StrongTypes(wrapper.wrap_for_brax_training(env, episode_length=episode_length,
-                                                           action_repeat=action_repeat))
-    eval_env = StrongTypes(wrapper.wrap_for_brax_training(env, episode_length=episode_length,
-                                                          action_repeat=action_repeat))
-    return EnvSpec(task=task, train_env=train_env, eval_env=eval_env, obs_size=int(obs_size),
-                   action_size=int(env.action_size), episode_length=episode_length,
+    train_env, sizes = training_env(task, episode_length, action_repeat)
+    eval_env, _ = training_env(task, episode_length, action_repeat)
+    return EnvSpec(task=task, train_env=StrongTypes(train_env), eval_env=StrongTypes(eval_env),
+                   obs_size=sizes.obs_size, action_size=sizes.action_size, episode_length=episode_length,
                    action_repeat=action_repeat)
 
 

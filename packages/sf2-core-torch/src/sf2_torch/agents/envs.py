@@ -1,5 +1,5 @@
-"""Tasks and env creation, for the torch trainer. The task table (the paper's tasks, budgets and action
-repeat) is `sf2_common.agents.tasks`, re-exported here as in the JAX agents.
+"""Tasks and env creation, for the torch trainer. The task table (Playground's tasks and users' environments,
+the paper's budgets and action repeat) is `sf2_common.agents.tasks`, re-exported here as in the JAX agents.
 
 `PlaygroundEnv` is a TorchRL env (a subclass of TorchRL's `MujocoPlaygroundWrapper`) around the *same* JAX
 env the JAX trainer steps: Playground's task with the pure-JAX MJX backend, wrapped by
@@ -28,10 +28,10 @@ from sf2_common.agents.tasks import (
     PAPER_TASKS,
     paper_action_repeat,
     paper_budget,
+    training_env,
     valid_tasks,
     validate_task,
 )
-from sf2_common.errors import ConfigError
 from tensordict import TensorDict
 from torchrl.data.tensor_specs import Bounded, Composite, Unbounded
 from torchrl.envs import MujocoPlaygroundWrapper
@@ -127,7 +127,7 @@ def env_spec(task: str, episode_length: int, action_repeat: int) -> EnvSpec:
     """Load a task with the MJX backend, wrapped as the JAX trainer wraps it, its reset and step jitted.
 
     Args:
-      task: a MuJoCo Playground DM Control task (`valid_tasks`).
+      task: a Playground task or a user's environment (`validate_task`).
       episode_length: env steps per episode (the time limit; `truncation` is set where it cuts).
       action_repeat: physics steps per env step.
 
@@ -135,21 +135,16 @@ def env_spec(task: str, episode_length: int, action_repeat: int) -> EnvSpec:
       Its `EnvSpec`, cached per (task, episode_length, action_repeat).
 
     Raises:
-      ConfigError: an unknown task, or one with structured observations.
+      ConfigError: an unknown task, or one whose observations or actions the agents cannot take
+        (`sf2_common.agents.tasks.env_sizes`).
     """
     validate_task(task)
     import jax
-    from mujoco_playground import registry, wrapper
 
-    env = registry.load(task, config_overrides={"impl": "jax"})
-    obs_size = env.observation_size
-    if not isinstance(obs_size, int):
-        raise ConfigError(f"task {task!r} has structured observations {obs_size}; only flat state "
-                          f"observations are supported")
-    wrapped = wrapper.wrap_for_brax_training(env, episode_length=episode_length, action_repeat=action_repeat)
+    wrapped, sizes = training_env(task, episode_length, action_repeat)
     return EnvSpec(task=task, jax_env=wrapped, reset=jax.jit(_physics(wrapped.reset)),
-                   step=jax.jit(_physics(wrapped.step)), obs_size=int(obs_size),
-                   action_size=int(env.action_size), episode_length=episode_length,
+                   step=jax.jit(_physics(wrapped.step)), obs_size=sizes.obs_size,
+                   action_size=sizes.action_size, episode_length=episode_length,
                    action_repeat=action_repeat)
 
 
