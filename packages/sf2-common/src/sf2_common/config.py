@@ -32,12 +32,9 @@ def _is_real(value: Any) -> bool:
 @dataclasses.dataclass(frozen=True)
 class SF2Config:
     """Sizes (D = `obs_size`, A = `action_size`, F = `feature_size`, E = `embedding_size`) and
-    hyperparameters of SF² (paper §3, Algorithm 1, Appendix D–E). Frozen and hashable, so it can be a
-    static argument of `jax.jit` and a key of the compiled-program caches.
-
-    Construction validates every field and raises `ConfigError` naming the field, the value and what is
-    valid. Tuples of sizes may be given as lists; they are stored as tuples of ints.
-    """
+    hyperparameters of SF² (paper §3, Algorithm 1, Appendix D–E); frozen and hashable (a static argument of
+    `jax.jit`). Construction validates every field (`ConfigError` naming the field, the value and what is
+    valid); lists of sizes are stored as tuples of ints."""
 
     obs_size: int  # D
     action_size: int  # A
@@ -58,8 +55,7 @@ class SF2Config:
     learning_rate: float = 1e-3  # Adam lr of psi, zeta, Q, policy (authors' runs; Table 1 says 1e-4)
     alpha_learning_rate: float = 3e-4  # Adam lr of SAC's log alpha (Table 1)
     adam_eps: float = 1e-5  # authors' optimizer
-    # ψ (a group both the TD loss and the representation's loss train) keeps one Adam state across its two
-    # steps per SGD step, as the authors' code does; False gives each loss its own state (an ablation)
+    # ψ keeps one Adam state across its TD and representation steps (authors' code); False: one per loss
     shared_adam: bool = True
     smoothing_noise: float = 0.2  # TD3 target-policy smoothing sigma (Table 1)
     noise_clip: float = 0.3  # TD3 smoothing clip (Table 1)
@@ -70,8 +66,7 @@ class SF2Config:
     init_log_alpha: float = 0.0  # SAC
     normalizer_std_min: float = 1e-6  # running-statistics std clip (Brax)
     normalizer_std_max: float = 1e6
-    # the SPR baseline's (not SF²'s): σ of the Gaussian noise s̃ = s̄ + σξ that stands in for SPR's image
-    # augmentations on state inputs (paper App. B.1; 0.05 is the value its Figure 5 sweep chose)
+    # the SPR baseline's σ of s̃ = s̄ + σξ, its augmentation of state inputs (paper App. B.1, Figure 5's 0.05)
     spr_augmentation_std: float = 0.05
 
     def __post_init__(self) -> None:
@@ -117,13 +112,8 @@ class SF2Config:
     @classmethod
     def small(cls, obs_size: int, action_size: int, **overrides: Any) -> SF2Config:
         """The test size: feature 16, hidden (32, 32), q hidden 32, zeta hidden (32, 32), embedding 8."""
-        kwargs: dict[str, Any] = dict(
-            feature_size=16,
-            hidden_sizes=(32, 32),
-            q_hidden_size=32,
-            zeta_hidden_sizes=(32, 32),
-            embedding_size=8,
-        )
+        kwargs: dict[str, Any] = dict(feature_size=16, hidden_sizes=(32, 32), q_hidden_size=32,
+                                      zeta_hidden_sizes=(32, 32), embedding_size=8)
         kwargs.update(overrides)
         return cls(obs_size=obs_size, action_size=action_size, **kwargs)
 

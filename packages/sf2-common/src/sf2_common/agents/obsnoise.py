@@ -1,9 +1,7 @@
-"""`PROG eval RUN --obs-noise STDS [--checkpoints N] [--save]` of either core: a run's latest checkpoints
-evaluated with Gaussian noise added to the observations the policy sees (paper App. C.2.2), one call of
-the core's `evaluate_checkpoint_noises` per checkpoint. A study's [evaluation] runs it after training
-and its report reads RUN/obs_noise.json (`--save`): {"settings": {"obs_noise", "checkpoints", "episodes",
-"deterministic"}, "results": [{"noise", "epoch", "env_steps", "deterministic", "returns": {seed: [...]}}]}.
-"""
+"""`PROG eval RUN --obs-noise STDS [--checkpoints N] [--save]`: a run's latest checkpoints evaluated with
+Gaussian noise on the observations the policy sees (paper App. C.2.2). `--save` writes RUN/obs_noise.json
+(a study's report reads it): {"settings": {"obs_noise", "checkpoints", "episodes", "deterministic"},
+"results": [{"noise", "epoch", "env_steps", "deterministic", "returns": {seed: [...]}}]}."""
 
 from __future__ import annotations
 
@@ -37,9 +35,8 @@ def parse_noise(text: str) -> tuple[float, ...]:
 def evaluate_obs_noise(evaluate_noises: Callable, run, noises, checkpoints: int = 1,
                        episodes: int | None = None, deterministic: bool | None = None,
                        log: Callable[[str], None] | None = None) -> dict:
-    """Evaluate the last `checkpoints` checkpoints of `run` at every noise std (module docstring);
-    `evaluate_noises` is the framework's `evaluate_checkpoint_noises`. Results: checkpoint by
-    checkpoint (oldest first), each at every std in the order of `noises`."""
+    """The last `checkpoints` checkpoints of `run` (oldest first) at every std of `noises` by the core's
+    `evaluate_checkpoint_noises` (`evaluate_noises`): obs_noise.json's content (module docstring)."""
     if not isinstance(checkpoints, int) or checkpoints < 1:
         raise ConfigError(f"--checkpoints {checkpoints!r} is invalid: an int >= 1")
     latest = evaluate_noises(run, None, episodes, deterministic, tuple(noises))
@@ -63,9 +60,8 @@ def evaluate_obs_noise(evaluate_noises: Callable, run, noises, checkpoints: int 
 
 
 def save(run, result: dict) -> Path:
-    """Write `evaluate_obs_noise`'s `result` into the run folder `run` as obs_noise.json, one line per
-    (noise, checkpoint), each return the shortest decimal of its float32 (docs/decisions/obs-noise.md);
-    returns the path."""
+    """Write `result` as RUN/obs_noise.json, a line per (noise, checkpoint), each return the shortest
+    decimal of its float32 (docs/decisions/obs-noise.md); returns the path."""
     import numpy as np
 
     def short(values):

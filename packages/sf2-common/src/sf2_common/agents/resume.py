@@ -1,15 +1,8 @@
-"""Where a run folder resumes, decided once for both trainers (docs/run-folders.md, "Recovery rules").
-
-The rule: resume from the newest checkpoint that restores completely. Each core supplies its checkpointer
-(`all()`: the epochs on disk; `path(epoch)`: a checkpoint's folder) and `restore(epoch)`, which raises
-`CheckpointDamaged` for a checkpoint whose files are not what was written and `CheckpointMismatch` for one
-that does not fit the program (never worked around: it propagates).
-
-A damaged newer checkpoint is reported and set aside in `damaged/<time>/` with a copy of metrics.jsonl,
-never deleted; metrics.jsonl then keeps the rows up to the checkpoint used, so its rows equal an
-uninterrupted run's. Every check comes before any change, and the changes are ordered (the record of what
-is set aside, the moves, one atomic rewrite of metrics.jsonl) so that a kill between any two leads the
-next resume to the same result."""
+"""Where a run folder resumes, for both trainers (docs/run-folders.md, "Recovery rules"): the newest
+checkpoint that restores (`restore(epoch)` raises `CheckpointDamaged`; `CheckpointMismatch` propagates).
+A damaged newer one is set aside in `damaged/<time>/` with a copy of metrics.jsonl, never deleted, and
+metrics.jsonl keeps the rows up to the checkpoint used. Every check precedes any change, and the changes
+are ordered so that a kill between any two leads the next resume to the same result."""
 
 from __future__ import annotations
 
@@ -48,9 +41,9 @@ class Resumed:
 
 def resume_run(run: RunFolder, ckpt: Checkpoints, restore: Callable[[int], Any], *, seeds, sched,
            existing: bool, resume: bool = True) -> Resumed:
-    """Apply the rule (module docstring) to `run`. `existing`: the folder holds this run (from
-    `RunFolder.check_compatible`); `resume=False` refuses a folder holding checkpoints; `sched` (the
-    run's `configs.Schedule`) gives the epoch count and env steps of the notices."""
+    """Apply the rule (module docstring) to `run`. `existing`: the folder holds this run
+    (`RunFolder.check_compatible`); `resume=False` refuses a folder with checkpoints; `sched` is the run's
+    `configs.Schedule` (for the notices)."""
     if not existing:
         run.truncate_rows(-1)
         return Resumed(None, None, [], 0.0, 0, None)
