@@ -1,9 +1,7 @@
-"""The training host loop of both trainers, framework-free: `run_epochs` drives a framework's `Session`
-(train an epoch, evaluate, save a checkpoint) through the schedule and writes the metric rows, the NaN
-guard's message, the learning curve and the progress bar, so both cores run the same order per epoch
-(train → NaN guard → evaluate → append rows → checkpoint) and write the same rows. A `BatchedEvaluation`
-session (the JAX trainer) evaluates the epochs between two checkpoints in one program, each from its own
-parameters and keys, its rows written before the checkpoint (docs/decisions/batched-evaluation.md)."""
+"""The host loop of both trainers: `run_epochs` drives a framework's `Session` through the schedule in one
+order (train → NaN guard → evaluate → rows → checkpoint) and writes the same rows, curve and progress bar
+for both. A `BatchedEvaluation` session (JAX) evaluates the epochs between two checkpoints in one program,
+each from its own parameters and keys (docs/decisions/batched-evaluation.md)."""
 
 from __future__ import annotations
 
@@ -34,10 +32,9 @@ class TrainingDiverged(RuntimeError):
 
 def diverged_message(first_bad: dict, sched, epoch: int, seeds, cfg, last_ckpt,
                      order=()) -> str | None:
-    """The message naming the first non-finite loss of the epoch: lowest SGD step, then the order the
-    SGD step computes them in (`order`), or None if every metric is finite. `first_bad[name][seed]` is
-    the index (local actor step · SGD steps per actor step + update) of the first non-finite value, or −1
-    (`sched.sgd_steps_per_actor_step`: grad_updates_per_step, or an on-policy update's SGD steps)."""
+    """The message naming the epoch's first non-finite loss (lowest SGD step, then `order`), or None.
+    `first_bad[name][seed]`: the index (local actor step · `sched.sgd_steps_per_actor_step` + update) of
+    the first non-finite value, or −1."""
     G = sched.sgd_steps_per_actor_step
     rank = {name: i for i, name in enumerate(order)}
     problems = []
@@ -128,9 +125,8 @@ def cpu_model() -> str:
 
 
 def hardware(accelerators: Iterable[str]) -> str:
-    """What a run trains on, for config.json and train.log: the model names of the accelerators its program
-    uses ("NVIDIA H100 80GB HBM3", "2 x NVIDIA H200"), or "CPU (<model>)" without any. Wall times and the
-    study runner's forecasts are those of this hardware (results/fig7-td3/README.md, "Cost per run")."""
+    """What a run trains on (config.json, train.log): its accelerators' model names ("NVIDIA H100 80GB
+    HBM3", "2 x NVIDIA H200"), or "CPU (<model>)" without any."""
     counts = Counter(accelerators)   # in first-seen order
     if not counts:
         return f"CPU ({cpu_model()})"
@@ -142,11 +138,9 @@ NUMERICS_ENV = ("XLA_FLAGS", "NVIDIA_TF32_OVERRIDE", "CUBLAS_WORKSPACE_CONFIG")
 
 
 def numerics_environment(environ=None) -> dict:
-    """{name: value} of the `NUMERICS_ENV` variables set (non-empty) in `environ` (default: this process's):
-    XLA_FLAGS (`--xla_gpu_deterministic_ops=true` makes GPU runs repeat bit for bit and changes their
-    numbers: docs/decisions/gpu-determinism.md), NVIDIA_TF32_OVERRIDE (TF32 in cuBLAS),
-    CUBLAS_WORKSPACE_CONFIG (torch's deterministic cuBLAS). config.json keeps them as "environment", so a run
-    folder says how it was trained, and train.log names them each session (`environment_line`)."""
+    """{name: value} of the `NUMERICS_ENV` variables set in `environ` (default: this process's), which
+    config.json keeps as "environment" (docs/decisions/gpu-determinism.md: XLA_FLAGS'
+    `--xla_gpu_deterministic_ops`; TF32 in cuBLAS; torch's deterministic cuBLAS)."""
     import os
 
     environ = os.environ if environ is None else environ
@@ -188,16 +182,15 @@ class Session(Protocol):
 
 
 class BatchedEvaluation(Protocol):
-    """What a `Session` may offer besides: several epochs' evaluations in one program (module docstring).
-    `run_epochs` uses it when the session has it and `cfg.checkpoint_every` > 1."""
+    """What a `Session` may offer besides, used when `cfg.checkpoint_every` > 1: several epochs' evaluations
+    in one program (module docstring)."""
 
     def snapshot(self, epoch: int) -> None:
         """Keep a copy of what the evaluation after epoch `epoch` needs (the policy as it is now)."""
 
     def evaluate_many(self, epochs: list[int]) -> np.ndarray:
-        """Returns (len(epochs), seeds, episodes): for each epoch, the returns `Session.evaluate(epoch)`
-        gives right after that epoch trained (up to float rounding of the batched program), from the
-        snapshots of those epochs, which it then drops."""
+        """(len(epochs), seeds, episodes): per epoch, `Session.evaluate(epoch)`'s returns right after it
+        trained (up to float rounding), from those epochs' snapshots, which it then drops."""
 
 
 def run_epochs(session: Session, *, cfg, sched, seeds, run, title: str, rows: list[dict], start: int,
@@ -205,17 +198,15 @@ def run_epochs(session: Session, *, cfg, sched, seeds, run, title: str, rows: li
                hook: Callable[[str, int], None] | None = None, stop_after_epoch: int | None = None,
                plot: bool = True, log=()) -> list[dict]:
     """The host loop of both trainers, from epoch `start` (0: evaluate the initial policy and write
-    checkpoint 0 first) to the end of the schedule or `stop_after_epoch`. Per epoch: train → NaN guard
-    (`TrainingDiverged` before anything of the epoch is written) → evaluate → append rows → `hook("rows")`
-    → checkpoint (every `checkpoint_every` epochs, the last and `stop_after_epoch`) → `hook("checkpoint")`
-    → learning curve. `hook("train"|"evaluate"|"save", epoch)` is called as each of those begins (a kill
-    there is a kill during it: nothing is written while an epoch trains or evaluates). With a
-    `BatchedEvaluation` session and `checkpoint_every` > 1 the epochs between checkpoints are evaluated
-    together before each checkpoint (module docstring): "evaluate" and "rows" are then called once per
-    batch, with its last epoch. `rows` (the folder's rows so far) and `last` (the latest checkpoint) come
-    from a resume; `walltime` is the wall time the run had already spent. What libraries log goes to the
-    run's train.log (`sf2_common.agents.runlog`). `log` names the sinks (tensorboard, wandb) that get
-    every row too, as `hook("rows")` begins (`sf2_common.agents.loggers`). Returns all rows."""
+    checkpoint 0 first) to the schedule's end or `stop_after_epoch`. Per epoch: train → NaN guard
+    (`TrainingDiverged`, nothing of the epoch written) → evaluate → append rows → `hook("rows")` →
+    checkpoint (every `checkpoint_every` epochs, the last, `stop_after_epoch`) → `hook("checkpoint")` →
+    curve; `hook("train"|"evaluate"|"save", epoch)` as each begins (nothing is written during those). A
+    `BatchedEvaluation` session with `checkpoint_every` > 1 evaluates the epochs between checkpoints
+    together ("evaluate", "rows" once per batch, with its last epoch). `rows`, `last` (the latest
+    checkpoint) and `walltime` (spent so far) come from a resume; library logs go to train.log
+    (`runlog`), and every row to the sinks `log` names (`loggers`) as `hook("rows")` begins. Returns all
+    rows."""
     t_start = time.time() - walltime
     with library_log(run), Sinks(log, run, seeds, cfg, rows) as sinks:
         bar = progress_bar(progress, sched.total_env_steps, sched.env_steps_after(max(start - 1, 0)), title)
@@ -289,10 +280,9 @@ def _run_epochs(session, bar, t_start, *, cfg, sched, seeds, run, title, rows, s
 
 
 def _evaluate(session, done, batched: bool, *, seeds, sched, run, rows, t_start, hook) -> np.ndarray:
-    """Evaluate the trained epochs `done` (one, or in batched mode those since the last checkpoint: one
-    program, `BatchedEvaluation.evaluate_many`) and append their rows, each with an equal share of the
-    evaluation's wall time. `hook("evaluate"|"rows", e)` with e the last of them. Returns the last
-    epoch's returns (seeds, episodes)."""
+    """Evaluate the trained epochs `done` (batched: those since the last checkpoint, in one program) and
+    append their rows, sharing the wall time equally; `hook("evaluate"|"rows", last epoch)`. Returns the
+    last epoch's returns (seeds, episodes)."""
     epochs = [d[0] for d in done]
     call_hook(hook, "evaluate", epochs[-1])
     t = time.time()
