@@ -170,3 +170,26 @@ def test_non_empty_folder_without_a_study_is_refused(tmp_path):
     (tmp_path / "out" / "precious.txt").write_text("x")
     with pytest.raises(StudyError, match="not empty and holds no study"):
         StudyFolder(tmp_path / "out").check(_load(tmp_path, BASE), "jax")
+
+
+def test_a_study_takes_a_users_environment_by_import_path(tmp_path, monkeypatch):
+    """`tasks` entries are what `--task` takes: an import path resolves (its module imported, the env not
+    built: the core's validate builds it) into a run of that task; one that does not import names the file
+    and the entry."""
+    import sys
+    import types
+
+    from sf2_common.agents import configs
+
+    module = types.ModuleType("study_user_envs")
+    module.make_env = lambda: None
+    monkeypatch.setitem(sys.modules, "study_user_envs", module)
+    study = _load(tmp_path, BASE.replace('["CartpoleBalance"]', '["study_user_envs:make_env"]'))
+    runs = spec.resolve(study, configs.make_config, lambda cfg, seeds: cfg)
+    assert [(r.task, r.config.task, r.argv[:2]) for r in runs] == [
+        ("study_user_envs:make_env", "study_user_envs:make_env", ("--task", "study_user_envs:make_env"))]
+    bad = _load(tmp_path, BASE.replace('["CartpoleBalance"]', '["study_user_envs:missing"]'), "bad.toml")
+    with pytest.raises(StudyError) as err:
+        spec.resolve(bad, configs.make_config, lambda cfg, seeds: cfg)
+    assert str(err.value) == (f"{tmp_path / 'bad.toml'}: tasks[0]: task 'study_user_envs:missing': module "
+                              f"'study_user_envs' has no attribute 'missing'")
