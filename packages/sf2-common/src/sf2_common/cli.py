@@ -1,9 +1,6 @@
-"""The pieces of both cores' command lines, `sf2-jax` and `sf2-torch`: each core's cli.py builds its
-parser from these functions and calls its own trainer; commands of other packages (`study`, from
-sf2-studies) come by entry points of the group `sf2.commands`. Exit status: 0 done, 2 bad input
-(reported before anything is compiled, naming the problem and the valid choices), 3 a NaN/inf loss
-stopped training, 130 interrupted.
-"""
+"""The pieces of `sf2-jax` and `sf2-torch`: each core's cli.py builds its parser from these and calls its own
+trainer; other packages' commands (`study`) come by the entry points `sf2.commands`. Exit status: 0 done,
+2 bad input (before anything is compiled), 3 a NaN/inf loss stopped training, 130 interrupted."""
 
 from __future__ import annotations
 
@@ -331,9 +328,8 @@ _NEGATIVE = re.compile(r"-(\d|\.\d|inf$|nan$)", re.IGNORECASE)
 
 
 def join_negative_values(argv: list[str]) -> list[str]:
-    """`--flag -1e-3` → `--flag=-1e-3`: argparse takes a value starting with '-' for an option unless it
-    looks like a plain negative number (-0.001, not -1e-3 or -inf), so a negative value that is not reaches
-    the config's validation, which names the field and what is valid."""
+    """`--flag -1e-3` → `--flag=-1e-3`: argparse takes '-1e-3' or '-inf' (not '-0.001') for an option, so
+    such a value reaches the config's validation, which names the field and what is valid."""
     out: list[str] = []
     for tok in argv:
         if out and _NEGATIVE.match(tok) and out[-1].startswith("--") and "=" not in out[-1]:

@@ -92,8 +92,8 @@ class TrainConfig:
     min_replay_size: int = 8192   # prefill with uniform random actions
     max_replay_size: int = 4_194_304
     normalize_observations: bool = True
-    # on-policy updates (--algo ppo; docs/minatar.md): each update acts `rollout_length` steps in every env,
-    # then trains `update_epochs` passes over that rollout in minibatches of `minibatch_size` transitions
+    # on-policy updates (--algo ppo; docs/minatar.md): `rollout_length` steps of every env, then
+    # `update_epochs` passes over them in minibatches of `minibatch_size` transitions
     rollout_length: int = 128
     update_epochs: int = 3
     minibatch_size: int = 4096
@@ -135,9 +135,8 @@ class TrainConfig:
     # run management
     checkpoint_every: int = 1     # evaluations between checkpoints (the last one is always saved)
     keep_checkpoints: int = 2
-    # the learner's matmuls (networks, losses, acting); the physics always runs at fp32 `highest`
-    learner_precision: str = "highest"  # highest | tensorfloat32 | bfloat16: see LEARNER_PRECISIONS
-                                        # (the `paper` preset: tensorfloat32)
+    # the learner's matmuls (`LEARNER_PRECISIONS`; paper: tensorfloat32); the physics stays fp32 highest
+    learner_precision: str = "highest"
 
     def sf2_config(self, obs_size: int, action_size: int) -> SF2Config:
         """The core's `SF2Config` of this run for a task with these sizes (validated)."""
@@ -342,9 +341,8 @@ def _is_int(v) -> bool:
 
 
 def validate(cfg: TrainConfig, seeds, registry) -> TrainConfig:
-    """Check everything that can be checked without building a program; `registry` is the framework's
-    representation `Registry` (the representation must exist there and support the algorithm). Raises
-    `ConfigError`."""
+    """`cfg` after every check that needs no program (`ConfigError`); `registry` is the framework's
+    representation `Registry` (the representation must exist there and support the algorithm)."""
     tasks.validate_task(cfg.task)
     tasks.check_algo(cfg.task, cfg.algo)   # the task-kind hook: MinAtar takes `ppo`, Playground td3/sac
     tasks.check_installed(cfg.task)
