@@ -337,7 +337,7 @@ def env_factory(task: str):
             raise ConfigError(f"task {task!r} is not an import path: expected 'module:callable', e.g. "
                               f"mypkg.envs:make_env; {_USER}")
         try:
-            factory = getattr(importlib.import_module(module), name)
+            factory = functools.reduce(getattr, name.split("."), importlib.import_module(module))
         except ImportError as err:
             raise ConfigError(f"task {task!r}: module {module!r} cannot be imported ({err}); an import-path "
                               f"task is 'module:callable' with the module on the Python path") from err
