@@ -1,0 +1,115 @@
+"""CRL's losses (sf2_jax.losses_crl) against values derived by hand on a batch of three: the energy,
+InfoNCE with its log-sum-exp penalty and the contrastive accuracy (a tie: argmax takes the first), the
+actor's log σ and its squashed sample, the actor and temperature losses with their gradient contract, the
+truncated geometric goal offset (at γ = 1/2, n = 3 its CDF is 4/7, 6/7, 1) and the shape checks.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from sf2_jax import ShapeError
+from sf2_jax import losses_crl as lc
+
+E = 1e-6
+
+
+def e(d):
+    """The energy at distance d, by hand."""
+    return -math.sqrt(d * d + E)
+
+
+# φ = [0, 1, 3], ψ = [0, 2, 3] (F = 1); |φ_i − ψ_j| row by row
+PHI, PSI = [[0.0], [1.0], [3.0]], [[0.0], [2.0], [3.0]]
+DIST = [[0, 2, 3], [1, 1, 2], [3, 1, 0]]
+LSE = [math.log(sum(math.exp(e(d)) for d in row)) for row in DIST]
+DIAG = [e(0), e(1), e(0)]
+
+
+def test_energy():
+    assert float(lc.energy(jnp.array([0.0, 0.0]), jnp.array([3.0, 4.0]))) == pytest.approx(-math.sqrt(25 + E))
+    np.testing.assert_allclose(lc.energy(jnp.array(PHI)[:, None], jnp.array(PSI)[None]),
+                               [[e(d) for d in row] for row in DIST], rtol=1e-12)
+
+
+@pytest.mark.parametrize("c", [0.0, 0.1])
+def test_critic_loss(c):
+    loss, aux = lc.crl_critic_loss(jnp.array(PHI), jnp.array(PSI), c)
+    by_hand = -sum(DIAG[i] - LSE[i] for i in range(3)) / 3 + c * sum((LSE[i] + E) ** 2 for i in range(3)) / 3
+    assert float(loss) == pytest.approx(by_hand, rel=1e-12)
+    # rows 0 and 2 pick their own goal; row 1 is a tie (distance 1 to goals 0 and 1): argmax takes goal 0
+    assert float(aux["accuracy"]) == pytest.approx(2 / 3)
+    assert float(aux["logits_pos"]) == pytest.approx(sum(DIAG) / 3, rel=1e-12)
+    off = [e(d) for i, row in enumerate(DIST) for j, d in enumerate(row) if i != j]
+    assert float(aux["logits_neg"]) == pytest.approx(sum(off) / 6, rel=1e-12)
+    assert float(aux["logsumexp"]) == pytest.approx(sum(LSE) / 3 + E, rel=1e-12)
+
+
+def test_critic_loss_gradient_pulls_positives_together():
+    """d loss / d φ_0 by hand (c = 0): row 0's term −L_00 + ℓ_0 and the terms ℓ_j do not involve φ_0
+    except through row 0, so the gradient is (1/3) Σ_j (p_0j − [j = 0]) dL_0j/dφ_0, dL_0j/dφ_0 =
+    −(φ_0 − ψ_j)/sqrt((φ_0 − ψ_j)² + ε)."""
+    grad = jax.grad(lambda p: lc.crl_critic_loss(p, jnp.array(PSI), 0.0)[0])(jnp.array(PHI))
+    p = [math.exp(e(d) - LSE[0]) for d in DIST[0]]
+    d_l = [-(PHI[0][0] - PSI[j][0]) / math.sqrt((PHI[0][0] - PSI[j][0]) ** 2 + E) for j in range(3)]
+    by_hand = sum((p[j] - (j == 0)) * d_l[j] for j in range(3)) / 3
+    assert float(grad[0, 0]) == pytest.approx(by_hand, rel=1e-10)
+
+
+def test_actor_log_std_and_squashed_sample():
+    assert float(lc.actor_log_std(jnp.array(0.0))) == pytest.approx(-1.5)
+    assert float(lc.actor_log_std(jnp.array(40.0))) == pytest.approx(2.0)
+    a, logp = lc.squashed_gaussian_sample(jnp.array([[0.5, 0.0]]), jnp.array([[math.log(2.0), 0.0]]),
+                                          jnp.array([[1.0, 0.0]]))
+    half_log_2pi = 0.5 * math.log(2 * math.pi)
+    by_hand = (-0.5 - math.log(2.0) - half_log_2pi - math.log(1 - math.tanh(2.5) ** 2 + E)
+               + (-half_log_2pi - math.log(1 + E)))
+    np.testing.assert_allclose(a, [[math.tanh(2.5), 0.0]], rtol=1e-12)
+    assert float(logp[0]) == pytest.approx(by_hand, rel=1e-12)
+
+
+def test_actor_and_alpha_losses():
+    log_prob, q = jnp.array([-1.0, 0.5]), jnp.array([-2.0, -3.0])
+    loss, aux = lc.crl_actor_loss(log_prob, q, jnp.log(0.5))
+    assert float(loss) == pytest.approx((0.5 * -1 + 2 + 0.5 * 0.5 + 3) / 2)   # 2.375
+    assert float(aux["entropy"]) == pytest.approx(0.25)
+    g_alpha = jax.grad(lambda la: lc.crl_actor_loss(log_prob, q, la)[0])(jnp.log(0.5))
+    g_lp, g_q = jax.grad(lambda lp, qq: lc.crl_actor_loss(lp, qq, jnp.log(0.5))[0],
+                         argnums=(0, 1))(log_prob, q)
+    assert float(g_alpha) == 0.0
+    np.testing.assert_allclose(g_lp, [0.25, 0.25])
+    np.testing.assert_allclose(g_q, [-0.5, -0.5])
+    # α = 2, −log π − H̄ = [1 + 4, −3 + 4] = [5, 1]: loss 2 · 3, d/dlog α = α · 3
+    loss, aux = lc.crl_alpha_loss(jnp.log(2.0), jnp.array([-1.0, 3.0]), -4.0)
+    assert float(loss) == pytest.approx(6.0) and float(aux["alpha"]) == pytest.approx(2.0)
+    assert float(jax.grad(lambda la: lc.crl_alpha_loss(la, jnp.array([-1.0, 3.0]), -4.0)[0])(jnp.log(2.0))) \
+        == pytest.approx(6.0)
+    g = jax.grad(lambda lp: lc.crl_alpha_loss(jnp.log(2.0), lp, -4.0)[0])(jnp.array([-1.0, 3.0]))
+    np.testing.assert_array_equal(g, [0.0, 0.0])
+
+
+def test_future_offset():
+    # γ = 1/2, n = 3: P(k) ∝ 2^-k, k = 1, 2, 3 → 4/7, 2/7, 1/7; the CDF 4/7 ≈ 0.571, 6/7 ≈ 0.857, 1
+    u = jnp.array([0.0, 0.5, 0.6, 0.85, 0.9, 0.999])
+    np.testing.assert_array_equal(lc.future_offset(u, jnp.full(6, 3), 0.5), [1, 1, 2, 2, 3, 3])
+    np.testing.assert_array_equal(lc.future_offset(u, jnp.zeros(6, jnp.int32), 0.5), [0] * 6)
+    np.testing.assert_array_equal(lc.future_offset(u, jnp.ones(6, jnp.int32), 0.99), [1] * 6)
+    # γ = 0.99 with room: an even grid of u gives the law's frequencies, P(k = 1) = 0.01 / (1 − 0.99^n)
+    grid = (jnp.arange(100_000) + 0.5) / 100_000
+    k = lc.future_offset(grid, jnp.full(grid.shape, 1000), 0.99)
+    assert int(k.min()) == 1 and int(k.max()) <= 1000
+    assert float(jnp.mean(k == 1)) == pytest.approx(0.01 / (1 - 0.99 ** 1000), abs=1e-4)
+    assert float(jnp.mean(k <= 100)) == pytest.approx((1 - 0.99 ** 100) / (1 - 0.99 ** 1000), abs=1e-4)
+
+
+def test_shapes():
+    with pytest.raises(ShapeError, match="phi and psi"):
+        lc.crl_critic_loss(jnp.zeros((3, 2)), jnp.zeros((4, 2)), 0.1)
+    with pytest.raises(ShapeError, match="mean, log_std and noise"):
+        lc.squashed_gaussian_sample(jnp.zeros((3, 2)), jnp.zeros((3, 2)), jnp.zeros((3, 1)))
+    with pytest.raises(ShapeError, match="log_prob and q"):
+        lc.crl_actor_loss(jnp.zeros(3), jnp.zeros(4), 0.0)

@@ -1,0 +1,179 @@
+"""Losses of contrastive RL (CRL, Eysenbach et al., 2022) as JaxGCRL trains it: pure functions of tensors.
+
+The critic is the energy f(s, a, g) = −‖φ(s, a) − ψ(g)‖ of a state-action encoder φ and a goal encoder ψ,
+trained by InfoNCE over a batch (row i's positive is its own goal, the other rows' goals its negatives)
+with a penalty on the log-sum-exp; the actor is goal-conditioned SAC on that energy with a learned
+temperature; goals are future states of the same trajectory, k steps ahead with P(k) ∝ γ^k. Every random
+draw is an argument, and the functions take the encoders' and the actor's outputs, not networks, so the
+same inputs give the same numbers in JAX and torch (`sf2_jax.losses_crl`). Losses return `(loss, aux)`,
+`aux` detached 0-d tensors. Gradient contract: the temperature is a constant in the actor loss, the
+log-probability in the temperature loss; everything else carries its gradient. docs/crl.md.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from sf2_common.errors import ShapeError
+
+__all__ = ["ENERGY_EPS", "LOG_STD_MIN", "LOG_STD_MAX", "energy", "crl_critic_loss", "actor_log_std",
+           "squashed_gaussian_sample", "crl_actor_loss", "crl_alpha_loss", "future_offset"]
+
+ENERGY_EPS = 1e-6              # inside the square root of the energy (JaxGCRL's "norm")
+LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0   # the actor's log σ range
+
+
+def _check_pair(a_name: str, a, b_name: str, b) -> None:
+    if a.dim() != 2 or a.shape != b.shape:
+        raise ShapeError(f"{a_name} and {b_name} must both have shape (B, F), found {tuple(a.shape)} "
+                         f"and {tuple(b.shape)}")
+
+
+def energy(x, y):
+    """The CRL energy −sqrt(Σ_f (x − y)²_f + ENERGY_EPS) over the last axis (JaxGCRL's "norm").
+
+    Args:
+      x: representations (..., F), e.g. φ(s, a).
+      y: representations broadcastable against `x`, e.g. ψ(g).
+
+    Returns:
+      The energies, the broadcast shape without the last axis.
+    """
+    return -torch.sqrt(torch.sum((x - y) ** 2, dim=-1) + ENERGY_EPS)
+
+
+def crl_critic_loss(phi, psi, logsumexp_penalty):
+    """CRL's critic loss: forward InfoNCE over the batch's energies, with a log-sum-exp penalty.
+
+    L_ij = energy(φ_i, ψ_j), ℓ_i = log Σ_j exp L_ij; loss = −mean_i (L_ii − ℓ_i) + c · mean_i (ℓ_i + ε)²,
+    ε = 1e-6 (JaxGCRL takes the penalty's log-sum-exp of L + ε), c = `logsumexp_penalty`.
+
+    Args:
+      phi: φ(s_i, a_i) (B, F).
+      psi: ψ(g_i) (B, F), g_i the goal sampled for row i.
+      logsumexp_penalty: c ≥ 0.
+
+    Returns:
+      (loss, {"accuracy": mean_i [argmax_j L_ij = i], "logits_pos": mean_i L_ii, "logits_neg": the mean of
+      L_ij over i ≠ j, "logsumexp": mean_i (ℓ_i + ε)}).
+
+    Raises:
+      ShapeError: φ and ψ not both (B, F).
+    """
+    _check_pair("phi", phi, "psi", psi)
+    logits = energy(phi[:, None, :], psi[None, :, :])
+    lse = torch.logsumexp(logits, dim=1)
+    diag = torch.diagonal(logits)
+    penalty_lse = torch.logsumexp(logits + ENERGY_EPS, dim=1)
+    loss = -torch.mean(diag - lse) + logsumexp_penalty * torch.mean(penalty_lse ** 2)
+    b = logits.shape[0]
+    eye = torch.eye(b, dtype=logits.dtype, device=logits.device)
+    with torch.no_grad():
+        aux = {"accuracy": torch.mean((torch.argmax(logits, dim=1) == torch.arange(b, device=logits.device))
+                                      .to(logits.dtype)),
+               "logits_pos": torch.mean(diag),
+               "logits_neg": torch.sum(logits * (1 - eye)) / max(b * (b - 1), 1),
+               "logsumexp": torch.mean(penalty_lse)}
+    return loss, aux
+
+
+def actor_log_std(raw):
+    """The actor's log σ from its raw head: LOG_STD_MIN + (LOG_STD_MAX − LOG_STD_MIN)(tanh(raw) + 1) / 2.
+
+    Args:
+      raw: the head's output (..., A).
+
+    Returns:
+      log σ in (LOG_STD_MIN, LOG_STD_MAX), the shape of `raw`.
+    """
+    return LOG_STD_MIN + 0.5 * (LOG_STD_MAX - LOG_STD_MIN) * (torch.tanh(raw) + 1.0)
+
+
+def squashed_gaussian_sample(mean, log_std, noise):
+    """A tanh-squashed Gaussian action and its log-probability, as JaxGCRL's CRL computes them.
+
+    x = μ + σξ, a = tanh x; log π(a) = Σ_d [log N(x_d; μ_d, σ_d) − log(1 − a_d² + 1e-6)].
+
+    Args:
+      mean: μ (B, A).
+      log_std: log σ (B, A).
+      noise: ξ (B, A) ~ N(0, I).
+
+    Returns:
+      (a (B, A), log π(a) (B,)).
+
+    Raises:
+      ShapeError: the three of different shapes.
+    """
+    if not (mean.shape == log_std.shape == noise.shape):
+        shapes = [tuple(x.shape) for x in (mean, log_std, noise)]
+        raise ShapeError(f"mean, log_std and noise must have one shape (B, A), found {shapes[0]}, "
+                         f"{shapes[1]} "
+                         f"and {shapes[2]}")
+    std = torch.exp(log_std)
+    x = mean + std * noise
+    action = torch.tanh(x)
+    log_normal = -0.5 * noise ** 2 - log_std - 0.5 * math.log(2.0 * math.pi)
+    log_prob = torch.sum(log_normal - torch.log(1.0 - action ** 2 + 1e-6), dim=-1)
+    return action, log_prob
+
+
+def crl_actor_loss(log_prob, q, log_alpha):
+    """The goal-conditioned SAC actor loss on the CRL energy: mean_b (α log π(a_b) − f(s_b, a_b, g_b)).
+
+    Args:
+      log_prob: log π(a_b | s_b, g_b) (B,) of actions a_b ~ π (`squashed_gaussian_sample`).
+      q: f(s_b, a_b, g_b) = energy(φ(s_b, a_b), ψ(g_b)) (B,).
+      log_alpha: log α, a scalar; a constant here.
+
+    Returns:
+      (loss, {"entropy": −mean_b log π(a_b)}).
+
+    Raises:
+      ShapeError: log_prob and q of different shapes.
+    """
+    if log_prob.shape != q.shape or q.dim() != 1:
+        raise ShapeError(f"log_prob and q must both have shape (B,), found {tuple(log_prob.shape)} and "
+                         f"{tuple(q.shape)}")
+    loss = torch.mean(torch.exp(torch.as_tensor(log_alpha).detach()) * log_prob - q)
+    return loss, {"entropy": -torch.mean(log_prob.detach())}
+
+
+def crl_alpha_loss(log_alpha, log_prob, target_entropy):
+    """The temperature loss: α · mean_b sg(−log π(a_b) − H̄), α = exp(log α) (JaxGCRL's form).
+
+    Args:
+      log_alpha: log α, a scalar (the trained parameter).
+      log_prob: log π(a_b) (B,); a constant here.
+      target_entropy: H̄ (JaxGCRL: −A/2).
+
+    Returns:
+      (loss, {"alpha": α}).
+    """
+    alpha = torch.exp(torch.as_tensor(log_alpha))
+    loss = alpha * torch.mean((-log_prob - target_entropy).detach())
+    return loss, {"alpha": alpha.detach()}
+
+
+def future_offset(u, steps_left, gamma):
+    """How far ahead a goal is: k ∈ {1, …, n} with P(k) ∝ γ^k (a geometric law truncated at the trajectory's
+    last stored step n = `steps_left`), by inverting its CDF (1 − γ^k) / (1 − γ^n) at u; 0 where n = 0.
+
+    k = clip(⌈log(1 − u(1 − γ^n)) / log γ⌉, 1, n).
+
+    Args:
+      u: uniform draws in [0, 1), any shape.
+      steps_left: n ≥ 0, integers, the shape of `u`: the trajectory's steps stored after the current one.
+      gamma: γ in (0, 1).
+
+    Returns:
+      k, int32, the shape of `u`.
+    """
+    u = torch.as_tensor(u)
+    n = torch.as_tensor(steps_left, device=u.device)
+    log_gamma = torch.log(torch.as_tensor(gamma, dtype=u.dtype))
+    mass = -torch.expm1(n.to(u.dtype) * log_gamma)    # 1 − γ^n
+    k = torch.ceil(torch.log1p(-u * mass) / log_gamma)
+    k = torch.minimum(torch.maximum(k, torch.clamp(n, max=1).to(k.dtype)), n.to(k.dtype))
+    return k.to(torch.int32)
