@@ -1,7 +1,8 @@
 """Tasks from anywhere: a user's environment by import path trains (sf2_testing.toy_env: dict observations,
-the agents reading 'state'), deterministically and to the toy's optimum; a Brax env is wrapped by Brax's
-wrappers; every Playground registry name is a task of its suite's kind whose preset values are Playground's
-env config (read without building the envs: locomotion and manipulation need Menagerie's assets)."""
+the agents reading 'state') through the CLI and the API with equal rows, to the toy's optimum; a Brax env
+is wrapped by Brax's wrappers; every Playground registry name is a task of its suite's kind whose preset
+values are Playground's env config (read without building the envs: locomotion and manipulation need
+Menagerie's assets)."""
 
 from __future__ import annotations
 
@@ -9,18 +10,21 @@ import jax
 import jax.numpy as jnp
 import pytest
 from sf2_common.agents import tasks
+from sf2_common.agents.runfolder import RunFolder
+from sf2_jax import cli
 from sf2_jax.agents import envs, make_config
 from sf2_jax.agents.trainer import train
-from sf2_testing import cli_error, strip_wall
+from sf2_testing import cli_args, cli_error, strip_wall
 from sf2_testing.toy_env import TOY_OVERRIDES, TOY_TASK, check_toy_run
 
 
-def test_a_user_environment_by_import_path_trains_deterministically_and_learns(tmp_path):
+def test_a_user_environment_by_import_path_trains_through_the_cli_and_the_api_and_learns(tmp_path):
     cfg = make_config("quick", TOY_TASK, algo="td3", representation="sf2", overrides=TOY_OVERRIDES)
-    first = train(cfg, (0,), tmp_path / "a", progress=False)
-    again = train(cfg, (0,), tmp_path / "b", progress=False)
-    check_toy_run(cfg, first.run, envs.env_spec(cfg.task, cfg.episode_length, cfg.action_repeat))
-    assert strip_wall(again.rows) == strip_wall(first.rows)
+    assert cli.main(cli_args(cfg, tmp_path / "cli")) == 0     # `--task module:callable`
+    first = RunFolder(tmp_path / "cli")
+    again = train(cfg, (0,), tmp_path / "api", progress=False)
+    check_toy_run(cfg, first, envs.env_spec(cfg.task, cfg.episode_length, cfg.action_repeat))
+    assert strip_wall(again.rows) == strip_wall(first.read_rows())
 
 
 def test_a_brax_environment_is_wrapped_by_braxs_wrappers():
@@ -60,7 +64,6 @@ def test_locomotion_and_manipulation_names_are_accepted_by_the_api_and_the_cli(t
     """Config and validation take them (the env is not built: no Menagerie assets in CI); the CLI gets past
     the task to the next bad input."""
     from mujoco_playground import registry
-    from sf2_jax import cli
     from sf2_jax.agents import configs
 
     cfg = configs.validate(make_config("quick", task, "td3", "sf2"))
