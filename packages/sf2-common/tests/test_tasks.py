@@ -290,3 +290,24 @@ def test_locomotion_and_manipulation_tasks_take_playgrounds_env_config(monkeypat
         assert configs.make_config("quick", task).episode_length == length
     assert tasks.paper_budget("Go1Getup") == tasks.OFF_POLICY_BUDGET == 10_000_000
     assert tasks.paper_budget("CheetahRun") == tasks.PAPER_BUDGETS["CheetahRun"]
+
+
+def test_a_locomotion_task_whose_models_cannot_be_fetched_says_why(monkeypatch):
+    """Playground clones MuJoCo Menagerie with git when a locomotion or manipulation task is first built;
+    without a network that fails (git's CalledProcessError), and the task says so instead of a traceback."""
+    listed = {"Go1Getup": "locomotion", "CheetahRun": "playground"}
+    monkeypatch.setattr(tasks, "playground_tasks", lambda: listed)
+
+    def clone_fails():
+        raise subprocess.CalledProcessError(128, ["git", "clone"])
+
+    monkeypatch.setattr(tasks, "env_factory", lambda task: clone_fails)
+    tasks.load_env.cache_clear()
+    with pytest.raises(ConfigError) as err:
+        tasks.load_env("Go1Getup")
+    assert str(err.value).startswith("task 'Go1Getup': Playground could not build it (Command '['git', "
+                                     "'clone']' returned non-zero exit status 128.); its locomotion and "
+                                     "manipulation tasks need MuJoCo Menagerie's models")
+    with pytest.raises(subprocess.CalledProcessError):   # a DM Control task's failure is not about models
+        tasks.load_env("CheetahRun")
+    tasks.load_env.cache_clear()

@@ -17,6 +17,7 @@ import difflib
 import functools
 import importlib
 import importlib.util
+import subprocess
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from importlib import metadata
@@ -415,13 +416,21 @@ def load_env(task: str):
       (env, `env_sizes(task, env)`).
 
     Raises:
-      ConfigError: as `env_factory` and `env_sizes`; a callable that needs arguments.
+      ConfigError: as `env_factory` and `env_sizes`; a callable that needs arguments; a locomotion or
+        manipulation task whose models (MuJoCo Menagerie) could not be fetched.
     """
     factory = env_factory(task)
     try:
         env = factory()
     except TypeError as err:
         raise ConfigError(f"task {task!r}: calling {factory!r} with no arguments failed: {err}") from err
+    except (OSError, subprocess.SubprocessError) as err:
+        if not _config_kind(task):
+            raise
+        raise ConfigError(f"task {task!r}: Playground could not build it ({err}); its locomotion and "
+                          f"manipulation tasks need MuJoCo Menagerie's models, which Playground clones from "
+                          f"GitHub on first use into mujoco_playground/external_deps/: run it once where "
+                          f"GitHub can be reached") from err
     return env, env_sizes(task, env)
 
 
