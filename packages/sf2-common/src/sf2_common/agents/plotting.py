@@ -99,12 +99,7 @@ def plot_learning_curve(rows: list[dict], path, title: str) -> None:
         ax.fill_between(steps, lo, hi, color="k", alpha=0.15, label=band_label(n))
     elif n > 1:
         ax.plot([], [], " ", label=band_label(n))
-    _limit_to_lines(ax, list(per_seed.values()))
-    ax.set_xlabel("env steps")
-    ax.set_ylabel("eval return")
-    ax.set_title(title)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="best")   # named: matplotlib warns of its cost only when defaulted
+    _finish_axes(ax, list(per_seed.values()), title, fontsize=7)
     fig.tight_layout()
     tmp = Path(path).with_name(Path(path).stem + ".tmp.png")
     fig.savefig(tmp, dpi=100)
@@ -112,12 +107,16 @@ def plot_learning_curve(rows: list[dict], path, title: str) -> None:
     tmp.replace(path)
 
 
-def _limit_to_lines(ax, lines) -> None:
-    """y range of the plotted curves (a CI band of few seeds can be far wider than any curve)."""
+def _finish_axes(ax, lines, title: str, fontsize: int) -> None:
+    """Labels, grid, legend (`loc` named: matplotlib warns of its cost only when defaulted) and the y range
+    of the plotted curves `lines` (a CI band of few seeds can be far wider than any curve)."""
     values = np.concatenate([np.ravel(x) for x in lines]) if lines else np.zeros(1)
     lo, hi = float(values.min()), float(values.max())
     pad = 0.08 * max(hi - lo, 1.0)
     ax.set_ylim(lo - pad, hi + pad)
+    ax.set(xlabel="env steps", ylabel="eval return", title=title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=fontsize, loc="best")
 
 
 def _load(run_dirs) -> dict[tuple[str, str], list[tuple[np.ndarray, dict]]]:
@@ -175,13 +174,8 @@ def plot_runs(run_dirs, path) -> list[dict]:
             line, = ax.plot(steps, mean, lw=2, label=f"{method} (n={mat.shape[0]})")
             if not np.isnan(lo).all():
                 ax.fill_between(steps, lo, hi, color=line.get_color(), alpha=0.2)
-        _limit_to_lines(ax, [_pool(e)[1].mean(axis=0) for (t, _), e in data.items() if t == task]
-                        + [row for (t, _), e in data.items() if t == task for row in _pool(e)[1]])
-        ax.set_title(task)
-        ax.set_xlabel("env steps")
-        ax.set_ylabel("eval return")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="best")
+        mats = [_pool(e)[1] for (t, _), e in data.items() if t == task]
+        _finish_axes(ax, [m.mean(axis=0) for m in mats] + [row for m in mats for row in m], task, fontsize=8)
     caption = ("line: mean eval return over seeds; band: 95% bootstrap CI of the mean (rliable, 5000 "
                "resamples), drawn only with >= 3 seeds")
     # wrapped to the figure's width (about 12 characters of 9-point text per inch), so one panel keeps it
