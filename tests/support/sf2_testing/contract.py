@@ -60,6 +60,8 @@ BAD_RUNS = [
      ["learning_rate = -0.001 is invalid", "> 0"]),
     ("negative augmentation", dict(overrides={"spr_augmentation_std": -0.05}), "0",
      ["spr_augmentation_std = -0.05 is invalid", ">= 0"]),
+    ("fpo on a MinAtar task", dict(task="minatar-breakout", algo="fpo"), "0",
+     ["task 'minatar-breakout' is a MinAtar task", "(--algo ppo); --algo fpo is the"]),
     ("ppo on a Playground task", dict(algo="ppo"), "0",
      ["task 'CartpoleBalance' is a Playground DM Control task", "--algo ppo is the MinAtar tasks'"]),
     ("td3 on a MinAtar task", dict(task="minatar-breakout"), "0",
@@ -143,11 +145,14 @@ def test_presets_equal_across_frameworks(agent_core, preset, task):
 
 @pytest.mark.parametrize("preset", ["paper", "quick"])
 @pytest.mark.parametrize("representation", ["none", "sf2"])
-def test_ppo_presets_equal_across_frameworks(agent_core, preset, representation):
-    """`--algo ppo` configs (MinAtar, docs/minatar.md) are sf2_common's in every core, field for field, with
-    the PPO fields of the preset (pgx's example for `paper`)."""
-    shared = common_configs.make_config(preset, "minatar-breakout", "ppo", representation).to_dict()
-    mine = agent_core.configs.make_config(preset, "minatar-breakout", "ppo", representation).to_dict()
+@pytest.mark.parametrize("algo,task", [("ppo", "minatar-breakout"), ("fpo", "CheetahRun")])
+def test_ppo_presets_equal_across_frameworks(agent_core, preset, representation, algo, task):
+    """`--algo ppo` configs (MinAtar, docs/minatar.md) and `--algo fpo` configs (Playground, docs/fpo.md) are
+    sf2_common's in every core, field for field, with the PPO or FPO fields of the preset (pgx's example,
+    the FPO authors' config for `paper`)."""
+    shared = common_configs.make_config(preset, task, algo, representation).to_dict()
+    mine = agent_core.configs.make_config(preset, task, algo, representation).to_dict()
     assert {k: v for k, v in mine.items() if k not in agent_core.own_fields} == shared
-    assert {k: shared[k] for k in common_configs.PPO_VALUES[preset]} == {
-        k: list(v) if isinstance(v, tuple) else v for k, v in common_configs.PPO_VALUES[preset].items()}
+    values = (common_configs.PPO_VALUES if algo == "ppo" else common_configs.FPO_VALUES)[preset]
+    assert {k: shared[k] for k in values} == {k: list(v) if isinstance(v, tuple) else v
+                                              for k, v in values.items()}

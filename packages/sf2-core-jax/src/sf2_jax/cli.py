@@ -48,17 +48,19 @@ def resolve_configs(args):
     return common.resolve_configs(args, TrainConfig, make_config, validate)
 
 
-def _onpolicy(task: str) -> bool:
-    """Whether `task`'s kind trains with the on-policy trainer (MinAtar) rather than the off-policy one."""
+def _onpolicy(task: str, algo: str | None = None) -> bool:
+    """Whether a run of `algo` on `task` trains with the on-policy trainer (`--algo ppo` or `fpo`; MinAtar's
+    kind) rather than the off-policy one."""
+    from sf2_common.agents.configs import ONPOLICY_ALGOS
     from sf2_common.agents.tasks import task_kind
 
-    return task_kind(task).trainer == "on-policy"
+    return algo in ONPOLICY_ALGOS or task_kind(task).trainer == "on-policy"
 
 
 def train(args) -> int:
     """`sf2-jax train`: the JAX trainer of the task's kind on every config of the arguments."""
     cfgs, seeds = resolve_configs(args)
-    if _onpolicy(cfgs[0].task):
+    if _onpolicy(cfgs[0].task, cfgs[0].algo):
         from sf2_jax.agents import onpolicy
 
         labels = {(c.algo, c.representation): onpolicy.method_label(c) for c in cfgs}
@@ -83,7 +85,8 @@ def _trainer_of(run):
     except (RunFolderError, OSError):
         conf = None
     task = conf["config"].get("task") if conf else None
-    if isinstance(task, str) and task in TASKS and _onpolicy(task):
+    algo = conf["config"].get("algo") if conf else None
+    if isinstance(task, str) and ((task in TASKS and _onpolicy(task)) or _onpolicy(task, algo)):
         from sf2_jax.agents import onpolicy
 
         return onpolicy

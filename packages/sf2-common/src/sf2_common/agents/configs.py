@@ -23,11 +23,11 @@ __all__ = [
     "TrainConfig", "PRESETS", "ALGOS", "SF2_FIELDS", "make_config", "parse_overrides", "parse_value",
     "parse_seeds", "validate", "Schedule", "schedule", "ConfigError", "bad_field", "LEARNER_PRECISIONS",
     "ADDED_FIELDS", "PAPER_ADAM_EPS", "SUPERSEDED", "superseded_values", "TASK_VALUES", "FAMILY_VALUES",
-    "ONPOLICY_ALGOS", "CRITICS", "PPO_FIELDS", "PPO_VALUES",
+    "ONPOLICY_ALGOS", "CRITICS", "PPO_FIELDS", "PPO_VALUES", "FPO_FIELDS", "FPO_VALUES",
 ]
 
-ALGOS = ("td3", "sac", "ppo")
-ONPOLICY_ALGOS = ("ppo",)   # the on-policy trainer's (sf2_jax.agents.onpolicy); the others are off-policy
+ALGOS = ("td3", "sac", "ppo", "fpo")
+ONPOLICY_ALGOS = ("ppo", "fpo")   # the on-policy trainer's (sf2_jax.agents.onpolicy); the others off-policy
 CRITICS = ("q", "v")        # PPO's critic: Q(s, a) with λ-returns (PPO-Q), or V(s) with GAE (PPO)
 # `learner_precision` → JAX's matmul precision (torch: TF32, bf16 autocast); docs/core-contract.md
 LEARNER_PRECISIONS = {"highest": "highest", "tensorfloat32": "tensorfloat32", "bfloat16": "BF16_BF16_F32"}
@@ -37,8 +37,9 @@ ADDED_FIELDS = {name: _SF2_DEFAULTS[name] for name in ("spr_augmentation_std", "
 SF2_FIELDS = tuple(name for name in _SF2_DEFAULTS if name not in ("obs_size", "action_size"))
 PPO_FIELDS = ("rollout_length", "update_epochs", "minibatch_size", "clip_eps", "entropy_coef", "value_coef",
               "max_grad_norm", "td_lambda", "critic")
+FPO_FIELDS = ("fpo_samples", "fpo_flow_steps", "fpo_value_samples")
 # Adam's ε as the authors' trainers build it (SAC: optax's default; the temperature's is 1e-8 always)
-PAPER_ADAM_EPS = {"td3": 1e-5, "sac": 1e-8, "ppo": 1e-5}
+PAPER_ADAM_EPS = {"td3": 1e-5, "sac": 1e-8, "ppo": 1e-5, "fpo": 1e-8}
 # Preset values changed since run folders were written, (algo, field) -> (old, new): such folders keep theirs
 SUPERSEDED = {("sac", "adam_eps"): (1e-5, PAPER_ADAM_EPS["sac"])}
 # Each preset's values, then its per-task and per-family values, then the overrides (decisions/presets.md)
@@ -62,12 +63,35 @@ PPO_VALUES = {
                   shared_adam=False, feature_size=32, hidden_sizes=(64,), q_hidden_size=64,
                   zeta_hidden_sizes=(16,), embedding_size=8),
 }
+# FPO's values per preset (`--algo fpo`, Playground; docs/fpo.md): `paper` is the authors' FpoConfig (Brax's
+# DM Control PPO settings; their 60M env steps as their loop runs them, 61 whole updates, an evaluation after
+# each), no gradient clipping in effect;
+# `quick` learns CartpoleBalance on a CPU in minutes
+FPO_VALUES = {
+    "paper": dict(num_timesteps=59_965_440, num_envs=2048, rollout_length=480, update_epochs=16,
+                  minibatch_size=30_720, learning_rate=3e-4, clip_eps=0.05, entropy_coef=0.0, value_coef=0.5,
+                  max_grad_norm=1e9, td_lambda=0.95, discount=0.995, reward_scaling=10.0, gamma_su=0.99,
+                  num_evals=62, num_eval_envs=128, deterministic_eval=False, shared_adam=False,
+                  normalize_observations=True, fpo_samples=8, fpo_flow_steps=10, fpo_value_samples=8),
+    "quick": dict(num_timesteps=393_216, num_envs=64, rollout_length=32, update_epochs=8, minibatch_size=256,
+                  learning_rate=3e-4, clip_eps=0.05, entropy_coef=0.0, value_coef=0.5, max_grad_norm=1e9,
+                  td_lambda=0.95, discount=0.99, reward_scaling=10.0, gamma_su=0.99, num_evals=4,
+                  num_eval_envs=16, deterministic_eval=True, shared_adam=False, fpo_samples=8,
+                  fpo_flow_steps=10, fpo_value_samples=4),
+}
 TASK_VALUES = {"paper": {"num_timesteps": tasks.paper_budget, "action_repeat": tasks.paper_action_repeat,
                          "episode_length": tasks.episode_length},
                "quick": {"action_repeat": tasks.paper_action_repeat, "episode_length": tasks.episode_length}}
-FAMILY_VALUES = {"paper": {"adam_eps": PAPER_ADAM_EPS,
-                           **{name: {"ppo": v} for name, v in PPO_VALUES["paper"].items()}},
-                 "quick": {name: {"ppo": v} for name, v in PPO_VALUES["quick"].items()}}
+
+
+def _by_algo(preset: str) -> dict:
+    """{field: {algo: value}} of the on-policy algos' values of `preset`."""
+    tables = {"ppo": PPO_VALUES[preset], "fpo": FPO_VALUES[preset]}
+    names = dict.fromkeys(name for table in tables.values() for name in table)
+    return {name: {algo: t[name] for algo, t in tables.items() if name in t} for name in names}
+
+
+FAMILY_VALUES = {"paper": {"adam_eps": PAPER_ADAM_EPS, **_by_algo("paper")}, "quick": _by_algo("quick")}
 
 
 @dataclass(frozen=True)
@@ -103,6 +127,10 @@ class TrainConfig:
     max_grad_norm: float = 0.5    # each loss's gradient clipped to this global norm over what it trains
     td_lambda: float = 0.95       # λ of the critic's λ-returns and of the advantages
     critic: str = "q"             # "q": Q(s, a) and λ-returns (PPO-Q, SF²); "v": V(s) and GAE (PPO)
+    # FPO (--algo fpo; docs/fpo.md): (ε, τ) pairs per action, Euler steps per action, actions per V_Q(s)
+    fpo_samples: int = 8
+    fpo_flow_steps: int = 10
+    fpo_value_samples: int = 8
     # networks and losses: the fields of SF2Config
     feature_size: int = _SF2_DEFAULTS["feature_size"]
     hidden_sizes: tuple[int, ...] = _SF2_DEFAULTS["hidden_sizes"]
@@ -167,7 +195,7 @@ class TrainConfig:
         return cls(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items()})
 
 
-ADDED_FIELDS.update({f.name: f.default for f in fields(TrainConfig) if f.name in PPO_FIELDS})
+ADDED_FIELDS.update({f.name: f.default for f in fields(TrainConfig) if f.name in PPO_FIELDS + FPO_FIELDS})
 
 
 # ------------------------------------------------------------------------------------------- presets
@@ -401,8 +429,9 @@ def validate(cfg: TrainConfig, seeds, registry) -> TrainConfig:
 
 
 def _validate_onpolicy(cfg: TrainConfig) -> None:
-    """The PPO fields (`--algo ppo`): sizes, rates, the critic, and minibatches that split the rollout."""
-    for name in ("rollout_length", "update_epochs", "minibatch_size"):
+    """The PPO and FPO fields (`--algo ppo`, `fpo`): sizes, rates, the critic, and minibatches that split the
+    rollout."""
+    for name in ("rollout_length", "update_epochs", "minibatch_size", *FPO_FIELDS):
         v = getattr(cfg, name)
         if not _is_int(v) or v < 1:
             bad_field(name, v, "must be an int >= 1")

@@ -1,14 +1,15 @@
-"""The on-policy trainer (`--algo ppo`, MinAtar; docs/minatar.md): PPO with a Q(s, a) or V critic, and SF².
+"""The on-policy trainer: PPO on MinAtar (`--algo ppo`, docs/minatar.md) and FPO on Playground (`--algo
+fpo`, docs/fpo.md), each with a Q(s, a) or V critic, and SF²; the policy is a plug-in (`policies_onpolicy`).
 
 PureJaxRL's pattern. An update acts `rollout_length` steps in every env (a `lax.scan` over the batched
-`minatar` env), computes λ-returns (critic "q") or GAE (critic "v") and trains `update_epochs` passes of
-minibatches; an epoch, the updates between two evaluations, is one `lax.scan` of updates: one compiled
-program, vmapped over seeds, its state donated, with no host sync inside. One SGD step takes the critic's
-loss, the representation's own losses (`representations_onpolicy`), the actor's PPO loss, then the EMA of
-the targets; each loss's gradient is clipped to `max_grad_norm` (global norm over the groups it trains), and
-each group has its own Adam state (ψ's flow step a second one unless `shared_adam`). An evaluation runs the
-greedy (`deterministic_eval`) or sampled policy for one episode on `num_eval_envs` fresh envs per seed, at
-most `episode_length` steps. Run folders, resume, the NaN guard and the rows are the off-policy trainer's
+`minatar` or `playground_onpolicy` env), computes λ-returns (critic "q") or GAE (critic "v") and trains
+`update_epochs` passes of minibatches; an epoch, the updates between two evaluations, is one `lax.scan`
+of updates: one compiled program, vmapped over seeds, its state donated, no host sync inside. One SGD
+step takes the critic's loss, the representation's own losses (`representations_onpolicy`), the policy's
+loss, then the targets' EMA; each loss's gradient is clipped to `max_grad_norm` (global norm over the
+groups it trains), each group has its own Adam state (ψ's flow step a second one unless `shared_adam`).
+An evaluation runs the policy for one episode on `num_eval_envs` fresh envs per seed, at most
+`episode_length` steps. Run folders, resume, the NaN guard and the rows are the off-policy trainer's
 (`trainer.run_training`, `sf2_common.agents.hostloop`).
 """
 
@@ -28,15 +29,17 @@ from sf2_common.agents import configs, hostloop
 from sf2_common.agents.configs import TrainConfig
 from sf2_common.agents.evaluation import CheckpointEvaluator, CheckpointJob
 from sf2_common.agents.registry import aux_states
+from sf2_common.agents.tasks import task_kind
 from sf2_common.errors import ConfigError
 
 from sf2_jax import losses_onpolicy as lo
-from sf2_jax import networks_image as nwi
+from sf2_jax import networks as nw
 
-from . import minatar
+from . import minatar, playground_onpolicy
 from .checkpoint import Checkpointer
 from .configs import validate
-from .representations_onpolicy import REGISTRY, OnPolicyBatch
+from .policies_onpolicy import CategoricalPolicy, FlowPolicy
+from .representations_onpolicy import REGISTRY, OnPolicyBatch, build
 from .trainer import (  # _seed_map: one seed runs unvmapped; _write_final: final/params_seed<S>.npz
     TrainingDiverged,
     TrainResult,
@@ -57,7 +60,7 @@ class OnPolicyState(NamedTuple):
     Attributes:
       params: {group: params} (`representations_onpolicy`: actor, critic or ψ/Q/ζ/targets, encoder/decoder).
       opt_state: {group or "psi:aux": Adam state}.
-      env_state: the `minatar.EnvState` of the `num_envs` training envs.
+      env_state: the `minatar.EnvState` (`playground_onpolicy.EnvState`) of the `num_envs` training envs.
       key: the training key.
       env_steps: env steps done.
       updates: on-policy updates done.
@@ -75,10 +78,12 @@ class Rollout(NamedTuple):
     """One update's rollout, (T, N) leading axes (T = rollout_length steps of N envs); grids as uint8.
 
     Attributes:
-      obs, action, reward, terminal, truncation: s_t, a_t, r_t and how the step ended its episode.
+      obs, action, reward, terminal, truncation: s_t, a_t (the env's), r_t and how the step ended its
+        episode.
       next_obs: s′ before any reset.
       next_sample: an action drawn from π(·|s′) at rollout time (a′ where none was taken at s′).
-      log_prob, value, next_value: log π(a_t|s_t), the critic's value of s_t and of s′, at rollout time.
+      policy_info: what the policy's loss needs (`CategoricalPolicy.act`, `FlowPolicy.act`).
+      value, next_value: the critic's value of s_t and of s′, at rollout time.
       episode_return: the completed episode's return where the step ended one, else 0.
       done: 1 where the step ended an episode (terminal or truncation).
     """
@@ -90,7 +95,7 @@ class Rollout(NamedTuple):
     truncation: jax.Array
     next_obs: jax.Array
     next_sample: jax.Array
-    log_prob: jax.Array
+    policy_info: Any
     value: jax.Array
     next_value: jax.Array
     episode_return: jax.Array
@@ -103,10 +108,16 @@ class Program:
 
     def __init__(self, cfg: TrainConfig):
         self.cfg = cfg
-        self.env = minatar.make(cfg.task, cfg.episode_length)
-        shape = self.env.spec.obs_shape
-        self.sf2 = cfg.sf2_config(math.prod(shape), self.env.spec.num_actions)
-        self.rep = REGISTRY.get(cfg.representation)(self.sf2, shape, cfg.critic)
+        self.image = task_kind(cfg.task).observation == "image"
+        make = minatar.make if self.image else playground_onpolicy.make
+        self.env = make(cfg.task, cfg.episode_length)
+        shape, spec = self.env.spec.obs_shape, self.env.spec
+        self.sf2 = cfg.sf2_config(math.prod(shape), spec.num_actions or spec.action_size)
+        self.rep = build(cfg.representation, self.sf2, shape, cfg.critic)
+        self.policy = (CategoricalPolicy(self.rep) if cfg.algo == "ppo" else
+                       FlowPolicy(cfg, math.prod(shape), spec.action_size, cfg.critic))
+        self.obs_dtype = jnp.uint8 if self.image else jnp.float32   # grids are exact as uint8
+        self.acting = ("actor",) if self.image else ("actor", "obs_norm")   # the groups the policy reads
         self.sched = configs.schedule(cfg)
         self.num_minibatches = cfg.num_envs * cfg.rollout_length // cfg.minibatch_size
         self._adam = optax.adam(cfg.learning_rate, eps=cfg.adam_eps)
@@ -154,18 +165,20 @@ class Program:
             return self._program("epoch", state.key.shape[0])(state)
 
     def evaluate(self, params, seeds, epoch: int, n: int | None = None, obs_noise: float = 0.0) -> jax.Array:
-        """Episode returns (n_seeds, n) of the policy in `params` (its "actor" group suffices): one episode on
-        each of `n` (default `num_eval_envs`) fresh envs per seed, drawn with the evaluation key of `epoch`
+        """Episode returns (n_seeds, n) of the policy in `params` (its `acting` groups suffice): one episode
+        on each of `n` (default `num_eval_envs`) fresh envs per seed, drawn with the evaluation key of `epoch`
         (`trainer.eval_keys`); `obs_noise` > 0 adds Gaussian noise of that std to what the policy sees."""
         n = self.cfg.num_eval_envs if n is None else int(n)
         with self.precision():
             program = self._program("evaluate", len(seeds), n, float(obs_noise), self.cfg.deterministic_eval)
-            return program(params["actor"], eval_keys(seeds, epoch))
+            return program({g: params[g] for g in self.acting}, eval_keys(seeds, epoch))
 
     # ------------------------------------------------------------------ per-seed pieces (vmapped)
     def _init_one(self, key) -> OnPolicyState:
         k_params, k_env, k_train = jax.random.split(key, 3)
         params = self.rep.init(k_params)
+        if not self.image:   # the flow policy's key: MinAtar's stream stays as it was
+            params.update(self.policy.init(jax.random.fold_in(k_params, 1)))
         opt_state = {g: self._adam.init(params[g]) for g in self.trained}
         opt_state.update({state: self._adam.init(params[g]) for g, state in self.aux_states.items()
                           if state != g})
@@ -175,23 +188,22 @@ class Program:
 
     def _act_step(self, params, env_state, key):
         """One step of every training env under the current policy, and what the update needs of it."""
-        rep = self.rep
+        rep, pol = self.rep, self.policy
         k_act, k_next, k_env = jax.random.split(key, 3)
         obs = env_state.obs
-        logits = rep.logits(params, obs)
-        value = rep.values(params, obs, logits)
-        action = jax.random.categorical(k_act, logits).astype(jnp.int32)
+        value = rep.values(params, obs, pol.value_input(params, obs, jax.random.fold_in(k_act, 1)))
+        action, info = pol.act(params, obs, k_act)
         env_state, tr = self.env.step(env_state, action, k_env)
-        next_logits = rep.logits(params, tr.next_obs)
+        next_value = rep.values(params, tr.next_obs, pol.value_input(params, tr.next_obs,
+                                                                     jax.random.fold_in(k_next, 1)))
         done = tr.terminal | tr.truncation
         f32 = jnp.float32
         return env_state, Rollout(
-            obs=obs.astype(jnp.uint8), action=action, reward=tr.reward, terminal=tr.terminal.astype(f32),
-            truncation=tr.truncation.astype(f32), next_obs=tr.next_obs.astype(jnp.uint8),
-            next_sample=jax.random.categorical(k_next, next_logits).astype(jnp.int32),
-            log_prob=nwi.categorical_log_prob(logits, action), value=value,
-            next_value=rep.values(params, tr.next_obs, next_logits),
-            episode_return=jnp.where(done, tr.episode_return, 0.0), done=done.astype(f32))
+            obs=obs.astype(self.obs_dtype), action=action, reward=tr.reward, terminal=tr.terminal.astype(f32),
+            truncation=tr.truncation.astype(f32), next_obs=tr.next_obs.astype(self.obs_dtype),
+            next_sample=pol.draw(params, tr.next_obs, k_next), policy_info=info, value=value,
+            next_value=next_value, episode_return=jnp.where(done, tr.episode_return, 0.0),
+            done=done.astype(f32))
 
     def _loss_step(self, params, opt_state, loss_fn, groups, states=None):
         """One Adam step of `groups` on `loss_fn(params)` → (objective, {metric: scalar}), its gradient
@@ -228,8 +240,7 @@ class Program:
             metrics.update(m)
 
         def actor(p):
-            loss, aux = lo.ppo_policy_loss(rep.nets, p, mb.obs, mb.action, mb.log_prob, mb.advantage,
-                                           cfg.clip_eps, cfg.entropy_coef)
+            loss, aux = self.policy.loss(p, mb, cfg)
             return loss, {"actor_loss": loss, **aux}
 
         params, opt_state, m = self._loss_step(params, opt_state, actor, ("actor",))
@@ -247,7 +258,8 @@ class Program:
                                      jax.random.split(k_roll, T))
         # a′: the action taken at s′; drawn from π(·|s′) where none was (an episode's or the rollout's end)
         last = jnp.zeros((T, N), bool).at[-1].set(True)
-        next_action = jnp.where((ro.done > 0) | last, ro.next_sample, jnp.roll(ro.action, -1, axis=0))
+        new = ((ro.done > 0) | last).reshape((T, N) + (1,) * (ro.action.ndim - 2))
+        next_action = jnp.where(new, ro.next_sample, jnp.roll(ro.action, -1, axis=0))
         reward = ro.reward * cfg.reward_scaling
         discount = 1.0 - ro.terminal
         if cfg.critic == "q":
@@ -259,8 +271,11 @@ class Program:
                                        cfg.td_lambda)
         data = OnPolicyBatch(obs=ro.obs, action=ro.action, reward=reward, discount=discount,
                              truncation=ro.truncation, next_obs=ro.next_obs, next_action=next_action,
-                             log_prob=ro.log_prob, value=ro.value, advantage=advantage, target=target)
+                             policy_info=ro.policy_info, value=ro.value, advantage=advantage, target=target)
         flat = jax.tree_util.tree_map(lambda x: x.reshape((T * N,) + x.shape[2:]), data)
+        params = state.params
+        if not self.image and cfg.normalize_observations:   # the rollout's observations, before the SGD
+            params = {**params, "obs_norm": nw.update_normalizer(params["obs_norm"], ro.obs, self.sf2)}
         E, K = cfg.update_epochs, self.num_minibatches
         perms = jax.vmap(lambda k: jax.random.permutation(k, T * N))(jax.random.split(k_perm, E))
 
@@ -272,7 +287,7 @@ class Program:
             return (params, opt_state), metrics
 
         (params, opt_state), metrics = jax.lax.scan(
-            sgd, (state.params, state.opt_state),
+            sgd, (params, state.opt_state),
             (perms.reshape(E * K, cfg.minibatch_size), jax.random.split(k_sgd, E * K)))
         state = OnPolicyState(params, opt_state, env_state, key, state.env_steps + T * N, state.updates + 1)
         return state, (metrics, jnp.sum(ro.episode_return), jnp.sum(ro.done))
@@ -292,10 +307,9 @@ class Program:
         means["sgd_steps"] = jnp.asarray(sched.actor_steps_per_epoch * sched.sgd_steps_per_actor_step)
         return state, means, first_bad
 
-    def _eval_one(self, n: int, obs_noise: float, deterministic: bool, actor, key):
+    def _eval_one(self, n: int, obs_noise: float, deterministic: bool, params, key):
         """Returns (n,) of one episode on each of n fresh envs: a `lax.while_loop` until every episode
-        ended (a terminal, or the truncation at `episode_length` steps)."""
-        params = {"actor": actor}
+        ended (a terminal, or the truncation at `episode_length` steps); `params` the `acting` groups."""
         k_reset, k_run = jax.random.split(key)
 
         def running(carry):
@@ -308,9 +322,8 @@ class Program:
             obs = env_state.obs
             if obs_noise:   # its own key: the acting and the games' randomness stay the noise-free run's
                 obs = obs + obs_noise * jax.random.normal(k_noise, obs.shape, obs.dtype)
-            logits = self.rep.logits(params, obs)
-            action = jnp.argmax(logits, axis=-1) if deterministic else jax.random.categorical(k_act, logits)
-            env_state, tr = self.env.step(env_state, action.astype(jnp.int32), k_env)
+            action = self.policy.evaluate(params, obs, k_act, deterministic)
+            env_state, tr = self.env.step(env_state, action, k_env)
             ret = ret + jnp.where(alive, tr.reward, 0.0)
             return env_state, ret, alive & ~(tr.terminal | tr.truncation), t + 1, k
 
@@ -324,19 +337,23 @@ def get_program(cfg: TrainConfig) -> Program:
     """The compiled pieces of one config, cached (the last 8 configs'): runs with equal configs reuse them.
 
     Args:
-      cfg: the run's `TrainConfig` (frozen, hashable), `--algo ppo` on a MinAtar task.
+      cfg: the run's `TrainConfig` (frozen, hashable), `--algo ppo` on a MinAtar task or `--algo fpo` on a
+        Playground task.
 
     Returns:
       Its `Program`.
 
     Raises:
-      ConfigError: not a MinAtar task, pgx not installed, or an unknown representation.
+      ConfigError: a task of another kind, pgx not installed, or an unknown representation.
     """
     return Program(cfg)
 
 
 def method_label(cfg: TrainConfig) -> str:
-    """'PPO-Q+SF² w AE', 'PPO-Q', 'PPO' (critic "v"), ...: the method's label in tables and plots."""
+    """'PPO-Q+SF² w AE', 'PPO-Q', 'PPO' (critic "v"), 'FPO+Q(λ)+SF²', 'FPO' (critic "v"), ...: the method's
+    label in tables and plots."""
+    if cfg.algo == "fpo":
+        return ("FPO+Q(λ)" if cfg.critic == "q" else "FPO") + ("+SF²" if cfg.representation == "sf2" else "")
     rep = REGISTRY.label(cfg.representation)
     return ("PPO-Q" if cfg.critic == "q" else "PPO") + (f"+{rep}" if rep else "")
 
@@ -412,17 +429,19 @@ class _Session:
 
 
 def _restore_acting(ckpt: Checkpointer, job: CheckpointJob):
-    """(the actor's parameters, meta) of checkpoint `job.epoch`; the rest of the state is dropped."""
-    state, meta = ckpt.restore(job.epoch, get_program(job.cfg).abstract_state(job.seeds))
-    return state.params["actor"], meta
+    """(the policy's parameters: its `acting` groups, meta) of checkpoint `job.epoch`; the rest of the state
+    is dropped."""
+    program = get_program(job.cfg)
+    state, meta = ckpt.restore(job.epoch, program.abstract_state(job.seeds))
+    return {g: state.params[g] for g in program.acting}, meta
 
 
-def _act(actor, job: CheckpointJob) -> list[np.ndarray]:
+def _act(acting, job: CheckpointJob) -> list[np.ndarray]:
     """Episode returns (seeds, episodes) per noise std of `job`: the run's own evaluation of that epoch
     (its key, `num_eval_envs` envs) when `job.episodes` is None, else `job.episodes` fresh envs."""
     program = get_program(job.eval_cfg)
     epoch, n = (job.epoch, None) if job.episodes is None else (job.key, job.episodes)
-    return [np.asarray(program.evaluate({"actor": actor}, job.seeds, epoch, n, noise))
+    return [np.asarray(program.evaluate(acting, job.seeds, epoch, n, noise))
             for noise in job.noises]
 
 

@@ -1,9 +1,11 @@
-"""The on-policy trainer's representations (`--algo ppo` on MinAtar; docs/minatar.md): what the critic sees
-and the representation's own losses, over the core's `networks_image` and `losses_onpolicy`.
+"""The on-policy trainer's representations (`--algo ppo` on MinAtar, docs/minatar.md; `--algo fpo` on
+Playground, docs/fpo.md): what the critic sees and the representation's own losses.
 
 `none` (PPO-Q with `critic = "q"`, PPO with `critic = "v"`), `sf2` (SF² w/o AE: the flow over the image)
 and `sf2-ae` (SF² w AE: the flow over the autoencoder's latent) are registered in `REGISTRY`, the on-policy
-trainer's `sf2_common.agents.registry.Registry` (entry-point group `sf2.representations.jax.onpolicy`). The
+trainer's `sf2_common.agents.registry.Registry` (entry-point group `sf2.representations.jax.onpolicy`);
+over images they use `networks_image`, over vector observations (`build`) their `vector` classes the
+off-policy core's ψ, twin Q heads and `losses.flow_loss`. The
 vocabulary is the off-policy representations': `supported_algos`, `critic_groups`, `aux_groups`,
 `noise_keys`, `targets`; `critics` names the critic kinds one works with, and `aux_losses` its own losses in
 the order an SGD step takes them, each with the groups it trains. Methods are pure: `params` first.
@@ -17,13 +19,18 @@ import jax
 import jax.numpy as jnp
 from sf2_common.agents.registry import Registry
 from sf2_common.config import SF2Config
+from sf2_common.errors import ConfigError
 
 from sf2_jax import losses_onpolicy as lo
+from sf2_jax import networks as nw
 from sf2_jax import networks_image as nwi
-from sf2_jax.losses import Batch
+from sf2_jax.losses import Batch, _trainable, flow_loss
+
+from .policies_onpolicy import SiluMLP
 
 __all__ = ["OnPolicyBatch", "OnPolicyRepresentation", "NoRepresentation", "SF2Representation",
-           "SF2AERepresentation", "REGISTRY", "GROUP", "register", "get", "names"]
+           "SF2AERepresentation", "VectorRepresentation", "VectorNone", "VectorSF2", "REGISTRY", "GROUP",
+           "register", "get", "names", "build", "VALUE_HIDDEN", "q_lambda_loss"]
 
 Params = dict[str, Any]
 GROUP = "sf2.representations.jax.onpolicy"
@@ -33,15 +40,16 @@ class OnPolicyBatch(NamedTuple):
     """A minibatch of rollout transitions, as the losses read it (leading axis: the sample).
 
     Attributes:
-      obs: s, float32 grids (B, H, W, C).
-      action: a, int32 (B,).
+      obs: s, float32 grids (B, H, W, C) or vectors (B, D).
+      action: a, int32 (B,), or the env's action (B, A) in [−1, 1] (FPO: tanh of the flow's).
       reward: r (B,), scaled by `reward_scaling`.
       discount: 1 − terminal (B,).
       truncation: 1 where the episode limit cut the episode after this step (B,).
       next_obs: s′ before any reset, float32 grids (B, H, W, C).
-      next_action: a′ (B,): the action taken at s′, or one drawn from π(·|s′) at rollout time where none was
-        (the episode ended, or the rollout did).
-      log_prob: log π_old(a|s) at rollout time (B,).
+      next_action: a′ (B,) or (B, A): the action taken at s′, or one drawn from π(·|s′) at rollout time where
+        none was (the episode ended, or the rollout did).
+      policy_info: what the policy's loss needs of the rollout (`policies_onpolicy`): log π_old(a|s) (B,)
+        (PPO), or the pre-squash action, the (ε, τ) pairs and ℓ_old (FPO).
       value: the critic's value of s at rollout time (B,): V(s), or V_Q(s) = Σ_a π(a|s) Q(s, a).
       advantage: A (B,), before normalization.
       target: the critic's regression target G (B,): the λ-return (Q), or GAE's A + V (V).
@@ -54,7 +62,7 @@ class OnPolicyBatch(NamedTuple):
     truncation: jax.Array
     next_obs: jax.Array
     next_action: jax.Array
-    log_prob: jax.Array
+    policy_info: Any
     value: jax.Array
     advantage: jax.Array
     target: jax.Array
@@ -82,6 +90,7 @@ class OnPolicyRepresentation:
     name: ClassVar[str] = ""
     label: ClassVar[str] = ""
     supported_algos: ClassVar[tuple[str, ...]] = ("ppo",)
+    vector: ClassVar[type | None] = None   # its class over vector observations (`build`), if any
     critics: ClassVar[tuple[str, ...]] = ("q",)
     critic_groups: ClassVar[tuple[str, ...]] = ()
     aux_losses: ClassVar[tuple[tuple[str, tuple[str, ...]], ...]] = ()
@@ -154,6 +163,7 @@ class NoRepresentation(OnPolicyRepresentation):
 
     name = "none"
     label = ""
+    supported_algos = ("ppo", "fpo")
     critics = ("q", "v")
     critic_groups = ("critic",)
 
@@ -186,6 +196,7 @@ class SF2Representation(_Flow):
 
     name = "sf2"
     label = "SF² w/o AE"
+    supported_algos = ("ppo", "fpo")
     aux_losses = (("flow_loss", ("psi", "zeta")),)
 
     def method(self, critic):
@@ -214,3 +225,151 @@ class SF2AERepresentation(_Flow):
             return lo.autoencoder_loss(self.nets, params, mb.obs)
         return lo.latent_flow_loss(self.nets, params, mb.transitions(), mb.next_action, noise["flow_noise"],
                                    noise["flow_time"])
+
+
+# ------------------------------------------------------------------------------------------------ vectors
+VALUE_HIDDEN = (256, 256, 256, 256, 256)   # FPO's V network (SiLU), the critic of `critic = "v"`
+
+
+def q_lambda_loss(nets: nw.Networks, params: Params, obs, action, target_return):
+    """Q(λ)'s regression of the twin Q heads on ψ(s, a) to the λ-return, trained on ψ and the heads.
+
+    loss = ½ mean_b mean_i (Q_i(s, a) − sg(G))², Q_i = head i of Q(ψ(s, a)); the critic's value is the
+    heads' mean.
+
+    Args:
+      nets: the off-policy core's `Networks` (ψ, twin Q).
+      params: the parameters (obs_norm, psi, q, ...).
+      obs: s (B, D).
+      action: a (B, A).
+      target_return: G (B,).
+
+    Returns:
+      (loss, {"q": mean Q(s, a)}).
+    """
+    p = _trainable(params, ("psi", "q"))
+    q = nw.q_values(nets, p, nw.psi(nets, p, obs, action))
+    loss = 0.5 * jnp.mean((q - jax.lax.stop_gradient(target_return)[:, None]) ** 2)
+    return loss, {"q": jax.lax.stop_gradient(jnp.mean(q))}
+
+
+class VectorRepresentation(OnPolicyRepresentation):
+    """A representation over vector observations with continuous actions (`--algo fpo`): the off-policy
+    core's ψ(s, a) on [normalize(s), a] and twin Q heads (critic "q": Q(λ)), or FPO's V network (critic
+    "v"); the groups include `obs_norm`, the running observation statistics the policy reads too."""
+
+    supported_algos = ("fpo",)
+
+    def __init__(self, cfg: SF2Config, obs_shape: tuple[int], critic: str):
+        if critic not in self.critics:
+            raise ValueError(f"{type(self).__name__} takes critic {' or '.join(self.critics)}, not "
+                             f"{critic!r}")
+        self.cfg, self.critic = cfg, critic
+        self.nets = nw.make_networks(cfg, "td3")
+        self.value_net = SiluMLP(VALUE_HIDDEN, 1)
+
+    @property
+    def groups(self) -> tuple[str, ...]:
+        """Its parameter groups."""
+        if self.critic == "v":
+            return ("obs_norm", "critic")
+        return ("obs_norm", "psi", "q", *self.aux_groups, *self.targets())
+
+    def init(self, key):
+        k_nets, k_v = jax.random.split(key)
+        params = nw.init_params(self.nets, k_nets, jnp.float32)
+        params["critic"] = self.value_net.init(k_v, jnp.zeros((1, self.cfg.obs_size), jnp.float32))["params"]
+        return {g: params[g] for g in self.groups}
+
+    def state_value(self, params, obs):
+        """V(s) (B,) of critic "v"."""
+        return self.value_net.apply({"params": params["critic"]}, nw.normalize(obs, params["obs_norm"]))[:, 0]
+
+    def q_value(self, params, obs, action):
+        """Q(s, a) (...,): the mean of the twin heads on ψ(s, a); `obs` and `action` (..., D), (..., A)."""
+        lead = action.shape[:-1]
+        obs = jnp.broadcast_to(obs, lead + obs.shape[-1:]).reshape(-1, obs.shape[-1])
+        features = nw.psi(self.nets, params, obs, action.reshape(-1, action.shape[-1]))
+        q = nw.q_values(self.nets, params, features)
+        return jnp.mean(q, axis=-1).reshape(lead)
+
+    def values(self, params, obs, draws):
+        """V(s), or V_Q(s) ≈ mean_k Q(s, a_k) over the K actions `draws` (K, B, A) drawn from π(·|s)."""
+        if self.critic == "v":
+            return self.state_value(params, obs)
+        return jnp.mean(self.q_value(params, obs[None], draws), axis=0)
+
+    def critic_loss(self, params, mb: OnPolicyBatch, clip_eps: float):
+        """Q(λ)'s `q_lambda_loss`, or FPO's value loss ½(V(s) − G)² (unclipped, as the authors')."""
+        if self.critic == "v":
+            p = _trainable(params, ("critic",))
+            v = self.state_value(p, mb.obs)
+            loss = 0.5 * jnp.mean((v - jax.lax.stop_gradient(mb.target)) ** 2)
+            return loss, {"v": jax.lax.stop_gradient(jnp.mean(v))}
+        return q_lambda_loss(self.nets, params, mb.obs, mb.action, mb.target)
+
+
+class VectorNone(VectorRepresentation):
+    """`none` over vectors: Q(λ) on ψ(s, a) trained by the TD(λ) loss alone (FPO + Q(λ)), or V (FPO)."""
+
+    name = "none"
+    label = ""
+    critics = ("q", "v")
+
+    @property
+    def critic_groups(self):
+        return ("critic",) if self.critic == "v" else ("psi", "q")
+
+
+class VectorSF2(VectorRepresentation):
+    """`sf2` over vectors: Q(λ) on ψ(s, a), ψ trained by the TD(λ) loss and SF²'s `losses.flow_loss` on the
+    rollout's (s, a, s′, a′) (FPO + Q(λ) + SF²); targets ψ̄ (τ) and ζ̄ (τ_ζ)."""
+
+    name = "sf2"
+    label = "SF²"
+    critics = ("q",)
+    critic_groups = ("psi", "q")
+    aux_losses = (("flow_loss", ("psi", "zeta")),)
+    noise_keys = ("flow_noise", "flow_time")
+
+    def aux_noise(self, key, mb):
+        k_eps, k_time = jax.random.split(key)
+        b = mb.obs.shape[0]
+        return {"flow_noise": jax.random.normal(k_eps, (b, self.cfg.obs_size), jnp.float32),
+                "flow_time": jax.random.uniform(k_time, (b,), jnp.float32)}
+
+    def aux_loss(self, name, params, mb, noise):
+        return flow_loss(self.nets, params, mb.transitions(), mb.next_action, noise["flow_noise"],
+                         noise["flow_time"])
+
+    def targets(self):
+        return {"target_psi": ("psi", self.cfg.tau), "target_zeta": ("zeta", self.cfg.tau_zeta)}
+
+
+NoRepresentation.vector = VectorNone
+SF2Representation.vector = VectorSF2
+
+
+def build(name: str, cfg: SF2Config, obs_shape: tuple[int, ...], critic: str) -> OnPolicyRepresentation:
+    """The representation `name` for observations of `obs_shape`: the registered class over images (H, W, C),
+    its `vector` class over vectors (D,).
+
+    Args:
+      name: a registered name (`--repr`).
+      cfg: the `SF2Config` (obs_size, action_size: the number of actions, or A).
+      obs_shape: (H, W, C) or (D,).
+      critic: "q" or "v".
+
+    Returns:
+      The representation.
+
+    Raises:
+      ConfigError: an unknown name, or one without a vector class for vector observations.
+    """
+    cls = REGISTRY.get(name)
+    if len(obs_shape) == 1:
+        if cls.vector is None:
+            raise ConfigError(f"representation {name!r} takes image observations; over vector observations "
+                              f"the on-policy trainer takes {', '.join(n for n in names() if get(n).vector)}")
+        return cls.vector(cfg, obs_shape, critic)
+    return cls(cfg, obs_shape, critic)
