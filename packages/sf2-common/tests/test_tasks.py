@@ -60,13 +60,13 @@ def test_minatar_tasks_are_valid_without_playground_and_carry_their_kind(no_play
 
 
 def test_unknown_names_list_the_valid_ones_by_kind(playground):
-    assert tasks.valid_tasks() == ("CheetahRun", "FishSwim", *MINATAR)
+    assert tasks.valid_tasks() == ("CheetahRun", "FishSwim", *MINATAR, "ant-goal")
     assert tasks.task_kind("CheetahRun") is tasks.KINDS["playground"]
     with pytest.raises(ConfigError) as err:
         tasks.validate_task("minatar-breakot")
     assert "unknown task 'minatar-breakot'. Did you mean minatar-breakout, " in str(err.value)
-    assert (f"Valid tasks (Playground DM Control: CheetahRun, FishSwim; MinAtar: {', '.join(MINATAR)})"
-            in str(err.value))
+    assert (f"Valid tasks (Playground DM Control: CheetahRun, FishSwim; MinAtar: {', '.join(MINATAR)}; "
+            f"goal-reaching: ant-goal)" in str(err.value))
 
 
 def test_the_off_policy_trainers_refuse_minatar_tasks_before_compiling(playground):
@@ -125,10 +125,11 @@ def test_tasks_lists_each_task_with_its_kind(playground, capsys):
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].split() == ["task", "kind", "paper", "budget", "episode", "repeat", "in", "paper"]
     rows = {line.split()[0]: line for line in lines[1:-1]}
-    assert list(rows) == ["CheetahRun", "FishSwim", *MINATAR]
+    assert list(rows) == ["CheetahRun", "FishSwim", *MINATAR, "ant-goal"]
     assert rows["CheetahRun"].split() == ["CheetahRun", "Playground", "DM", "Control", "10,000,000", "1000",
                                           "1", "yes"]
     assert rows["minatar-breakout"].split() == ["minatar-breakout", "MinAtar", "20,000,000", "10000", "1"]
+    assert rows["ant-goal"].split() == ["ant-goal", "goal-reaching", "10,000,000", "1000", "1"]
     assert lines[-1] == "(your own environment: --task module:callable, or an entry point of 'sf2.tasks'; " \
                         "docs/agents.md)"
 
@@ -136,7 +137,7 @@ def test_tasks_lists_each_task_with_its_kind(playground, capsys):
 def test_tasks_without_playground_lists_minatar_and_the_install_line(no_playground, capsys):
     assert cli.tasks_command(None) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert [line.split()[0] for line in lines[1:-2]] == list(MINATAR)
+    assert [line.split()[0] for line in lines[1:-2]] == [*MINATAR, "ant-goal"]
     assert lines[-2] == '(Playground tasks: not installed; pip install "packages/sf2-core-jax[train]")'
 
 

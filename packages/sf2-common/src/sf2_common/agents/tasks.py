@@ -42,7 +42,7 @@ class TaskKind:
       label: its name in messages and in `tasks` listings.
       observation: "vector" (flat state) or "image" (an H×W×C grid).
       action: "continuous" (a box) or "discrete" (an action index).
-      trainer: the trainer family that takes it, "off-policy" or "on-policy".
+      trainer: the trainer family that takes it, "off-policy", "on-policy" or "goal-conditioned".
       algos: the `--algo` values of that trainer; any other known algo is refused (`check_algo`).
       episode_length: the episode limit in agent steps; reaching it is a truncation, not a termination.
       requires: the module its environments import, checked by `check_installed`; None where the task
@@ -103,6 +103,10 @@ KINDS = {
         "minatar", "MinAtar", observation="image", action="discrete", trainer="on-policy", algos=("ppo",),
         episode_length=10_000, requires="pgx", install='pip install "packages/sf2-core-jax[minatar]"',
         budget=20_000_000),
+    # JaxGCRL's goal-reaching Ant (sf2_jax.agents.antgoal, docs/crl.md): CRL's goal-conditioned trainer
+    "goal": TaskKind(
+        "goal", "goal-reaching", observation="vector", action="continuous", trainer="goal-conditioned",
+        algos=("crl",), episode_length=1000, requires="brax", install=_TRAIN, budget=10_000_000),
 }
 # pgx's MinAtar games with its defaults (minimal action sets, sticky actions 0.1): bool 10×10×C grids
 MINATAR_TASKS = {
@@ -113,7 +117,7 @@ MINATAR_TASKS = {
     "minatar-space_invaders": Task("minatar", (10, 10, 6), 4),
 }
 # The tasks known without an import; every other valid task is Playground's (`valid_tasks`).
-TASKS = {**MINATAR_TASKS}
+TASKS = {**MINATAR_TASKS, "ant-goal": Task("goal", (31,), 0)}
 
 # The seven tasks of the paper's DM Control experiments (§4.2, Appendix E Table 1).
 PAPER_TASKS = (

@@ -156,7 +156,7 @@ class GoalEnvSpec:
 @functools.lru_cache(maxsize=4)
 def make(episode_length: int = 1000, backend: str = "mjx") -> GoalEnvSpec:
     """The batched `ant-goal` env: `ant_goal` under Brax's `VmapWrapper` and `EpisodeWrapper`, then
-    `FreshAutoReset`.
+    `FreshAutoReset` and `envs.StrongTypes`.
 
     Args:
       episode_length: steps after which an episode is truncated.
@@ -173,8 +173,10 @@ def make(episode_length: int = 1000, backend: str = "mjx") -> GoalEnvSpec:
 
     if backend not in BACKENDS:
         raise ConfigError(f"ant-goal backend {backend!r} is unknown; valid backends: {', '.join(BACKENDS)}")
+    from .envs import StrongTypes  # every state leaf strongly typed: a program compiles once
+
     ant = ant_goal(backend)
-    env = FreshAutoReset(EpisodeWrapper(VmapWrapper(ant), episode_length, 1))
+    env = StrongTypes(FreshAutoReset(EpisodeWrapper(VmapWrapper(ant), episode_length, 1)))
     return GoalEnvSpec(env=env, obs_size=int(ant.observation_size), state_size=STATE_SIZE,
                        goal_indices=GOAL_INDICES, action_size=int(ant.action_size),
                        episode_length=episode_length)
