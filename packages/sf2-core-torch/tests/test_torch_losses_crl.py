@@ -1,5 +1,5 @@
 """CRL's losses (sf2_torch.losses_crl) against values derived by hand on a batch of three, as the JAX core's
-tests/test_losses_crl.py: the energy, InfoNCE with its log-sum-exp penalty and the contrastive accuracy (a
+test_losses_crl.py: the energy, InfoNCE with its log-sum-exp penalty and the contrastive accuracy (a
 tie: argmax takes the first), the actor's log σ and its squashed sample, the actor and temperature losses
 with their gradient contract, the truncated geometric goal offset and the shape checks (float64).
 """

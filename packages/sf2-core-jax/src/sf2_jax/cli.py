@@ -9,10 +9,10 @@ PPO agents (PPO-Q, PPO, SF² w/o or w AE) on MinAtar.
 
 Every `TrainConfig` field can be overridden with its own flag (`--batch-size 128`) or `--set
 batch_size=128` (repeatable). `--repr` takes none, sf2 and, with sf2-baselines installed, sim, simlap,
-simlap_authors, spr; with `--algo ppo` none, sf2, sf2-ae. A MinAtar task trains with the on-policy trainer
-(`sf2_jax.agents.onpolicy`), any other with the off-policy one; `eval` picks the folder's. Bad input is
-reported before anything is compiled (exit status 2); a NaN/inf loss stops the run (3). `study` comes with
-sf2-studies. The parts shared with `sf2-torch` are `sf2_common.cli`.
+simlap_authors, spr; with `--algo ppo` none, sf2, sf2-ae; with `--algo crl` none, sf2. MinAtar trains with
+the on-policy trainer (`agents.onpolicy`), `--algo crl` (ant-goal) with `agents.crl`, any other with the
+off-policy one; `eval` picks the folder's. Bad input is reported before anything is compiled (exit status
+2); a NaN/inf loss stops the run (3). `study` comes with sf2-studies; `sf2_common.cli` is shared.
 """
 
 from __future__ import annotations
@@ -60,6 +60,11 @@ def _onpolicy(task: str, algo: str | None = None) -> bool:
 def train(args) -> int:
     """`sf2-jax train`: the JAX trainer of the task's kind on every config of the arguments."""
     cfgs, seeds = resolve_configs(args)
+    if cfgs[0].algo == "crl":
+        from sf2_jax.agents import crl
+
+        labels = {(c.algo, c.representation): crl.method_label(c) for c in cfgs}
+        return common.train_runs(args, cfgs, seeds, crl.train, lambda algo, rep: labels[(algo, rep)])
     if _onpolicy(cfgs[0].task, cfgs[0].algo):
         from sf2_jax.agents import onpolicy
 
@@ -86,6 +91,10 @@ def _trainer_of(run):
         conf = None
     task = conf["config"].get("task") if conf else None
     algo = conf["config"].get("algo") if conf else None
+    if algo == "crl":
+        from sf2_jax.agents import crl
+
+        return crl
     if isinstance(task, str) and ((task in TASKS and _onpolicy(task)) or _onpolicy(task, algo)):
         from sf2_jax.agents import onpolicy
 

@@ -199,7 +199,7 @@ class TrainConfig:
 ADDED_FIELDS.update({f.name: f.default for f in fields(TrainConfig) if f.name in PPO_FIELDS + FPO_FIELDS})
 ADDED_FIELDS["logsumexp_penalty"] = TrainConfig.logsumexp_penalty
 # CRL's values per preset (`--algo crl`, ant-goal; docs/crl.md): `paper` is JaxGCRL's CRL on `ant` (its
-# scripts/train.sh: 512 envs, 10M steps, 50 evaluations; its CRL defaults) with ζ for CRL+SF² as wide as the
+# train.sh: 512 envs, 10M steps, 50 evaluations; its CRL defaults) with ζ for CRL+SF² as wide as the
 # encoders; `quick` shows the critic learning on a CPU in about a minute
 CRL_VALUES = {
     "paper": dict(num_envs=512, batch_size=256, grad_updates_per_step=32, min_replay_size=512_000,

@@ -25,6 +25,10 @@ def validate(cfg: TrainConfig, seeds=(0,)) -> TrainConfig:
     registry of the algorithm's trainer: the off-policy `representations.REGISTRY`, or for `--algo ppo`
     `representations_onpolicy.REGISTRY`, whose representations also name the critics they take). Raises
     `ConfigError`."""
+    if cfg.algo == "crl":   # the goal-conditioned trainer's own registry and fields
+        from . import crl
+
+        return crl.validate(cfg, seeds)
     if cfg.algo not in _configs.ONPOLICY_ALGOS:
         from . import representations
 

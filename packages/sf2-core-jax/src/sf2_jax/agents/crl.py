@@ -4,12 +4,12 @@ CRL's critic is the energy −‖φ(s, a) − ψ(g)‖ of a state-action encoder
 MLPs), trained by InfoNCE on hindsight goals from the same episode's future (`goal_replay`); its actor is
 goal-conditioned SAC on that energy (`sf2_jax.losses_crl`). With representation "sf2", φ(s, a) is also SF²'s
 feature ψ(s, a): after the critic's step, SF²'s flow loss (`sf2_jax.losses.velocity_fields` and
-`flow_field_loss`, unchanged) trains φ (its own Adam state) and ζ on the logged (s, a, s′, a′), and the
-targets φ̄, ζ̄ move by EMA. An actor step steps every env once (the policy acts, also in the prefill) and,
-after the prefill, runs `grad_updates_per_step` SGD steps (actor and temperature, then critic, then flow);
-an epoch is one compiled `lax.scan` of actor steps, vmapped over seeds, its state donated. Evaluation runs
-the deterministic policy tanh(μ) for one episode from fixed start states. Run folders, resume, the NaN guard
-and the rows are the off-policy trainer's (`trainer.run_training`, `sf2_common.agents.hostloop`).
+`flow_field_loss`, unchanged) trains φ (one Adam state with `shared_adam`) and ζ on the logged
+(s, a, s′, a′), and the targets φ̄, ζ̄ move by EMA. An actor step steps every env once (the policy acts,
+also in the prefill), then, after the prefill, runs `grad_updates_per_step` SGD steps (actor and
+temperature, critic, flow); an epoch is one compiled `lax.scan` of actor steps, vmapped over seeds, its state
+donated. Evaluation: the deterministic policy tanh(μ), one episode from fixed start states. Run folders,
+resume, the NaN guard and the rows: `trainer.run_training` and `sf2_common.agents.hostloop`.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ from .trainer import (  # _seed_map: one seed runs unvmapped; _write_final: fina
 )
 
 __all__ = ["CRLState", "Encoder", "Actor", "REGISTRY", "Program", "get_program", "train", "method_label",
-           "validate", "evaluate_checkpoint", "TrainingDiverged", "TrainResult"]
+           "validate", "evaluate_checkpoint", "evaluate_checkpoint_noises", "TrainingDiverged", "TrainResult"]
 
 _LECUN = nn.initializers.variance_scaling(1 / 3, "fan_in", "uniform")   # JaxGCRL's kernels; biases zero
 
@@ -108,7 +108,8 @@ class CRLState(NamedTuple):
     Attributes:
       params: {"sa_encoder", "g_encoder", "actor", "log_alpha"}; with SF² also "zeta", "target_zeta",
         "target_sa_encoder" and "obs_norm" (the statistics that normalize the flow's s′).
-      opt_state: {"critic", "actor", "log_alpha"}, with SF² "zeta" and "sa_encoder:aux".
+      opt_state: {"sa_encoder", "g_encoder", "actor", "log_alpha"}, with SF² "zeta" (and "sa_encoder:aux"
+        unless `shared_adam`: φ's own Adam state in the flow step).
       env_state: the `ant-goal` envs' Brax state.
       buffer: the `TrajectoryBuffer`'s state.
       episode: (num_envs,) int32, each env's episode counter.
@@ -148,6 +149,8 @@ class Program:
         self.target_entropy = -cfg.target_entropy_scale * A
         self._adam = optax.adam(cfg.learning_rate, eps=cfg.adam_eps)
         self._alpha_adam = optax.adam(cfg.alpha_learning_rate)
+        # φ's Adam state in the flow step: its InfoNCE step's (`shared_adam`, SF²'s authors') or its own
+        self.flow_state = "sa_encoder" if cfg.shared_adam else "sa_encoder:aux"
         flow = ("flow_loss",) if self.sf2_on else ()
         self.loss_order = ("actor_loss", "alpha_loss", "critic_loss", *flow)
         self._programs: dict[tuple, Callable] = {}
@@ -206,15 +209,17 @@ class Program:
                   "g_encoder": self.g_encoder.init(k_g, jnp.zeros((1, G)))["params"],
                   "actor": self.actor.init(k_actor, jnp.zeros((1, self.spec.obs_size)))["params"],
                   "log_alpha": jnp.asarray(cfg.init_log_alpha, jnp.float32)}
-        opt_state = {"critic": self._adam.init({g: params[g] for g in ("sa_encoder", "g_encoder")}),
+        opt_state = {"sa_encoder": self._adam.init(params["sa_encoder"]),
+                     "g_encoder": self._adam.init(params["g_encoder"]),
                      "actor": self._adam.init(params["actor"]),
                      "log_alpha": self._alpha_adam.init(params["log_alpha"])}
         if self.sf2_on:
             core = nw.init_params(self.nets, k_sf2, dtype=jnp.float32)
             params.update(zeta=core["zeta"], target_zeta=core["target_zeta"], obs_norm=core["obs_norm"],
                           target_sa_encoder=jax.tree_util.tree_map(jnp.copy, params["sa_encoder"]))
-            opt_state.update({"zeta": self._adam.init(params["zeta"]),
-                              "sa_encoder:aux": self._adam.init(params["sa_encoder"])})
+            opt_state["zeta"] = self._adam.init(params["zeta"])
+            if self.flow_state != "sa_encoder":
+                opt_state[self.flow_state] = self._adam.init(params["sa_encoder"])
         n, m = cfg.num_envs, cfg.num_eval_envs
         both = self.spec.env.reset(jax.random.split(k_env, n + m))
         env_state = jax.tree_util.tree_map(lambda x: x[:n], both)
@@ -265,8 +270,8 @@ class Program:
             return lc.crl_critic_loss(phi, psi, cfg.logsumexp_penalty)
 
         (c_loss, c_aux), grad = jax.value_and_grad(critic_loss, has_aux=True)(critic)
-        new, opt_state["critic"] = self._adam_step(self._adam, grad, opt_state["critic"], critic)
-        params.update(new)
+        for g in critic:
+            params[g], opt_state[g] = self._adam_step(self._adam, grad[g], opt_state[g], critic[g])
         metrics = {"actor_loss": a_loss, "alpha_loss": al_loss, "critic_loss": c_loss, **a_aux, **al_aux,
                    **c_aux}
         if self.sf2_on:
@@ -275,7 +280,7 @@ class Program:
         return params, opt_state, metrics
 
     def _flow_step(self, params, opt_state, sample, noise):
-        """SF²'s flow loss on φ (its own Adam state) and ζ, then φ̄ and ζ̄ by EMA."""
+        """SF²'s flow loss on φ (Adam state `flow_state`) and ζ, then φ̄ and ζ̄ by EMA."""
         cfg = self.cfg
         next_sa = jnp.concatenate([sample.next_state, sample.next_action], -1)
         next_features = jax.lax.stop_gradient(
@@ -293,8 +298,8 @@ class Program:
 
         trained = {g: params[g] for g in ("sa_encoder", "zeta")}
         (loss, aux), grad = jax.value_and_grad(flow_loss, has_aux=True)(trained)
-        params["sa_encoder"], opt_state["sa_encoder:aux"] = self._adam_step(
-            self._adam, grad["sa_encoder"], opt_state["sa_encoder:aux"], params["sa_encoder"])
+        params["sa_encoder"], opt_state[self.flow_state] = self._adam_step(
+            self._adam, grad["sa_encoder"], opt_state[self.flow_state], params["sa_encoder"])
         params["zeta"], opt_state["zeta"] = self._adam_step(self._adam, grad["zeta"], opt_state["zeta"],
                                                             params["zeta"])
         params["target_sa_encoder"] = losses.ema_update(params["target_sa_encoder"], params["sa_encoder"],
@@ -421,7 +426,7 @@ def _versions() -> dict:
 
 def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = False, progress: bool = True,
           hook: Callable[[str, int], None] | None = None, stop_after_epoch: int | None = None,
-          plot: bool = True) -> TrainResult:
+          plot: bool = True, log=()) -> TrainResult:
     """Train one `--algo crl` config for every seed (one vmapped program) into a run folder.
 
     Args:
@@ -434,6 +439,7 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
       hook: `hook(event, epoch)`, called at the points of `hostloop.run_epochs` (tests simulate a kill).
       stop_after_epoch: end the run early, after that epoch's checkpoint, as a kill would.
       plot: write the learning-curve PNG.
+      log: the sinks every metrics row also goes to (`sf2_common.agents.loggers`): tensorboard, wandb.
 
     Returns:
       A `TrainResult`: the run folder, its rows, the final `CRLState` of all seeds, the seeds, the
@@ -450,7 +456,7 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
     return run_training(cfg, seeds, out, program_of=get_program, session_of=_Session, label=method_label,
                         hardware=hostloop.hardware(d.device_kind for d in devices if d.platform != "cpu"),
                         versions=_versions(), resume=resume, fresh=fresh, progress=progress, hook=hook,
-                        stop_after_epoch=stop_after_epoch, plot=plot)
+                        stop_after_epoch=stop_after_epoch, plot=plot, log=log)
 
 
 class _Session:
@@ -496,6 +502,7 @@ def _act(restored, job: CheckpointJob) -> list[np.ndarray]:
     return [np.asarray(get_program(job.eval_cfg).evaluate(actor, starts, job.seeds, job.key))]
 
 
-# evaluate_checkpoint(out, epoch, num_eval_envs, deterministic, obs_noise): sf2_common.agents.evaluation's
+# evaluate_checkpoint(out, epoch, ...) and evaluate_checkpoint_noises: sf2_common.agents.evaluation's
 _EVALUATOR = CheckpointEvaluator("jax", TrainConfig, Checkpointer, _restore_acting, _act)
 evaluate_checkpoint = _EVALUATOR.evaluate_checkpoint
+evaluate_checkpoint_noises = _EVALUATOR.evaluate_checkpoint_noises

@@ -1,0 +1,80 @@
+"""The goal-conditioned trainer (sf2_jax.agents.crl) on `ant-goal` with `--config quick`, through
+`sf2-jax train --task ant-goal --algo crl`: the critic learns (its contrastive accuracy far above chance), a
+run stopped after its first epoch resumes to the same rows, and bad input is refused before compiling.
+
+The learning signal: a critic that has learned nothing ranks a row's own goal first among the batch's B
+goals with probability 1/B (chance, 1/64 here); the last epoch's mean accuracy over its 2000 SGD steps must
+be at least 5/B. Random-policy data make the task easy (a goal k ~ Geometric steps ahead is near the
+current (x, y)), so a working critic is far above that (0.29 observed); a broken one (goals from another
+episode, a sign error in the energy, negatives that include the positive) stays near 1/B.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from sf2_jax import cli
+from sf2_jax.agents import crl, make_config
+from sf2_testing import cli_args, cli_error, strip_wall
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    return make_config("quick", "ant-goal", algo="crl", representation="none")
+
+
+@pytest.fixture(scope="module")
+def cli_run(cfg, tmp_path_factory):
+    """The quick config trained by `sf2-jax train` (seed 0): its run folder and rows."""
+    out = tmp_path_factory.mktemp("crl") / "run"
+    assert cli.main(cli_args(cfg, out)) == 0
+    return out, [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+
+
+@pytest.mark.slow
+def test_quick_crl_learns_the_contrastive_critic(cfg, cli_run):
+    _, rows = cli_run
+    assert [r["env_steps"] for r in rows] == [0, 4000, 8000]
+    last = rows[-1]
+    assert last["sgd_steps"] == 500 * cfg.grad_updates_per_step   # 500 actor steps, none of them prefill
+    chance = 1 / cfg.batch_size
+    assert last["accuracy"] >= 5 * chance, (last["accuracy"], chance)
+    assert last["logits_pos"] > last["logits_neg"]
+
+
+@pytest.mark.slow
+def test_a_stopped_run_resumes_to_the_same_rows(cfg, cli_run, tmp_path):
+    _, reference = cli_run
+    out = tmp_path / "stopped"
+    crl.train(cfg, "0", out, progress=False, plot=False, stop_after_epoch=1)
+    result = crl.train(cfg, "0", out, progress=False, plot=False)
+    assert result.resumed_from == 1
+    assert strip_wall(result.rows) == strip_wall(reference)
+
+
+CRL = ("--task", "ant-goal", "--algo", "crl")
+
+
+@pytest.mark.parametrize("args, text", [
+    (("--task", "ant-goal", "--algo", "td3"), "goal-reaching tasks take the goal-conditioned trainer"),
+    ((*CRL, "--repr", "sim"), "representation = 'sim' is invalid: must be one of none, sf2"),
+    ((*CRL, "--logsumexp-penalty", "-1"), "logsumexp_penalty = -1.0 is invalid"),
+    ((*CRL, "--batch-size", "1"), "batch_size = 1 is invalid"),
+    ((*CRL, "--max-replay-size", "8", "--min-replay-size", "0"), "must hold at least 2 steps of every env"),
+])
+def test_bad_input_is_refused_before_compiling(args, text, capsys, monkeypatch):
+    monkeypatch.setattr(crl, "get_program", lambda cfg: pytest.fail("a program was built"))
+    err = cli_error(cli.main, capsys, *args)
+    assert text in err, err
+
+
+@pytest.mark.slow
+def test_quick_crl_sf2_trains_the_flow_and_the_critic(tmp_path):
+    """CRL+SF²: the critic learns as CRL's does (accuracy ≥ 5/B) while SF²'s flow loss on the shared φ falls
+    from the first epoch to the second (the flow fits s′ better as φ, ζ and the statistics settle)."""
+    cfg = make_config("quick", "ant-goal", algo="crl", representation="sf2")
+    rows = crl.train(cfg, "0", tmp_path / "sf2", progress=False, plot=False).rows
+    first, last = rows[1], rows[-1]
+    assert last["accuracy"] >= 5 / cfg.batch_size, last["accuracy"]
+    assert last["flow_loss"] < first["flow_loss"], (first["flow_loss"], last["flow_loss"])
