@@ -44,6 +44,19 @@ def test_quick_crl_learns_the_contrastive_critic(cfg, cli_run):
 
 
 @pytest.mark.slow
+def test_eval_replays_the_last_evaluation(cfg, cli_run, capsys):
+    """`sf2-jax eval RUN` restores the last checkpoint and replays training's last evaluation (the same
+    start states and deterministic policy: the same returns); what it does not offer exits 2."""
+    out, rows = cli_run
+    assert cli.main(["eval", str(out), "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["epoch"] == max(res["checkpoints"]) and len(res["returns"]["0"]) == cfg.num_eval_envs
+    assert sum(res["returns"]["0"]) / cfg.num_eval_envs == pytest.approx(rows[-1]["eval_return"], abs=1e-6)
+    assert cli.main(["eval", str(out), "--episodes", "3"]) == 2
+    assert "replays its own deterministic evaluation" in capsys.readouterr().err
+
+
+@pytest.mark.slow
 def test_a_stopped_run_resumes_to_the_same_rows(cfg, cli_run, tmp_path):
     _, reference = cli_run
     out = tmp_path / "stopped"

@@ -494,12 +494,14 @@ def _restore_acting(ckpt: Checkpointer, job: CheckpointJob):
 
 
 def _act(restored, job: CheckpointJob) -> list[np.ndarray]:
-    """Episode returns (seeds, episodes) of the run's own evaluation of that epoch (observation noise and
-    fresh start states are not offered for `ant-goal`)."""
+    """Episode returns (seeds, episodes) of the run's own evaluation of that epoch: the deterministic policy
+    from the run's start states (fresh start states, a stochastic policy and observation noise are not
+    offered for `--algo crl`)."""
     actor, starts = restored
-    if job.episodes is not None or any(job.noises):
-        raise ConfigError("eval of an --algo crl run takes neither --episodes nor --obs-noise")
-    return [np.asarray(get_program(job.eval_cfg).evaluate(actor, starts, job.seeds, job.key))]
+    if job.episodes is not None or any(job.noises) or not job.eval_cfg.deterministic_eval:
+        raise ConfigError("eval of an --algo crl run replays its own deterministic evaluation: it takes "
+                          "neither --episodes, --stochastic nor --obs-noise")
+    return [np.asarray(get_program(job.eval_cfg).evaluate(actor, starts, job.seeds, job.epoch))]
 
 
 # evaluate_checkpoint(out, epoch, ...) and evaluate_checkpoint_noises: sf2_common.agents.evaluation's
