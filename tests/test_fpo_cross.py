@@ -3,8 +3,9 @@ flow_policy_sample; docs/fpo.md) and their gradients.
 
 One velocity field in both frameworks from the same numpy weights, u(x, τ) = tanh([s, x, τ]W₁ + b₁)W₂ + b₂
 at each sample's observation s, B = 6 samples of A = 3 action dimensions, n = 4 (ε, τ) pairs, the same
-noise and advantages; values, aux metrics and the gradients of (W₁, b₁, W₂, b₂) agree to 1e-10 relative in
-float64 and to cross_bridge.TOL in float32 (docs/parity.md).
+noise and advantages, with and without the bound on the log-ratio; values, aux metrics and the gradients
+of (W₁, b₁, W₂, b₂) agree to 1e-10 relative in float64 and to cross_bridge.TOL in float32
+(docs/parity.md).
 """
 
 from __future__ import annotations
@@ -54,7 +55,8 @@ def torch_field(w, obs):
 
 
 @pytest.mark.parametrize("dtype", ["float64", "float32"])
-def test_fpo_losses_agree(dtype):
+@pytest.mark.parametrize("log_ratio_clip", [None, 0.05])
+def test_fpo_losses_agree(dtype, log_ratio_clip):
     d, w_old, w_new = data(), weights(0), weights(1)
     jd = {k: jx(v, dtype) for k, v in d.items()}
     td = {k: th(v, dtype) for k, v in d.items()}
@@ -69,11 +71,11 @@ def test_fpo_losses_agree(dtype):
 
     def j_loss(w):
         return jlo.fpo_policy_loss(jax_field(w, jd["obs"]), jd["action"], jd["eps"], jd["flow_time"], j_old,
-                                   jd["advantage"], 0.05)
+                                   jd["advantage"], 0.05, log_ratio_clip)
 
     (jl, jaux), jg = jax.value_and_grad(j_loss, has_aux=True)(jw)
     tl, taux = tlo.fpo_policy_loss(torch_field(tw, td["obs"]), td["action"], td["eps"], td["flow_time"],
-                                   t_old, td["advantage"], 0.05)
+                                   t_old, td["advantage"], 0.05, log_ratio_clip)
     tl.backward(inputs=[tw[k] for k in NAMES])
     check("fpo_policy_loss", np_(jl), np_(tl.detach()), dtype)
     for name in ("ratio", "clip_fraction", "cfm_loss"):
@@ -83,7 +85,8 @@ def test_fpo_losses_agree(dtype):
     j_new = jlo.cfm_losses(jax_field(jw, jd["obs"]), jd["action"], jd["eps"], jd["flow_time"])
     with torch.no_grad():
         t_new = tlo.cfm_losses(torch_field(tw, td["obs"]), td["action"], td["eps"], td["flow_time"])
-    check("fpo_ratio", np_(jlo.fpo_ratio(j_old, j_new)), np_(tlo.fpo_ratio(t_old, t_new)), dtype)
+    check("fpo_ratio", np_(jlo.fpo_ratio(j_old, j_new, log_ratio_clip)),
+          np_(tlo.fpo_ratio(t_old, t_new, log_ratio_clip)), dtype)
     assert 0 < float(jaux["clip_fraction"]) < 1   # both branches of the clip are exercised
 
 

@@ -70,6 +70,22 @@ def test_fpo_policy_loss_and_its_gradient_by_hand():
     assert abs(float(loss0)) < 1e-15 and aux0["clip_fraction"] == 0.0 and aux0["ratio"] == 1.0
 
 
+def test_log_ratio_clip_bounds_the_exponent_and_stops_its_gradient():
+    """With c = 1 the exponents (−1.15625, −1.1953125) become −1: ρ = (e^−1, e^−1), both still below
+    1 − 0.05, so sample 1 stays clipped and sample 0's term is e^−1·Â_0, now constant in θ: loss =
+    −½(e^−1 − 0.95)/(1 + 1e-8), gradient 0. A bound above both exponents (c = 2) changes nothing."""
+    adv = jnp.array([1.0, -1.0])
+    np.testing.assert_allclose(lo.fpo_ratio(OLD, NEW, 1.0), [math.exp(-1.0)] * 2, rtol=1e-15)
+    np.testing.assert_allclose(lo.fpo_ratio(OLD, NEW, 2.0), lo.fpo_ratio(OLD, NEW), rtol=0, atol=0)
+
+    def loss_of(theta):
+        return lo.fpo_policy_loss(linear(theta), ACTION, EPS, TAU, OLD, adv, 0.05, 1.0)[0]
+
+    loss, grad = jax.value_and_grad(loss_of)(0.5)
+    np.testing.assert_allclose(loss, -0.5 * (math.exp(-1.0) - 0.95) / (1.0 + 1e-8), rtol=1e-14)
+    assert grad == 0.0
+
+
 def test_flow_policy_sample_by_hand():
     """K = 2 Euler steps of u(x, τ) = τx + 1 from x_0 = 2 at τ = 1: x_1 = 2 − ½·3 = ½; at τ = ½:
     x_2 = ½ − ½(¼ + 1) = −0.125. From x_0 = 0: x_1 = −½, x_2 = −½ − ½(−¼ + 1) = −0.875."""

@@ -90,7 +90,7 @@ def add_train_parser(sub, prog: str, config_class, seeds_help: str, cache_env: s
     t.add_argument("--task", required=True, help="a Playground task, e.g. CartpoleBalance or Go1Getup; a "
                    f"MinAtar game, e.g. minatar-breakout (`{prog} tasks` lists them); or your own env, "
                    "module:callable or an entry point of sf2.tasks (docs/agents.md)")
-    t.add_argument("--algo", default="td3", help="td3 or sac (Playground); ppo (MinAtar)")
+    t.add_argument("--algo", default="td3", help="td3, sac or fpo (Playground); ppo (MinAtar)")
     t.add_argument("--repr", default="sf2", dest="representation",
                    help="representation: none (vanilla), sf2; with sf2-baselines installed also sim, simlap, "
                    "simlap_authors, spr; with ppo: none, sf2, sf2-ae; a comma list trains each and compares "

@@ -446,13 +446,15 @@ def cfm_losses(velocity, action, eps, flow_time):
     return jnp.mean((eps - eps_hat) ** 2, axis=-1)
 
 
-def fpo_ratio(old_losses, new_losses):
+def fpo_ratio(old_losses, new_losses, log_ratio_clip=None):
     """FPO's likelihood-ratio surrogate ρ = exp(mean_n ℓ_old − mean_n ℓ_new), the losses averaged over the n
-    pairs before the exponential (the authors' `average_losses_before_exp`).
+    pairs before the exponential (the authors' `average_losses_before_exp`); with `log_ratio_clip` = c the
+    exponent is clipped to [−c, c] first (the bound the authors apply in their per-pair mode).
 
     Args:
       old_losses: ℓ_old (B, n), `cfm_losses` at rollout time.
       new_losses: ℓ (B, n), `cfm_losses` of the current policy at the same pairs.
+      log_ratio_clip: c > 0, or None (no clip).
 
     Returns:
       ρ (B,).
@@ -463,13 +465,17 @@ def fpo_ratio(old_losses, new_losses):
     if len(jnp.shape(new_losses)) != 2 or tuple(jnp.shape(old_losses)) != tuple(jnp.shape(new_losses)):
         raise ShapeError(f"old_losses and new_losses must have one shape (B, n), found "
                          f"{tuple(jnp.shape(old_losses))} and {tuple(jnp.shape(new_losses))}")
-    return jnp.exp(jnp.mean(old_losses, axis=-1) - jnp.mean(new_losses, axis=-1))
+    log_ratio = jnp.mean(old_losses, axis=-1) - jnp.mean(new_losses, axis=-1)
+    if log_ratio_clip is not None:
+        log_ratio = jnp.clip(log_ratio, -log_ratio_clip, log_ratio_clip)
+    return jnp.exp(log_ratio)
 
 
-def fpo_policy_loss(velocity, action, eps, flow_time, old_losses, advantage, clip_eps=0.05):
+def fpo_policy_loss(velocity, action, eps, flow_time, old_losses, advantage, clip_eps=0.05,
+                    log_ratio_clip=None):
     """FPO's clipped surrogate loss, trained on the policy's velocity field.
 
-    Â = (A − mean_b A) / (std_b A + 1e-8) over the minibatch, ρ = `fpo_ratio`(ℓ_old, `cfm_losses`(…)),
+    Â = (A − mean_b A) / (std_b A + 1e-8) over the minibatch, ρ = `fpo_ratio`(ℓ_old, `cfm_losses`(…), c),
     loss = −mean_b min(ρÂ, clip(ρ, 1 − ε, 1 + ε)Â) (no entropy term).
 
     Args:
@@ -480,6 +486,7 @@ def fpo_policy_loss(velocity, action, eps, flow_time, old_losses, advantage, cli
       old_losses: ℓ_old (B, n), stored at rollout time.
       advantage: A (B,), before normalization.
       clip_eps: ε in (0, 1].
+      log_ratio_clip: `fpo_ratio`'s bound on the exponent, or None.
 
     Returns:
       (loss, {"policy_loss": loss, "ratio": mean ρ, "clip_fraction": the fraction with |ρ − 1| > ε,
@@ -496,7 +503,7 @@ def fpo_policy_loss(velocity, action, eps, flow_time, old_losses, advantage, cli
                          f"{tuple(jnp.shape(old_losses))}")
     _check_rate("clip_eps", clip_eps, low_open=True)
     losses = cfm_losses(velocity, action, eps, flow_time)
-    ratio = fpo_ratio(sg(old_losses), losses)
+    ratio = fpo_ratio(sg(old_losses), losses, log_ratio_clip)
     adv = sg((advantage - jnp.mean(advantage)) / (jnp.std(advantage) + ADVANTAGE_EPS))
     loss = -jnp.mean(jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - clip_eps, 1 + clip_eps) * adv))
     aux = {"policy_loss": loss, "ratio": jnp.mean(ratio),

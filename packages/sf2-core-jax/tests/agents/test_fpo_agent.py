@@ -61,6 +61,7 @@ def test_quick_fpo_learns_cartpole_balance(tmp_path):
     ("CartpoleBalance", "fpo", "sf2", {"critic": "v"}, "representation 'sf2' takes critic 'q'"),
     ("CartpoleBalance", "fpo", "none", {"fpo_samples": 0}, "fpo_samples = 0"),
     ("CartpoleBalance", "fpo", "none", {"fpo_flow_steps": 1.5}, "fpo_flow_steps"),
+    ("CartpoleBalance", "fpo", "none", {"fpo_log_ratio_clip": 0.0}, "fpo_log_ratio_clip = 0.0"),
     ("CartpoleBalance", "fpo", "none", {"minibatch_size": 1000}, "must divide the rollout's"),
     ("minatar-breakout", "fpo", "none", {}, "task 'minatar-breakout' is a MinAtar task"),
 ])

@@ -446,13 +446,15 @@ def cfm_losses(velocity, action: torch.Tensor, eps: torch.Tensor, flow_time: tor
     return torch.mean((eps - eps_hat) ** 2, dim=-1)
 
 
-def fpo_ratio(old_losses: torch.Tensor, new_losses: torch.Tensor) -> torch.Tensor:
+def fpo_ratio(old_losses: torch.Tensor, new_losses: torch.Tensor, log_ratio_clip=None) -> torch.Tensor:
     """FPO's likelihood-ratio surrogate ρ = exp(mean_n ℓ_old − mean_n ℓ_new), the losses averaged over the n
-    pairs before the exponential (the authors' `average_losses_before_exp`).
+    pairs before the exponential (the authors' `average_losses_before_exp`); with `log_ratio_clip` = c the
+    exponent is clipped to [−c, c] first (the bound the authors apply in their per-pair mode).
 
     Args:
       old_losses: ℓ_old (B, n), `cfm_losses` at rollout time.
       new_losses: ℓ (B, n), `cfm_losses` of the current policy at the same pairs.
+      log_ratio_clip: c > 0, or None (no clip).
 
     Returns:
       ρ (B,).
@@ -463,15 +465,18 @@ def fpo_ratio(old_losses: torch.Tensor, new_losses: torch.Tensor) -> torch.Tenso
     if new_losses.dim() != 2 or tuple(old_losses.shape) != tuple(new_losses.shape):
         raise ShapeError(f"old_losses and new_losses must have one shape (B, n), found "
                          f"{tuple(old_losses.shape)} and {tuple(new_losses.shape)}")
-    return torch.exp(old_losses.mean(dim=-1) - new_losses.mean(dim=-1))
+    log_ratio = old_losses.mean(dim=-1) - new_losses.mean(dim=-1)
+    if log_ratio_clip is not None:
+        log_ratio = torch.clamp(log_ratio, -log_ratio_clip, log_ratio_clip)
+    return torch.exp(log_ratio)
 
 
 def fpo_policy_loss(velocity, action: torch.Tensor, eps: torch.Tensor, flow_time: torch.Tensor,
-                    old_losses: torch.Tensor, advantage: torch.Tensor, clip_eps=0.05
+                    old_losses: torch.Tensor, advantage: torch.Tensor, clip_eps=0.05, log_ratio_clip=None
                     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """FPO's clipped surrogate loss, trained on the policy's velocity field.
 
-    Â = (A − mean_b A) / (std_b A + 1e-8) over the minibatch, ρ = `fpo_ratio`(ℓ_old, `cfm_losses`(…)),
+    Â = (A − mean_b A) / (std_b A + 1e-8) over the minibatch, ρ = `fpo_ratio`(ℓ_old, `cfm_losses`(…), c),
     loss = −mean_b min(ρÂ, clip(ρ, 1 − ε, 1 + ε)Â) (no entropy term).
 
     Args:
@@ -482,6 +487,7 @@ def fpo_policy_loss(velocity, action: torch.Tensor, eps: torch.Tensor, flow_time
       old_losses: ℓ_old (B, n), stored at rollout time.
       advantage: A (B,), before normalization.
       clip_eps: ε in (0, 1].
+      log_ratio_clip: `fpo_ratio`'s bound on the exponent, or None.
 
     Returns:
       (loss, {"policy_loss": loss, "ratio": mean ρ, "clip_fraction": the fraction with |ρ − 1| > ε,
@@ -498,7 +504,7 @@ def fpo_policy_loss(velocity, action: torch.Tensor, eps: torch.Tensor, flow_time
                          f"{tuple(old_losses.shape)}")
     _check_rate("clip_eps", clip_eps, low_open=True)
     losses = cfm_losses(velocity, action, eps, flow_time)
-    ratio = fpo_ratio(old_losses.detach(), losses)
+    ratio = fpo_ratio(old_losses.detach(), losses, log_ratio_clip)
     advantage = advantage.detach()
     adv = (advantage - advantage.mean()) / (advantage.std(correction=0) + ADVANTAGE_EPS)
     loss = -torch.mean(torch.minimum(ratio * adv, torch.clamp(ratio, 1 - clip_eps, 1 + clip_eps) * adv))

@@ -37,7 +37,7 @@ ADDED_FIELDS = {name: _SF2_DEFAULTS[name] for name in ("spr_augmentation_std", "
 SF2_FIELDS = tuple(name for name in _SF2_DEFAULTS if name not in ("obs_size", "action_size"))
 PPO_FIELDS = ("rollout_length", "update_epochs", "minibatch_size", "clip_eps", "entropy_coef", "value_coef",
               "max_grad_norm", "td_lambda", "critic")
-FPO_FIELDS = ("fpo_samples", "fpo_flow_steps", "fpo_value_samples")
+FPO_FIELDS = ("fpo_samples", "fpo_flow_steps", "fpo_value_samples", "fpo_log_ratio_clip")
 # Adam's ε as the authors' trainers build it (SAC: optax's default; the temperature's is 1e-8 always)
 PAPER_ADAM_EPS = {"td3": 1e-5, "sac": 1e-8, "ppo": 1e-5, "fpo": 1e-8}
 # Preset values changed since run folders were written, (algo, field) -> (old, new): such folders keep theirs
@@ -72,12 +72,13 @@ FPO_VALUES = {
                   minibatch_size=30_720, learning_rate=3e-4, clip_eps=0.05, entropy_coef=0.0, value_coef=0.5,
                   max_grad_norm=1e9, td_lambda=0.95, discount=0.995, reward_scaling=10.0, gamma_su=0.99,
                   num_evals=62, num_eval_envs=128, deterministic_eval=False, shared_adam=False,
-                  normalize_observations=True, fpo_samples=8, fpo_flow_steps=10, fpo_value_samples=8),
+                  normalize_observations=True, fpo_samples=8, fpo_flow_steps=10, fpo_value_samples=8,
+                  fpo_log_ratio_clip=20.0),
     "quick": dict(num_timesteps=393_216, num_envs=64, rollout_length=32, update_epochs=8, minibatch_size=256,
                   learning_rate=3e-4, clip_eps=0.05, entropy_coef=0.0, value_coef=0.5, max_grad_norm=1e9,
                   td_lambda=0.95, discount=0.99, reward_scaling=10.0, gamma_su=0.99, num_evals=4,
                   num_eval_envs=16, deterministic_eval=True, shared_adam=False, fpo_samples=8,
-                  fpo_flow_steps=10, fpo_value_samples=4),
+                  fpo_flow_steps=10, fpo_value_samples=4, fpo_log_ratio_clip=20.0),
 }
 TASK_VALUES = {"paper": {"num_timesteps": tasks.paper_budget, "action_repeat": tasks.paper_action_repeat,
                          "episode_length": tasks.episode_length},
@@ -132,6 +133,7 @@ class TrainConfig:
     fpo_samples: int = 8
     fpo_flow_steps: int = 10
     fpo_value_samples: int = 8
+    fpo_log_ratio_clip: float = 20.0  # |mean ℓ_old − mean ℓ_new| bound before the exponential (inf: none)
     # networks and losses: the fields of SF2Config
     feature_size: int = _SF2_DEFAULTS["feature_size"]
     hidden_sizes: tuple[int, ...] = _SF2_DEFAULTS["hidden_sizes"]
@@ -452,7 +454,7 @@ def validate(cfg: TrainConfig, seeds, registry) -> TrainConfig:
 def _validate_onpolicy(cfg: TrainConfig) -> None:
     """The PPO and FPO fields (`--algo ppo`, `fpo`): sizes, rates, the critic, and minibatches that split the
     rollout."""
-    for name in ("rollout_length", "update_epochs", "minibatch_size", *FPO_FIELDS):
+    for name in ("rollout_length", "update_epochs", "minibatch_size", *FPO_FIELDS[:3]):
         v = getattr(cfg, name)
         if not _is_int(v) or v < 1:
             bad_field(name, v, "must be an int >= 1")
@@ -473,6 +475,9 @@ def _validate_onpolicy(cfg: TrainConfig) -> None:
               and (v >= 0 if low is None else v > low))
         if not ok:
             bad_field(name, v, f"must be {text}" if text[0].isalpha() else f"must satisfy {text}")
+    c = cfg.fpo_log_ratio_clip
+    if not isinstance(c, (int, float)) or isinstance(c, bool) or math.isnan(c) or c <= 0:
+        bad_field("fpo_log_ratio_clip", c, "must be a number > 0 (inf: no bound)")
     if cfg.critic not in CRITICS:
         bad_field("critic", cfg.critic, "must be 'q' (Q(s, a) with λ-returns: PPO-Q) or 'v' (V(s) with GAE: "
                   "PPO)")

@@ -12,6 +12,8 @@ the critic what its value needs: the logits (V_Q = Σ_a π(a|s)Q(s, a)) or K sam
 
 from __future__ import annotations
 
+import math
+
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
@@ -100,8 +102,8 @@ class FlowPolicy:
     """FPO's velocity-field policy (`--algo fpo`; the module docstring).
 
     Attributes:
-      cfg: the run's `TrainConfig` (fpo_samples, fpo_flow_steps, fpo_value_samples, clip_eps,
-        normalize_observations).
+      cfg: the run's `TrainConfig` (fpo_samples, fpo_flow_steps, fpo_value_samples, fpo_log_ratio_clip,
+        clip_eps, normalize_observations).
       obs_size, action_size: D and A.
       critic: "q" (the critic's value needs K sampled actions) or "v".
       net: the velocity field's `SiluMLP`.
@@ -163,5 +165,7 @@ class FlowPolicy:
     def loss(self, params, mb, cfg):
         """FPO's clipped surrogate at the stored pairs (`losses_onpolicy.fpo_policy_loss`)."""
         info = mb.policy_info
+        bound = cfg.fpo_log_ratio_clip
         return lo.fpo_policy_loss(self.velocity(params, mb.obs), info["raw"], info["eps"], info["flow_time"],
-                                  info["old_losses"], mb.advantage, cfg.clip_eps)
+                                  info["old_losses"], mb.advantage, cfg.clip_eps,
+                                  None if math.isinf(bound) else bound)
