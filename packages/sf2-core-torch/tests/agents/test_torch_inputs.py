@@ -135,3 +135,9 @@ def test_the_backend_names_the_cli_module_under_python_m():
             "print(g['backend']().cli_module)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.stdout.strip() == "sf2_torch.cli", out.stderr[-2000:]
+
+
+def test_crl_is_refused_naming_the_jax_trainer(capsys):
+    """`--algo crl` (ant-goal) trains with sf2-jax's goal-conditioned trainer: the torch CLI says so."""
+    err = _cli_error(capsys, "--task", "ant-goal", "--algo", "crl", "--repr", "none")
+    assert "sf2-jax's goal-conditioned trainer" in err and "use sf2-jax" in err, err

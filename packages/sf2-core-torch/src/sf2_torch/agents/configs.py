@@ -43,6 +43,10 @@ def validate(cfg: TrainConfig, seeds=(0,)) -> TrainConfig:
     torch agents' registry, then the torch-only fields). Raises `ConfigError`."""
     from . import representations
 
+    if cfg.algo == "crl":
+        raise _configs.ConfigError("--algo crl (ant-goal, docs/crl.md) trains with sf2-jax's goal-conditioned"
+                                   " trainer; the torch core has CRL's losses (sf2_torch.losses_crl), not its"
+                                   " trainer: use sf2-jax")
     _configs.validate(cfg, seeds, representations.REGISTRY)
     _validate_torch_fields(cfg)
     return cfg
