@@ -74,9 +74,9 @@ FPO_VALUES = {
                   num_evals=62, num_eval_envs=128, deterministic_eval=False, shared_adam=False,
                   normalize_observations=True, fpo_samples=8, fpo_flow_steps=10, fpo_value_samples=8,
                   fpo_log_ratio_clip=20.0),
-    "quick": dict(num_timesteps=393_216, num_envs=64, rollout_length=32, update_epochs=8, minibatch_size=256,
-                  learning_rate=3e-4, clip_eps=0.05, entropy_coef=0.0, value_coef=0.5, max_grad_norm=1e9,
-                  td_lambda=0.95, discount=0.99, reward_scaling=10.0, gamma_su=0.99, num_evals=4,
+    "quick": dict(num_timesteps=786_432, num_envs=64, rollout_length=32, update_epochs=8, minibatch_size=256,
+                  learning_rate=1e-4, clip_eps=0.05, entropy_coef=0.0, value_coef=0.5, max_grad_norm=1e9,
+                  td_lambda=0.95, discount=0.99, reward_scaling=10.0, gamma_su=0.99, num_evals=7,
                   num_eval_envs=16, deterministic_eval=True, shared_adam=False, fpo_samples=8,
                   fpo_flow_steps=10, fpo_value_samples=4, fpo_log_ratio_clip=20.0),
 }
