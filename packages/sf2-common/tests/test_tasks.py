@@ -82,14 +82,20 @@ def test_the_off_policy_trainers_refuse_minatar_tasks_before_compiling(playgroun
     assert str(err.value) == msg.replace("td3", "sac")
     tasks.check_algo("minatar-breakout", "ppo")        # the on-policy trainer's pairing passes
     tasks.check_algo("minatar-breakout", "no-such")    # an algo no kind lists: the trainer's own check
+    with pytest.raises(ConfigError) as err:            # fpo: named as the on-policy trainer's, not its kind's
+        tasks.check_algo("minatar-breakout", "fpo")
+    assert str(err.value) == ("task 'minatar-breakout' is a MinAtar task: MinAtar tasks take the on-policy "
+                              "trainer (--algo ppo); --algo fpo is the Playground DM Control tasks' on-policy "
+                              "trainer")
 
 
 def test_a_playground_task_is_refused_for_ppo(playground):
     """`ppo` is the on-policy trainer's algo; the task-kind hook refuses it for Playground tasks."""
     assert "ppo" in configs.ALGOS and "ppo" in configs.ONPOLICY_ALGOS
-    algos = " or ".join(f"--algo {a}" for a in tasks.KINDS["playground"].algos)   # td3, sac and more
-    msg = (f"task 'CheetahRun' is a Playground DM Control task: Playground DM Control tasks take the "
-           f"off-policy trainer ({algos}); --algo ppo is the MinAtar tasks' on-policy trainer")
+    assert tasks.KINDS["playground"].algos == ("td3", "sac", "fpo")
+    msg = ("task 'CheetahRun' is a Playground DM Control task: Playground DM Control tasks take the "
+           "off-policy trainer (--algo td3 or --algo sac) or the on-policy trainer (--algo fpo); --algo ppo is "
+           "the MinAtar tasks' on-policy trainer")
     with pytest.raises(ConfigError) as err:
         tasks.check_algo("CheetahRun", "ppo")
     assert str(err.value) == msg

@@ -91,7 +91,9 @@ def _off_policy(name: str, label: str, suite: str | None) -> TaskKind:
                     budget=None if suite == "dm_control_suite" else OFF_POLICY_BUDGET, suite=suite)
 
 
-# `ppo` is the on-policy trainer's algo; ALGOS (sf2_common.agents.configs) holds the algos that exist.
+# ALGOS (sf2_common.agents.configs) holds the algos that exist; each is one trainer's.
+ALGO_TRAINER = {"td3": "off-policy", "sac": "off-policy", "ppo": "on-policy", "fpo": "on-policy",
+                "crl": "goal-conditioned"}
 KINDS = {
     # DM Control tasks also take FPO (`--algo fpo`), the on-policy trainer's (docs/fpo.md)
     "playground": replace(_off_policy("playground", "Playground DM Control", "dm_control_suite"),
@@ -231,12 +233,15 @@ def check_algo(task: str, algo: str) -> None:
     takers = [k for k in KINDS.values() if algo in k.algos]
     if algo in kind.algos or not takers:
         return
-    names = " or ".join(f"--algo {a}" for a in kind.algos)
+    by_trainer = {}                                     # the kind's algos grouped by their trainer
+    for a in kind.algos:
+        by_trainer.setdefault(ALGO_TRAINER.get(a, kind.trainer), []).append(f"--algo {a}")
+    take = " or ".join(f"the {t} trainer ({' or '.join(names)})" for t, names in by_trainer.items())
     labels = [k.label for k in takers]
     other = f"{', '.join(labels[:-1])} and {labels[-1]}" if len(labels) > 1 else labels[0]
-    other += f" tasks' {takers[0].trainer} trainer"     # each algo is one trainer's
-    raise ConfigError(f"task {task!r} is a {kind.label} task: {kind.label} tasks take the {kind.trainer} "
-                      f"trainer ({names}); --algo {algo} is the {other}")
+    other += f" tasks' {ALGO_TRAINER.get(algo, takers[0].trainer)} trainer"
+    raise ConfigError(f"task {task!r} is a {kind.label} task: {kind.label} tasks take {take}; --algo {algo} is "
+                      f"the {other}")
 
 
 def check_installed(task: str) -> None:
