@@ -84,9 +84,9 @@ def test_the_off_policy_trainers_refuse_minatar_tasks_before_compiling(playgroun
     tasks.check_algo("minatar-breakout", "no-such")    # an algo no kind lists: the trainer's own check
     with pytest.raises(ConfigError) as err:            # fpo: named as the on-policy trainer's, not its kind's
         tasks.check_algo("minatar-breakout", "fpo")
-    assert str(err.value) == ("task 'minatar-breakout' is a MinAtar task: MinAtar tasks take the on-policy "
-                              "trainer (--algo ppo); --algo fpo is the Playground DM Control tasks' on-policy "
-                              "trainer")
+    assert str(err.value) == ("task 'minatar-breakout' is a MinAtar task: MinAtar tasks take the "
+                              "on-policy trainer (--algo ppo); --algo fpo is the Playground DM Control "
+                              "tasks' on-policy trainer")
 
 
 def test_a_playground_task_is_refused_for_ppo(playground):

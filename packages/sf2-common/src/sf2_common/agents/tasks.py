@@ -240,8 +240,8 @@ def check_algo(task: str, algo: str) -> None:
     labels = [k.label for k in takers]
     other = f"{', '.join(labels[:-1])} and {labels[-1]}" if len(labels) > 1 else labels[0]
     other += f" tasks' {ALGO_TRAINER.get(algo, takers[0].trainer)} trainer"
-    raise ConfigError(f"task {task!r} is a {kind.label} task: {kind.label} tasks take {take}; --algo {algo} is "
-                      f"the {other}")
+    raise ConfigError(f"task {task!r} is a {kind.label} task: {kind.label} tasks take {take}; "
+                      f"--algo {algo} is the {other}")
 
 
 def check_installed(task: str) -> None:
