@@ -94,8 +94,8 @@ def test_a_playground_task_is_refused_for_ppo(playground):
     assert "ppo" in configs.ALGOS and "ppo" in configs.ONPOLICY_ALGOS
     assert tasks.KINDS["playground"].algos == ("td3", "sac", "fpo")
     msg = ("task 'CheetahRun' is a Playground DM Control task: Playground DM Control tasks take the "
-           "off-policy trainer (--algo td3 or --algo sac) or the on-policy trainer (--algo fpo); --algo ppo is "
-           "the MinAtar tasks' on-policy trainer")
+           "off-policy trainer (--algo td3 or --algo sac) or the on-policy trainer (--algo fpo); "
+           "--algo ppo is the MinAtar tasks' on-policy trainer")
     with pytest.raises(ConfigError) as err:
         tasks.check_algo("CheetahRun", "ppo")
     assert str(err.value) == msg
