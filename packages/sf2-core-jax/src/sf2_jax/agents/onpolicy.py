@@ -40,14 +40,14 @@ from .checkpoint import Checkpointer
 from .configs import validate
 from .policies_onpolicy import CategoricalPolicy, FlowPolicy
 from .representations_onpolicy import REGISTRY, OnPolicyBatch, build
-from .trainer import (  # _seed_map: one seed runs unvmapped; _write_final: final/params_seed<S>.npz
+from .trainer import (  # _seed_map: one seed runs unvmapped
+    SingleDeviceProgram,
+    SingleDeviceSession,
     TrainingDiverged,
     TrainResult,
     _seed_map,
-    _write_final,
     eval_keys,
     run_training,
-    seed_keys,
 )
 
 __all__ = ["OnPolicyState", "Rollout", "Program", "get_program", "train", "method_label",
@@ -102,7 +102,7 @@ class Rollout(NamedTuple):
     done: jax.Array
 
 
-class Program:
+class Program(SingleDeviceProgram):
     """The compiled pieces of one config (module docstring): `init`, `epoch`, `evaluate`, each over the seed
     axis (`trainer._seed_map`). Build with `get_program(cfg)`."""
 
@@ -141,20 +141,6 @@ class Program:
             self._programs[key] = jax.jit(_seed_map(fn, in_axes, n_seeds),
                                           donate_argnums=(0,) if name == "epoch" else ())
         return self._programs[key]
-
-    def init(self, seeds) -> OnPolicyState:
-        """The initial state of every seed (leading axis: the seed)."""
-        with self.precision():
-            return self._program("init", len(seeds))(seed_keys(seeds))
-
-    def abstract_state(self, seeds) -> OnPolicyState:
-        """The shapes and dtypes of `init(seeds)` (a checkpoint's template)."""
-        with self.precision():
-            return jax.eval_shape(jax.vmap(self._init_one), seed_keys(seeds))
-
-    def place(self, state):
-        """A restored state where the programs keep it: the default device, as it is."""
-        return state
 
     def epoch(self, state: OnPolicyState, epoch: int) -> tuple[OnPolicyState, dict, dict]:
         """Train epoch `epoch` (`actor_steps_per_epoch` updates). Returns (state, metric means, first
@@ -401,31 +387,11 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
                         stop_after_epoch=stop_after_epoch, plot=plot, log=log)
 
 
-class _Session:
+class _Session(SingleDeviceSession):
     """The `sf2_common.agents.hostloop.Session` of one run: the vmapped state of all seeds."""
-
-    def __init__(self, program: Program, ckpt: Checkpointer, run, seeds, state):
-        self.program, self.ckpt, self.run, self.seeds, self.state = program, ckpt, run, seeds, state
-
-    def start(self) -> None:
-        self.state = self.program.init(self.seeds)
-
-    def train_epoch(self, epoch: int):
-        self.state, means, first_bad = self.program.epoch(self.state, epoch)
-        return jax.device_get(means), first_bad
 
     def evaluate(self, epoch: int) -> np.ndarray:
         return np.asarray(self.program.evaluate(self.state.params, self.seeds, epoch))
-
-    def save(self, epoch: int, env_steps: int) -> None:
-        # written in the background while the next epoch trains (checkpoint.py)
-        self.ckpt.save(epoch, self.state, {"env_steps": env_steps, "seeds": list(self.seeds)}, wait=False)
-
-    def loss_order(self) -> tuple[str, ...]:
-        return self.program.loss_order
-
-    def finish(self) -> None:
-        _write_final(self.run, self.state, self.seeds)
 
 
 def _restore_acting(ckpt: Checkpointer, job: CheckpointJob):

@@ -49,7 +49,8 @@ ACTOR_PHASES = ("explore", "env_step", "observe", "sample", "step_noise")
 
 __all__ = ["TrainState", "Program", "get_program", "episode_returns", "TrainingDiverged", "TrainResult",
            "train", "evaluate_checkpoint", "evaluate_checkpoint_noises", "seed_keys", "eval_keys",
-           "acting_params", "flatten_params", "device_note", "EVAL_STREAM", "WALL_FIELDS", "run_training"]
+           "acting_params", "flatten_params", "device_note", "EVAL_STREAM", "WALL_FIELDS", "run_training",
+           "SingleDeviceProgram", "SingleDeviceSession"]
 
 EVAL_STREAM = 0x5EED  # eval keys: fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), epoch)
 # WALL_FIELDS, TrainingDiverged and the host loop's framework-free helpers (rows, the NaN guard's
@@ -546,6 +547,50 @@ class _Session:
     def save(self, epoch: int, env_steps: int) -> None:
         # written in the background while the next epochs train; the checkpointer completes it before
         # the next save and on close (checkpoint.py)
+        self.ckpt.save(epoch, self.state, {"env_steps": env_steps, "seeds": list(self.seeds)}, wait=False)
+
+    def loss_order(self) -> tuple[str, ...]:
+        return self.program.loss_order
+
+    def finish(self) -> None:
+        _write_final(self.run, self.state, self.seeds)
+
+
+class SingleDeviceProgram:
+    """What the on-policy and goal-conditioned trainers' `Program`s share: their state is vmapped over seeds
+    on one device. A subclass defines `precision()`, `_program(name, n_seeds)` and `_init_one(key)`."""
+
+    def init(self, seeds):
+        """The initial state of every seed (leading axis: the seed)."""
+        with self.precision():
+            return self._program("init", len(seeds))(seed_keys(seeds))
+
+    def abstract_state(self, seeds):
+        """The shapes and dtypes of `init(seeds)` (a checkpoint's template)."""
+        with self.precision():
+            return jax.eval_shape(jax.vmap(self._init_one), seed_keys(seeds))
+
+    def place(self, state):
+        """A restored state where the programs keep it: the default device, as it is."""
+        return state
+
+
+class SingleDeviceSession:
+    """The `sf2_common.agents.hostloop.Session` of a `SingleDeviceProgram`'s run: the vmapped state of all
+    seeds, saved in the background. A subclass defines `evaluate(epoch)`."""
+
+    def __init__(self, program, ckpt: Checkpointer, run: RunFolder, seeds, state):
+        self.program, self.ckpt, self.run, self.seeds, self.state = program, ckpt, run, seeds, state
+
+    def start(self) -> None:
+        self.state = self.program.init(self.seeds)
+
+    def train_epoch(self, epoch: int):
+        self.state, means, first_bad = self.program.epoch(self.state, epoch)
+        return jax.device_get(means), first_bad
+
+    def save(self, epoch: int, env_steps: int) -> None:
+        # written in the background while the next epoch trains (checkpoint.py)
         self.ckpt.save(epoch, self.state, {"env_steps": env_steps, "seeds": list(self.seeds)}, wait=False)
 
     def loss_order(self) -> tuple[str, ...]:
