@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-pytest.importorskip("pgx")
+pytest.importorskip("pgx", reason="the [minatar] extra: pip install \"packages/sf2-core-jax[minatar]\"")
 
 from sf2_jax import cli  # noqa: E402
 from sf2_jax.agents import make_config, minatar, onpolicy, trainer  # noqa: E402
