@@ -1,0 +1,88 @@
+"""The MinAtar sanity gate's table: this repository's PPO against pgx's own example, game by game.
+
+    python -m bench.lab.minatar_gate results/minatar-sanity
+
+Reads the study's run folders (`runs/minatar-<game>/ppo-pgx/metrics.jsonl.gz`) and the example's logs in
+`<study>/pgx-example/<game>-seed<N>.log` (one dict per update: `sec`, `<env>/eval_R`, `steps`). Per game:
+each side's last evaluation per seed, its AUC (trapezoidal mean return over the env steps), and the gate,
+"our seeds' mean last evaluation within the example's seeds' range" (docs/minatar.md). Rates: ours is
+the env steps of one update, every seed of the vmapped run, over the median `epoch_seconds` after the
+first (which compiles); the example's is env steps over the `sec` between its first and last log line
+(its own clock, which excludes its evaluations and its first compilation). Prints a Markdown table."""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import gzip
+import json
+import statistics
+from pathlib import Path
+
+GAMES = ["asterix", "breakout", "freeway", "seaquest", "space_invaders"]
+
+
+def auc(steps: list[float], returns: list[float]) -> float:
+    """The mean return over training: the trapezoidal area under the curve over the steps it spans.
+
+    Args:
+      steps: env steps of each evaluation, increasing.
+      returns: the evaluation returns at those steps.
+
+    Returns:
+      The area divided by the span of the steps.
+    """
+    area = sum((returns[i] + returns[i + 1]) / 2 * (steps[i + 1] - steps[i]) for i in range(len(steps) - 1))
+    return area / (steps[-1] - steps[0])
+
+
+def ours(run: Path) -> dict:
+    """Last evaluations, AUCs and training rate of one vmapped run folder."""
+    rows = [json.loads(line) for line in gzip.open(run / "metrics.jsonl.gz", "rt")]
+    seeds = sorted({r["seed"] for r in rows})
+    last, aucs = [], []
+    for s in seeds:
+        ev = [r for r in rows if r["seed"] == s and r.get("eval_return") is not None]
+        last.append(ev[-1]["eval_return"])
+        aucs.append(auc([r["env_steps"] for r in ev], [r["eval_return"] for r in ev]))
+    first = [r for r in rows if r["seed"] == seeds[0] and r.get("epoch_seconds")]
+    per_epoch = (first[-1]["env_steps"] - first[0]["env_steps"]) / (len(first) - 1)
+    median = statistics.median(r["epoch_seconds"] for r in first[1:])   # epoch 1 compiles
+    return {"last": last, "auc": aucs, "rate": per_epoch * len(seeds) / median}
+
+
+def example(folder: Path, game: str) -> dict:
+    """Last evaluations, AUCs and rate of the example's logs of one game (every seed found)."""
+    last, aucs, rates = [], [], []
+    for log in sorted(folder.glob(f"{game}-seed*.log")):
+        rows = [ast.literal_eval(line) for line in log.read_text().splitlines() if line.startswith("{")]
+        returns = [r[f"minatar-{game}/eval_R"] for r in rows]
+        steps = [r["steps"] for r in rows]
+        last.append(returns[-1])
+        aucs.append(auc(steps, returns))
+        rates.append(steps[-1] / (rows[-1]["sec"] - rows[0]["sec"]))
+    return {"last": last, "auc": aucs, "rate": statistics.mean(rates) if rates else float("nan")}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("study", type=Path, help="the minatar-sanity study folder")
+    args = parser.parse_args(argv)
+    print("| game | ours: last evaluation per seed (mean) | pgx example: per seed [range] | gate | "
+          "AUC ours / example (mean) | env steps/s: ours (all seeds) / example (one seed) |")
+    print("|---|---|---|---|---|---|")
+    for game in GAMES:
+        a = ours(args.study / "runs" / f"minatar-{game}" / "ppo-pgx")
+        b = example(args.study / "pgx-example", game)
+        mean = statistics.mean(a["last"])
+        lo, hi = min(b["last"]), max(b["last"])
+        gate = "within" if lo <= mean <= hi else ("above" if mean > hi else "below")
+        print(f"| {game} | {', '.join(f'{x:.1f}' for x in a['last'])} ({mean:.1f}) | "
+              f"{', '.join(f'{x:.1f}' for x in b['last'])} [{lo:.1f}, {hi:.1f}] | {gate} | "
+              f"{statistics.mean(a['auc']):.1f} / {statistics.mean(b['auc']):.1f} | "
+              f"{a['rate'] / 1e6:.2f}M / {b['rate'] / 1e6:.2f}M |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

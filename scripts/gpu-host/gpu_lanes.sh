@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Runs several commands at once on one lent host, each on its own GPUs (a "lane"), and waits for all of
+# them: e.g. two studies and a measurement on a four-GPU host in one command. Each lane is "GPUS: COMMAND";
+# the command runs under `bash -c` with CUDA_VISIBLE_DEVICES=GPUS and can read `left` (seconds to the
+# deadline, SECONDS after this script starts) to size its own limit. Each lane's output comes back in
+# $OUT/lanes.tar.gz; what a lane writes to $OUT itself (gpu_study.sh's archive) comes back as it is.
+#
+#   bash scripts/gpu-host/gpu_lanes.sh SECONDS "0,1: bash scripts/gpu-host/gpu_study.sh studies/own-adam.toml \$(left)" \
+#                                              "2: bash scripts/gpu-host/gpu_study.sh studies/fpo-gate.toml \$(left)"
+# Wheels are installed once, before the lanes start (two lanes installing into /tmp/site at once would race).
+set -uo pipefail
+limit=$1; shift
+source scripts/gpu-host/gpu_env.sh || exit 1
+export SF2_DEADLINE=$(( $(date +%s) + limit ))
+left() { echo $(( SF2_DEADLINE - $(date +%s) )); }
+export -f left
+mkdir -p "$OUT"
+logs=$(mktemp -d)
+nvidia-smi --query-gpu=index,name,memory.total --format=csv,noheader > "$logs/gpus.txt"
+i=0
+for lane in "$@"; do
+  gpus=${lane%%:*}; cmd=${lane#*:}
+  (
+    start=$(date +%s)
+    echo "lane $i on GPUs $gpus: $cmd"
+    CUDA_VISIBLE_DEVICES=$gpus bash -c "$cmd"
+    echo "lane $i exit status $? after $(( $(date +%s) - start )) s"
+  ) > "$logs/lane$i.log" 2>&1 &
+  i=$((i + 1))
+done
+wait
+for f in "$logs"/lane*.log; do echo "== $f"; tail -n 6 "$f"; done
+tar czf "$OUT/lanes.tar.gz" -C "$logs" .
