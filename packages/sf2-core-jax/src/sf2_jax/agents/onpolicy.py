@@ -130,7 +130,14 @@ class Program(SingleDeviceProgram):
 
     # ------------------------------------------------------------------ host entry points
     def precision(self):
-        """The matmul precision every program is traced at (`cfg.learner_precision`; the games have none)."""
+        """The matmul precision every program is traced at: the physics' fp32 `highest` (Playground's MJX;
+        the games have none); the learner's code inside (acting, values, SGD steps) is traced under
+        `learner_precision()`, as in the off-policy and goal-conditioned trainers."""
+        return jax.default_matmul_precision("highest")
+
+    def learner_precision(self):
+        """The context the learner's code is traced in: `cfg.learner_precision` (`configs.
+        LEARNER_PRECISIONS`)."""
         return jax.default_matmul_precision(configs.LEARNER_PRECISIONS[self.cfg.learner_precision])
 
     def _program(self, name: str, n_seeds: int, *static):
@@ -177,17 +184,20 @@ class Program(SingleDeviceProgram):
         rep, pol = self.rep, self.policy
         k_act, k_next, k_env = jax.random.split(key, 3)
         obs = env_state.obs
-        value = rep.values(params, obs, pol.value_input(params, obs, jax.random.fold_in(k_act, 1)))
-        action, info = pol.act(params, obs, k_act)
+        with self.learner_precision():
+            value = rep.values(params, obs, pol.value_input(params, obs, jax.random.fold_in(k_act, 1)))
+            action, info = pol.act(params, obs, k_act)
         env_state, tr = self.env.step(env_state, action, k_env)
-        next_value = rep.values(params, tr.next_obs, pol.value_input(params, tr.next_obs,
-                                                                     jax.random.fold_in(k_next, 1)))
+        with self.learner_precision():
+            next_value = rep.values(params, tr.next_obs, pol.value_input(params, tr.next_obs,
+                                                                         jax.random.fold_in(k_next, 1)))
+            next_sample = pol.draw(params, tr.next_obs, k_next)
         done = tr.terminal | tr.truncation
         f32 = jnp.float32
         return env_state, Rollout(
             obs=obs.astype(self.obs_dtype), action=action, reward=tr.reward, terminal=tr.terminal.astype(f32),
             truncation=tr.truncation.astype(f32), next_obs=tr.next_obs.astype(self.obs_dtype),
-            next_sample=pol.draw(params, tr.next_obs, k_next), policy_info=info, value=value,
+            next_sample=next_sample, policy_info=info, value=value,
             next_value=next_value, episode_return=jnp.where(done, tr.episode_return, 0.0),
             done=done.astype(f32))
 
@@ -269,7 +279,8 @@ class Program(SingleDeviceProgram):
             idx, k = xs
             mb = jax.tree_util.tree_map(lambda x: jnp.take(x, idx, axis=0), flat)
             mb = mb._replace(obs=mb.obs.astype(jnp.float32), next_obs=mb.next_obs.astype(jnp.float32))
-            params, opt_state, metrics = self._sgd_step(*carry, mb, k)
+            with self.learner_precision():
+                params, opt_state, metrics = self._sgd_step(*carry, mb, k)
             return (params, opt_state), metrics
 
         (params, opt_state), metrics = jax.lax.scan(
@@ -308,7 +319,8 @@ class Program(SingleDeviceProgram):
             obs = env_state.obs
             if obs_noise:   # its own key: the acting and the games' randomness stay the noise-free run's
                 obs = obs + obs_noise * jax.random.normal(k_noise, obs.shape, obs.dtype)
-            action = self.policy.evaluate(params, obs, k_act, deterministic)
+            with self.learner_precision():
+                action = self.policy.evaluate(params, obs, k_act, deterministic)
             env_state, tr = self.env.step(env_state, action, k_env)
             ret = ret + jnp.where(alive, tr.reward, 0.0)
             return env_state, ret, alive & ~(tr.terminal | tr.truncation), t + 1, k
