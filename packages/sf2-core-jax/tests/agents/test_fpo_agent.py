@@ -13,6 +13,7 @@ a rise, not a level.
 
 from __future__ import annotations
 
+import jax
 import numpy as np
 import pytest
 from sf2_common.agents.configs import schedule
@@ -45,6 +46,8 @@ def test_quick_fpo_learns_cartpole_balance(tmp_path):
     ("CartpoleBalance", "fpo", "none", {"fpo_flow_steps": 1.5}, "fpo_flow_steps"),
     ("CartpoleBalance", "fpo", "none", {"fpo_log_ratio_clip": 0.0}, "fpo_log_ratio_clip = 0.0"),
     ("CartpoleBalance", "fpo", "none", {"minibatch_size": 1000}, "must divide the rollout's"),
+    ("CartpoleBalance", "fpo", "none", {"advantage_refresh": "pass"}, "takes critic 'v' only"),
+    ("CartpoleBalance", "fpo", "none", {"advantage_refresh": "batch"}, "one of ('rollout', 'pass')"),
     ("minatar-breakout", "fpo", "none", {}, "task 'minatar-breakout' is a MinAtar task"),
 ])
 def test_bad_fpo_configs_are_refused(task, algo, representation, overrides, text):
@@ -65,3 +68,27 @@ def test_fpo_presets():
     sched = schedule(validate(cfg))
     assert (sched.num_epochs, sched.actor_steps_per_epoch, sched.total_env_steps) == (61, 1, 59_965_440)
     assert sched.sgd_steps_per_actor_step == 16 * 32
+
+
+def _trained(**overrides):
+    """The parameters after one epoch (2 updates of 4 envs × 4 steps) of FPO with the V critic."""
+    cfg = validate(make_config("quick", "CartpoleBalance", algo="fpo", representation="none", overrides={
+        "critic": "v", "num_envs": 4, "rollout_length": 4, "minibatch_size": 8, "fpo_samples": 1,
+        "fpo_flow_steps": 1, "num_timesteps": 32, "num_evals": 2, "normalize_observations": False,
+        **overrides}))
+    program = onpolicy.get_program(cfg)
+    state, _, _ = program.epoch(program.init((0,)), 1)
+    return jax.tree_util.tree_leaves(state.params)
+
+
+@pytest.mark.slow
+def test_advantage_refresh_is_the_rollouts_gae_until_the_critic_moves():
+    """`advantage_refresh = "pass"` recomputes GAE from the current V before each pass: on the first pass V
+    is the rollout's (no normalizer to move it), so one pass trains exactly as `rollout` does; from the
+    second pass on the critic has moved, and the runs part."""
+    same = [np.array_equal(a, b) for a, b in zip(_trained(update_epochs=1),
+                                                  _trained(update_epochs=1, advantage_refresh="pass"))]
+    assert all(same)
+    two = [np.array_equal(a, b) for a, b in zip(_trained(update_epochs=2),
+                                                 _trained(update_epochs=2, advantage_refresh="pass"))]
+    assert not all(two)

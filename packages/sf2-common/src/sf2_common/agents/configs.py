@@ -23,7 +23,7 @@ __all__ = [
     "TrainConfig", "PRESETS", "ALGOS", "SF2_FIELDS", "make_config", "parse_overrides", "parse_value",
     "parse_seeds", "validate", "Schedule", "schedule", "ConfigError", "bad_field", "LEARNER_PRECISIONS",
     "ADDED_FIELDS", "PAPER_ADAM_EPS", "SUPERSEDED", "superseded_values", "TASK_VALUES", "FAMILY_VALUES",
-    "ONPOLICY_ALGOS", "CRITICS", "PPO_FIELDS", "PPO_VALUES", "FPO_FIELDS", "FPO_VALUES",
+    "ONPOLICY_ALGOS", "CRITICS", "ADVANTAGE_REFRESH", "PPO_FIELDS", "PPO_VALUES", "FPO_FIELDS", "FPO_VALUES",
 ]
 
 ALGOS = ("td3", "sac", "ppo", "fpo", "crl")
@@ -36,7 +36,8 @@ _SF2_DEFAULTS = {f.name: f.default for f in fields(SF2Config)}
 ADDED_FIELDS = {name: _SF2_DEFAULTS[name] for name in ("spr_augmentation_std", "shared_adam")}
 SF2_FIELDS = tuple(name for name in _SF2_DEFAULTS if name not in ("obs_size", "action_size"))
 PPO_FIELDS = ("rollout_length", "update_epochs", "minibatch_size", "clip_eps", "entropy_coef", "value_coef",
-              "max_grad_norm", "td_lambda", "critic")
+              "max_grad_norm", "td_lambda", "critic", "advantage_refresh")
+ADVANTAGE_REFRESH = ("rollout", "pass")   # the V critic's GAE: once with the rollout's V, or at every pass
 FPO_FIELDS = ("fpo_samples", "fpo_flow_steps", "fpo_value_samples", "fpo_log_ratio_clip")
 # Adam's ε as the authors' trainers build it (SAC: optax's default; the temperature's is 1e-8 always)
 PAPER_ADAM_EPS = {"td3": 1e-5, "sac": 1e-8, "ppo": 1e-5, "fpo": 1e-8}
@@ -128,6 +129,7 @@ class TrainConfig:
     max_grad_norm: float = 0.5    # each loss's gradient clipped to this global norm over what it trains
     td_lambda: float = 0.95       # λ of the critic's λ-returns and of the advantages
     critic: str = "q"             # "q": Q(s, a) and λ-returns (PPO-Q, SF²); "v": V(s) and GAE (PPO)
+    advantage_refresh: str = "rollout"   # critic "v": GAE from the rollout's V, or the current V each pass
     logsumexp_penalty: float = 0.1   # CRL's InfoNCE log-sum-exp penalty (--algo crl; docs/crl.md)
     # FPO (--algo fpo; docs/fpo.md): (ε, τ) pairs per action, Euler steps per action, actions per V_Q(s)
     fpo_samples: int = 8
@@ -481,6 +483,12 @@ def _validate_onpolicy(cfg: TrainConfig) -> None:
     if cfg.critic not in CRITICS:
         bad_field("critic", cfg.critic, "must be 'q' (Q(s, a) with λ-returns: PPO-Q) or 'v' (V(s) with GAE: "
                   "PPO)")
+    if cfg.advantage_refresh not in ADVANTAGE_REFRESH:
+        bad_field("advantage_refresh", cfg.advantage_refresh, f"must be one of {ADVANTAGE_REFRESH} (GAE from "
+                  f"the rollout's V, or from the current V at every pass)")
+    if cfg.advantage_refresh == "pass" and cfg.critic != "v":
+        bad_field("advantage_refresh", cfg.advantage_refresh, "takes critic 'v' only (the Q critic's "
+                  "λ-returns use the rollout's sampled V̄); use 'rollout'")
 
 
 def _algos(registry, name: str) -> tuple[str, ...]:

@@ -258,13 +258,16 @@ class Program(SingleDeviceProgram):
         next_action = jnp.where(new, ro.next_sample, jnp.roll(ro.action, -1, axis=0))
         reward = ro.reward * cfg.reward_scaling
         discount = 1.0 - ro.terminal
-        if cfg.critic == "q":
-            target = lo.lambda_returns(reward, discount, ro.truncation, ro.next_value, cfg.discount,
-                                       cfg.td_lambda)
-            advantage = target - ro.value
-        else:
-            advantage, target = lo.gae(reward, discount, ro.truncation, ro.value, ro.next_value, cfg.discount,
-                                       cfg.td_lambda)
+
+        def returns(value, next_value):
+            """(advantage, target) of the rollout from the critic's values at s and s′, each (T, N)."""
+            if cfg.critic == "q":
+                target = lo.lambda_returns(reward, discount, ro.truncation, next_value, cfg.discount,
+                                           cfg.td_lambda)
+                return target - value, target
+            return lo.gae(reward, discount, ro.truncation, value, next_value, cfg.discount, cfg.td_lambda)
+
+        advantage, target = returns(ro.value, ro.next_value)
         data = OnPolicyBatch(obs=ro.obs, action=ro.action, reward=reward, discount=discount,
                              truncation=ro.truncation, next_obs=ro.next_obs, next_action=next_action,
                              policy_info=ro.policy_info, value=ro.value, advantage=advantage, target=target)
@@ -275,7 +278,16 @@ class Program(SingleDeviceProgram):
         E, K = cfg.update_epochs, self.num_minibatches
         perms = jax.vmap(lambda k: jax.random.permutation(k, T * N))(jax.random.split(k_perm, E))
 
-        def sgd(carry, xs):
+        def refreshed(params, flat):
+            """`flat` with GAE from the current V at s and s′ (`advantage_refresh = "pass"`, critic "v")."""
+            with self.learner_precision():
+                value, next_value = (self.rep.values(params, o.reshape((T * N,) + o.shape[2:])
+                                                     .astype(jnp.float32), None).reshape(T, N)
+                                     for o in (ro.obs, ro.next_obs))
+            advantage, target = returns(value, next_value)
+            return flat._replace(advantage=advantage.reshape(-1), target=target.reshape(-1))
+
+        def sgd(flat, carry, xs):
             idx, k = xs
             mb = jax.tree_util.tree_map(lambda x: jnp.take(x, idx, axis=0), flat)
             mb = mb._replace(obs=mb.obs.astype(jnp.float32), next_obs=mb.next_obs.astype(jnp.float32))
@@ -283,9 +295,17 @@ class Program(SingleDeviceProgram):
                 params, opt_state, metrics = self._sgd_step(*carry, mb, k)
             return (params, opt_state), metrics
 
+        def one_pass(carry, xs):
+            """One pass over the rollout: `K` minibatches of one permutation."""
+            perm, keys = xs
+            data = refreshed(carry[0], flat) if cfg.advantage_refresh == "pass" else flat
+            return jax.lax.scan(functools.partial(sgd, data), carry,
+                                (perm.reshape(K, cfg.minibatch_size), keys))
+
         (params, opt_state), metrics = jax.lax.scan(
-            sgd, (params, state.opt_state),
-            (perms.reshape(E * K, cfg.minibatch_size), jax.random.split(k_sgd, E * K)))
+            one_pass, (params, state.opt_state), (perms, jax.tree_util.tree_map(
+                lambda k: k.reshape((E, K) + k.shape[1:]), jax.random.split(k_sgd, E * K))))
+        metrics = jax.tree_util.tree_map(lambda m: m.reshape((E * K,) + m.shape[2:]), metrics)
         state = OnPolicyState(params, opt_state, env_state, key, state.env_steps + T * N, state.updates + 1)
         return state, (metrics, jnp.sum(ro.episode_return), jnp.sum(ro.done))
 
