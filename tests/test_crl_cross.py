@@ -1,7 +1,7 @@
 """JAX and torch agree on CRL's losses (sf2_jax.losses_crl, sf2_torch.losses_crl): one canonical batch of
 representations, actor outputs and noise drawn with numpy into both cores; values, aux metrics and the
-gradients with respect to every input, in float64 (≤ 1e-10 relative) and float32 (cross_bridge.TOL); the
-goal offsets equal exactly on the same uniform draws.
+gradients with respect to every input (InfoNCE forward and backward), in float64 (≤ 1e-10 relative) and
+float32 (cross_bridge.TOL); the goal offsets equal exactly on the same uniform draws.
 """
 
 from __future__ import annotations
@@ -31,18 +31,21 @@ def canonical(seed: int = 0) -> dict[str, np.ndarray]:
 
 @pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("penalty", [0.0, 0.1])
-def test_critic_loss(dtype, penalty):
+@pytest.mark.parametrize("direction", ["fwd", "bwd"])
+def test_critic_loss(dtype, penalty, direction):
     x = canonical()
-    (jloss, jaux), jgrad = jax.value_and_grad(lambda p, s: jl.crl_critic_loss(p, s, penalty), argnums=(0, 1),
-                                              has_aux=True)(jx(x["phi"], dtype), jx(x["psi"], dtype))
+    (jloss, jaux), jgrad = jax.value_and_grad(lambda p, s: jl.crl_critic_loss(p, s, penalty, direction),
+                                              argnums=(0, 1), has_aux=True)(jx(x["phi"], dtype),
+                                                                            jx(x["psi"], dtype))
     phi, psi = th(x["phi"], dtype).requires_grad_(), th(x["psi"], dtype).requires_grad_()
-    tloss, taux = tl.crl_critic_loss(phi, psi, penalty)
+    tloss, taux = tl.crl_critic_loss(phi, psi, penalty, direction)
     tloss.backward()
-    check("crl_critic_loss", jloss, np_(tloss), dtype)
+    term = f"crl_critic_loss[{direction}]"
+    check(term, jloss, np_(tloss), dtype)
     for name in ("accuracy", "logits_pos", "logits_neg", "logsumexp"):
-        check(f"crl_critic_loss.{name}", jaux[name], np_(taux[name]), dtype)
-    check("grad crl_critic_loss (φ, ψ)", jgrad[0], np_(phi.grad), dtype, "grad")
-    check("grad crl_critic_loss (φ, ψ)", jgrad[1], np_(psi.grad), dtype, "grad")
+        check(f"{term}.{name}", jaux[name], np_(taux[name]), dtype)
+    check(f"grad {term} (φ, ψ)", jgrad[0], np_(phi.grad), dtype, "grad")
+    check(f"grad {term} (φ, ψ)", jgrad[1], np_(psi.grad), dtype, "grad")
 
 
 @pytest.mark.parametrize("dtype", DTYPES)

@@ -1,7 +1,7 @@
 """CRL's losses (sf2_jax.losses_crl) against values derived by hand on a batch of three: the energy,
-InfoNCE with its log-sum-exp penalty and the contrastive accuracy (a tie: argmax takes the first), the
-actor's log σ and its squashed sample, the actor and temperature losses with their gradient contract, the
-truncated geometric goal offset (at γ = 1/2, n = 3 its CDF is 4/7, 6/7, 1) and the shape checks.
+forward and backward InfoNCE with its log-sum-exp penalty and the contrastive accuracy (a tie: argmax takes
+the first), the actor's log σ and its squashed sample, the actor and temperature losses with their gradient
+contract, the truncated geometric goal offset (at γ = 1/2, n = 3 its CDF is 4/7, 6/7, 1) and the shape checks.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from sf2_jax import ShapeError
+from sf2_jax import ConfigError, ShapeError
 from sf2_jax import losses_crl as lc
 
 E = 1e-6
@@ -49,6 +49,32 @@ def test_critic_loss(c):
     assert float(aux["logsumexp"]) == pytest.approx(sum(LSE) / 3 + E, rel=1e-12)
 
 
+# bwd on φ and ψ' = [0, 2, 4]: rows and columns hold different distances (on ψ they are the same
+# multisets, so fwd and bwd would agree); m_j, a goal's column's log-sum-exp
+PSI_B = [[0.0], [2.0], [4.0]]
+DIST_B = [[0, 2, 4], [1, 1, 3], [3, 1, 1]]
+LSE_B = [math.log(sum(math.exp(e(d)) for d in row)) for row in DIST_B]
+COL_LSE_B = [math.log(sum(math.exp(e(row[j])) for row in DIST_B)) for j in range(3)]
+DIAG_B = [e(0), e(1), e(1)]
+
+
+@pytest.mark.parametrize("c", [0.0, 0.1])
+def test_backward_critic_loss(c):
+    """bwd: each goal's column against the batch's state-actions; the penalty and the metrics stay the rows'
+    (accuracy 1/3: rows 1 and 2 tie and argmax takes the first; the columns' argmax would score 3/3)."""
+    loss, aux = lc.crl_critic_loss(jnp.array(PHI), jnp.array(PSI_B), c, direction="bwd")
+    by_hand = (-sum(DIAG_B[j] - COL_LSE_B[j] for j in range(3)) / 3
+               + c * sum((LSE_B[i] + E) ** 2 for i in range(3)) / 3)
+    assert float(loss) == pytest.approx(by_hand, rel=1e-12)
+    assert float(aux["accuracy"]) == pytest.approx(1 / 3)
+    assert float(aux["logits_pos"]) == pytest.approx(sum(DIAG_B) / 3, rel=1e-12)
+    off = [e(d) for i, row in enumerate(DIST_B) for j, d in enumerate(row) if i != j]
+    assert float(aux["logits_neg"]) == pytest.approx(sum(off) / 6, rel=1e-12)
+    assert float(aux["logsumexp"]) == pytest.approx(sum(LSE_B) / 3 + E, rel=1e-12)
+    with pytest.raises(ConfigError, match="direction='sym' is invalid: must be one of .'fwd', 'bwd'."):
+        lc.crl_critic_loss(jnp.array(PHI), jnp.array(PSI), c, direction="sym")
+
+
 def test_critic_loss_gradient_pulls_positives_together():
     """d loss / d φ_0 by hand (c = 0): row 0's term −L_00 + ℓ_0 and the terms ℓ_j do not involve φ_0
     except through row 0, so the gradient is (1/3) Σ_j (p_0j − [j = 0]) dL_0j/dφ_0, dL_0j/dφ_0 =
@@ -57,6 +83,16 @@ def test_critic_loss_gradient_pulls_positives_together():
     p = [math.exp(e(d) - LSE[0]) for d in DIST[0]]
     d_l = [-(PHI[0][0] - PSI[j][0]) / math.sqrt((PHI[0][0] - PSI[j][0]) ** 2 + E) for j in range(3)]
     by_hand = sum((p[j] - (j == 0)) * d_l[j] for j in range(3)) / 3
+    assert float(grad[0, 0]) == pytest.approx(by_hand, rel=1e-10)
+
+
+def test_backward_critic_loss_gradient():
+    """bwd on ψ', c = 0: φ_0 enters every column j through L_0j, so d loss / d φ_0 =
+    (1/3) Σ_j (q_0j − [j = 0]) dL_0j/dφ_0 with q_0j = exp(L_0j − m_j), row 0's share of column j's softmax."""
+    grad = jax.grad(lambda p: lc.crl_critic_loss(p, jnp.array(PSI_B), 0.0, "bwd")[0])(jnp.array(PHI))
+    q = [math.exp(e(DIST_B[0][j]) - COL_LSE_B[j]) for j in range(3)]
+    d_l = [-(PHI[0][0] - PSI_B[j][0]) / math.sqrt((PHI[0][0] - PSI_B[j][0]) ** 2 + E) for j in range(3)]
+    by_hand = sum((q[j] - (j == 0)) * d_l[j] for j in range(3)) / 3
     assert float(grad[0, 0]) == pytest.approx(by_hand, rel=1e-10)
 
 

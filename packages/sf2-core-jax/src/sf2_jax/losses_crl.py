@@ -14,14 +14,15 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from sf2_common.errors import ShapeError
+from sf2_common.errors import ConfigError, ShapeError
 
-__all__ = ["ENERGY_EPS", "LOG_STD_MIN", "LOG_STD_MAX", "energy", "crl_critic_loss", "actor_log_std",
-           "squashed_gaussian_sample", "crl_actor_loss", "crl_alpha_loss", "future_offset"]
+__all__ = ["ENERGY_EPS", "LOG_STD_MIN", "LOG_STD_MAX", "CONTRASTIVE_LOSSES", "energy", "crl_critic_loss",
+           "actor_log_std", "squashed_gaussian_sample", "crl_actor_loss", "crl_alpha_loss", "future_offset"]
 
 sg = jax.lax.stop_gradient
 ENERGY_EPS = 1e-6              # inside the square root of the energy (JaxGCRL's "norm")
 LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0   # the actor's log σ range
+CONTRASTIVE_LOSSES = ("fwd", "bwd")   # InfoNCE's softmax over a row's goals or a column's state-actions
 
 
 def _check_pair(a_name: str, a, b_name: str, b) -> None:
@@ -43,27 +44,35 @@ def energy(x, y):
     return -jnp.sqrt(jnp.sum((x - y) ** 2, axis=-1) + ENERGY_EPS)
 
 
-def crl_critic_loss(phi, psi, logsumexp_penalty):
-    """CRL's critic loss: forward InfoNCE over the batch's energies, with a log-sum-exp penalty.
+def crl_critic_loss(phi, psi, logsumexp_penalty, direction="fwd"):
+    """CRL's critic loss: forward or backward InfoNCE over the batch's energies, with a log-sum-exp penalty.
 
-    L_ij = energy(φ_i, ψ_j), ℓ_i = log Σ_j exp L_ij; loss = −mean_i (L_ii − ℓ_i) + c · mean_i (ℓ_i + ε)²,
-    ε = 1e-6 (JaxGCRL takes the penalty's log-sum-exp of L + ε), c = `logsumexp_penalty`.
+    L_ij = energy(φ_i, ψ_j), ℓ_i = log Σ_j exp L_ij (a row: a state-action against the batch's goals),
+    m_j = log Σ_i exp L_ij (a column: a goal against the batch's state-actions); P = c · mean_i (ℓ_i + ε)²;
+    fwd: loss = −mean_i (L_ii − ℓ_i) + P; bwd: loss = −mean_j (L_jj − m_j) + P. The penalty stays on the
+    rows in both (JaxGCRL's `fwd_infonce`, `bwd_infonce`, its log-sum-exp of L + ε), ε = 1e-6,
+    c = `logsumexp_penalty`.
 
     Args:
       phi: φ(s_i, a_i) (B, F).
       psi: ψ(g_i) (B, F), g_i the goal sampled for row i.
       logsumexp_penalty: c ≥ 0.
+      direction: "fwd" or "bwd" (`CONTRASTIVE_LOSSES`).
 
     Returns:
       (loss, {"accuracy": mean_i [argmax_j L_ij = i], "logits_pos": mean_i L_ii, "logits_neg": the mean of
-      L_ij over i ≠ j, "logsumexp": mean_i (ℓ_i + ε)}).
+      L_ij over i ≠ j, "logsumexp": mean_i (ℓ_i + ε)}): the rows' metrics in both directions, as JaxGCRL
+      logs them.
 
     Raises:
       ShapeError: φ and ψ not both (B, F).
+      ConfigError: `direction` not one of `CONTRASTIVE_LOSSES`.
     """
     _check_pair("phi", phi, "psi", psi)
+    if direction not in CONTRASTIVE_LOSSES:
+        raise ConfigError(f"direction={direction!r} is invalid: must be one of {CONTRASTIVE_LOSSES}")
     logits = energy(phi[:, None, :], psi[None, :, :])
-    lse = jax.nn.logsumexp(logits, axis=1)
+    lse = jax.nn.logsumexp(logits, axis=1 if direction == "fwd" else 0)
     diag = jnp.diagonal(logits)
     penalty_lse = jax.nn.logsumexp(logits + ENERGY_EPS, axis=1)
     loss = -jnp.mean(diag - lse) + logsumexp_penalty * jnp.mean(penalty_lse ** 2)
