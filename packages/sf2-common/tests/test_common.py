@@ -95,9 +95,10 @@ def test_spr_augmentation_std_is_checked_and_older_run_folders_keep_resuming(tmp
     assert configs.ADDED_FIELDS == {"spr_augmentation_std": 0.05, "shared_adam": True, "rollout_length": 128,
                                     "update_epochs": 3, "minibatch_size": 4096, "clip_eps": 0.2,
                                     "entropy_coef": 0.01, "value_coef": 0.5, "max_grad_norm": 0.5,
-                                    "td_lambda": 0.95, "critic": "q", "logsumexp_penalty": 0.1,
-                                    "fpo_samples": 8, "fpo_flow_steps": 10, "fpo_value_samples": 8,
-                                    "fpo_log_ratio_clip": 20.0}
+                                    "td_lambda": 0.95, "critic": "q", "advantage_refresh": "rollout",
+                                    "logsumexp_penalty": 0.1,
+                                    "contrastive_loss": "fwd", "fpo_samples": 8, "fpo_flow_steps": 10,
+                                    "fpo_value_samples": 8, "fpo_log_ratio_clip": 20.0}
     assert cfg.spr_augmentation_std == 0.05
     assert run.check_compatible(cfg.to_dict(), (0,)) is True
     with pytest.raises(RunFolderMismatch, match="spr_augmentation_std: 0.05 \\(folder\\) vs 0.1 \\(now\\)"):

@@ -1,6 +1,7 @@
 """The goal-conditioned trainer (sf2_jax.agents.crl) on `ant-goal` with `--config quick`, through
 `sf2-jax train --task ant-goal --algo crl`: the critic learns (its contrastive accuracy far above chance), a
-run stopped after its first epoch resumes to the same rows, and bad input is refused before compiling.
+run stopped after its first epoch resumes to the same rows, bad input is refused before compiling, and
+the presets' InfoNCE (paper: backward) against folders written before the choice existed.
 
 The learning signal: a critic that has learned nothing ranks a row's own goal first among the batch's B
 goals with probability 1/B (chance, 1/64 here); the last epoch's mean accuracy over its 2000 SGD steps must
@@ -14,6 +15,7 @@ from __future__ import annotations
 import json
 
 import pytest
+from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch
 from sf2_jax import cli
 from sf2_jax.agents import crl, make_config
 from sf2_testing import cli_args, cli_error, strip_wall
@@ -73,6 +75,8 @@ CRL = ("--task", "ant-goal", "--algo", "crl")
     (("--task", "ant-goal", "--algo", "td3"), "goal-reaching tasks take the goal-conditioned trainer"),
     ((*CRL, "--repr", "sim"), "representation = 'sim' is invalid: must be one of none, sf2"),
     ((*CRL, "--logsumexp-penalty", "-1"), "logsumexp_penalty = -1.0 is invalid"),
+    ((*CRL, "--contrastive-loss", "sym"),
+     "contrastive_loss = 'sym' is invalid: must be one of ('fwd', 'bwd')"),
     ((*CRL, "--batch-size", "1"), "batch_size = 1 is invalid"),
     ((*CRL, "--max-replay-size", "8", "--min-replay-size", "0"), "must hold at least 2 steps of every env"),
 ])
@@ -80,6 +84,21 @@ def test_bad_input_is_refused_before_compiling(args, text, capsys, monkeypatch):
     monkeypatch.setattr(crl, "get_program", lambda cfg: pytest.fail("a program was built"))
     err = cli_error(cli.main, capsys, *args)
     assert text in err, err
+
+
+def test_the_paper_preset_trains_the_backward_infonce(cfg, tmp_path):
+    """`paper` gives JaxGCRL's train.sh's bwd, `quick` fwd; a folder written before the field existed trained
+    fwd: a quick one resumes, a paper one is another run unless `--contrastive-loss fwd` is passed."""
+    paper = make_config("paper", "ant-goal", algo="crl", representation="none")
+    assert (paper.contrastive_loss, cfg.contrastive_loss) == ("bwd", "fwd")
+    for name, now in (("quick", cfg), ("paper", paper)):
+        old = {k: v for k, v in now.to_dict().items() if k != "contrastive_loss"}
+        RunFolder(tmp_path / name).write_config({"config": old, "seeds": [0]})
+    assert RunFolder(tmp_path / "quick").check_compatible(cfg.to_dict(), (0,)) is True
+    with pytest.raises(RunFolderMismatch, match="contrastive_loss: 'fwd' .folder. vs 'bwd' .now."):
+        RunFolder(tmp_path / "paper").check_compatible(paper.to_dict(), (0,))
+    fwd = paper.replace(contrastive_loss="fwd")
+    assert RunFolder(tmp_path / "paper").check_compatible(fwd.to_dict(), (0,)) is True
 
 
 @pytest.mark.slow

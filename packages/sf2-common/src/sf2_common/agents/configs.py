@@ -131,6 +131,7 @@ class TrainConfig:
     critic: str = "q"             # "q": Q(s, a) and λ-returns (PPO-Q, SF²); "v": V(s) and GAE (PPO)
     advantage_refresh: str = "rollout"   # critic "v": GAE from the rollout's V, or the current V each pass
     logsumexp_penalty: float = 0.1   # CRL's InfoNCE log-sum-exp penalty (--algo crl; docs/crl.md)
+    contrastive_loss: str = "fwd"    # CRL's InfoNCE: "fwd" a row's goals, "bwd" a goal's state-actions
     # FPO (--algo fpo; docs/fpo.md): (ε, τ) pairs per action, Euler steps per action, actions per V_Q(s)
     fpo_samples: int = 8
     fpo_flow_steps: int = 10
@@ -202,15 +203,17 @@ class TrainConfig:
 
 ADDED_FIELDS.update({f.name: f.default for f in fields(TrainConfig) if f.name in PPO_FIELDS + FPO_FIELDS})
 ADDED_FIELDS["logsumexp_penalty"] = TrainConfig.logsumexp_penalty
+ADDED_FIELDS["contrastive_loss"] = TrainConfig.contrastive_loss
 # CRL's values per preset (`--algo crl`, ant-goal; docs/crl.md): `paper` is JaxGCRL's CRL on `ant` (its
-# train.sh: 512 envs, 10M steps, 50 evaluations; its CRL defaults) with ζ for CRL+SF² as wide as the
-# encoders; `quick` shows the critic learning on a CPU in about a minute
+# train.sh: 512 envs, 10M steps, 50 evaluations, the backward InfoNCE; its CRL defaults) with ζ for CRL+SF²
+# as wide as the encoders; `quick` shows the critic learning on a CPU in about a minute
 CRL_VALUES = {
     "paper": dict(num_envs=512, batch_size=256, grad_updates_per_step=32, min_replay_size=512_000,
                   max_replay_size=5_120_000, learning_rate=3e-4, alpha_learning_rate=3e-4, adam_eps=1e-8,
                   discount=0.99, feature_size=64, hidden_sizes=(256, 256), logsumexp_penalty=0.1,
-                  target_entropy_scale=0.5, init_log_alpha=0.0, num_evals=51, num_eval_envs=256,
-                  deterministic_eval=True, normalize_observations=False, zeta_hidden_sizes=(256, 256)),
+                  contrastive_loss="bwd", target_entropy_scale=0.5, init_log_alpha=0.0, num_evals=51,
+                  num_eval_envs=256, deterministic_eval=True, normalize_observations=False,
+                  zeta_hidden_sizes=(256, 256)),
     "quick": dict(num_timesteps=8_000, episode_length=100, num_envs=8, batch_size=64, grad_updates_per_step=4,
                   min_replay_size=400, max_replay_size=8_000, learning_rate=3e-4, alpha_learning_rate=3e-4,
                   adam_eps=1e-8, discount=0.99, feature_size=16, hidden_sizes=(64, 64), logsumexp_penalty=0.1,

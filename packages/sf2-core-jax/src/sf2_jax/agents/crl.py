@@ -253,7 +253,7 @@ class Program(SingleDeviceProgram):
 
         def critic_loss(enc):
             phi, psi = self._energy(enc, sample.state, sample.action, goal)
-            return lc.crl_critic_loss(phi, psi, cfg.logsumexp_penalty)
+            return lc.crl_critic_loss(phi, psi, cfg.logsumexp_penalty, cfg.contrastive_loss)
 
         (c_loss, c_aux), grad = jax.value_and_grad(critic_loss, has_aux=True)(critic)
         for g in critic:
@@ -402,6 +402,9 @@ def validate(cfg: TrainConfig, seeds=(0,)) -> TrainConfig:
     p = cfg.logsumexp_penalty
     if not isinstance(p, (int, float)) or isinstance(p, bool) or not np.isfinite(p) or p < 0:
         configs.bad_field("logsumexp_penalty", p, "must be a finite number >= 0")
+    if cfg.contrastive_loss not in lc.CONTRASTIVE_LOSSES:
+        configs.bad_field("contrastive_loss", cfg.contrastive_loss, f"must be one of {lc.CONTRASTIVE_LOSSES} "
+                          "(InfoNCE over a row's goals, or over a goal's state-actions)")
     return cfg
 
 
