@@ -143,7 +143,7 @@ def test_plan_and_dry_run_per_group(tmp_path, monkeypatch, capsys):
     backend = runner.Backend("sf2-fake", "jax", "fake", _make, lambda cfg, seeds: cfg)
     args = argparse.Namespace(file=str(study.path), out=str(folder.path), tasks="A", methods=None,
                               seeds="0-9", workers=None, ray=None, dry_run=True, no_progress=True,
-                              finish_within=None, forecast_from=[])
+                              finish_within=None, forecast_from=[], log=None)
     assert commands._run(backend, args, "cmd") == 0
     out = capsys.readouterr().out.splitlines()
     assert "4 run(s) selected of 12; seed groups 0-4, 5-9" in out[0]
@@ -180,7 +180,7 @@ def test_forecast_from_another_study(tmp_path, monkeypatch, capsys):
     backend = runner.Backend("sf2-fake", "jax", "fake", _make, lambda cfg, seeds: cfg)
     args = argparse.Namespace(file=str(tmp_path / "sac.toml"), out=str(tmp_path / "sac-study"), tasks="A",
                               methods=None, seeds="0-4", workers=None, ray=None, dry_run=True,
-                              no_progress=True, finish_within=None, forecast_from=[])
+                              no_progress=True, finish_within=None, forecast_from=[], log=None)
     assert commands._run(backend, args, "cmd") == 0
     alone = capsys.readouterr().out.splitlines()
     assert len(alone) == 3 and not any("≈" in line or "estimate" in line for line in alone)

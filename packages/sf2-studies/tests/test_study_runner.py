@@ -393,3 +393,13 @@ def test_a_method_with_its_own_framework_trains_on_that_core(tmp_path, monkeypat
     bad = MIXED.replace('framework = "torch"', 'framework = "tf"')
     with pytest.raises(spec.StudyError, match="framework = 'tf' is not one of jax, torch"):
         spec.loads(bad, tmp_path / "bad.toml")
+
+
+def test_log_reaches_every_train_command(tmp_path, monkeypatch):
+    """`study run --log SINKS` becomes each run's `train --log SINKS`; none without it."""
+    study, backend, folder, runs = _setup(tmp_path, monkeypatch)
+    plain, _ = runner.plan(study, folder, runs)
+    logged, _ = runner.plan(study, folder, runs, "tensorboard,wandb")
+    assert all("--log" not in job.commands[0] for job in plain)
+    assert [job.commands[0] for job in logged] == [[*job.commands[0], "--log", "tensorboard,wandb"]
+                                                   for job in plain]

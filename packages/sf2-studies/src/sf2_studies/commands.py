@@ -23,6 +23,7 @@ import types
 from pathlib import Path
 
 from sf2_common.cli import Backend
+from sf2_common.errors import ConfigError
 
 from .progress import duration
 from .spec import StudyError
@@ -61,6 +62,8 @@ def add_parser(sub, prog: str) -> None:
     r.add_argument("--ray-cpus", type=float, default=1.0, help="CPUs each Ray task requests (default 1)")
     r.add_argument("--dry-run", action="store_true", help="print the runs and their state; train nothing")
     r.add_argument("--no-progress", action="store_true", help="no progress line (events only)")
+    r.add_argument("--log", default=None, metavar="SINKS",
+                   help="passed to each run's `train --log` (tensorboard, wandb or both, comma-separated)")
     p = ssub.add_parser("report", help="results.csv, summary.md and figures of a study folder")
     p.add_argument("dir", help="study folder")
     p.add_argument("--out", default=None, help="report folder (default: DIR/report)")
@@ -157,6 +160,13 @@ def _run(backend, args, command: str) -> int:
         raise StudyError(f"--workers {args.workers} is invalid: an int >= 1")
     if args.finish_within is not None and not args.finish_within > 0:
         raise StudyError(f"--finish-within {args.finish_within} is invalid: seconds > 0")
+    if args.log is not None:   # refused before any run starts: an unknown sink, or one not installed
+        from sf2_common.agents.loggers import parse_log
+
+        try:
+            parse_log(args.log)
+        except ConfigError as err:
+            raise StudyError(str(err)) from None
     if args.finish_within is not None and args.ray is not None:
         raise StudyError("--finish-within is for this host's runner, not --ray")
     if args.ray is not None:
@@ -167,7 +177,7 @@ def _run(backend, args, command: str) -> int:
     selected = spec.select_runs(study, runs, _names(args.tasks), _names(args.methods), args.seeds)
     folder = StudyFolder(args.out)
     folder.check(study, backend.name)
-    jobs, done = runner.plan(study, folder, selected)
+    jobs, done = runner.plan(study, folder, selected, args.log)
     # Forecasts (the dry run's estimate, --finish-within) draw on every finished run of the folder, and of
     # the --forecast-from folders.
     history = done if len(selected) == len(runs) else runner.plan(study, folder, runs)[1]

@@ -71,8 +71,10 @@ def eval_argv(study: Study, path: Path) -> list[str]:
     return argv
 
 
-def plan(study: Study, folder: StudyFolder, runs: list[Run]) -> tuple[list[Job], list[Job]]:
+def plan(study: Study, folder: StudyFolder, runs: list[Run], log: str | None = None
+         ) -> tuple[list[Job], list[Job]]:
     """(jobs to run, runs already done) of `runs`; raises `StudyError` if a run folder holds another run.
+    `log` (e.g. "tensorboard,wandb") is passed to each `train` as `--log` (docs/agents.md, Loggers).
     The jobs keep the study's order, except that runs already begun (partly trained, or trained and not
     yet evaluated) come first: `run_local` starts them in this order, so a run that a command's time limit
     cut resumes before new runs take the GPUs. On a leased host whose disk goes back with it, its
@@ -86,7 +88,8 @@ def plan(study: Study, folder: StudyFolder, runs: list[Run]) -> tuple[list[Job],
         path = folder.path_of(run)
         commands = []
         if state.status in ("new", "partial"):
-            commands.append(["train", *run.argv, "--out", str(path), "--no-progress"])
+            commands.append(["train", *run.argv, "--out", str(path), "--no-progress",
+                             *(["--log", log] if log else [])])
         if state.status != "done" and study.evaluation is not None:
             commands.append(eval_argv(study, path))
         job = Job(run, path, commands, state.total_env_steps, state.env_steps)
