@@ -1,13 +1,14 @@
 """Losses of contrastive RL (CRL, Eysenbach et al., 2022) as JaxGCRL trains it: pure functions of arrays.
 
 The critic is the energy f(s, a, g) = −‖φ(s, a) − ψ(g)‖ of a state-action encoder φ and a goal encoder ψ,
-trained by InfoNCE over a batch (row i's positive is its own goal, the other rows' goals its negatives)
-with a penalty on the log-sum-exp; the actor is goal-conditioned SAC on that energy with a learned
-temperature; goals are future states of the same trajectory, k steps ahead with P(k) ∝ γ^k. Every random
-draw is an argument, and the functions take the encoders' and the actor's outputs, not networks, so the
-same inputs give the same numbers in JAX and torch (`sf2_torch.losses_crl`). Losses return `(loss, aux)`.
-Gradient contract: the temperature is a constant in the actor loss, the log-probability in the
-temperature loss; everything else carries its gradient to whatever produced it. docs/crl.md.
+trained by InfoNCE over a batch (forward: row i's own goal against the other rows' goals; backward: goal j's
+own state-action against the other rows') with a penalty on the log-sum-exp; the actor is goal-conditioned
+SAC on that energy with a learned temperature; goals are future states of the same trajectory, k steps ahead
+with P(k) ∝ γ^k. Every random draw is an argument, and the functions take the encoders' and the actor's
+outputs, not networks, so the same inputs give the same numbers in JAX and torch (`sf2_torch.losses_crl`).
+Losses return `(loss, aux)`. Gradient contract: the temperature is a constant in the actor loss, the
+log-probability in the temperature loss; everything else carries its gradient to whatever produced it.
+docs/crl.md.
 """
 
 from __future__ import annotations
