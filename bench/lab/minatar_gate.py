@@ -3,12 +3,15 @@
     python -m bench.lab.minatar_gate results/minatar-sanity
 
 Reads the study's run folders (`runs/minatar-<game>/ppo-pgx/metrics.jsonl.gz`) and the example's logs in
-`<study>/pgx-example/<game>-seed<N>.log` (one dict per update: `sec`, `<env>/eval_R`, `steps`). Per game:
-each side's last evaluation per seed, its AUC (trapezoidal mean return over the env steps), and the gate,
-"our seeds' mean last evaluation within the example's seeds' range" (docs/minatar.md). Rates: ours is
-the env steps of one update, every seed of the vmapped run, over the median `epoch_seconds` after the
-first (which compiles); the example's is env steps over the `sec` between its first and last log line
-(its own clock, which excludes its evaluations and its first compilation). Prints a Markdown table."""
+`<study>/pgx-example/<game>-seed<N>.log` (one dict per update: `sec`, `<env>/eval_R`, `steps`) and
+`times.txt` (each process's wall time). Per game: each side's last evaluation per seed, its AUC
+(trapezoidal mean return over the env steps), the gate, "our seeds' mean last evaluation within the
+example's seeds' range" (docs/minatar.md), and wall time per seed: ours the run's last `walltime` (compile,
+training and every evaluation) over its vmapped seeds, the example's its process's (start-up, compile,
+training and evaluations). The example's own `sec` is no rate: it never waits for the device, so the
+update's work is counted in the evaluation it excludes. Ours is also given as training env steps/s (every
+seed of one update over the median `epoch_seconds` after the first, which compiles). Prints a Markdown
+table."""
 
 from __future__ import annotations
 
@@ -48,20 +51,22 @@ def ours(run: Path) -> dict:
     first = [r for r in rows if r["seed"] == seeds[0] and r.get("epoch_seconds")]
     per_epoch = (first[-1]["env_steps"] - first[0]["env_steps"]) / (len(first) - 1)
     median = statistics.median(r["epoch_seconds"] for r in first[1:])   # epoch 1 compiles
-    return {"last": last, "auc": aucs, "rate": per_epoch * len(seeds) / median}
+    wall = max(r.get("walltime", 0.0) for r in rows)
+    return {"last": last, "auc": aucs, "rate": per_epoch * len(seeds) / median, "wall": wall / len(seeds)}
 
 
 def example(folder: Path, game: str) -> dict:
-    """Last evaluations, AUCs and rate of the example's logs of one game (every seed found)."""
-    last, aucs, rates = [], [], []
+    """Last evaluations, AUCs and mean process wall time of the example's logs of one game (every seed)."""
+    last, aucs = [], []
     for log in sorted(folder.glob(f"{game}-seed*.log")):
         rows = [ast.literal_eval(line) for line in log.read_text().splitlines() if line.startswith("{")]
         returns = [r[f"minatar-{game}/eval_R"] for r in rows]
-        steps = [r["steps"] for r in rows]
         last.append(returns[-1])
-        aucs.append(auc(steps, returns))
-        rates.append(steps[-1] / (rows[-1]["sec"] - rows[0]["sec"]))
-    return {"last": last, "auc": aucs, "rate": statistics.mean(rates) if rates else float("nan")}
+        aucs.append(auc([r["steps"] for r in rows], returns))
+    lines = (folder / "times.txt").read_text().splitlines()
+    walls = [float(line.split(" wall ")[1].split()[0]) for line in lines
+             if line.startswith(f"{game} seed ") and " rc 0 " in line]
+    return {"last": last, "auc": aucs, "wall": statistics.mean(walls)}
 
 
 def main(argv=None) -> int:
@@ -69,8 +74,8 @@ def main(argv=None) -> int:
     parser.add_argument("study", type=Path, help="the minatar-sanity study folder")
     args = parser.parse_args(argv)
     print("| game | ours: last evaluation per seed (mean) | pgx example: per seed [range] | gate | "
-          "AUC ours / example (mean) | env steps/s: ours (all seeds) / example (one seed) |")
-    print("|---|---|---|---|---|---|")
+          "AUC ours / example (mean) | wall time per seed: ours / example | ours: training env steps/s |")
+    print("|---|---|---|---|---|---|---|")
     for game in GAMES:
         a = ours(args.study / "runs" / f"minatar-{game}" / "ppo-pgx")
         b = example(args.study / "pgx-example", game)
@@ -80,7 +85,7 @@ def main(argv=None) -> int:
         print(f"| {game} | {', '.join(f'{x:.1f}' for x in a['last'])} ({mean:.1f}) | "
               f"{', '.join(f'{x:.1f}' for x in b['last'])} [{lo:.1f}, {hi:.1f}] | {gate} | "
               f"{statistics.mean(a['auc']):.1f} / {statistics.mean(b['auc']):.1f} | "
-              f"{a['rate'] / 1e6:.2f}M / {b['rate'] / 1e6:.2f}M |")
+              f"{a['wall']:.0f} s / {b['wall']:.0f} s | {a['rate'] / 1e6:.2f}M |")
     return 0
 
 
