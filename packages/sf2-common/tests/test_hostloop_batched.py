@@ -138,3 +138,22 @@ def test_batched_loop_stop_resume_and_nan_guard(tmp_path, clock):
         _loop(session, nan)
     assert session.log[-1] == "evaluate_many [1]" and session.snapshots == {}
     assert _strip(nan.read_rows()) == full[:4]
+
+
+class _Shares(_Batched):
+    """A session whose evaluations also report the share of episodes above 15 (`eval_metrics`)."""
+
+    @staticmethod
+    def eval_metrics(returns):
+        return {"eval_share": float(np.mean(returns > 15.0))}
+
+
+@pytest.mark.parametrize("checkpoint_every", [1, 2])
+def test_eval_metrics_add_columns_to_every_evaluation_row(tmp_path, clock, checkpoint_every):
+    """Epoch e's policy returns 10·e on every episode: the share above 15 is 0 for epochs 0 and 1, 1 after;
+    per-epoch and batched evaluations alike, and a session without `eval_metrics` writes no such column."""
+    rows = _loop(_Shares(clock), RunFolder(tmp_path / "run"), checkpoint_every=checkpoint_every)
+    expected = [(e, float(e >= 2)) for e in range(4) for _seed in (3, 4)]
+    assert [(r["epoch"], r["eval_share"]) for r in rows] == expected
+    plain = _loop(_Batched(clock), RunFolder(tmp_path / "plain"), checkpoint_every=checkpoint_every)
+    assert not any("eval_share" in r for r in plain)

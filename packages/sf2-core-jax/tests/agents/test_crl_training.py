@@ -54,6 +54,10 @@ def test_eval_replays_the_last_evaluation(cfg, cli_run, capsys):
     res = json.loads(capsys.readouterr().out)
     assert res["epoch"] == max(res["checkpoints"]) and len(res["returns"]["0"]) == cfg.num_eval_envs
     assert sum(res["returns"]["0"]) / cfg.num_eval_envs == pytest.approx(rows[-1]["eval_return"], abs=1e-6)
+    # the rows' success share is JaxGCRL's episode_success_any of those episodes
+    success = sum(r > 0 for r in res["returns"]["0"]) / cfg.num_eval_envs
+    assert [r["eval_success_any"] for r in rows][-1] == pytest.approx(success)
+    assert all(0.0 <= r["eval_success_any"] <= 1.0 for r in rows)
     assert cli.main(["eval", str(out), "--episodes", "3"]) == 2
     assert "replays its own deterministic evaluation" in capsys.readouterr().err
 

@@ -66,10 +66,12 @@ def row_metrics(means: dict, s_i: int) -> dict:
 
 
 def make_row(epoch, seed, env_steps, returns, metrics, sps, eval_seconds, walltime,
-             epoch_seconds=None) -> dict:
-    """One metrics.jsonl row: the evaluation of `seed` after `epoch` and the epoch's training metrics."""
+             epoch_seconds=None, eval_metrics=None) -> dict:
+    """One metrics.jsonl row: the evaluation of `seed` after `epoch` and the epoch's training metrics;
+    `eval_metrics(returns)`, when given, adds the evaluation's own ({name: float})."""
     row = {"epoch": epoch, "seed": int(seed), "env_steps": int(env_steps),
            "eval_return": float(np.mean(returns)), "eval_return_std": float(np.std(returns)),
+           **(eval_metrics(np.asarray(returns)) if eval_metrics else {}),
            "eval_seconds": round(eval_seconds, 3), "walltime": round(walltime, 3), **metrics}
     if sps is not None:
         row["sps"] = round(sps, 1)
@@ -169,7 +171,9 @@ class Session(Protocol):
         {metric: (seeds,) index of the first non-finite value or −1}), as `diverged_message` reads them."""
 
     def evaluate(self, epoch: int) -> np.ndarray:
-        """Episode returns (seeds, episodes) of the evaluation after epoch `epoch` (0: initial policy)."""
+        """Episode returns (seeds, episodes) of the evaluation after epoch `epoch` (0: initial policy).
+        A session may also offer `eval_metrics(returns) -> {name: float}` of one seed's (episodes,)
+        returns: more columns of the evaluation's rows (e.g. the share of successful episodes)."""
 
     def save(self, epoch: int, env_steps: int) -> None:
         """Write checkpoint `epoch`."""
@@ -226,8 +230,8 @@ def _run_epochs(session, bar, t_start, *, cfg, sched, seeds, run, title, rows, s
         call_hook(hook, "evaluate", 0)
         t = time.time()
         returns = session.evaluate(0)
-        new = [make_row(0, s, 0, returns[i], {}, None, time.time() - t, time.time() - t_start)
-               for i, s in enumerate(seeds)]
+        new = [make_row(0, s, 0, returns[i], {}, None, time.time() - t, time.time() - t_start,
+                        eval_metrics=getattr(session, "eval_metrics", None)) for i, s in enumerate(seeds)]
         run.append_rows(new)
         rows += new
         call_hook(hook, "rows", 0)
@@ -288,8 +292,9 @@ def _evaluate(session, done, batched: bool, *, seeds, sched, run, rows, t_start,
     t = time.time()
     returns = session.evaluate_many(epochs) if batched else np.asarray(session.evaluate(epochs[-1]))[None]
     eval_seconds = (time.time() - t) / len(done)
+    extra = getattr(session, "eval_metrics", None)
     new = [make_row(epoch, s, sched.env_steps_after(epoch), returns[k][i], row_metrics(means, i), sps,
-                    eval_seconds, time.time() - t_start, epoch_seconds)
+                    eval_seconds, time.time() - t_start, epoch_seconds, extra)
            for k, (epoch, means, sps, epoch_seconds) in enumerate(done) for i, s in enumerate(seeds)]
     run.append_rows(new)
     rows += new

@@ -455,6 +455,12 @@ class _Session(SingleDeviceSession):
         return np.asarray(self.program.evaluate(self.state.params["actor"], self.state.eval_start, self.seeds,
                                                 epoch))
 
+    @staticmethod
+    def eval_metrics(returns: np.ndarray) -> dict:
+        """JaxGCRL's `episode_success_any`: the share of episodes that reached the goal at least once (a
+        return > 0: the return counts the steps within reach of the goal)."""
+        return {"eval_success_any": float(np.mean(returns > 0))}
+
 
 def _restore_acting(ckpt: Checkpointer, job: CheckpointJob):
     """((the actor's parameters, the evaluation start states), meta) of checkpoint `job.epoch`."""
