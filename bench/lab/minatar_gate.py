@@ -2,17 +2,15 @@
 
     python -m bench.lab.minatar_gate results/minatar-sanity
 
-Reads the study's run folders (`runs/minatar-<game>/ppo-pgx/metrics.jsonl.gz`) and the example's logs in
-`<study>/pgx-example/<game>-seed<N>.log` (one dict per update: `sec`, `<env>/eval_R`, `steps`) and
-`times.txt` (each process's wall time). Per game: each side's last evaluation per seed, its AUC
-(trapezoidal mean return over the env steps), the gate, "our seeds' mean last evaluation within the
-example's seeds' range" (docs/minatar.md), the difference of the two means with its 95% bootstrap interval
-(a sounder test than a range of four seeds), and wall time per seed: ours the run's last `walltime` (compile,
-training and every evaluation) over its vmapped seeds, the example's its process's (start-up, compile,
-training and evaluations). The example's own `sec` is no rate: it never waits for the device, so the
-update's work is counted in the evaluation it excludes. Ours is also given as training env steps/s (every
-seed of one update over the median `epoch_seconds` after the first, which compiles). Prints a Markdown
-table."""
+Reads the study's run folders (`runs/minatar-<game>/ppo-pgx/metrics.jsonl.gz`), the example's logs
+`<study>/pgx-example/<game>-seed<N>.log` (one dict per update: `sec`, `<env>/eval_R`, `steps`) and its
+`times.txt` (each process's wall time). Per game: each side's last evaluation per seed, its AUC, the gate
+("our seeds' mean last evaluation within the example's seeds' range", docs/minatar.md), the difference of
+the means with its 95% bootstrap interval (AUC and interval: `sf2_studies.stats`, the studies' own), and
+wall time per seed: ours the run's last `walltime` (compile, training, evaluations) over its vmapped
+seeds, the example's its process's. The example's own `sec` is no rate: it never waits for the device, so
+the update's work lands in the evaluation it excludes. Ours also as training env steps/s (one update of
+every seed over the median `epoch_seconds` after the first, which compiles). Prints a Markdown table."""
 
 from __future__ import annotations
 
@@ -24,40 +22,9 @@ import statistics
 from pathlib import Path
 
 import numpy as np
+from sf2_studies.stats import auc, difference_interval
 
 GAMES = ["asterix", "breakout", "freeway", "seaquest", "space_invaders"]
-
-
-def auc(steps: list[float], returns: list[float]) -> float:
-    """The mean return over training: the trapezoidal area under the curve over the steps it spans.
-
-    Args:
-      steps: env steps of each evaluation, increasing.
-      returns: the evaluation returns at those steps.
-
-    Returns:
-      The area divided by the span of the steps.
-    """
-    area = sum((returns[i] + returns[i + 1]) / 2 * (steps[i + 1] - steps[i]) for i in range(len(steps) - 1))
-    return area / (steps[-1] - steps[0])
-
-
-def difference_interval(a: list[float], b: list[float], resamples: int = 5000, seed: int = 0):
-    """The difference of means mean(a) − mean(b) and its 95% percentile bootstrap interval.
-
-    Args:
-      a, b: one value per seed of each side.
-      resamples: bootstrap resamples (each side's seeds drawn with replacement, independently).
-      seed: the resampling's seed.
-
-    Returns:
-      (difference, low, high).
-    """
-    rng = np.random.default_rng(seed)
-    x, y = np.asarray(a, float), np.asarray(b, float)
-    boot = (rng.choice(x, (resamples, x.size)).mean(1) - rng.choice(y, (resamples, y.size)).mean(1))
-    low, high = np.percentile(boot, [2.5, 97.5])
-    return float(x.mean() - y.mean()), float(low), float(high)
 
 
 def ours(run: Path) -> dict:
@@ -106,7 +73,8 @@ def main(argv=None) -> int:
         gate = "within" if lo <= mean <= hi else ("above" if mean > hi else "below")
         print(f"| {game} | {', '.join(f'{x:.1f}' for x in a['last'])} ({mean:.1f}) | "
               f"{', '.join(f'{x:.1f}' for x in b['last'])} [{lo:.1f}, {hi:.1f}] | {gate} | "
-              "{:+.1f} [{:+.1f}, {:+.1f}] | ".format(*difference_interval(a["last"], b["last"])) +
+              "{:+.1f} [{:+.1f}, {:+.1f}] | ".format(*difference_interval(
+                  np.asarray(a["last"])[:, None], np.asarray(b["last"])[:, None], "Mean")) +
               f"{statistics.mean(a['auc']):.1f} / {statistics.mean(b['auc']):.1f} | "
               f"{a['wall']:.0f} s / {b['wall']:.0f} s | {a['rate'] / 1e6:.2f}M |")
     return 0
