@@ -41,8 +41,8 @@ from .configs import validate
 from .policies_onpolicy import CategoricalPolicy, FlowPolicy
 from .representations_onpolicy import REGISTRY, OnPolicyBatch, build
 from .trainer import (  # _seed_map: one seed runs unvmapped
+    SeedsSession,
     SingleDeviceProgram,
-    SingleDeviceSession,
     TrainingDiverged,
     TrainResult,
     _seed_map,
@@ -419,7 +419,7 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
                         stop_after_epoch=stop_after_epoch, plot=plot, log=log)
 
 
-class _Session(SingleDeviceSession):
+class _Session(SeedsSession):
     """The `sf2_common.agents.hostloop.Session` of one run: the vmapped state of all seeds."""
 
     def evaluate(self, epoch: int) -> np.ndarray:

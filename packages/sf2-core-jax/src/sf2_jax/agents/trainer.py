@@ -50,7 +50,7 @@ ACTOR_PHASES = ("explore", "env_step", "observe", "sample", "step_noise")
 __all__ = ["TrainState", "Program", "get_program", "episode_returns", "TrainingDiverged", "TrainResult",
            "train", "evaluate_checkpoint", "evaluate_checkpoint_noises", "seed_keys", "eval_keys",
            "acting_params", "flatten_params", "device_note", "EVAL_STREAM", "WALL_FIELDS", "run_training",
-           "SingleDeviceProgram", "SingleDeviceSession"]
+           "SingleDeviceProgram", "SeedsSession"]
 
 EVAL_STREAM = 0x5EED  # eval keys: fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), epoch)
 # WALL_FIELDS, TrainingDiverged and the host loop's framework-free helpers (rows, the NaN guard's
@@ -512,72 +512,9 @@ def run_training(cfg: TrainConfig, seeds: tuple[int, ...], out, *, program_of: C
         lock.release()
 
 
-class _Session:
-    """The `sf2_common.agents.hostloop.Session` of one run: the vmapped state of all seeds."""
-
-    def __init__(self, program: Program, ckpt: Checkpointer, run: RunFolder, seeds, state):
-        self.program, self.ckpt, self.run, self.seeds, self.state = program, ckpt, run, seeds, state
-        self.snapshots: dict[int, dict] = {}   # epoch -> a copy of its acting params (`snapshot`)
-
-    def start(self) -> None:
-        self.state = self.program.init(self.seeds)
-
-    def train_epoch(self, epoch: int):
-        self.state, means, first_bad = self.program.epoch(self.state, epoch)
-        return jax.device_get(means), first_bad
-
-    def evaluate(self, epoch: int) -> np.ndarray:
-        return np.asarray(self.program.evaluate(self.state.params, self.state.eval_start, self.seeds, epoch))
-
-    def snapshot(self, epoch: int) -> None:
-        # a copy: the next epoch's program donates (overwrites) the state's buffers
-        self.snapshots[epoch] = jax.tree_util.tree_map(jnp.copy, acting_params(self.state.params))
-
-    def evaluate_many(self, epochs: list[int]) -> np.ndarray:
-        # One batch shape per run: a shorter batch (the schedule's last, a stop) is padded with its last
-        # epoch, whose extra returns are dropped, so the program compiles once (a second shape compiles
-        # the whole evaluation again: docs/decisions/batched-evaluation.md).
-        pad = max(self.program.cfg.checkpoint_every - len(epochs), 0)
-        snaps = [self.snapshots.pop(e) for e in epochs]
-        params = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *snaps, *[snaps[-1]] * pad)
-        padded = epochs + [epochs[-1]] * pad
-        returns = self.program.evaluate_many(params, self.state.eval_start, self.seeds, padded)
-        return np.asarray(returns)[: len(epochs)]
-
-    def save(self, epoch: int, env_steps: int) -> None:
-        # written in the background while the next epochs train; the checkpointer completes it before
-        # the next save and on close (checkpoint.py)
-        self.ckpt.save(epoch, self.state, {"env_steps": env_steps, "seeds": list(self.seeds)}, wait=False)
-
-    def loss_order(self) -> tuple[str, ...]:
-        return self.program.loss_order
-
-    def finish(self) -> None:
-        _write_final(self.run, self.state, self.seeds)
-
-
-class SingleDeviceProgram:
-    """What the on-policy and goal-conditioned trainers' `Program`s share: their state is vmapped over seeds
-    on one device. A subclass defines `precision()`, `_program(name, n_seeds)` and `_init_one(key)`."""
-
-    def init(self, seeds):
-        """The initial state of every seed (leading axis: the seed)."""
-        with self.precision():
-            return self._program("init", len(seeds))(seed_keys(seeds))
-
-    def abstract_state(self, seeds):
-        """The shapes and dtypes of `init(seeds)` (a checkpoint's template)."""
-        with self.precision():
-            return jax.eval_shape(jax.vmap(self._init_one), seed_keys(seeds))
-
-    def place(self, state):
-        """A restored state where the programs keep it: the default device, as it is."""
-        return state
-
-
-class SingleDeviceSession:
-    """The `sf2_common.agents.hostloop.Session` of a `SingleDeviceProgram`'s run: the vmapped state of all
-    seeds, saved in the background. A subclass defines `evaluate(epoch)`."""
+class SeedsSession:
+    """The `sf2_common.agents.hostloop.Session` of one run of a JAX trainer: the vmapped state of all seeds,
+    saved in the background. A subclass defines `evaluate(epoch)` (and may offer batched evaluation)."""
 
     def __init__(self, program, ckpt: Checkpointer, run: RunFolder, seeds, state):
         self.program, self.ckpt, self.run, self.seeds, self.state = program, ckpt, run, seeds, state
@@ -598,6 +535,51 @@ class SingleDeviceSession:
 
     def finish(self) -> None:
         _write_final(self.run, self.state, self.seeds)
+
+
+class _Session(SeedsSession):
+    """The off-policy trainer's session: `SeedsSession` with its batched evaluation."""
+
+    def __init__(self, program: Program, ckpt: Checkpointer, run: RunFolder, seeds, state):
+        super().__init__(program, ckpt, run, seeds, state)
+        self.snapshots: dict[int, dict] = {}   # epoch -> a copy of its acting params (`snapshot`)
+
+    def evaluate(self, epoch: int) -> np.ndarray:
+        return np.asarray(self.program.evaluate(self.state.params, self.state.eval_start, self.seeds, epoch))
+
+    def snapshot(self, epoch: int) -> None:
+        # a copy: the next epoch's program donates (overwrites) the state's buffers
+        self.snapshots[epoch] = jax.tree_util.tree_map(jnp.copy, acting_params(self.state.params))
+
+    def evaluate_many(self, epochs: list[int]) -> np.ndarray:
+        # One batch shape per run: a shorter batch (the schedule's last, a stop) is padded with its last
+        # epoch, whose extra returns are dropped, so the program compiles once (a second shape compiles
+        # the whole evaluation again: docs/decisions/batched-evaluation.md).
+        pad = max(self.program.cfg.checkpoint_every - len(epochs), 0)
+        snaps = [self.snapshots.pop(e) for e in epochs]
+        params = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *snaps, *[snaps[-1]] * pad)
+        padded = epochs + [epochs[-1]] * pad
+        returns = self.program.evaluate_many(params, self.state.eval_start, self.seeds, padded)
+        return np.asarray(returns)[: len(epochs)]
+
+
+class SingleDeviceProgram:
+    """What the on-policy and goal-conditioned trainers' `Program`s share: their state is vmapped over seeds
+    on one device. A subclass defines `precision()`, `_program(name, n_seeds)` and `_init_one(key)`."""
+
+    def init(self, seeds):
+        """The initial state of every seed (leading axis: the seed)."""
+        with self.precision():
+            return self._program("init", len(seeds))(seed_keys(seeds))
+
+    def abstract_state(self, seeds):
+        """The shapes and dtypes of `init(seeds)` (a checkpoint's template)."""
+        with self.precision():
+            return jax.eval_shape(jax.vmap(self._init_one), seed_keys(seeds))
+
+    def place(self, state):
+        """A restored state where the programs keep it: the default device, as it is."""
+        return state
 
 
 def _label(cfg: TrainConfig) -> str:
