@@ -156,14 +156,6 @@ class Program(SingleDeviceProgram):
         self._programs: dict[tuple, Callable] = {}
 
     # ------------------------------------------------------------------ host entry points
-    def precision(self):
-        """The matmul precision every program is traced at: the physics' fp32 `highest` (`cfg.
-        learner_precision` applies to the learner's steps inside)."""
-        return jax.default_matmul_precision("highest")
-
-    def _learner(self):
-        return jax.default_matmul_precision(configs.LEARNER_PRECISIONS[self.cfg.learner_precision])
-
     def _program(self, name: str, n_seeds: int):
         key = (name, n_seeds == 1)
         if key not in self._programs:
@@ -308,7 +300,7 @@ class Program(SingleDeviceProgram):
         train = actor_step >= self.sched.prefill_actor_steps
         key, k_act, k_sgd = jax.random.split(state.key, 3)
         obs = state.env_state.obs
-        with self._learner():
+        with self.learner_precision():
             action, _ = self._policy(state.params["actor"], obs,
                                      jax.random.normal(k_act, (cfg.num_envs, self.spec.action_size)))
         env_state = self.spec.env.step(state.env_state, action)
@@ -321,7 +313,7 @@ class Program(SingleDeviceProgram):
             params, opt_state, steps = carry
             k_sample, noise = self._noise(k)
             sample = self.buffer.sample(buffer, k_sample, cfg.batch_size, cfg.discount)
-            with self._learner():
+            with self.learner_precision():
                 new_params, new_opt, metrics = self._sgd_step(params, opt_state, sample, noise)
             keep = lambda n, o: jnp.where(train, n, o)   # noqa: E731
             params = jax.tree_util.tree_map(keep, new_params, params)
@@ -352,7 +344,7 @@ class Program(SingleDeviceProgram):
 
     def _eval_one(self, actor, eval_start, key):
         def act(obs, _):
-            with self._learner():
+            with self.learner_precision():
                 return jnp.tanh(self.actor.apply({"params": actor}, obs)[0])
 
         return episode_returns(self.spec.env, eval_start, act, key, self.sched.eval_actor_steps)

@@ -129,17 +129,6 @@ class Program(SingleDeviceProgram):
         self._programs: dict[tuple, Callable] = {}
 
     # ------------------------------------------------------------------ host entry points
-    def precision(self):
-        """The matmul precision every program is traced at: the physics' fp32 `highest` (Playground's MJX;
-        the games have none); the learner's code inside (acting, values, SGD steps) is traced under
-        `learner_precision()`, as in the off-policy and goal-conditioned trainers."""
-        return jax.default_matmul_precision("highest")
-
-    def learner_precision(self):
-        """The context the learner's code is traced in: `cfg.learner_precision` (`configs.
-        LEARNER_PRECISIONS`)."""
-        return jax.default_matmul_precision(configs.LEARNER_PRECISIONS[self.cfg.learner_precision])
-
     def _program(self, name: str, n_seeds: int, *static):
         key = (name, n_seeds == 1, *static)
         if key not in self._programs:

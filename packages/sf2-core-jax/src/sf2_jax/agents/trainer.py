@@ -565,7 +565,17 @@ class _Session(SeedsSession):
 
 class SingleDeviceProgram:
     """What the on-policy and goal-conditioned trainers' `Program`s share: their state is vmapped over seeds
-    on one device. A subclass defines `precision()`, `_program(name, n_seeds)` and `_init_one(key)`."""
+    on one device. A subclass defines `cfg`, `_program(name, n_seeds)` and `_init_one(key)`."""
+
+    def precision(self):
+        """The matmul precision every program is traced at: the physics' fp32 `highest` (Playground's MJX;
+        MinAtar's games have none); the learner's code inside is traced under `learner_precision()`."""
+        return jax.default_matmul_precision("highest")
+
+    def learner_precision(self):
+        """The context the learner's code (acting, values, SGD steps) is traced in: `cfg.learner_precision`
+        (`configs.LEARNER_PRECISIONS`)."""
+        return jax.default_matmul_precision(configs.LEARNER_PRECISIONS[self.cfg.learner_precision])
 
     def init(self, seeds):
         """The initial state of every seed (leading axis: the seed)."""
