@@ -325,6 +325,24 @@ def test_a_folder_trained_with_a_superseded_preset_value_keeps_it(tmp_path, caps
     assert RunFolder(tmp_path / "new").keep_trained_values(now) == now
 
 
+def test_an_fpo_folder_trained_with_rollout_time_advantages_keeps_them(tmp_path, capsys, cheetah_only):
+    """FPO's `paper` preset refreshes its advantages at every pass; a folder that trained with the
+    rollout-time critic resumes with it, and `quick` (ours) keeps the rollout-time scheme."""
+    from sf2_common.agents.configs import make_config
+
+    now = make_config("paper", "CheetahRun", "fpo", "none", {"critic": "v"})
+    assert now.advantage_refresh == "pass"
+    assert make_config("quick", "CheetahRun", "fpo", "none").advantage_refresh == "rollout"
+    assert make_config("paper", "minatar-breakout", "ppo", "none").advantage_refresh == "rollout"
+    before = now.replace(advantage_refresh="rollout")
+    run = RunFolder(tmp_path / "run")
+    run.write_config({"config": before.to_dict(), "seeds": [0]})
+    capsys.readouterr()
+    assert run.keep_trained_values(now) == before
+    assert "advantage_refresh = 'rollout' (the preset now gives 'pass')" in capsys.readouterr().err
+    assert run.check_compatible(now.to_dict(), (0,)) is True
+
+
 def test_what_a_rerun_drops_from_metrics_is_said_in_one_line(tmp_path, capsys):
     """Rows written twice (two writers before the lock) and rows of epochs after the checkpoint resumed from
     are dropped by the rewrite, and one line says what and how many."""

@@ -37,12 +37,13 @@ ADDED_FIELDS = {name: _SF2_DEFAULTS[name] for name in ("spr_augmentation_std", "
 SF2_FIELDS = tuple(name for name in _SF2_DEFAULTS if name not in ("obs_size", "action_size"))
 PPO_FIELDS = ("rollout_length", "update_epochs", "minibatch_size", "clip_eps", "entropy_coef", "value_coef",
               "max_grad_norm", "td_lambda", "critic", "advantage_refresh")
-ADVANTAGE_REFRESH = ("rollout", "pass")   # the V critic's GAE: once with the rollout's V, or at every pass
+ADVANTAGE_REFRESH = ("rollout", "pass")   # advantages from the rollout-time critic, or the current one
 FPO_FIELDS = ("fpo_samples", "fpo_flow_steps", "fpo_value_samples", "fpo_log_ratio_clip")
 # Adam's ε as the authors' trainers build it (SAC: optax's default; the temperature's is 1e-8 always)
 PAPER_ADAM_EPS = {"td3": 1e-5, "sac": 1e-8, "ppo": 1e-5, "fpo": 1e-8}
 # Preset values changed since run folders were written, (algo, field) -> (old, new): such folders keep theirs
-SUPERSEDED = {("sac", "adam_eps"): (1e-5, PAPER_ADAM_EPS["sac"])}
+SUPERSEDED = {("sac", "adam_eps"): (1e-5, PAPER_ADAM_EPS["sac"]),
+              ("fpo", "advantage_refresh"): ("rollout", "pass")}
 # Each preset's values, then its per-task and per-family values, then the overrides (decisions/presets.md)
 PRESETS = {
     "paper": dict(checkpoint_every=10, learner_precision="tensorfloat32"),
@@ -74,7 +75,7 @@ FPO_VALUES = {
                   max_grad_norm=1e9, td_lambda=0.95, discount=0.995, reward_scaling=10.0, gamma_su=0.99,
                   num_evals=62, num_eval_envs=128, deterministic_eval=False, shared_adam=False,
                   normalize_observations=True, fpo_samples=8, fpo_flow_steps=10, fpo_value_samples=8,
-                  fpo_log_ratio_clip=20.0),
+                  fpo_log_ratio_clip=20.0, advantage_refresh="pass"),
     "quick": dict(num_timesteps=786_432, num_envs=64, rollout_length=32, update_epochs=8, minibatch_size=256,
                   learning_rate=1e-4, clip_eps=0.05, entropy_coef=0.0, value_coef=0.5, max_grad_norm=1e9,
                   td_lambda=0.95, discount=0.99, reward_scaling=10.0, gamma_su=0.99, num_evals=7,
@@ -129,7 +130,7 @@ class TrainConfig:
     max_grad_norm: float = 0.5    # each loss's gradient clipped to this global norm over what it trains
     td_lambda: float = 0.95       # λ of the critic's λ-returns and of the advantages
     critic: str = "q"             # "q": Q(s, a) and λ-returns (PPO-Q, SF²); "v": V(s) and GAE (PPO)
-    advantage_refresh: str = "rollout"   # critic "v": GAE from the rollout's V, or the current V each pass
+    advantage_refresh: str = "rollout"   # advantages from the rollout-time critic, or the current one
     logsumexp_penalty: float = 0.1   # CRL's InfoNCE log-sum-exp penalty (--algo crl; docs/crl.md)
     contrastive_loss: str = "fwd"    # CRL's InfoNCE: "fwd" a row's goals, "bwd" a goal's state-actions
     # FPO (--algo fpo; docs/fpo.md): (ε, τ) pairs per action, Euler steps per action, actions per V_Q(s)
@@ -487,11 +488,8 @@ def _validate_onpolicy(cfg: TrainConfig) -> None:
         bad_field("critic", cfg.critic, "must be 'q' (Q(s, a) with λ-returns: PPO-Q) or 'v' (V(s) with GAE: "
                   "PPO)")
     if cfg.advantage_refresh not in ADVANTAGE_REFRESH:
-        bad_field("advantage_refresh", cfg.advantage_refresh, f"must be one of {ADVANTAGE_REFRESH} (GAE from "
-                  f"the rollout's V, or from the current V at every pass)")
-    if cfg.advantage_refresh == "pass" and cfg.critic != "v":
-        bad_field("advantage_refresh", cfg.advantage_refresh, "takes critic 'v' only (the Q critic's "
-                  "λ-returns use the rollout's sampled V̄); use 'rollout'")
+        bad_field("advantage_refresh", cfg.advantage_refresh, f"must be one of {ADVANTAGE_REFRESH} "
+                  f"(advantages from the rollout-time critic, or from the current critic at every pass)")
 
 
 def _algos(registry, name: str) -> tuple[str, ...]:

@@ -86,6 +86,8 @@ class Rollout(NamedTuple):
       value, next_value: the critic's value of s_t and of s′, at rollout time.
       episode_return: the completed episode's return where the step ended one, else 0.
       done: 1 where the step ended an episode (terminal or truncation).
+      value_input, next_value_input: what the Q critic's values of s_t and s′ were computed from (the
+        policy's K draws or its logits: `value_input`), kept for `advantage_refresh = "pass"`; else None.
     """
 
     obs: jax.Array
@@ -100,6 +102,8 @@ class Rollout(NamedTuple):
     next_value: jax.Array
     episode_return: jax.Array
     done: jax.Array
+    value_input: Any = None
+    next_value_input: Any = None
 
 
 class Program(SingleDeviceProgram):
@@ -174,13 +178,15 @@ class Program(SingleDeviceProgram):
         k_act, k_next, k_env = jax.random.split(key, 3)
         obs = env_state.obs
         with self.learner_precision():
-            value = rep.values(params, obs, pol.value_input(params, obs, jax.random.fold_in(k_act, 1)))
+            value_input = pol.value_input(params, obs, jax.random.fold_in(k_act, 1))
+            value = rep.values(params, obs, value_input)
             action, info = pol.act(params, obs, k_act)
         env_state, tr = self.env.step(env_state, action, k_env)
         with self.learner_precision():
-            next_value = rep.values(params, tr.next_obs, pol.value_input(params, tr.next_obs,
-                                                                         jax.random.fold_in(k_next, 1)))
+            next_value_input = pol.value_input(params, tr.next_obs, jax.random.fold_in(k_next, 1))
+            next_value = rep.values(params, tr.next_obs, next_value_input)
             next_sample = pol.draw(params, tr.next_obs, k_next)
+        keep = self.cfg.critic == "q" and self.cfg.advantage_refresh == "pass"
         done = tr.terminal | tr.truncation
         f32 = jnp.float32
         return env_state, Rollout(
@@ -188,7 +194,8 @@ class Program(SingleDeviceProgram):
             truncation=tr.truncation.astype(f32), next_obs=tr.next_obs.astype(self.obs_dtype),
             next_sample=next_sample, policy_info=info, value=value,
             next_value=next_value, episode_return=jnp.where(done, tr.episode_return, 0.0),
-            done=done.astype(f32))
+            done=done.astype(f32), value_input=value_input if keep else None,
+            next_value_input=next_value_input if keep else None)
 
     def _loss_step(self, params, opt_state, loss_fn, groups, states=None):
         """One Adam step of `groups` on `loss_fn(params)` → (objective, {metric: scalar}), its gradient
@@ -267,12 +274,21 @@ class Program(SingleDeviceProgram):
         E, K = cfg.update_epochs, self.num_minibatches
         perms = jax.vmap(lambda k: jax.random.permutation(k, T * N))(jax.random.split(k_perm, E))
 
+        def current_values(params, obs, inputs):
+            """The current critic's values (T, N) of `obs` (T, N, ...): V over all T·N states at once;
+            Q's mean over its rollout-time inputs `inputs` (T, ...) one step at a time (K·N rows each)."""
+            if inputs is None:
+                flat_obs = obs.reshape((T * N,) + obs.shape[2:]).astype(jnp.float32)
+                return self.rep.values(params, flat_obs, None).reshape(T, N)
+            return jax.lax.map(lambda x: self.rep.values(params, x[0].astype(jnp.float32), x[1]),
+                               (obs, inputs))
+
         def refreshed(params, flat):
-            """`flat` with GAE from the current V at s and s′ (`advantage_refresh = "pass"`, critic "v")."""
+            """`flat` with its advantages and targets from the current critic (`advantage_refresh = "pass"`):
+            GAE from V, or λ-returns from Q at the rollout's draws (the policy's side stays the rollout's)."""
             with self.learner_precision():
-                value, next_value = (self.rep.values(params, o.reshape((T * N,) + o.shape[2:])
-                                                     .astype(jnp.float32), None).reshape(T, N)
-                                     for o in (ro.obs, ro.next_obs))
+                value = current_values(params, ro.obs, ro.value_input)
+                next_value = current_values(params, ro.next_obs, ro.next_value_input)
             advantage, target = returns(value, next_value)
             return flat._replace(advantage=advantage.reshape(-1), target=target.reshape(-1))
 
