@@ -10,6 +10,8 @@ epoch is the trainer's own program (env steps, buffer inserts, `grad_updates_per
 seeds vmapped; no evaluation or checkpoint), timed from dispatch to completion. Reported: the median over
 the timed epochs of env steps/s per seed and over all seeds. `--precisions` sets the learner's matmul
 precision (the physics always runs at fp32 `highest`); `--frameworks jax,torch` adds the torch trainer.
+`--algos ppo` (MinAtar), `fpo` (Playground) and `crl` (ant-goal) time the JAX on-policy and goal-conditioned
+trainers the same way; an epoch is then whole updates (`--env-steps` rounded up), its warm-up the first.
 """
 
 from __future__ import annotations
@@ -74,9 +76,9 @@ def framework_configs(framework: str, seeds: tuple[int, ...]):
     """
     if framework == "jax":
         from sf2_common.agents import configs
-        from sf2_jax.agents import representations
+        from sf2_jax.agents.configs import validate
 
-        return configs, lambda c: configs.validate(c, seeds, representations.REGISTRY)
+        return configs, lambda c: validate(c, seeds)
     from sf2_torch.agents import configs
 
     return configs, lambda c: configs.validate(c, seeds)
@@ -121,7 +123,7 @@ def config_for(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epo
     Args:
         task, algo, rep: the case.
         n_seeds: vmapped seeds.
-        env_steps: timed env steps per seed.
+        env_steps: timed env steps per seed, rounded up to whole actor steps per epoch.
         epochs: timed epochs.
         overrides: config fields to set.
         framework: "jax" or "torch".
@@ -133,8 +135,10 @@ def config_for(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epo
 
     seeds = tuple(range(n_seeds))
     configs, check = framework_configs(framework, seeds)
-    prefill = schedule(configs.make_config("paper", task, algo, rep, overrides)).prefill_env_steps
-    per_epoch, warm = warm_up(env_steps, epochs, prefill)
+    sched = schedule(configs.make_config("paper", task, algo, rep, overrides))
+    unit = sched.env_steps_per_actor_step   # an epoch is whole actor steps (an on-policy update is ~1M)
+    env_steps = -(-env_steps // (epochs * unit)) * epochs * unit
+    per_epoch, warm = warm_up(env_steps, epochs, sched.prefill_env_steps)
     values = {"num_timesteps": per_epoch * (warm + epochs), "num_evals": warm + epochs + 1, **overrides}
     cfg = configs.make_config("paper", task, algo, rep, values)
     check(cfg)
@@ -160,7 +164,9 @@ def measure(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epochs
     seeds = tuple(range(n_seeds))
     cfg, warm = config_for(task, algo, rep, n_seeds, env_steps, epochs, overrides, framework)
     if framework == "jax":
-        from sf2_jax.agents.trainer import get_program
+        from sf2_jax.agents.configs import trainer_module
+
+        get_program = trainer_module(task, algo).get_program
     else:
         from sf2_torch.agents.trainer import get_program
     program = get_program(cfg)

@@ -539,3 +539,42 @@ def test_hlo_unwraps_transformations_around_the_scopes():
     assert hlo.phase_of(line % "mlp", phases) == "critic_grad"
     assert hlo.phase_of(line % "transpose(jvp(policy_adam))", phases) == "policy_adam"
     assert hlo.phase_of('metadata={op_name="jit(epoch)/vmap(explore)/add"}', phases) == "(other)"
+
+
+@pytest.mark.parametrize("task,algo,rep,module", [
+    ("minatar-breakout", "ppo", "sf2", "onpolicy"),
+    ("CartpoleBalance", "fpo", "sf2", "onpolicy"),
+    ("ant-goal", "crl", "sf2", "crl"),
+    ("CartpoleBalance", "td3", "sf2", "trainer"),
+])
+def test_throughput_times_every_jax_trainer_in_whole_actor_steps(task, algo, rep, module):
+    """`bench.agent_throughput` builds the on-policy and goal-conditioned cases with their own trainer, and
+    rounds `--env-steps` up so that each timed epoch is whole updates (FPO's `paper` update is 983,040 env
+    steps per seed; fewer would leave an epoch empty)."""
+    pytest.importorskip("mujoco_playground", reason="the paper preset's config needs the Playground "
+                        "task list: install a core's [train] extra")
+    from sf2_common.agents.configs import schedule
+    from sf2_jax.agents.configs import trainer_module
+
+    from bench.agent_throughput import config_for
+
+    cfg, warm = config_for(task, algo, rep, 2, 1_000_000, 3, {})
+    sched = schedule(cfg)
+    assert sched.num_epochs == warm + 3
+    assert sched.env_steps_per_epoch % sched.env_steps_per_actor_step == 0
+    assert 3 * sched.env_steps_per_epoch >= 1_000_000
+    assert trainer_module(task, algo).__name__ == f"sf2_jax.agents.{module}"
+
+
+def test_throughput_measures_the_onpolicy_trainer(tmp_path):
+    """A tiny PPO-Q case on MinAtar end to end: its row counts the update's SGD steps in every timed epoch
+    (3 passes × 2 minibatches × 2 updates) and its rate is the epoch's env steps over its time."""
+    pytest.importorskip("pgx", reason="MinAtar needs pgx: install sf2-core-jax[minatar]")
+    from bench.agent_throughput import measure
+
+    row = measure("minatar-breakout", "ppo", "none", 1, 256, 2, {
+        "num_envs": 8, "rollout_length": 8, "minibatch_size": 32, "update_epochs": 3,
+        "learner_precision": "highest"}, log=lambda line: None)
+    assert row["env_steps_per_epoch"] == 128 and row["sgd_steps_per_epoch"] == 3 * 2 * 2
+    assert row["warmup_epochs"] == 1 and row["timed_epochs"] == 2
+    assert row["sps_per_seed"] == pytest.approx(128 / row["median_epoch_s"], rel=1e-3)

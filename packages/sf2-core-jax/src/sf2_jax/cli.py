@@ -48,60 +48,35 @@ def resolve_configs(args):
     return common.resolve_configs(args, TrainConfig, make_config, validate)
 
 
-def _onpolicy(task: str, algo: str | None = None) -> bool:
-    """Whether a run of `algo` on `task` trains with the on-policy trainer (`--algo ppo` or `fpo`; MinAtar's
-    kind) rather than the off-policy one."""
-    from sf2_common.agents.configs import ONPOLICY_ALGOS
-    from sf2_common.agents.tasks import task_kind
-
-    return algo in ONPOLICY_ALGOS or task_kind(task).trainer == "on-policy"
-
-
 def train(args) -> int:
     """`sf2-jax train`: the JAX trainer of the task's kind on every config of the arguments."""
+    from sf2_jax.agents import representations, trainer
+    from sf2_jax.agents.configs import trainer_module
+
     cfgs, seeds = resolve_configs(args)
-    if cfgs[0].algo == "crl":
-        from sf2_jax.agents import crl
+    module = trainer_module(cfgs[0].task, cfgs[0].algo)
+    if module is trainer:
+        from sf2_common.agents.plotting import method_label
 
-        labels = {(c.algo, c.representation): crl.method_label(c) for c in cfgs}
-        return common.train_runs(args, cfgs, seeds, crl.train, lambda algo, rep: labels[(algo, rep)])
-    if _onpolicy(cfgs[0].task, cfgs[0].algo):
-        from sf2_jax.agents import onpolicy
-
-        labels = {(c.algo, c.representation): onpolicy.method_label(c) for c in cfgs}
-        return common.train_runs(args, cfgs, seeds, onpolicy.train, lambda algo, rep: labels[(algo, rep)])
-    from sf2_common.agents.plotting import method_label
-
-    from sf2_jax.agents import representations
-    from sf2_jax.agents.trainer import train as train_run
-
-    return common.train_runs(args, cfgs, seeds, train_run,
-                             lambda algo, rep: method_label(algo, rep, representations.REGISTRY))
+        return common.train_runs(args, cfgs, seeds, trainer.train,
+                                 lambda algo, rep: method_label(algo, rep, representations.REGISTRY))
+    labels = {(c.algo, c.representation): module.method_label(c) for c in cfgs}
+    return common.train_runs(args, cfgs, seeds, module.train, lambda algo, rep: labels[(algo, rep)])
 
 
 def _trainer_of(run):
     """The trainer module that wrote the run folder `run` (the off-policy one when it holds no readable
     config: its evaluation names that problem)."""
     from sf2_common.agents.runfolder import RunFolder, RunFolderError
-    from sf2_common.agents.tasks import TASKS
+
+    from sf2_jax.agents.configs import trainer_module
 
     try:
         conf = RunFolder(run).read_config()
     except (RunFolderError, OSError):
         conf = None
-    task = conf["config"].get("task") if conf else None
-    algo = conf["config"].get("algo") if conf else None
-    if algo == "crl":
-        from sf2_jax.agents import crl
-
-        return crl
-    if isinstance(task, str) and ((task in TASKS and _onpolicy(task)) or _onpolicy(task, algo)):
-        from sf2_jax.agents import onpolicy
-
-        return onpolicy
-    from sf2_jax.agents import trainer
-
-    return trainer
+    return trainer_module(conf["config"].get("task"), conf["config"].get("algo")) if conf else \
+        trainer_module(None, None)
 
 
 def evaluate(args) -> int:
