@@ -1,7 +1,8 @@
 """The goal-reaching Ant (sf2_jax.agents.antgoal): the observation's layout and goals on the circle, the
 sparse reward, and the auto-reset fix: with `FreshAutoReset` every env gets a new goal at each reset and keeps
 it for the episode; Brax's own AutoResetWrapper (JaxGCRL's training) keeps each env's first goal forever
-(shown on a toy env: compiling the Ant's physics twice would double the test's time).
+(shown on a toy env: compiling the Ant's physics twice would double the test's time). The physics: under
+uniform random actions the Ant of JaxGCRL's pipeline stays up and walks off, as JaxGCRL's data need.
 """
 
 from __future__ import annotations
@@ -75,6 +76,10 @@ def test_layout_and_sparse_reward():
     q, qd = state.pipeline_state.q, state.pipeline_state.qd
     np.testing.assert_array_equal(state.obs[: antgoal.STATE_SIZE], jnp.concatenate([q[:-2], qd[:-2]]))
     np.testing.assert_allclose(state.obs[-2:], q[-2:], atol=1e-6)
+    # a goal names the state's GOAL_INDICES: the torso's world (x, y), the frame of the target's (x, y)
+    torso, target = state.pipeline_state.x.pos[0], state.pipeline_state.x.pos[-1]
+    np.testing.assert_allclose(state.obs[jnp.array(antgoal.GOAL_INDICES)], torso[:2], atol=1e-6)
+    np.testing.assert_allclose(state.obs[-2:], target[:2], atol=1e-6)
     step = jax.jit(ant.step)
     far = step(state, jnp.zeros(8))
     assert float(far.reward) == 0.0 and float(far.metrics["dist"]) > 9.0
@@ -86,6 +91,31 @@ def test_layout_and_sparse_reward():
         assert float(out.reward) == reward == float(out.metrics["success"]), (offset, out.metrics["dist"])
 
 
+def test_random_actions_keep_the_ant_up_and_moving():
+    """JaxGCRL's `ant` (spring, 10 substeps of 0.005 s) under uniform random actions: of 16 envs, 15 are
+    still up after 300 steps, having walked 1.4 to 7.3 from the origin; with MJX (JaxGCRL's MJX settings)
+    every one has jumped above 1.0 or fallen within 10 to 88 steps, never 2.3 away; and spring at MJX's
+    0.01 s step fails within 8 steps. Episodes that short hold no goal far away to learn from. So: at
+    least 3/4 of the envs up after 100 steps, and the median env's torso at least 1 from where it began."""
+    n, steps = 16, 100
+    env = antgoal.make(steps + 1).env
+
+    def step(carry, key):
+        state, up = carry
+        state = env.step(state, jax.random.uniform(key, (n, 8), minval=-1.0, maxval=1.0))
+        return (state, up * (1.0 - state.done)), None
+
+    first = env.reset(jax.random.split(jax.random.PRNGKey(2), n))
+    (last, up), _ = jax.jit(lambda s: jax.lax.scan(step, (s, jnp.ones(n)), jax.random.split(
+        jax.random.PRNGKey(3), steps)))(first)
+    assert antgoal.SUBSTEPS[antgoal.BACKENDS[0]] == (0.005, 10) and env.dt == pytest.approx(0.05)
+    assert up.sum() >= 0.75 * n, up
+    walked = np.linalg.norm(last.obs[:, :2] - first.obs[:, :2], axis=-1)[np.asarray(up) > 0]
+    assert np.median(walked) >= 1.0, walked
+
+
 def test_unknown_backend():
-    with pytest.raises(ConfigError, match="valid backends: mjx"):
-        antgoal.make(10, "spring")
+    with pytest.raises(ConfigError, match="valid backends: spring, mjx"):
+        antgoal.make(10, "generalized")
+    with pytest.raises(ConfigError, match="valid backends: spring, mjx"):
+        antgoal.ant_goal("positional")

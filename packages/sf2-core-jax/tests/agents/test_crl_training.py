@@ -6,7 +6,7 @@ the presets' InfoNCE (paper: backward) against folders written before the choice
 The learning signal: a critic that has learned nothing ranks a row's own goal first among the batch's B
 goals with probability 1/B (chance, 1/64 here); the last epoch's mean accuracy over its 2000 SGD steps must
 be at least 5/B. Random-policy data make the task easy (a goal k ~ Geometric steps ahead is near the
-current (x, y)), so a working critic is far above that (0.29 observed); a broken one (goals from another
+current (x, y)), so a working critic is far above that (0.26 observed); a broken one (goals from another
 episode, a sign error in the energy, negatives that include the positive) stays near 1/B.
 """
 

@@ -4,11 +4,11 @@ Ported from JaxGCRL (github.com/MichalBortkiewicz/JaxGCRL, jaxgcrl/envs/ant.py a
 based on Brax's Ant), Apache License 2.0, copyright its authors (docs/licenses.md). A goal (x, y) is drawn
 uniformly on the circle of radius 10; the observation is the 29 joint positions and velocities then the
 goal; the reward is 1 where the torso is within 0.5 of the goal, else 0; an episode ends when the torso's
-height leaves [0.2, 1.0] or after `episode_length` steps. Changes: JaxGCRL's dense reward, random start and
-contact-force options are dropped; the physics is Brax's MJX pipeline with JaxGCRL's MJX solver settings
-(JaxGCRL's default for `ant`, the spring pipeline, diverges on this Brax: docs/crl.md); `make` replaces
-Brax's auto-reset, which restores each env's first state (so its first goal) forever, by
-`FreshAutoReset`, which resets a finished env from a new key.
+height leaves [0.2, 1.0] or after `episode_length` steps. The physics is JaxGCRL's default for `ant`,
+Brax's spring pipeline at 10 substeps of 0.005 s (MJX, with JaxGCRL's MJX solver settings and 5 substeps
+of 0.01 s, is offered; docs/crl.md). Changes: JaxGCRL's dense reward, random start and contact-force options
+are dropped; `make` replaces Brax's auto-reset, which restores each env's first state (so its first goal)
+forever, by `FreshAutoReset`, which resets a finished env from a new key.
 """
 
 from __future__ import annotations
@@ -21,18 +21,19 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-__all__ = ["STATE_SIZE", "GOAL_INDICES", "GOAL_DISTANCE", "GOAL_RADIUS", "BACKENDS", "ant_goal",
-           "FreshAutoReset", "GoalEnvSpec", "make"]
+__all__ = ["STATE_SIZE", "GOAL_INDICES", "GOAL_DISTANCE", "GOAL_RADIUS", "BACKENDS", "SUBSTEPS",
+           "ant_goal", "FreshAutoReset", "GoalEnvSpec", "make"]
 
 STATE_SIZE = 29           # the observation's state part: q without the target's 2 joints (15), then qd (14)
 GOAL_INDICES = (0, 1)     # the state entries a goal names: the torso's (x, y)
 GOAL_DISTANCE = 10.0      # goals lie on the circle of this radius around the origin
 GOAL_RADIUS = 0.5         # success: the torso within this distance of the goal
-BACKENDS = ("mjx",)       # Brax pipelines offered (docs/crl.md: why not spring)
+BACKENDS = ("spring", "mjx")   # Brax pipelines offered, the first the default (JaxGCRL's for `ant`)
+SUBSTEPS = {"spring": (0.005, 10), "mjx": (0.01, 5)}   # (timestep in s, substeps per env step): JaxGCRL's
 _ASSET = os.path.join(os.path.dirname(os.path.realpath(__file__)), "assets", "ant_goal.xml")
 
 
-def ant_goal(backend: str = "mjx"):
+def ant_goal(backend: str = BACKENDS[0]):
     """One goal-reaching Ant (module docstring), a Brax `PipelineEnv` (Brax imported on first use).
 
     Args:
@@ -40,8 +41,19 @@ def ant_goal(backend: str = "mjx"):
 
     Returns:
       The env: Brax's `reset(key)` and `step(state, action)` for one env.
+
+    Raises:
+      ConfigError: an unknown backend.
     """
+    _check_backend(backend)
     return _ant_goal_class()(backend)
+
+
+def _check_backend(backend: str) -> None:
+    from sf2_common.errors import ConfigError
+
+    if backend not in BACKENDS:
+        raise ConfigError(f"ant-goal backend {backend!r} is unknown; valid backends: {', '.join(BACKENDS)}")
 
 
 @functools.cache
@@ -53,12 +65,13 @@ def _ant_goal_class():
 
     class _AntGoal(PipelineEnv):
         def __init__(self, backend: str):
-            sys = mjcf.load(_ASSET)
+            timestep, n_frames = SUBSTEPS[backend]
+            sys = mjcf.load(_ASSET).tree_replace({"opt.timestep": timestep})
             if backend == "mjx":   # JaxGCRL's solver settings for its MJX Ant
                 sys = sys.tree_replace({"opt.solver": mujoco.mjtSolver.mjSOL_NEWTON,
                                         "opt.disableflags": mujoco.mjtDisableBit.mjDSBL_EULERDAMP,
                                         "opt.iterations": 1, "opt.ls_iterations": 4})
-            super().__init__(sys=sys, backend=backend, n_frames=5)
+            super().__init__(sys=sys, backend=backend, n_frames=n_frames)
             self.state_dim = STATE_SIZE
             self.goal_indices = jnp.array(GOAL_INDICES)
 
@@ -154,7 +167,7 @@ class GoalEnvSpec:
 
 
 @functools.lru_cache(maxsize=4)
-def make(episode_length: int = 1000, backend: str = "mjx") -> GoalEnvSpec:
+def make(episode_length: int = 1000, backend: str = BACKENDS[0]) -> GoalEnvSpec:
     """The batched `ant-goal` env: `ant_goal` under Brax's `VmapWrapper` and `EpisodeWrapper`, then
     `FreshAutoReset` and `envs.StrongTypes`.
 
@@ -169,10 +182,8 @@ def make(episode_length: int = 1000, backend: str = "mjx") -> GoalEnvSpec:
       ConfigError: an unknown backend.
     """
     from brax.envs.wrappers.training import EpisodeWrapper, VmapWrapper
-    from sf2_common.errors import ConfigError
 
-    if backend not in BACKENDS:
-        raise ConfigError(f"ant-goal backend {backend!r} is unknown; valid backends: {', '.join(BACKENDS)}")
+    _check_backend(backend)
     from .envs import StrongTypes  # every state leaf strongly typed: a program compiles once
 
     ant = ant_goal(backend)
