@@ -98,11 +98,34 @@ def test_spr_augmentation_std_is_checked_and_older_run_folders_keep_resuming(tmp
                                     "td_lambda": 0.95, "critic": "q", "advantage_refresh": "rollout",
                                     "logsumexp_penalty": 0.1,
                                     "contrastive_loss": "fwd", "fpo_samples": 8, "fpo_flow_steps": 10,
-                                    "fpo_value_samples": 8, "fpo_log_ratio_clip": 20.0}
+                                    "fpo_value_samples": 8, "fpo_log_ratio_clip": 20.0, "physics": "mjx"}
     assert cfg.spr_augmentation_std == 0.05
     assert run.check_compatible(cfg.to_dict(), (0,)) is True
     with pytest.raises(RunFolderMismatch, match="spr_augmentation_std: 0.05 \\(folder\\) vs 0.1 \\(now\\)"):
         run.check_compatible(cfg.replace(spr_augmentation_std=0.1).to_dict(), (0,))
+
+
+def test_physics_is_mjx_except_ant_goals_spring(reg, monkeypatch):
+    """`physics`: the CRL presets give ant-goal Brax's spring pipeline (JaxGCRL's), every other family MJX
+    (MinAtar: unread); "spring" on any other task, or an unknown pipeline, is refused naming the choices."""
+    monkeypatch.setattr(tasks, "playground_tasks", lambda: {"CheetahRun": "playground"})
+    monkeypatch.setattr(tasks, "check_installed", lambda task: None)   # pgx need not be installed here
+    for preset in ("paper", "quick"):
+        assert configs.make_config(preset, "ant-goal", algo="crl", representation="none").physics == "spring"
+        assert configs.make_config(preset, "CheetahRun", algo="td3").physics == "mjx"
+        assert configs.make_config(preset, "minatar-breakout", algo="ppo", representation="none").physics \
+            == "mjx"
+    assert configs.TrainConfig.physics == configs.ADDED_FIELDS["physics"] == "mjx"   # older folders read so
+    cfg = configs.make_config("quick", "CheetahRun", algo="sac", representation="fake")
+    assert configs.validate(cfg, (0,), reg) is cfg
+    for task, algo in (("CheetahRun", "sac"), ("minatar-breakout", "ppo")):
+        with pytest.raises(ConfigError, match=f"physics = 'spring' is invalid: only ant-goal has the spring "
+                           f"pipeline; task '{task}' takes physics = 'mjx' \\(valid for ant-goal: mjx, "
+                           f"spring\\)"):
+            configs.validate(cfg.replace(task=task, algo=algo, physics="spring"), (0,), reg)
+    with pytest.raises(ConfigError, match="physics = 'generalized' is invalid: must be one of mjx, spring"):
+        configs.validate(cfg.replace(physics="generalized"), (0,), reg)
+    assert configs.parse_overrides(["physics=mjx"]) == {"physics": "mjx"}
 
 
 def _ppo_reg():

@@ -325,6 +325,28 @@ def test_a_folder_trained_with_a_superseded_preset_value_keeps_it(tmp_path, caps
     assert RunFolder(tmp_path / "new").keep_trained_values(now) == now
 
 
+def test_a_folder_from_before_the_physics_field_trained_on_mjx(tmp_path, cheetah_only):
+    """Every run before `physics` existed trained on MJX: an old CRL folder is another run for the presets'
+    spring and resumes with `physics = "mjx"`; an old TD3 (or MinAtar PPO) folder resumes as before."""
+    from sf2_common.agents.configs import make_config
+
+    for preset in ("paper", "quick"):
+        crl = make_config(preset, "ant-goal", "crl", "none")
+        run = RunFolder(tmp_path / preset / "crl")
+        run.write_config({"config": {k: v for k, v in crl.to_dict().items() if k != "physics"}, "seeds": [0]})
+        with pytest.raises(RunFolderMismatch, match="differences: physics: 'mjx' .folder. vs 'spring' .now.. "
+                           "Use another --out"):
+            run.check_compatible(crl.to_dict(), (0,))
+        assert run.check_compatible(crl.replace(physics="mjx").to_dict(), (0,)) is True
+        for task, algo in (("CheetahRun", "td3"), ("minatar-breakout", "ppo")):
+            now = make_config(preset, task, algo, "none")
+            old = RunFolder(tmp_path / preset / algo)
+            old.write_config({"config": {k: v for k, v in now.to_dict().items() if k != "physics"},
+                              "seeds": [0]})
+            assert old.check_compatible(now.to_dict(), (0,)) is True
+            assert old.keep_trained_values(now) == now
+
+
 def test_an_fpo_folder_trained_with_rollout_time_advantages_keeps_them(tmp_path, capsys, cheetah_only):
     """FPO's `paper` preset refreshes its advantages at every pass; a folder that trained with the
     rollout-time critic resumes with it, and `quick` (ours) keeps the rollout-time scheme."""

@@ -24,11 +24,14 @@ __all__ = [
     "parse_seeds", "validate", "Schedule", "schedule", "ConfigError", "bad_field", "LEARNER_PRECISIONS",
     "ADDED_FIELDS", "PAPER_ADAM_EPS", "SUPERSEDED", "superseded_values", "TASK_VALUES", "FAMILY_VALUES",
     "ONPOLICY_ALGOS", "CRITICS", "ADVANTAGE_REFRESH", "PPO_FIELDS", "PPO_VALUES", "FPO_FIELDS", "FPO_VALUES",
+    "PHYSICS",
 ]
 
 ALGOS = ("td3", "sac", "ppo", "fpo", "crl")
 ONPOLICY_ALGOS = ("ppo", "fpo")   # the on-policy trainer's (sf2_jax.agents.onpolicy); the others off-policy
 CRITICS = ("q", "v")        # PPO's critic: Q(s, a) with λ-returns (PPO-Q), or V(s) with GAE (PPO)
+# `physics`: the simulator pipeline; "spring" (Brax's, JaxGCRL's for `ant`) only for ant-goal (docs/crl.md)
+PHYSICS = ("mjx", "spring")
 # `learner_precision` → JAX's matmul precision (torch: TF32, bf16 autocast); docs/core-contract.md
 LEARNER_PRECISIONS = {"highest": "highest", "tensorfloat32": "tensorfloat32", "bfloat16": "BF16_BF16_F32"}
 _SF2_DEFAULTS = {f.name: f.default for f in fields(SF2Config)}
@@ -109,6 +112,9 @@ class TrainConfig:
     num_timesteps: int = 5_000_000
     episode_length: int = 1000
     action_repeat: int = 1
+    # the simulator pipeline: MJX for the Playground tasks; ant-goal also "spring", JaxGCRL's (`PHYSICS`);
+    # MinAtar and users' environments have no such choice and never read it
+    physics: str = "mjx"
     num_envs: int = 128
     num_evals: int = 100          # evaluations including the one of the initial policy (Brax semantics)
     num_eval_envs: int = 128      # one episode per eval env
@@ -205,6 +211,7 @@ class TrainConfig:
 ADDED_FIELDS.update({f.name: f.default for f in fields(TrainConfig) if f.name in PPO_FIELDS + FPO_FIELDS})
 ADDED_FIELDS["logsumexp_penalty"] = TrainConfig.logsumexp_penalty
 ADDED_FIELDS["contrastive_loss"] = TrainConfig.contrastive_loss
+ADDED_FIELDS["physics"] = "mjx"   # every run before the field trained on MJX (ant-goal's CRL runs too)
 # CRL's values per preset (`--algo crl`, ant-goal; docs/crl.md): `paper` is JaxGCRL's CRL on `ant` (its
 # train.sh: 512 envs, 10M steps, 50 evaluations, the backward InfoNCE; its CRL defaults) with ζ for CRL+SF²
 # as wide as the encoders; `quick` shows the critic learning on a CPU in about a minute
@@ -214,13 +221,13 @@ CRL_VALUES = {
                   discount=0.99, feature_size=64, hidden_sizes=(256, 256), logsumexp_penalty=0.1,
                   contrastive_loss="bwd", target_entropy_scale=0.5, init_log_alpha=0.0, num_evals=51,
                   num_eval_envs=256, deterministic_eval=True, normalize_observations=False,
-                  zeta_hidden_sizes=(256, 256)),
+                  zeta_hidden_sizes=(256, 256), physics="spring"),
     "quick": dict(num_timesteps=8_000, episode_length=100, num_envs=8, batch_size=64, grad_updates_per_step=4,
                   min_replay_size=400, max_replay_size=8_000, learning_rate=3e-4, alpha_learning_rate=3e-4,
                   adam_eps=1e-8, discount=0.99, feature_size=16, hidden_sizes=(64, 64), logsumexp_penalty=0.1,
                   target_entropy_scale=0.5, init_log_alpha=0.0, num_evals=3, num_eval_envs=4,
                   deterministic_eval=True, normalize_observations=False, zeta_hidden_sizes=(32,),
-                  embedding_size=8),
+                  embedding_size=8, physics="spring"),
 }
 for _preset, _values in CRL_VALUES.items():   # FAMILY_VALUES[preset][field]["crl"], copying the shared dicts
     for _name, _value in _values.items():
@@ -406,6 +413,7 @@ def validate(cfg: TrainConfig, seeds, registry) -> TrainConfig:
     tasks.check_env(cfg.task)              # a user's environment: built and its observations checked
     if cfg.algo not in ALGOS:
         bad_field("algo", cfg.algo, f"must be one of {', '.join(ALGOS)}")
+    _validate_physics(cfg)
     known = registry.names()
     if cfg.representation not in known:
         bad_field("representation", cfg.representation, registry.valid_text())
@@ -455,6 +463,16 @@ def validate(cfg: TrainConfig, seeds, registry) -> TrainConfig:
     parse_seeds(seeds)
     cfg.sf2_config(1, 1)  # network and loss fields: SF2Config's own validation (placeholder sizes)
     return cfg
+
+
+def _validate_physics(cfg: TrainConfig) -> None:
+    """`physics`: one of `PHYSICS`; "spring" only for ant-goal (the only task whose pipeline is chosen here)."""
+    if cfg.physics not in PHYSICS:
+        bad_field("physics", cfg.physics, f"must be one of {', '.join(PHYSICS)} (mjx: MuJoCo's MJX; spring: "
+                  f"Brax's spring pipeline, ant-goal only)")
+    if cfg.physics == "spring" and cfg.task != "ant-goal":
+        bad_field("physics", cfg.physics, f"only ant-goal has the spring pipeline; task {cfg.task!r} takes "
+                  f"physics = 'mjx' (valid for ant-goal: {', '.join(PHYSICS)})")
 
 
 def _validate_onpolicy(cfg: TrainConfig) -> None:
