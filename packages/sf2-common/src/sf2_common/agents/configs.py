@@ -466,7 +466,7 @@ def validate(cfg: TrainConfig, seeds, registry) -> TrainConfig:
 
 
 def _validate_physics(cfg: TrainConfig) -> None:
-    """`physics`: one of `PHYSICS`; "spring" only for ant-goal (the only task whose pipeline is chosen here)."""
+    """`physics`: one of `PHYSICS`; "spring" only for ant-goal, the one task whose pipeline is chosen."""
     if cfg.physics not in PHYSICS:
         bad_field("physics", cfg.physics, f"must be one of {', '.join(PHYSICS)} (mjx: MuJoCo's MJX; spring: "
                   f"Brax's spring pipeline, ant-goal only)")
