@@ -15,9 +15,10 @@ from __future__ import annotations
 import json
 
 import pytest
+from sf2_common.agents import configs
 from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch
 from sf2_jax import cli
-from sf2_jax.agents import crl, make_config
+from sf2_jax.agents import antgoal, crl, make_config
 from sf2_testing import cli_args, cli_error, strip_wall
 
 
@@ -82,6 +83,8 @@ CRL = ("--task", "ant-goal", "--algo", "crl")
     ((*CRL, "--contrastive-loss", "sym"),
      "contrastive_loss = 'sym' is invalid: must be one of ('fwd', 'bwd')"),
     ((*CRL, "--batch-size", "1"), "batch_size = 1 is invalid"),
+    ((*CRL, "--physics", "generalized"), "physics = 'generalized' is invalid: must be one of mjx, spring"),
+    (("--task", "CheetahRun", "--physics", "spring"), "only ant-goal has the spring pipeline"),
     ((*CRL, "--max-replay-size", "8", "--min-replay-size", "0"), "must hold at least 2 steps of every env"),
 ])
 def test_bad_input_is_refused_before_compiling(args, text, capsys, monkeypatch):
@@ -103,6 +106,23 @@ def test_the_paper_preset_trains_the_backward_infonce(cfg, tmp_path):
         RunFolder(tmp_path / "paper").check_compatible(paper.to_dict(), (0,))
     fwd = paper.replace(contrastive_loss="fwd")
     assert RunFolder(tmp_path / "paper").check_compatible(fwd.to_dict(), (0,)) is True
+
+
+def test_the_program_steps_the_configs_physics(cfg, monkeypatch):
+    """`physics` is the ant-goal pipeline the program builds (`antgoal.make`'s backend; training, a session's
+    evaluation and `sf2-jax eval` all step `get_program(cfg)`'s); its choices are `antgoal.BACKENDS`."""
+    assert set(configs.PHYSICS) == set(antgoal.BACKENDS)
+    built = []
+
+    def make(episode_length, backend):   # the sizes alone: building Brax's env is not what is tested
+        built.append((episode_length, backend))
+        return antgoal.GoalEnvSpec(None, antgoal.STATE_SIZE + 2, antgoal.STATE_SIZE, antgoal.GOAL_INDICES, 8,
+                                   episode_length)
+
+    monkeypatch.setattr(antgoal, "make", make)
+    for physics in ("spring", "mjx"):
+        crl.Program(crl.validate(cfg.replace(physics=physics)))
+    assert built == [(cfg.episode_length, "spring"), (cfg.episode_length, "mjx")]
 
 
 @pytest.mark.slow

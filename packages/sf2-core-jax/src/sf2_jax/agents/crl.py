@@ -135,7 +135,7 @@ class Program(SingleDeviceProgram):
 
     def __init__(self, cfg: TrainConfig):
         self.cfg = cfg
-        self.spec = antgoal.make(cfg.episode_length)
+        self.spec = antgoal.make(cfg.episode_length, cfg.physics)   # Brax's spring pipeline or MJX
         S, A, F = self.spec.state_size, self.spec.action_size, cfg.feature_size
         self.goal_indices = jnp.array(self.spec.goal_indices)
         self.sf2_on = cfg.representation == "sf2"
