@@ -469,3 +469,7 @@ def test_folders_of_one_label_with_different_configs_are_different_methods(tmp_p
     RunFolder(b).write_config(conf)
     rows = {r["method"]: r["final_return"] for r in plotting.final_table([a, b])}
     assert rows == {"SAC (adam_eps=None)": 1.0, "SAC (adam_eps=1e-05)": 3.0}
+    # a field one folder predates is the value its run trained with (configs.ADDED_FIELDS): one method
+    conf["config"].update(adam_eps=None, physics="mjx")
+    RunFolder(b).write_config(conf)
+    assert {r["method"] for r in plotting.final_table([a, b])} == {"SAC"}

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from . import stats
+from .configs import ADDED_FIELDS
 from .runfolder import RunFolder
 
 __all__ = ["method_label", "mean_ci", "band_label", "curves", "plot_learning_curve", "plot_runs",
@@ -121,14 +122,15 @@ def _finish_axes(ax, lines, title: str, fontsize: int) -> None:
 
 def _load(run_dirs) -> dict[tuple[str, str], list[tuple[np.ndarray, dict]]]:
     """{(task, method label): [(steps, {seed: returns}), ...]} over run folders; folders of one label and
-    task with different configs are different methods, named by what differs: "SAC (adam_eps=1e-05)"."""
+    task with different configs are different methods, named by what differs: "SAC (adam_eps=1e-05)"; a
+    field a folder predates has the value its run trained with (`configs.ADDED_FIELDS`)."""
     found = defaultdict(list)
     for d in run_dirs:
         run = RunFolder(d)
         conf = run.read_config()
         if conf is None:
             raise FileNotFoundError(f"{d} is not a run folder (no {RunFolder.CONFIG})")
-        c = conf["config"]
+        c = {**ADDED_FIELDS, **conf["config"]}
         steps, per_seed = curves(run.read_rows(strict=True))   # a damaged file: RunFolderError
         if per_seed:
             label = conf.get("label") or method_label(c["algo"], c["representation"])
