@@ -128,6 +128,17 @@ def test_physics_is_mjx_except_ant_goals_spring(reg, monkeypatch):
     assert configs.parse_overrides(["physics=mjx"]) == {"physics": "mjx"}
 
 
+def test_crl_sf2_takes_its_own_adam_state_for_the_flow_step(monkeypatch):
+    """CRL+SF²'s φ steps its flow loss with an Adam state of its own in both presets (docs/crl.md, "the SF²
+    losses"); a folder trained with the shared state keeps it."""
+    monkeypatch.setattr(tasks, "check_installed", lambda task: None)
+    for preset in ("paper", "quick"):
+        assert configs.make_config(preset, "ant-goal", algo="crl", representation="sf2").shared_adam is False
+    now = configs.make_config("paper", "ant-goal", algo="crl", representation="sf2")
+    old = now.replace(shared_adam=True).to_dict()
+    assert configs.superseded_values(old, now.to_dict()) == {"shared_adam": True}
+
+
 def _ppo_reg():
     """A registry whose `none` takes ppo (the on-policy trainer's representations are the cores')."""
     r = registry.Registry("nothing-installed-under-this-group", baselines=())
