@@ -44,6 +44,10 @@ def test_quick_crl_learns_the_contrastive_critic(cfg, cli_run):
     chance = 1 / cfg.batch_size
     assert last["accuracy"] >= 5 * chance, (last["accuracy"], chance)
     assert last["logits_pos"] > last["logits_neg"]
+    # on spring the Ant does not fall under this policy, so every episode runs its 100 steps: 8 envs × 500
+    # steps end at most 40 (an Ant that falls, as on MJX, ends more, and shorter)
+    assert 0 < last["train_episodes"] <= cfg.num_envs * 500 // cfg.episode_length, last["train_episodes"]
+    assert last["train_episode_length"] == pytest.approx(cfg.num_envs * 500 / last["train_episodes"])
 
 
 @pytest.mark.slow

@@ -326,11 +326,11 @@ class Program(SingleDeviceProgram):
         env_steps = state.env_steps + self.sched.env_steps_per_actor_step
         state = CRLState(params, opt_state, env_state, buffer, state.episode + (env_state.done > 0), key,
                          env_steps, grad_steps, state.eval_start)
-        return state, (metrics, train)
+        return state, (metrics, train, jnp.sum(env_state.done > 0))
 
     def _epoch_one(self, state: CRLState, first_actor_step):
         steps = first_actor_step + jnp.arange(self.sched.actor_steps_per_epoch, dtype=jnp.int32)
-        state, (metrics, trained) = jax.lax.scan(self._actor_step, state, steps)
+        state, (metrics, trained, ended) = jax.lax.scan(self._actor_step, state, steps)
         mask = trained.astype(jnp.float32)[:, None]              # (actor steps, 1)
         count = jnp.maximum(jnp.sum(trained) * self.cfg.grad_updates_per_step, 1)
         means, first_bad = {}, {}
@@ -340,6 +340,11 @@ class Program(SingleDeviceProgram):
                 flat = (jnp.isfinite(m) | (mask == 0)).reshape(-1)
                 first_bad[name] = jnp.where(jnp.all(flat), -1, jnp.argmin(flat))
         means["sgd_steps"] = jnp.sum(trained) * self.cfg.grad_updates_per_step
+        # episodes the training envs ended, and their mean length were the epoch a steady state (env steps
+        # over episodes): a short one says the Ant falls (JaxGCRL logs its evaluation's episode length)
+        episodes = jnp.sum(ended)
+        means["train_episodes"] = episodes
+        means["train_episode_length"] = self.cfg.num_envs * steps.shape[0] / jnp.maximum(episodes, 1)
         return state, means, first_bad
 
     def _eval_one(self, actor, eval_start, key):
