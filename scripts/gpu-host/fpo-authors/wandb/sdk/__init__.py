@@ -1,0 +1,1 @@
+"""Stand-in package: `wandb.sdk.wandb_run.Run`, which the authors' rollouts module imports for a type."""

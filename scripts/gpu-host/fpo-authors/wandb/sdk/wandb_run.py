@@ -1,0 +1,5 @@
+"""Stand-in: the `Run` type the authors' rollouts module names in an annotation."""
+
+
+class Run:
+    pass
