@@ -164,7 +164,7 @@ def measure(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epochs
     seeds = tuple(range(n_seeds))
     cfg, warm = config_for(task, algo, rep, n_seeds, env_steps, epochs, overrides, framework)
     if framework == "jax":
-        from sf2_jax.agents.configs import trainer_module
+        from sf2_jax.agents.trainers import trainer_module
 
         get_program = trainer_module(task, algo).get_program
     else:

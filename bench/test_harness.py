@@ -554,7 +554,7 @@ def test_throughput_times_every_jax_trainer_in_whole_actor_steps(task, algo, rep
     pytest.importorskip("mujoco_playground", reason="the paper preset's config needs the Playground "
                         "task list: install a core's [train] extra")
     from sf2_common.agents.configs import schedule
-    from sf2_jax.agents.configs import trainer_module
+    from sf2_jax.agents.trainers import trainer_module
 
     from bench.agent_throughput import config_for
 

@@ -51,7 +51,7 @@ def resolve_configs(args):
 def train(args) -> int:
     """`sf2-jax train`: the JAX trainer of the task's kind on every config of the arguments."""
     from sf2_jax.agents import representations, trainer
-    from sf2_jax.agents.configs import trainer_module
+    from sf2_jax.agents.trainers import trainer_module
 
     cfgs, seeds = resolve_configs(args)
     module = trainer_module(cfgs[0].task, cfgs[0].algo)
@@ -69,7 +69,7 @@ def _trainer_of(run):
     config: its evaluation names that problem)."""
     from sf2_common.agents.runfolder import RunFolder, RunFolderError
 
-    from sf2_jax.agents.configs import trainer_module
+    from sf2_jax.agents.trainers import trainer_module
 
     try:
         conf = RunFolder(run).read_config()

@@ -10,7 +10,7 @@ from __future__ import annotations
 from sf2_common.agents import configs as _configs
 from sf2_common.agents.configs import TrainConfig
 
-__all__ = ["TrainConfig", "make_config", "validate", "trainer_module"]
+__all__ = ["TrainConfig", "make_config", "validate"]
 
 
 def make_config(preset: str, task: str, algo: str = "td3", representation: str = "sf2",
@@ -42,30 +42,3 @@ def validate(cfg: TrainConfig, seeds=(0,)) -> TrainConfig:
                            f"{' or '.join(repr(c) for c in rep.critics)} (SF² trains ψ through Q(s, a))")
     return cfg
 
-
-def trainer_module(task, algo):
-    """The JAX trainer that trains `algo` on `task`.
-
-    Args:
-      task: a task name (anything else, e.g. a corrupt run folder's, is the off-policy trainer's).
-      algo: the algorithm.
-
-    Returns:
-      The module `sf2_jax.agents.crl` (`--algo crl`), `.onpolicy` (`--algo ppo` or `fpo`, or a task of the
-      on-policy kind: MinAtar's), else the off-policy `.trainer`; each has `get_program`, `train` and
-      `evaluate_checkpoint`.
-    """
-    from sf2_common.agents.tasks import TASKS, task_kind
-
-    if algo == "crl":
-        from . import crl
-
-        return crl
-    if algo in _configs.ONPOLICY_ALGOS or (isinstance(task, str) and task in TASKS
-                                           and task_kind(task).trainer == "on-policy"):
-        from . import onpolicy
-
-        return onpolicy
-    from . import trainer
-
-    return trainer
