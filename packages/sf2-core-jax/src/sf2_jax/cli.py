@@ -50,13 +50,15 @@ def resolve_configs(args):
 
 def train(args) -> int:
     """`sf2-jax train`: the JAX trainer of the task's kind on every config of the arguments."""
-    from sf2_jax.agents import representations, trainer
+    from sf2_jax.agents import trainer
     from sf2_jax.agents.trainers import trainer_module
 
     cfgs, seeds = resolve_configs(args)
     module = trainer_module(cfgs[0].task, cfgs[0].algo)
     if module is trainer:
         from sf2_common.agents.plotting import method_label
+
+        from sf2_jax.agents import representations
 
         return common.train_runs(args, cfgs, seeds, trainer.train,
                                  lambda algo, rep: method_label(algo, rep, representations.REGISTRY))
@@ -75,8 +77,8 @@ def _trainer_of(run):
         conf = RunFolder(run).read_config()
     except (RunFolderError, OSError):
         conf = None
-    return trainer_module(conf["config"].get("task"), conf["config"].get("algo")) if conf else \
-        trainer_module(None, None)
+    config = conf["config"] if conf else {}
+    return trainer_module(config.get("task"), config.get("algo"))
 
 
 def evaluate(args) -> int:
