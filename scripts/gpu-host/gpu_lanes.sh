@@ -16,6 +16,13 @@ left() { echo $(( SF2_DEADLINE - $(date +%s) )); }
 export -f left
 mkdir -p "$OUT"
 logs=$(mktemp -d)
+# Lanes that share a GPU (a one-GPU host: "0: A" "0: B") split its memory: JAX takes 75% of it by default,
+# so a second process on the GPU would fail to allocate; each gets 0.9 / (most lanes on one GPU).
+share=$(for lane in "$@"; do echo "${lane%%:*}" | tr ',' '\n'; done | sort | uniq -c | sort -rn | awk 'NR==1{print $1}')
+if [ "${share:-1}" -gt 1 ]; then
+  export XLA_PYTHON_CLIENT_MEM_FRACTION=$(python3 -c "print(round(0.9 / $share, 2))")
+  echo "lanes share GPUs (up to $share on one): XLA_PYTHON_CLIENT_MEM_FRACTION=$XLA_PYTHON_CLIENT_MEM_FRACTION"
+fi
 nvidia-smi --query-gpu=index,name,memory.total --format=csv,noheader > "$logs/gpus.txt"
 i=0
 for lane in "$@"; do

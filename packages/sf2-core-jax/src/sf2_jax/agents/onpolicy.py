@@ -53,6 +53,10 @@ from .trainer import (  # _seed_map: one seed runs unvmapped
 __all__ = ["OnPolicyState", "Rollout", "Program", "get_program", "train", "method_label",
            "evaluate_checkpoint", "evaluate_checkpoint_noises", "TrainingDiverged", "TrainResult"]
 
+# Rows per call of the Q critic's advantage refresh: rollout steps go through it in chunks of about this
+# many (state, draw) rows (one step at a time is thousands of small sequential programs on a GPU)
+VALUE_ROWS = 1 << 19
+
 
 class OnPolicyState(NamedTuple):
     """One seed's training state (a leading seed axis in a run's state).
@@ -276,12 +280,13 @@ class Program(SingleDeviceProgram):
 
         def current_values(params, obs, inputs):
             """The current critic's values (T, N) of `obs` (T, N, ...): V over all T·N states at once;
-            Q's mean over its rollout-time inputs `inputs` (T, ...) one step at a time (K·N rows each)."""
+            Q's mean over its rollout-time inputs `inputs` (T, ...) in chunks of steps (`VALUE_ROWS` rows)."""
             if inputs is None:
                 flat_obs = obs.reshape((T * N,) + obs.shape[2:]).astype(jnp.float32)
                 return self.rep.values(params, flat_obs, None).reshape(T, N)
+            rows_per_step = max(x.size // (T * x.shape[-1]) for x in jax.tree_util.tree_leaves(inputs))
             return jax.lax.map(lambda x: self.rep.values(params, x[0].astype(jnp.float32), x[1]),
-                               (obs, inputs))
+                               (obs, inputs), batch_size=max(1, min(T, VALUE_ROWS // rows_per_step)))
 
         def refreshed(params, flat):
             """`flat` with its advantages and targets from the current critic (`advantage_refresh = "pass"`):
