@@ -49,6 +49,8 @@ else
 fi
 nvidia-smi --query-gpu=name,memory.total --format=csv,noheader
 start=$(date +%s)
+# the trainers checkpoint the last epoch that ends before the kill (sf2_common.agents.hostloop.checkpoint_now)
+export SF2_DEADLINE=$(( start + limit ))
 timeout --signal=TERM "$limit" python3 -m sf2_jax.cli study run "$study" --out "$folder" --no-progress "$@"
 rc=$?
 echo "study run exit status $rc after $(( $(date +%s) - start )) s"

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from sf2_common.agents import configs, hostloop
 from sf2_common.agents.runfolder import RunFolder
+from sf2_common.errors import ConfigError
 
 TRAIN_S, EVAL_S, BATCH_S = 2.0, 1.0, 1.5   # wall seconds of an epoch, an evaluation, a batched evaluation
 
@@ -157,3 +158,36 @@ def test_eval_metrics_add_columns_to_every_evaluation_row(tmp_path, clock, check
     assert [(r["epoch"], r["eval_share"]) for r in rows] == expected
     plain = _loop(_Batched(clock), RunFolder(tmp_path / "plain"), checkpoint_every=checkpoint_every)
     assert not any("eval_share" in r for r in plain)
+
+
+@pytest.mark.parametrize("session_type", [_PerEpoch, _Batched])
+def test_a_deadline_checkpoints_the_last_epoch_that_ends_before_it(tmp_path, clock, monkeypatch,
+                                                                   session_type):
+    """Checkpoints 0 and the last only (`checkpoint_every` 100), epochs of 2 s, evaluations of 1 s, saves of
+    0 s, from t = 100 (epoch 0 evaluated by 101). With the deadline at 108: after epoch 1 (t = 103) the next
+    checkpoint could still come by 103 + 2 + 2·1 = 107; after epoch 2 (t = 106 per epoch, 105 batched) it
+    could not (110, 111 with two epochs to evaluate), so epoch 2 is checkpointed. Read from `SF2_DEADLINE`
+    as well; without a deadline, none."""
+    session = session_type(clock)
+    _loop(session, RunFolder(tmp_path / "deadline"), checkpoint_every=100, deadline=108.0)
+    assert [x for x in session.log if x.startswith("save")] == ["save 0", "save 2", "save 3"]
+
+    clock.now = 100.0
+    monkeypatch.setenv(hostloop.DEADLINE_VARIABLE, "108")
+    session = session_type(clock)
+    _loop(session, RunFolder(tmp_path / "environment"), checkpoint_every=100)
+    assert [x for x in session.log if x.startswith("save")] == ["save 0", "save 2", "save 3"]
+
+    clock.now = 100.0
+    monkeypatch.delenv(hostloop.DEADLINE_VARIABLE)
+    session = session_type(clock)
+    _loop(session, RunFolder(tmp_path / "none"), checkpoint_every=100)
+    assert [x for x in session.log if x.startswith("save")] == ["save 0", "save 3"]
+
+
+def test_a_malformed_deadline_is_refused_naming_the_variable(monkeypatch):
+    monkeypatch.setenv(hostloop.DEADLINE_VARIABLE, "soon")
+    with pytest.raises(ConfigError, match="SF2_DEADLINE='soon' is invalid: must be a Unix time"):
+        hostloop.deadline_from_environment()
+    monkeypatch.setenv(hostloop.DEADLINE_VARIABLE, " ")
+    assert hostloop.deadline_from_environment() is None

@@ -86,7 +86,10 @@ def add_train_parser(sub, prog: str, config_class, seeds_help: str, cache_env: s
     """Add `train` to the subparsers `sub`, with a flag for every field of the core's `config_class`;
     `seeds_help` says how the core runs several seeds, `cache_env` names the compilation cache's variable."""
     t = sub.add_parser("train", help="train one or more methods over several seeds",
-                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                       epilog="Environment: SF2_DEADLINE=<Unix seconds> (the time a batch system kills the "
+                       "job) also checkpoints the last epoch that ends before it, so a resume trains no "
+                       "epoch twice.")
     t.add_argument("--task", required=True, help="a Playground task, e.g. CartpoleBalance or Go1Getup; a "
                    f"MinAtar game, e.g. minatar-breakout (`{prog} tasks` lists them); or your own env, "
                    "module:callable or an entry point of sf2.tasks (docs/agents.md)")

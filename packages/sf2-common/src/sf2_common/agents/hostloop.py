@@ -5,6 +5,7 @@ each from its own parameters and keys (docs/decisions/batched-evaluation.md)."""
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from collections import Counter
@@ -17,13 +18,15 @@ from .loggers import Sinks
 from .runlog import library_log
 
 __all__ = [
-    "WALL_FIELDS", "TrainingDiverged", "Session", "BatchedEvaluation", "run_epochs", "diverged_message",
+    "WALL_FIELDS", "DEADLINE_VARIABLE", "TrainingDiverged", "Session", "BatchedEvaluation", "run_epochs",
+    "deadline_from_environment", "checkpoint_now", "diverged_message",
     "row_metrics", "make_row", "write_curve", "call_hook", "versions", "hardware", "cpu_model",
     "numerics_environment", "environment_text", "environment_line",
     "progress_bar", "NoBar", "run_title",
 ]
 
 WALL_FIELDS = ("sps", "epoch_seconds", "eval_seconds", "walltime")  # differ between identical runs
+DEADLINE_VARIABLE = "SF2_DEADLINE"   # Unix time by which the run may be killed (a GPU host's command limit)
 
 
 class TrainingDiverged(RuntimeError):
@@ -197,10 +200,49 @@ class BatchedEvaluation(Protocol):
         trained (up to float rounding), from those epochs' snapshots, which it then drops."""
 
 
+def deadline_from_environment() -> float | None:
+    """The kill deadline in `SF2_DEADLINE`, if set.
+
+    Returns:
+      Unix seconds, or None where the variable is unset or empty.
+    """
+    text = os.environ.get(DEADLINE_VARIABLE, "").strip()
+    if not text:
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        from sf2_common.errors import ConfigError
+
+        raise ConfigError(f"{DEADLINE_VARIABLE}={text!r} is invalid: must be a Unix time in seconds (e.g. "
+                          f"$(( $(date +%s) + 540 ))), or unset") from None
+
+
+def checkpoint_now(now: float, deadline: float | None, epoch_seconds: float, eval_seconds: float,
+                   save_seconds: float) -> bool:
+    """Whether to checkpoint the epoch just trained because the next checkpoint would come too late.
+
+    The next one needs this epoch's evaluation and save, one more epoch, its evaluation and save:
+    now + epoch_seconds + 2 · (eval_seconds + save_seconds) past the deadline means it would be killed
+    first, and every epoch since the last checkpoint trained again.
+
+    Args:
+      now: the wall time (Unix seconds).
+      deadline: the kill deadline (Unix seconds), or None (never).
+      epoch_seconds, eval_seconds, save_seconds: what an epoch, its evaluation and a checkpoint last took.
+
+    Returns:
+      True to checkpoint now.
+    """
+    if deadline is None:
+        return False
+    return now + epoch_seconds + 2.0 * (eval_seconds + save_seconds) > deadline
+
+
 def run_epochs(session: Session, *, cfg, sched, seeds, run, title: str, rows: list[dict], start: int,
                last: int | None, walltime: float = 0.0, progress: bool = True,
                hook: Callable[[str, int], None] | None = None, stop_after_epoch: int | None = None,
-               plot: bool = True, log=()) -> list[dict]:
+               plot: bool = True, log=(), deadline: float | None = None) -> list[dict]:
     """The host loop of both trainers, from epoch `start` (0: evaluate the initial policy and write
     checkpoint 0 first) to the schedule's end or `stop_after_epoch`. Per epoch: train → NaN guard
     (`TrainingDiverged`, nothing of the epoch written) → evaluate → append rows → `hook("rows")` →
@@ -209,34 +251,40 @@ def run_epochs(session: Session, *, cfg, sched, seeds, run, title: str, rows: li
     `BatchedEvaluation` session with `checkpoint_every` > 1 evaluates the epochs between checkpoints
     together ("evaluate", "rows" once per batch, with its last epoch). `rows`, `last` (the latest
     checkpoint) and `walltime` (spent so far) come from a resume; library logs go to train.log
-    (`runlog`), and every row to the sinks `log` names (`loggers`) as `hook("rows")` begins. Returns all
-    rows."""
+    (`runlog`), and every row to the sinks `log` names (`loggers`) as `hook("rows")` begins. `deadline`
+    (Unix seconds; default `SF2_DEADLINE`'s): an epoch is also checkpointed when the next checkpoint would
+    come after it (`checkpoint_now`), so a kill at the deadline loses no trained epoch. Returns all rows."""
+    deadline = deadline_from_environment() if deadline is None else deadline
     t_start = time.time() - walltime
     with library_log(run), Sinks(log, run, seeds, cfg, rows) as sinks:
         bar = progress_bar(progress, sched.total_env_steps, sched.env_steps_after(max(start - 1, 0)), title)
         try:
             return _run_epochs(session, bar, t_start, cfg=cfg, sched=sched, seeds=seeds, run=run, title=title,
                                rows=rows, start=start, last=last, hook=sinks.hook(hook),
-                               stop_after_epoch=stop_after_epoch, plot=plot)
+                               stop_after_epoch=stop_after_epoch, plot=plot, deadline=deadline)
         finally:
             bar.close()
 
 
 def _run_epochs(session, bar, t_start, *, cfg, sched, seeds, run, title, rows, start, last, hook,
-                stop_after_epoch, plot) -> list[dict]:
+                stop_after_epoch, plot, deadline) -> list[dict]:
     """The body of `run_epochs` (its docstring)."""
+    cost = {"eval": 0.0, "save": 0.0}   # wall seconds of the last evaluation (per epoch) and checkpoint
     if start == 0:  # evaluate the initial policy, checkpoint 0
         session.start()
         call_hook(hook, "evaluate", 0)
         t = time.time()
         returns = session.evaluate(0)
+        cost["eval"] = time.time() - t
         new = [make_row(0, s, 0, returns[i], {}, None, time.time() - t, time.time() - t_start,
                         eval_metrics=getattr(session, "eval_metrics", None)) for i, s in enumerate(seeds)]
         run.append_rows(new)
         rows += new
         call_hook(hook, "rows", 0)
         call_hook(hook, "save", 0)
+        t = time.time()
         session.save(0, 0)
+        cost["save"] = time.time() - t
         last = 0
         call_hook(hook, "checkpoint", 0)
         bar.set_postfix_str(f"eval {returns.mean():.1f}")
@@ -257,17 +305,26 @@ def _run_epochs(session, bar, t_start, *, cfg, sched, seeds, run, title, rows, s
             raise TrainingDiverged(message)
         sps = sched.env_steps_per_epoch / epoch_seconds
         save = epoch % cfg.checkpoint_every == 0 or epoch == sched.num_epochs or epoch == stop_after_epoch
+        evaluations = cost["eval"] * (len(pending) + 1)     # this checkpoint's: the epochs not yet evaluated
+        if not save and checkpoint_now(time.time(), deadline, epoch_seconds, evaluations, cost["save"]):
+            save = True
+            print(f"checkpoint at epoch {epoch}: the next would come after {DEADLINE_VARIABLE}",
+                  file=sys.stderr)
         if batched:
             session.snapshot(epoch)
         pending.append((epoch, means, sps, epoch_seconds))
         if save or not batched:
+            t = time.time()
             returns = _evaluate(session, pending, batched, seeds=seeds, sched=sched, run=run, rows=rows,
                                 t_start=t_start, hook=hook)
+            cost["eval"] = (time.time() - t) / len(pending)
             pending = []
             shown = f", eval {returns.mean():.1f}"
             if save:
                 call_hook(hook, "save", epoch)
+                t = time.time()
                 session.save(epoch, sched.env_steps_after(epoch))
+                cost["save"] = time.time() - t
                 last = epoch
                 call_hook(hook, "checkpoint", epoch)
             if plot:
