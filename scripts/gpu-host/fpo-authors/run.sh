@@ -13,12 +13,13 @@ PYTHONPATH=$PWD/scripts/gpu-host/fpo-authors:$PWD/$authors/src:/tmp/fposite:$PYT
   python3 scripts/gpu-host/fpo-authors/time_fpo.py --env CheetahRun --iters "$iters" \
   --out "$logs/authors.json" > "$logs/authors.log" 2>&1
 echo "authors' code exit status $?"; tail -n 3 "$logs/authors.log"
-# ours: the gate's configuration at one seed (like for like), then both Q(λ) arms at the study's five seeds
+# ours: the gate's configuration at one seed (like for like: their learner runs at JAX's default, TF32 on
+# this GPU, as the `paper` preset's; fp32 beside it), then both Q(λ) arms at the study's five seeds (TF32)
 python3 -m bench.agent_throughput --tasks CheetahRun --algos fpo --reps none --seeds 1 --set critic=v \
-  --env-steps 2949120 --epochs 3 --out "$logs/ours-v" > "$logs/ours-v.log" 2>&1
+  --precisions tensorfloat32,highest --env-steps 1966080 --epochs 2 --out "$logs/ours-v" > "$logs/ours-v.log" 2>&1
 echo "ours (V, 1 seed) exit status $?"
 python3 -m bench.agent_throughput --tasks CheetahRun --algos fpo --reps none,sf2 --seeds 5 \
-  --env-steps 2949120 --epochs 3 --out "$logs/ours-q" > "$logs/ours-q.log" 2>&1
+  --precisions tensorfloat32 --env-steps 1966080 --epochs 2 --out "$logs/ours-q" > "$logs/ours-q.log" 2>&1
 echo "ours (Q(λ) arms, 5 seeds) exit status $?"
 mkdir -p "$OUT"
 tar czf "$OUT/fpo-speed.tar.gz" -C "$logs" .
