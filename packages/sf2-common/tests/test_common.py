@@ -96,7 +96,7 @@ def test_spr_augmentation_std_is_checked_and_older_run_folders_keep_resuming(tmp
                                     "update_epochs": 3, "minibatch_size": 4096, "clip_eps": 0.2,
                                     "entropy_coef": 0.01, "value_coef": 0.5, "max_grad_norm": 0.5,
                                     "td_lambda": 0.95, "critic": "q", "advantage_refresh": "rollout",
-                                    "logsumexp_penalty": 0.1,
+                                    "shared_torso": False, "logsumexp_penalty": 0.1,
                                     "contrastive_loss": "fwd", "fpo_samples": 8, "fpo_flow_steps": 10,
                                     "fpo_value_samples": 8, "fpo_log_ratio_clip": 20.0, "physics": "mjx"}
     assert cfg.spr_augmentation_std == 0.05

@@ -39,7 +39,7 @@ _SF2_DEFAULTS = {f.name: f.default for f in fields(SF2Config)}
 ADDED_FIELDS = {name: _SF2_DEFAULTS[name] for name in ("spr_augmentation_std", "shared_adam")}
 SF2_FIELDS = tuple(name for name in _SF2_DEFAULTS if name not in ("obs_size", "action_size"))
 PPO_FIELDS = ("rollout_length", "update_epochs", "minibatch_size", "clip_eps", "entropy_coef", "value_coef",
-              "max_grad_norm", "td_lambda", "critic", "advantage_refresh")
+              "max_grad_norm", "td_lambda", "critic", "advantage_refresh", "shared_torso")
 ADVANTAGE_REFRESH = ("rollout", "pass")   # advantages from the rollout-time critic, or the current one
 FPO_FIELDS = ("fpo_samples", "fpo_flow_steps", "fpo_value_samples", "fpo_log_ratio_clip")
 # Adam's ε as the authors' trainers build it (SAC: optax's default; the temperature's is 1e-8 always)
@@ -137,6 +137,7 @@ class TrainConfig:
     td_lambda: float = 0.95       # λ of the critic's λ-returns and of the advantages
     critic: str = "q"             # "q": Q(s, a) and λ-returns (PPO-Q, SF²); "v": V(s) and GAE (PPO)
     advantage_refresh: str = "rollout"   # advantages from the rollout-time critic, or the current one
+    shared_torso: bool = False    # pgx's one network: a torso under both heads, one loss, Adam state and clip
     logsumexp_penalty: float = 0.1   # CRL's InfoNCE log-sum-exp penalty (--algo crl; docs/crl.md)
     contrastive_loss: str = "fwd"    # CRL's InfoNCE: "fwd" a row's goals, "bwd" a goal's state-actions
     # FPO (--algo fpo; docs/fpo.md): (ε, τ) pairs per action, Euler steps per action, actions per V_Q(s)
@@ -415,6 +416,7 @@ def validate(cfg: TrainConfig, seeds, registry) -> TrainConfig:
     if cfg.algo not in ALGOS:
         bad_field("algo", cfg.algo, f"must be one of {', '.join(ALGOS)}")
     _validate_physics(cfg)
+    _validate_shared_torso(cfg)
     known = registry.names()
     if cfg.representation not in known:
         bad_field("representation", cfg.representation, registry.valid_text())
@@ -474,6 +476,17 @@ def _validate_physics(cfg: TrainConfig) -> None:
     if cfg.physics == "spring" and cfg.task != "ant-goal":
         bad_field("physics", cfg.physics, f"only ant-goal has the spring pipeline; task {cfg.task!r} takes "
                   f"physics = 'mjx' (valid for ant-goal: {', '.join(PHYSICS)})")
+
+
+def _validate_shared_torso(cfg: TrainConfig) -> None:
+    """`shared_torso`: a bool; True (pgx's example's one network and joint step) only for PPO's V critic
+    without a representation."""
+    if not isinstance(cfg.shared_torso, bool):
+        bad_field("shared_torso", cfg.shared_torso, "must be a bool")
+    if cfg.shared_torso and (cfg.algo, cfg.critic, cfg.representation) != ("ppo", "v", "none"):
+        bad_field("shared_torso", cfg.shared_torso, f"pgx's shared torso exists for algo 'ppo' with critic "
+                  f"'v' and representation 'none' only, found algo {cfg.algo!r}, critic {cfg.critic!r}, "
+                  f"representation {cfg.representation!r} (valid: --algo ppo --repr none --set critic=v)")
 
 
 def _validate_onpolicy(cfg: TrainConfig) -> None:
