@@ -7,7 +7,8 @@ PureJaxRL's pattern. An update acts `rollout_length` steps in every env (a `lax.
 of updates: one compiled program, vmapped over seeds, its state donated, no host sync inside. One SGD
 step takes the critic's loss, the representation's own losses (`representations_onpolicy`), the policy's
 loss, then the targets' EMA; each loss's gradient is clipped to `max_grad_norm` (global norm over the
-groups it trains), each group has its own Adam state (ψ's flow step a second one unless `shared_adam`).
+groups it trains), each group has its own Adam state (ψ's flow step a second one unless `shared_adam`);
+with `shared_torso` (pgx's one network) the critic's and policy's losses are one loss and one step.
 An evaluation runs the policy for one episode on `num_eval_envs` fresh envs per seed, at most
 `episode_length` steps. Run folders, resume, the NaN guard and the rows are the off-policy trainer's
 (`trainer.run_training`, `sf2_common.agents.hostloop`).
@@ -121,7 +122,7 @@ class Program(SingleDeviceProgram):
         self.env = make(cfg.task, cfg.episode_length)
         shape, spec = self.env.spec.obs_shape, self.env.spec
         self.sf2 = cfg.sf2_config(math.prod(shape), spec.num_actions or spec.action_size)
-        self.rep = build(cfg.representation, self.sf2, shape, cfg.critic)
+        self.rep = build(cfg.representation, self.sf2, shape, cfg.critic, cfg.shared_torso)
         self.policy = (CategoricalPolicy(self.rep) if cfg.algo == "ppo" else
                        FlowPolicy(cfg, math.prod(shape), spec.action_size, cfg.critic))
         self.obs_dtype = jnp.uint8 if self.image else jnp.float32   # grids are exact as uint8
@@ -218,13 +219,24 @@ class Program(SingleDeviceProgram):
         return params, opt_state, metrics
 
     def _sgd_step(self, params, opt_state, mb: OnPolicyBatch, key):
-        """The critic's step, the representation's (in `aux_losses`' order), the actor's, the targets' EMA."""
+        """The critic's step, the representation's (in `aux_losses`' order), the actor's, the targets' EMA;
+        with `rep.joint_step` one step of L = L_actor + value_coef · L_critic (pgx's; metric `total_loss`)."""
         cfg, rep = self.cfg, self.rep
 
         def critic(p):
             loss, aux = rep.critic_loss(p, mb, cfg.clip_eps)
             return cfg.value_coef * loss, {"critic_loss": loss, **aux}
 
+        def actor(p):
+            loss, aux = self.policy.loss(p, mb, cfg)
+            return loss, {"actor_loss": loss, **aux}
+
+        if rep.joint_step:
+            def joint(p):
+                (c, m_c), (a, m_a) = critic(p), actor(p)
+                return a + c, {"total_loss": a + c, **m_c, **m_a}
+
+            return self._loss_step(params, opt_state, joint, rep.critic_groups)
         params, opt_state, metrics = self._loss_step(params, opt_state, critic, rep.critic_groups)
         noise = rep.aux_noise(key, mb)
         for name, groups in rep.aux_losses:
@@ -234,11 +246,6 @@ class Program(SingleDeviceProgram):
 
             params, opt_state, m = self._loss_step(params, opt_state, own, groups, self.aux_states)
             metrics.update(m)
-
-        def actor(p):
-            loss, aux = self.policy.loss(p, mb, cfg)
-            return loss, {"actor_loss": loss, **aux}
-
         params, opt_state, m = self._loss_step(params, opt_state, actor, ("actor",))
         metrics.update(m)
         for target, (online, tau) in rep.targets().items():
@@ -378,12 +385,13 @@ def get_program(cfg: TrainConfig) -> Program:
 
 
 def method_label(cfg: TrainConfig) -> str:
-    """'PPO-Q+SF² w AE', 'PPO-Q', 'PPO' (critic "v"), 'FPO+Q(λ)+SF²', 'FPO' (critic "v"), ...: the method's
-    label in tables and plots."""
+    """'PPO-Q+SF² w AE', 'PPO-Q', 'PPO' (critic "v"), 'PPO (shared torso)', 'FPO+Q(λ)+SF²', 'FPO' (critic
+    "v"), ...: the method's label in tables and plots."""
     if cfg.algo == "fpo":
         return ("FPO+Q(λ)" if cfg.critic == "q" else "FPO") + ("+SF²" if cfg.representation == "sf2" else "")
     rep = REGISTRY.label(cfg.representation)
-    return ("PPO-Q" if cfg.critic == "q" else "PPO") + (f"+{rep}" if rep else "")
+    shared = " (shared torso)" if cfg.shared_torso else ""
+    return ("PPO-Q" if cfg.critic == "q" else "PPO") + (f"+{rep}" if rep else "") + shared
 
 
 def _versions() -> dict:

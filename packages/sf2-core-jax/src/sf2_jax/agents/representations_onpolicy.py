@@ -7,14 +7,16 @@ trainer's `sf2_common.agents.registry.Registry` (entry-point group `sf2.represen
 over images they use `networks_image`, over vector observations (`build`) their `vector` classes the
 off-policy core's ψ, twin Q heads and `losses.flow_loss`. The
 vocabulary is the off-policy representations': `supported_algos`, `critic_groups`, `aux_groups`,
-`noise_keys`, `targets`; `critics` names the critic kinds one works with, and `aux_losses` its own losses in
-the order an SGD step takes them, each with the groups it trains. Methods are pure: `params` first.
+`noise_keys`, `targets`; `critics` names the critic kinds one works with, `aux_losses` its own losses in
+the order an SGD step takes them, each with the groups it trains, and `joint_step` one step of the critic's
+and actor's losses summed (`SharedTorso`, pgx's). Methods are pure: `params` first.
 """
 
 from __future__ import annotations
 
 from typing import Any, ClassVar, NamedTuple
 
+import flax.linen as nn
 import jax
 import jax.numpy as jnp
 from sf2_common.agents.registry import Registry
@@ -29,8 +31,9 @@ from sf2_jax.losses import Batch, _trainable, flow_loss
 from .policies_onpolicy import SiluMLP
 
 __all__ = ["OnPolicyBatch", "OnPolicyRepresentation", "NoRepresentation", "SF2Representation",
-           "SF2AERepresentation", "VectorRepresentation", "VectorNone", "VectorSF2", "REGISTRY", "GROUP",
-           "register", "get", "names", "build", "VALUE_HIDDEN", "q_lambda_loss"]
+           "SF2AERepresentation", "ActorCritic", "SharedTorso", "VectorRepresentation", "VectorNone",
+           "VectorSF2", "REGISTRY", "GROUP", "register", "get", "names", "build", "VALUE_HIDDEN",
+           "q_lambda_loss"]
 
 Params = dict[str, Any]
 GROUP = "sf2.representations.jax.onpolicy"
@@ -85,16 +88,20 @@ class OnPolicyRepresentation:
       aux_losses: ((metric name, groups it trains), ...), its own losses in the order an SGD step takes
         them, right after the critic's.
       noise_keys: the entries of `aux_noise`.
+      joint_step: the critic's loss (× `value_coef`) and the actor's as one loss in one clipped Adam step of
+        `critic_groups`, which then hold the actor too (pgx's one network), instead of a step each.
     """
 
     name: ClassVar[str] = ""
     label: ClassVar[str] = ""
     supported_algos: ClassVar[tuple[str, ...]] = ("ppo",)
     vector: ClassVar[type | None] = None   # its class over vector observations (`build`), if any
+    shared: ClassVar[type | None] = None   # its class with `shared_torso` (`build`), if any
     critics: ClassVar[tuple[str, ...]] = ("q",)
     critic_groups: ClassVar[tuple[str, ...]] = ()
     aux_losses: ClassVar[tuple[tuple[str, tuple[str, ...]], ...]] = ()
     noise_keys: ClassVar[tuple[str, ...]] = ()
+    joint_step: ClassVar[bool] = False
 
     def __init__(self, cfg: SF2Config, obs_shape: tuple[int, int, int], critic: str):
         """Build the networks of `method(critic)`.
@@ -169,6 +176,69 @@ class NoRepresentation(OnPolicyRepresentation):
 
     def method(self, critic):
         return "ppo_q" if critic == "q" else "ppo"
+
+
+class ActorCritic(nn.Module):
+    """pgx's MinAtar PPO network: `torso` (`networks_image.Torso`) under two heads (`networks_image.Head`,
+    Dense 64 tanh ×2), `policy` → A logits and `value` → 1; the initialization of `networks_image`."""
+
+    num_actions: int
+
+    def setup(self):
+        self.torso = nwi.Torso()
+        self.policy = nwi.Head(nwi.HEAD_SIZES, self.num_actions)
+        self.value = nwi.Head(nwi.HEAD_SIZES, 1)
+
+    def __call__(self, obs):
+        h = self.torso(obs)
+        return self.policy(h), self.value(h)
+
+
+class _Logits(ActorCritic):
+    """`ActorCritic`'s parameters applied as the actor: the logits (B, A)."""
+
+    def __call__(self, obs):
+        return self.policy(self.torso(obs))
+
+
+class _Value(ActorCritic):
+    """`ActorCritic`'s parameters applied as the V critic: V(s) (B, 1)."""
+
+    def __call__(self, obs):
+        return self.value(self.torso(obs))
+
+
+class SharedTorso(NoRepresentation):
+    """`none` with `shared_torso` (PPO, critic "v"): pgx's one `ActorCritic` in the group "actor" (the policy
+    reads it whole), V(s) its value head; `joint_step`: one loss, one clipped gradient, one Adam state."""
+
+    supported_algos = ("ppo",)
+    critics = ("v",)
+    critic_groups = ("actor",)
+    joint_step = True
+
+    def __init__(self, cfg: SF2Config, obs_shape: tuple[int, int, int], critic: str):
+        super().__init__(cfg, obs_shape, critic)
+        self.net = ActorCritic(cfg.action_size)
+        self.nets = self.nets.replace(actor=_Logits(cfg.action_size), critic=_Value(cfg.action_size))
+
+    def init(self, key):
+        """{"actor": the `ActorCritic`'s parameters} (float32)."""
+        return {"actor": self.net.init(key, jnp.zeros((1, *self.nets.obs_shape), jnp.float32))["params"]}
+
+    @staticmethod
+    def _as_critic(params: Params) -> Params:
+        """`params` with the network also as "critic", the group the V critic's functions read."""
+        return {**params, "critic": params["actor"]}
+
+    def values(self, params, obs, logits):
+        return super().values(self._as_critic(params), obs, logits)
+
+    def critic_loss(self, params, mb, clip_eps):
+        return super().critic_loss(self._as_critic(params), mb, clip_eps)
+
+
+NoRepresentation.shared = SharedTorso
 
 
 class _Flow(OnPolicyRepresentation):
@@ -350,23 +420,32 @@ NoRepresentation.vector = VectorNone
 SF2Representation.vector = VectorSF2
 
 
-def build(name: str, cfg: SF2Config, obs_shape: tuple[int, ...], critic: str) -> OnPolicyRepresentation:
+def build(name: str, cfg: SF2Config, obs_shape: tuple[int, ...], critic: str,
+          shared_torso: bool = False) -> OnPolicyRepresentation:
     """The representation `name` for observations of `obs_shape`: the registered class over images (H, W, C),
-    its `vector` class over vectors (D,).
+    its `vector` class over vectors (D,), its `shared` class with `shared_torso`.
 
     Args:
       name: a registered name (`--repr`).
       cfg: the `SF2Config` (obs_size, action_size: the number of actions, or A).
       obs_shape: (H, W, C) or (D,).
       critic: "q" or "v".
+      shared_torso: pgx's one network and joint step (`none` with critic "v" over images only).
 
     Returns:
       The representation.
 
     Raises:
-      ConfigError: an unknown name, or one without a vector class for vector observations.
+      ConfigError: an unknown name, one without a vector class for vector observations, or `shared_torso`
+        for another representation, critic or observation kind.
     """
     cls = REGISTRY.get(name)
+    if shared_torso:
+        if cls.shared is None or len(obs_shape) != 3 or critic not in cls.shared.critics:
+            raise ConfigError(f"shared_torso = True (pgx's one network) exists for representation 'none' "
+                              f"with critic 'v' over images only, found representation {name!r}, critic "
+                              f"{critic!r}, observations of shape {tuple(obs_shape)}")
+        return cls.shared(cfg, obs_shape, critic)
     if len(obs_shape) == 1:
         if cls.vector is None:
             raise ConfigError(f"representation {name!r} takes image observations; over vector observations "
