@@ -221,7 +221,11 @@ def _refuse(*args, **kwargs):
      ["representation = 'spr' is invalid: must be one of none, sf2, sf2-ae"]),
     (["--task", "CartpoleBalance", "--algo", "td3", "--repr", "sf2-ae"],
      ["representation = 'sf2-ae' is invalid: must be one of none, sf2"]),
-], ids=["ppo on Playground", "td3 on MinAtar", "minibatch", "sf2 with V", "off-policy repr", "ppo repr"])
+    (["--task", TASK, "--algo", "ppo", "--repr", "none", "--set", "shared_torso=true"],
+     ["shared_torso = True is invalid: pgx's shared torso exists for algo 'ppo' with critic 'v' and "
+      "representation 'none' only, found algo 'ppo', critic 'q'"]),
+], ids=["ppo on Playground", "td3 on MinAtar", "minibatch", "sf2 with V", "off-policy repr", "ppo repr",
+        "shared torso with Q"])
 def test_bad_input_exits_2_before_compiling(args, texts, capsys, monkeypatch):
     """Refused with exit status 2, naming the problem, before a program of either trainer is built and
     before `--out` is created (`cli_error` points it at a folder that must not appear)."""
