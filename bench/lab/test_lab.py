@@ -236,3 +236,40 @@ def test_bad_eval_sensitivity_input_exits_2_before_anything_runs(argv, message, 
         eval_sensitivity.main([*argv, "--out", str(out)])
     assert exit_.value.code == 2 and message in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_minatar_gate_has_a_row_per_method_and_marks_unfinished_runs(tmp_path, capsys):
+    """Every method with rows under a game gets a row, `METHODS` first in their order; a run short of its
+    last epoch is marked; a game without runs is left out. By hand: the example's two seeds end at 2 and 6
+    (range [2, 6]); ppo-pgx's at 4 and 5 after the paper preset's 39 epochs (mean 4.5: within); ppo-v-shared's
+    at 7 and 9 after epoch 2 (mean 8: above, unfinished)."""
+    import gzip
+
+    from sf2_common.agents import configs
+
+    from bench.lab import minatar_gate
+
+    cfg = configs.make_config("paper", "minatar-breakout", "ppo", "none").to_dict()
+    for method, epochs, last in (("ppo-v-shared", 2, (7.0, 9.0)), ("ppo-pgx", 39, (4.0, 5.0))):
+        run = tmp_path / "runs" / "minatar-breakout" / method
+        run.mkdir(parents=True)
+        (run / "config.json").write_text(json.dumps({"config": cfg, "seeds": [0, 1]}))
+        rows = [{"epoch": e, "seed": s, "env_steps": e * 524_288, "walltime": 10.0 * e,
+                 "eval_return": last[s] if e == epochs else 1.0, **({"epoch_seconds": 10.0} if e else {})}
+                for e in range(epochs + 1) for s in (0, 1)]
+        with gzip.open(run / "metrics.jsonl.gz", "wt") as f:
+            f.writelines(json.dumps(r) + "\n" for r in rows)
+    example = tmp_path / "pgx-example"
+    example.mkdir()
+    for seed, end in ((0, 2.0), (1, 6.0)):
+        (example / f"breakout-seed{seed}.log").write_text(
+            f"{{'sec': 0.0, 'minatar-breakout/eval_R': 1.0, 'steps': 0}}\n"
+            f"{{'sec': 1.0, 'minatar-breakout/eval_R': {end}, 'steps': 524288}}\n")
+    (example / "times.txt").write_text("breakout seed 0 rc 0 wall 30.0 s\nbreakout seed 1 rc 0 wall 40.0 s\n")
+    assert minatar_gate.main([str(tmp_path)]) == 0
+    rows = [[c.strip() for c in line.split("|")[1:-1]] for line in capsys.readouterr().out.splitlines()[2:]]
+    assert [r[:5] for r in rows] == [
+        ["breakout", "ppo-pgx", "4.0, 5.0 (4.5)", "2.0, 6.0 [2.0, 6.0]", "within"],
+        ["breakout", "ppo-v-shared", "7.0, 9.0 (8.0)", "2.0, 6.0 [2.0, 6.0]",
+         "above (unfinished: epoch 2 of 39)"]]
+    assert [r[5] for r in rows] == ["+0.5 [too few seeds]", "+4.0 [too few seeds]"]   # 4.5 − 4, 8 − 4
