@@ -86,7 +86,7 @@ def _joint_step_against_pgx(program, params, mb):
     cfg = program.cfg
     opt_state = {g: program._adam.init(params[g]) for g in program.trained}
     assert program.trained == ("actor",) and set(opt_state) == {"actor"}   # one group, one Adam state
-    new_params, new_state, metrics = jax.jit(program._sgd_step)(params, opt_state, mb, jax.random.PRNGKey(0))
+    new_params, new_state, metrics = program._sgd_step(params, opt_state, mb, jax.random.PRNGKey(0))
 
     (loss, (ratio, value, v_clipped)), grads = jax.value_and_grad(
         lambda p: _pgx_loss(program, p, mb), has_aux=True)(params["actor"])
