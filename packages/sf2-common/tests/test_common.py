@@ -128,15 +128,19 @@ def test_physics_is_mjx_except_ant_goals_spring(reg, monkeypatch):
     assert configs.parse_overrides(["physics=mjx"]) == {"physics": "mjx"}
 
 
-def test_crl_sf2_takes_its_own_adam_state_for_the_flow_step(monkeypatch):
-    """CRL+SF²'s φ steps its flow loss with an Adam state of its own in both presets (docs/crl.md, "the SF²
-    losses"); a folder trained with the shared state keeps it."""
+def test_crl_sf2_shares_phis_adam_state_between_infonce_and_flow(monkeypatch):
+    """CRL+SF²'s φ steps InfoNCE and the flow loss with one Adam state in both presets (docs/crl.md, "the SF²
+    losses": with a state of its own the flow's bootstrap term diverges on spring); a folder trained with its
+    own state keeps it, and one written before the field (the shared state) resumes as it is."""
     monkeypatch.setattr(tasks, "check_installed", lambda task: None)
     for preset in ("paper", "quick"):
-        assert configs.make_config(preset, "ant-goal", algo="crl", representation="sf2").shared_adam is False
+        assert configs.make_config(preset, "ant-goal", algo="crl", representation="sf2").shared_adam is True
     now = configs.make_config("paper", "ant-goal", algo="crl", representation="sf2")
-    old = now.replace(shared_adam=True).to_dict()
-    assert configs.superseded_values(old, now.to_dict()) == {"shared_adam": True}
+    own = now.replace(shared_adam=False).to_dict()
+    assert configs.superseded_values(own, now.to_dict()) == {"shared_adam": False}
+    before = {k: v for k, v in now.to_dict().items() if k != "shared_adam"}
+    assert configs.superseded_values({**before, "shared_adam": configs.ADDED_FIELDS["shared_adam"]},
+                                     now.to_dict()) == {}
 
 
 def _ppo_reg():

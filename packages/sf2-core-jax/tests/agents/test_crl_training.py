@@ -1,7 +1,8 @@
 """The goal-conditioned trainer (sf2_jax.agents.crl) on `ant-goal` with `--config quick`, through
 `sf2-jax train --task ant-goal --algo crl`: the critic learns (its contrastive accuracy far above chance), a
 run stopped after its first epoch resumes to the same rows, bad input is refused before compiling, and
-the presets' InfoNCE (paper: backward) against folders written before the choice existed.
+the presets' InfoNCE (paper: backward) against folders written before the choice existed, and which Adam
+state CRL+SF²'s flow step advances.
 
 The learning signal: a critic that has learned nothing ranks a row's own goal first among the batch's B
 goals with probability 1/B (chance, 1/64 here); the last epoch's mean accuracy over its 2000 SGD steps must
@@ -14,11 +15,15 @@ from __future__ import annotations
 
 import json
 
+import jax
+import jax.numpy as jnp
+import optax
 import pytest
 from sf2_common.agents import configs
 from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch
 from sf2_jax import cli
 from sf2_jax.agents import antgoal, crl, make_config
+from sf2_jax.agents.goal_replay import GoalSample
 from sf2_testing import cli_args, cli_error, strip_wall
 
 
@@ -138,3 +143,32 @@ def test_quick_crl_sf2_trains_the_flow_and_the_critic(tmp_path):
     first, last = rows[1], rows[-1]
     assert last["accuracy"] >= 5 / cfg.batch_size, last["accuracy"]
     assert last["flow_loss"] < first["flow_loss"], (first["flow_loss"], last["flow_loss"])
+
+
+class _NoPhysics:
+    """An env stand-in whose reset gives one zero observation per key: the SGD step never steps it."""
+
+    def reset(self, keys):
+        return jnp.zeros((keys.shape[0], antgoal.STATE_SIZE + 2))
+
+
+@pytest.mark.parametrize("shared", [True, False])
+def test_the_flow_step_takes_phis_adam_state_of_the_config(shared, monkeypatch):
+    """One SGD step of CRL+SF² advances φ's InfoNCE Adam state twice (InfoNCE, then the flow) where
+    `shared_adam` (both presets: docs/crl.md, "φ's Adam state in the flow step"), else once each for it and
+    φ's own flow state `sa_encoder:aux`; ζ's state once either way."""
+    monkeypatch.setattr(antgoal, "make", lambda episode_length, backend: antgoal.GoalEnvSpec(
+        _NoPhysics(), antgoal.STATE_SIZE + 2, antgoal.STATE_SIZE, antgoal.GOAL_INDICES, 8, episode_length))
+    cfg = make_config("quick", "ant-goal", algo="crl", representation="sf2")
+    assert cfg.shared_adam is True
+    prog = crl.Program(crl.validate(cfg.replace(shared_adam=shared)))
+    state = prog._init_one(jax.random.PRNGKey(0))
+    B, S, A = cfg.batch_size, antgoal.STATE_SIZE, 8
+    k = jax.random.split(jax.random.PRNGKey(1), 6)
+    sample = GoalSample(jax.random.normal(k[0], (B, S)), jax.random.uniform(k[1], (B, A), minval=-1),
+                        jax.random.normal(k[2], (B, S)), jax.random.normal(k[3], (B, S)),
+                        jax.random.uniform(k[4], (B, A), minval=-1), jnp.zeros((B,)))
+    _, opt, _ = jax.jit(prog._sgd_step)(state.params, state.opt_state, sample, prog._noise(k[5])[1])
+    counts = {g: int(optax.tree_utils.tree_get(s, "count")) for g, s in opt.items() if g != "log_alpha"}
+    own = {} if shared else {"sa_encoder:aux": 1}
+    assert counts == {"sa_encoder": 2 if shared else 1, "g_encoder": 1, "actor": 1, "zeta": 1, **own}

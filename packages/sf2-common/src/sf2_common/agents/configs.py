@@ -46,7 +46,7 @@ FPO_FIELDS = ("fpo_samples", "fpo_flow_steps", "fpo_value_samples", "fpo_log_rat
 PAPER_ADAM_EPS = {"td3": 1e-5, "sac": 1e-8, "ppo": 1e-5, "fpo": 1e-8}
 # Preset values changed since run folders were written, (algo, field) -> (old, new): such folders keep theirs
 SUPERSEDED = {("sac", "adam_eps"): (1e-5, PAPER_ADAM_EPS["sac"]),
-              ("fpo", "advantage_refresh"): ("rollout", "pass"), ("crl", "shared_adam"): (True, False)}
+              ("fpo", "advantage_refresh"): ("rollout", "pass"), ("crl", "shared_adam"): (False, True)}
 # Each preset's values, then its per-task and per-family values, then the overrides (decisions/presets.md)
 PRESETS = {
     "paper": dict(checkpoint_every=10, learner_precision="tensorfloat32"),
@@ -215,21 +215,22 @@ ADDED_FIELDS["contrastive_loss"] = TrainConfig.contrastive_loss
 ADDED_FIELDS["physics"] = "mjx"   # every run before the field trained on MJX (ant-goal's CRL runs too)
 # CRL's values per preset (`--algo crl`, ant-goal; docs/crl.md): `paper` is JaxGCRL's CRL on `ant` (its
 # train.sh: 512 envs, 10M steps, 50 evaluations, the backward InfoNCE; its CRL defaults) with ζ for CRL+SF²
-# as wide as the encoders and φ's own Adam state for the flow step (as PPO's and FPO's SF²); `quick` shows
-# the critic learning on a CPU in about a minute
+# as wide as the encoders and φ's one Adam state for its InfoNCE and flow steps (SF²'s authors'; with a state
+# of its own the flow's bootstrap term diverges on spring: docs/crl.md); `quick` shows the critic learning on
+# a CPU in about a minute
 CRL_VALUES = {
     "paper": dict(num_envs=512, batch_size=256, grad_updates_per_step=32, min_replay_size=512_000,
                   max_replay_size=5_120_000, learning_rate=3e-4, alpha_learning_rate=3e-4, adam_eps=1e-8,
                   discount=0.99, feature_size=64, hidden_sizes=(256, 256), logsumexp_penalty=0.1,
                   contrastive_loss="bwd", target_entropy_scale=0.5, init_log_alpha=0.0, num_evals=51,
                   num_eval_envs=256, deterministic_eval=True, normalize_observations=False,
-                  zeta_hidden_sizes=(256, 256), physics="spring", shared_adam=False),
+                  zeta_hidden_sizes=(256, 256), physics="spring", shared_adam=True),
     "quick": dict(num_timesteps=8_000, episode_length=100, num_envs=8, batch_size=64, grad_updates_per_step=4,
                   min_replay_size=400, max_replay_size=8_000, learning_rate=3e-4, alpha_learning_rate=3e-4,
                   adam_eps=1e-8, discount=0.99, feature_size=16, hidden_sizes=(64, 64), logsumexp_penalty=0.1,
                   target_entropy_scale=0.5, init_log_alpha=0.0, num_evals=3, num_eval_envs=4,
                   deterministic_eval=True, normalize_observations=False, zeta_hidden_sizes=(32,),
-                  embedding_size=8, physics="spring", shared_adam=False),
+                  embedding_size=8, physics="spring", shared_adam=True),
 }
 for _preset, _values in CRL_VALUES.items():   # FAMILY_VALUES[preset][field]["crl"], copying the shared dicts
     for _name, _value in _values.items():
