@@ -14,6 +14,7 @@ from typing import Protocol
 
 import numpy as np
 
+from ..errors import ConfigError
 from .loggers import Sinks
 from .runlog import library_log
 
@@ -212,8 +213,6 @@ def deadline_from_environment() -> float | None:
     try:
         return float(text)
     except ValueError:
-        from sf2_common.errors import ConfigError
-
         raise ConfigError(f"{DEADLINE_VARIABLE}={text!r} is invalid: must be a Unix time in seconds (e.g. "
                           f"$(( $(date +%s) + 540 ))), or unset") from None
 

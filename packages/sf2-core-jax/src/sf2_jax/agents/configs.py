@@ -41,4 +41,3 @@ def validate(cfg: TrainConfig, seeds=(0,)) -> TrainConfig:
         _configs.bad_field("critic", cfg.critic, f"representation {cfg.representation!r} takes critic "
                            f"{' or '.join(repr(c) for c in rep.critics)} (SF² trains ψ through Q(s, a))")
     return cfg
-
