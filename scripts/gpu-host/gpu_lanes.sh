@@ -2,7 +2,8 @@
 # Runs several commands at once on one lent host, each on its own GPUs (a "lane"), and waits for all of
 # them: e.g. two studies and a measurement on a four-GPU host in one command. Each lane is "GPUS: COMMAND";
 # the command runs under `bash -c` with CUDA_VISIBLE_DEVICES=GPUS and can read `left` (seconds to the
-# deadline, SECONDS after this script starts) to size its own limit. Each lane's output comes back in
+# deadline, SECONDS after this script starts) to size its own limit; a lane still running 10 s before the
+# deadline is stopped (exit status 124 in its log). Each lane's output comes back in
 # $OUT/lanes.tar.gz; what a lane writes to $OUT itself (gpu_study.sh's archive) comes back as it is.
 #
 #   bash scripts/gpu-host/gpu_lanes.sh SECONDS "0,1: bash scripts/gpu-host/gpu_study.sh studies/own-adam.toml \$(left)" \
@@ -30,7 +31,9 @@ for lane in "$@"; do
   (
     start=$(date +%s)
     echo "lane $i on GPUs $gpus: $cmd"
-    CUDA_VISIBLE_DEVICES=$gpus bash -c "$cmd"
+    # a lane still running at the deadline is stopped 10 s before it, so that every lane's log and what
+    # the lanes wrote under $OUT come back (the device tool returns nothing of a command it kills)
+    CUDA_VISIBLE_DEVICES=$gpus timeout --signal=TERM --kill-after=5 $(( $(left) > 11 ? $(left) - 10 : 1 )) bash -c "$cmd"
     echo "lane $i exit status $? after $(( $(date +%s) - start )) s"
   ) > "$logs/lane$i.log" 2>&1 &
   i=$((i + 1))
