@@ -92,7 +92,8 @@ def test_spr_augmentation_std_is_checked_and_older_run_folders_keep_resuming(tmp
     old = {k: v for k, v in cfg.to_dict().items()
            if k != "spr_augmentation_std" and k not in configs.PPO_FIELDS}
     run.write_config({"config": old, "seeds": [0]})
-    assert configs.ADDED_FIELDS == {"spr_augmentation_std": 0.05, "shared_adam": True, "rollout_length": 128,
+    assert configs.ADDED_FIELDS == {"spr_augmentation_std": 0.05, "shared_adam": True,
+                                    "aux_steps_per_sgd_step": 1, "rollout_length": 128,
                                     "update_epochs": 3, "minibatch_size": 4096, "clip_eps": 0.2,
                                     "entropy_coef": 0.01, "value_coef": 0.5, "max_grad_norm": 0.5,
                                     "td_lambda": 0.95, "critic": "q", "advantage_refresh": "rollout",
@@ -103,6 +104,38 @@ def test_spr_augmentation_std_is_checked_and_older_run_folders_keep_resuming(tmp
     assert run.check_compatible(cfg.to_dict(), (0,)) is True
     with pytest.raises(RunFolderMismatch, match="spr_augmentation_std: 0.05 \\(folder\\) vs 0.1 \\(now\\)"):
         run.check_compatible(cfg.replace(spr_augmentation_std=0.1).to_dict(), (0,))
+
+
+def test_aux_steps_per_sgd_step_is_checked_and_older_run_folders_keep_resuming(tmp_path, reg, known_tasks):
+    """`aux_steps_per_sgd_step` (representation steps per SGD step, paper Figure 9 left): an int >= 1; above
+    1 only for td3/sac with a representation that has a loss of its own (`aux_groups`), the message naming
+    those; a run folder written before the field trained with one such step, so it resumes at 1 only."""
+    flow = type("FlowRep", (), {"name": "flow", "label": "Flow", "supported_algos": ("td3", "sac"),
+                                "aux_groups": ("psi", "zeta")})
+    reg.register(flow)
+    cfg = configs.make_config("quick", "CartpoleBalance", algo="sac", representation="flow")
+    assert cfg.aux_steps_per_sgd_step == 1 == configs.ADDED_FIELDS["aux_steps_per_sgd_step"]
+    for k in (2, 8):
+        assert configs.validate(cfg.replace(aux_steps_per_sgd_step=k), (0,), reg).aux_steps_per_sgd_step == k
+    for bad in (0, -1, 1.5, True, "2"):
+        with pytest.raises(ConfigError, match=f"aux_steps_per_sgd_step = {bad!r} is invalid: must be an int "
+                           f">= 1"):
+            configs.validate(cfg.replace(aux_steps_per_sgd_step=bad), (0,), reg)
+    for rep in ("none", "fake"):   # no aux_groups: nothing to repeat
+        with pytest.raises(ConfigError, match=f"aux_steps_per_sgd_step = 2 is invalid: must be 1 with "
+                           f"representation '{rep}', which has no loss of its own to repeat; representations "
+                           f"that take more: flow$"):
+            configs.validate(cfg.replace(representation=rep, aux_steps_per_sgd_step=2), (0,), reg)
+    assert configs.parse_overrides(["aux_steps_per_sgd_step=4"]) == {"aux_steps_per_sgd_step": 4}
+    assert cfg.sf2_config(3, 1).aux_steps_per_sgd_step == 1
+    with pytest.raises(ConfigError, match="SF2Config.aux_steps_per_sgd_step = 0 is invalid"):
+        cfg.replace(aux_steps_per_sgd_step=0).sf2_config(3, 1)
+    run = RunFolder(tmp_path / "old")
+    old = {k: v for k, v in cfg.to_dict().items() if k != "aux_steps_per_sgd_step"}
+    run.write_config({"config": old, "seeds": [0]})
+    assert run.check_compatible(cfg.to_dict(), (0,)) is True
+    with pytest.raises(RunFolderMismatch, match="aux_steps_per_sgd_step: 1 \\(folder\\) vs 2 \\(now\\)"):
+        run.check_compatible(cfg.replace(aux_steps_per_sgd_step=2).to_dict(), (0,))
 
 
 def test_physics_is_mjx_except_ant_goals_spring(reg, monkeypatch):

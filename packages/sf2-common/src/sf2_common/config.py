@@ -57,6 +57,9 @@ class SF2Config:
     adam_eps: float = 1e-5  # authors' optimizer
     # ψ keeps one Adam state across its TD and representation steps (authors' code); False: one per loss
     shared_adam: bool = True
+    # representation (aux) gradient steps per SGD step, each on the step's minibatch with its own noise draw
+    # (paper App. C.2.1, Figure 9 left: "gradient steps dedicated to the feature updater"); 1: the authors'
+    aux_steps_per_sgd_step: int = 1
     smoothing_noise: float = 0.2  # TD3 target-policy smoothing sigma (Table 1)
     noise_clip: float = 0.3  # TD3 smoothing clip (Table 1)
     exploration_noise: float = 0.2  # TD3 acting noise (Table 1)
@@ -89,6 +92,8 @@ class SF2Config:
             _fail("denoising_steps", self.denoising_steps, "must be an int >= 1")
         if not _is_int(self.policy_delay) or self.policy_delay < 1:
             _fail("policy_delay", self.policy_delay, "must be an int >= 1")
+        if not _is_int(self.aux_steps_per_sgd_step) or self.aux_steps_per_sgd_step < 1:
+            _fail("aux_steps_per_sgd_step", self.aux_steps_per_sgd_step, "must be an int >= 1")
         if not _is_real(self.gamma_su) or not 0.0 <= self.gamma_su < 1.0:
             _fail("gamma_su", self.gamma_su, "must satisfy 0 <= gamma_su < 1")
         if self.integrator not in INTEGRATORS:

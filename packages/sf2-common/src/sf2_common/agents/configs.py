@@ -36,7 +36,8 @@ PHYSICS = ("mjx", "spring")
 LEARNER_PRECISIONS = {"highest": "highest", "tensorfloat32": "tensorfloat32", "bfloat16": "BF16_BF16_F32"}
 _SF2_DEFAULTS = {f.name: f.default for f in fields(SF2Config)}
 # Fields added after run folders were written, with the value every older run trained with (and PPO's below)
-ADDED_FIELDS = {name: _SF2_DEFAULTS[name] for name in ("spr_augmentation_std", "shared_adam")}
+ADDED_FIELDS = {name: _SF2_DEFAULTS[name] for name in ("spr_augmentation_std", "shared_adam",
+                                                        "aux_steps_per_sgd_step")}
 SF2_FIELDS = tuple(name for name in _SF2_DEFAULTS if name not in ("obs_size", "action_size"))
 PPO_FIELDS = ("rollout_length", "update_epochs", "minibatch_size", "clip_eps", "entropy_coef", "value_coef",
               "max_grad_norm", "td_lambda", "critic", "advantage_refresh", "shared_torso")
@@ -164,6 +165,7 @@ class TrainConfig:
     alpha_learning_rate: float = _SF2_DEFAULTS["alpha_learning_rate"]
     adam_eps: float = _SF2_DEFAULTS["adam_eps"]
     shared_adam: bool = _SF2_DEFAULTS["shared_adam"]   # ψ: one Adam state, TD and flow steps (authors')
+    aux_steps_per_sgd_step: int = _SF2_DEFAULTS["aux_steps_per_sgd_step"]   # representation steps / SGD step
     smoothing_noise: float = _SF2_DEFAULTS["smoothing_noise"]
     noise_clip: float = _SF2_DEFAULTS["noise_clip"]
     exploration_noise: float = _SF2_DEFAULTS["exploration_noise"]
@@ -426,6 +428,7 @@ def validate(cfg: TrainConfig, seeds, registry) -> TrainConfig:
         combos = ", ".join(f"{a}+{r}" for r in known for a in _algos(registry, r))
         raise ConfigError(f"algo {cfg.algo!r} with representation {cfg.representation!r} does not exist; "
                           f"valid combinations: {combos}")
+    _validate_aux_steps(cfg, registry, rep_cls)
     for name in ("num_timesteps", "episode_length", "action_repeat", "num_envs", "num_evals",
                  "num_eval_envs", "batch_size", "grad_updates_per_step", "max_replay_size",
                  "checkpoint_every", "keep_checkpoints"):
@@ -477,6 +480,33 @@ def _validate_physics(cfg: TrainConfig) -> None:
     if cfg.physics == "spring" and cfg.task != "ant-goal":
         bad_field("physics", cfg.physics, f"only ant-goal has the spring pipeline; task {cfg.task!r} takes "
                   f"physics = 'mjx' (valid for ant-goal: {', '.join(PHYSICS)})")
+
+
+def _validate_aux_steps(cfg: TrainConfig, registry, rep_cls) -> None:
+    """`aux_steps_per_sgd_step`: an int >= 1; above 1 only for the off-policy step (td3, sac) of a
+    representation with a loss of its own (`aux_groups`), the steps it repeats."""
+    k = cfg.aux_steps_per_sgd_step
+    if not _is_int(k) or k < 1:
+        bad_field("aux_steps_per_sgd_step", k, "must be an int >= 1")
+    if k == 1:
+        return
+    if cfg.algo not in ("td3", "sac"):
+        bad_field("aux_steps_per_sgd_step", k, f"must be 1 with algo {cfg.algo!r}: only the off-policy SGD "
+                  f"step (algo td3 or sac) repeats the representation's step")
+    if not getattr(rep_cls, "aux_groups", ()):
+        valid = [r for r in registry.names() if _has_aux_loss(registry, r)]
+        bad_field("aux_steps_per_sgd_step", k, f"must be 1 with representation {cfg.representation!r}, "
+                  f"which has no loss of its own to repeat; representations that take more: "
+                  f"{', '.join(valid) or 'none installed'}")
+
+
+def _has_aux_loss(registry, name: str) -> bool:
+    """Whether representation `name` has a loss of its own (`aux_groups`); False when it cannot be
+    imported."""
+    try:
+        return bool(getattr(registry.get(name), "aux_groups", ()))
+    except ConfigError:
+        return False
 
 
 def _validate_shared_torso(cfg: TrainConfig) -> None:
