@@ -25,6 +25,7 @@ TABLE = dict(
     alpha_learning_rate=3e-4,
     adam_eps=1e-5,
     shared_adam=True,
+    aux_steps_per_sgd_step=1,
     smoothing_noise=0.2,
     noise_clip=0.3,
     exploration_noise=0.2,
