@@ -245,3 +245,111 @@ def test_psi_adam_state_shared_or_one_per_loss(shared):
         assert at_lr < 0.5           # the shared moments blend both gradients: most steps are not lr
     else:
         assert steps.max() <= lr * (1 + 1e-3) and at_lr > 0.9   # 1e-3: float32 rounding of ψ − ψ₁
+
+
+def _sac_step_by_hand(algo, params, opt, batch, noise, draws, step):
+    """SAC+SF²'s SGD step composed from the core's flow loss and optax (the critic and policy losses are the
+    agent's, tested above): critic Adam step at `params`; one flow step per entry of `draws` (ā′ = π(s′)
+    with the draw's flow_action_noise at the pre-step policy, then Adam on ψ with `aux_states`' state and on
+    ζ); the policy and temperature steps from the pre-step gradients; Q̄, ψ̄, ζ̄ EMA. Returns (params,
+    opt_state, flow losses)."""
+    import optax
+
+    cfg, nets = algo.cfg, algo.nets
+    adam, alpha_adam = optax.adam(cfg.learning_rate, eps=cfg.adam_eps), optax.adam(cfg.alpha_learning_rate)
+    p, s = dict(params), dict(opt)
+
+    def apply(group, grad, state, tx=adam):
+        upd, s[state] = tx.update(grad, s[state], p[group])
+        p[group] = optax.apply_updates(p[group], upd)
+
+    grads = _grads(lambda q: algo.critic_loss(q, batch, noise), params, ("q", "psi"))
+    for g in ("q", "psi"):
+        apply(g, grads[g], g)
+    flow = []
+    for draw in draws:
+        next_action = networks.sac_sample(nets, params, batch.next_obs, draw["flow_action_noise"])[0]
+
+        def loss(q, a=next_action, d=draw):
+            return losses.flow_loss(nets, q, batch, a, d["flow_noise"], d["flow_time"])
+
+        flow.append(loss(p)[0])
+        grads = _grads(loss, p, ("psi", "zeta"))
+        for g in ("psi", "zeta"):
+            apply(g, grads[g], algo.aux_states[g])
+    for g, (_, fn) in algo.policy_losses(params, batch, noise).items():
+        apply(g, _grads(fn, params, (g,))[g], g, alpha_adam if g == "log_alpha" else adam)
+    for t, (o, tau) in {"target_q": ("q", cfg.tau), "target_psi": ("psi", cfg.tau),
+                        "target_zeta": ("zeta", cfg.tau_zeta)}.items():
+        p[t] = losses.ema_update(p[t], p[o], tau)
+    return p, s, flow
+
+
+def test_aux_steps_per_sgd_step_repeats_the_flow_step_with_its_own_draws():
+    """`aux_steps_per_sgd_step` = k: step 3 (the representation's loss and Adam step) k times on the step's
+    minibatch, draw j's noise (ā′'s, the flow's) under "<key>:more"; the first draw is k = 1's. In float64
+    from non-fresh Adam states, k = 2 equals two flow steps composed by hand with the two draws and k = 1
+    one (the step as it was, same noise keys), to 1e-10; the reported flow loss is the first step's. ψ's
+    flow steps have their own Adam state (`shared_adam = False`, the carried state that is not the group's
+    name); the shared one is the cross-framework test's k = 2 case."""
+    shared = False
+    with jax.enable_x64(True):
+        cfg = SF2Config.small(D, A, gamma_su=0.9, shared_adam=shared)
+        one = make_algorithm("sac", cfg, representations.get("sf2"), dtype=jnp.float64)
+        two = make_algorithm("sac", cfg.replace(aux_steps_per_sgd_step=2), representations.get("sf2"),
+                             dtype=jnp.float64)
+        assert one.noise_keys() == ("next_action_noise", "actor_noise", "alpha_noise", "flow_action_noise",
+                                    "flow_noise", "flow_time")
+        more = ("flow_action_noise:more", "flow_noise:more", "flow_time:more")
+        assert two.noise_keys() == one.noise_keys() + more
+        params, opt = one.init(jax.random.PRNGKey(0))
+        f64 = jax.tree_util.tree_map(lambda x: x.astype(jnp.float64), _batch(jax.random.PRNGKey(1)))
+        step1, step2 = jax.jit(one.sgd_step), jax.jit(two.sgd_step)
+        params, opt, _ = step1(params, opt, f64, one.step_noise(jax.random.PRNGKey(2), f64), 0)
+        batch = jax.tree_util.tree_map(lambda x: x.astype(jnp.float64), _batch(jax.random.PRNGKey(3)))
+        noise1, noise2 = (a.step_noise(jax.random.PRNGKey(4), batch) for a in (one, two))
+        assert list(noise2) == list(two.noise_keys())
+        for k in one.noise_keys():
+            np.testing.assert_array_equal(noise1[k], noise2[k])
+        for k in more:
+            assert noise2[k].shape == (1, *noise1[k.split(":")[0]].shape) and noise2[k].dtype == jnp.float64
+            assert not np.array_equal(noise2[k][0], noise1[k.split(":")[0]])
+        draws = [{k: noise1[k] for k in one.aux_noise_keys()},
+                 {k: noise2[f"{k}:more"][0] for k in one.aux_noise_keys()}]
+        for algo, step, noise, n in ((one, step1, noise1, 1), (two, step2, noise2, 2)):
+            got_p, got_s, metrics = step(params, opt, batch, noise, 1)
+            want_p, want_s, flow = jax.jit(lambda p, s, d, a=algo, n=noise: _sac_step_by_hand(
+                a, p, s, batch, n, d, 1))(params, opt, draws[:n])
+            assert set(got_p) == set(want_p) and set(got_s) == set(want_s) == set(opt)
+            _close((got_p, got_s), (want_p, want_s), tol=1e-10)
+            np.testing.assert_allclose(metrics["flow_loss"], flow[0], rtol=1e-10)
+            counts = {k: int(v[0].count) for k, v in got_s.items()}
+            assert counts["zeta"] == int(opt["zeta"][0].count) + n
+            assert counts["psi"] == int(opt["psi"][0].count) + (1 + n if shared else 1)
+        # the second flow step moved ζ beyond the first
+        assert not _same(step1(params, opt, batch, noise1, 1)[0]["zeta"],
+                         step2(params, opt, batch, noise2, 1)[0]["zeta"])
+
+
+def test_aux_steps_per_sgd_step_is_one_loop_and_needs_an_aux_loss():
+    """k representation steps are one `scan` of k − 1 iterations after the first, so the traced program's
+    size does not grow with k; a representation without its own loss (`none`) refuses k > 1."""
+    def size_and_scans(k):
+        cfg = SF2Config.small(D, A, aux_steps_per_sgd_step=k)
+        algo = make_algorithm("td3", cfg, representations.get("sf2"))
+        params, opt = jax.eval_shape(algo.init, jax.random.PRNGKey(0))
+        batch = _batch(jax.random.PRNGKey(1))
+        noise = jax.eval_shape(algo.step_noise, jax.random.PRNGKey(2), batch)
+        assert all(noise[f"{key}:more"].shape[:2] == (k - 1, B) for key in algo.aux_noise_keys() if k > 1)
+        jaxpr = jax.make_jaxpr(algo.sgd_step)(params, opt, batch, noise, jnp.int32(0)).jaxpr
+        scans = [e.params["length"] for e in jaxpr.eqns if e.primitive.name == "scan"]
+        return len(jaxpr.eqns), scans
+
+    assert size_and_scans(1)[1] == []
+    (n2, scans2), (n8, scans8) = size_and_scans(2), size_and_scans(8)
+    assert n2 == n8 and scans2 == [1] and scans8 == [7]
+    from sf2_common.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="aux_steps_per_sgd_step = 2 is invalid: must be 1 with "
+                       "representation 'none', which has no loss of its own"):
+        make_algorithm("sac", SF2Config.small(D, A, aux_steps_per_sgd_step=2), representations.get("none"))

@@ -11,7 +11,7 @@ from importlib import metadata
 
 from sf2_common.errors import ConfigError
 
-__all__ = ["Registry", "GROUP", "BASELINES", "INSTALL_BASELINES", "check_aux_every"]
+__all__ = ["Registry", "GROUP", "BASELINES", "INSTALL_BASELINES", "check_aux_every", "check_aux_steps"]
 
 GROUP = "sf2.representations.{framework}"   # the entry-point group of a framework
 BASELINES = ("sim", "simlap", "spr")        # the paper's baselines, provided by sf2-baselines
@@ -101,3 +101,14 @@ def check_aux_every(rep) -> None:
         if isinstance(every, bool) or not isinstance(every, int) or every < 1:
             raise ValueError(f"{type(rep).__name__}.aux_every[{group!r}] = {every!r} is invalid: must be "
                              f"an int >= 1 (a period in gradient steps)")
+
+
+def check_aux_steps(cfg, rep) -> None:
+    """Raise ConfigError when `cfg.aux_steps_per_sgd_step` (representation steps per SGD step) is above 1
+    for a representation without a loss of its own (`rep.aux_groups` empty): there is no step to repeat.
+    Both cores' base algorithms check it when they are built (the CLI's `configs.validate` first)."""
+    k = cfg.aux_steps_per_sgd_step
+    if k != 1 and not rep.aux_groups:
+        raise ConfigError(f"aux_steps_per_sgd_step = {k!r} is invalid: must be 1 with representation "
+                          f"{getattr(rep, 'name', type(rep).__name__)!r}, which has no loss of its own to "
+                          f"repeat (those with one, e.g. sf2, take any int >= 1)")

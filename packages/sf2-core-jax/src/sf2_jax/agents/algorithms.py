@@ -22,7 +22,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import optax
-from sf2_common.agents.registry import aux_states, check_aux_every
+from sf2_common.agents.registry import aux_states, check_aux_every, check_aux_steps
 from sf2_common.config import SF2Config
 
 from sf2_jax import losses, networks
@@ -50,12 +50,14 @@ class Algorithm:
     name = ""
     policy_groups: tuple[str, ...] = ()
     critic_noise_key = ""   # the `step_noise` entry of the TD loss
+    _aux_action_noise_keys: tuple[str, ...] = ()   # ā′'s `step_noise` entries (SAC: flow_action_noise)
 
     def __init__(self, cfg: SF2Config, representation_cls: type[Representation], dtype=jnp.float32):
         self.cfg = cfg
         self.nets = networks.make_networks(cfg, self.name)
         self.rep = representation_cls(cfg, self.nets)
         check_aux_every(self.rep)
+        check_aux_steps(cfg, self.rep)
         self.dtype = dtype
         self._adam = optax.adam(cfg.learning_rate, eps=cfg.adam_eps)
         self._alpha_adam = optax.adam(cfg.alpha_learning_rate)  # Brax SAC's temperature optimizer
@@ -123,11 +125,30 @@ class Algorithm:
     def _randn(self, key, batch):
         return jax.random.normal(key, batch.action.shape, batch.action.dtype)
 
+    def aux_noise_keys(self) -> tuple[str, ...]:
+        """The `noise_keys()` of the representation's step (step 3): ā′'s noise (SAC), then the
+        representation's `noise_keys`; empty without an aux loss."""
+        if not self.rep.aux_groups:
+            return ()
+        return (*self._aux_action_noise_keys, *self.rep.noise_keys)
+
+    def _more_aux_keys(self) -> tuple[str, ...]:
+        """"<key>:more" for each of `aux_noise_keys()` when `aux_steps_per_sgd_step` > 1: the draws of the
+        later representation steps, stacked on a leading axis of size k − 1."""
+        if self.cfg.aux_steps_per_sgd_step == 1:
+            return ()
+        return tuple(f"{k}:more" for k in self.aux_noise_keys())
+
+    def _aux_action_noise(self, key, batch) -> dict[str, jax.Array]:
+        return {}
+
     def step_noise(self, key: jax.Array, batch: losses.Batch) -> dict[str, jax.Array]:
         """Every random input of one SGD step on `batch`, drawn from `key` (module docstring): the keys
         are `noise_keys()`. Split: k_critic, k_aux, k_next, k_actor = split(key, 4); the critic noise
         from k_critic, the representation's `aux_noise(k_aux)`, SAC's ā′ noise from k_next and its
-        temperature and actor noise from split(k_actor) = (k_alpha, k_pi)."""
+        temperature and actor noise from split(k_actor) = (k_alpha, k_pi). With k =
+        `aux_steps_per_sgd_step` > 1, representation step j = 2..k draws its own from the (j − 1)th key
+        of split(fold_in(k_aux, 1), k − 1), split again into (k_next, k_aux), under "<key>:more"."""
         k_critic, k_aux, k_next, k_actor = jax.random.split(key, 4)
         noise = self._algo_noise(k_critic, k_next, k_actor, batch)
         if self.rep.aux_groups:
@@ -136,7 +157,17 @@ class Algorithm:
                 raise ValueError(f"{type(self.rep).__name__}.aux_noise returned {sorted(aux)}, but its "
                                  f"noise_keys are {self.rep.noise_keys}")
             noise.update(aux)
+        if self._more_aux_keys():
+            keys = jax.random.split(jax.random.fold_in(k_aux, 1), self.cfg.aux_steps_per_sgd_step - 1)
+            more = jax.vmap(lambda k: self._aux_step_noise(k, batch))(keys)
+            noise.update({f"{k}:more": more[k] for k in self.aux_noise_keys()})
         return noise
+
+    def _aux_step_noise(self, key, batch) -> dict[str, jax.Array]:
+        """The random inputs of one representation step (`aux_noise_keys()`) from `key`: ā′'s from
+        k_next and the representation's `aux_noise(k_aux)`, (k_next, k_aux) = split(key)."""
+        k_next, k_aux = jax.random.split(key)
+        return {**self._aux_action_noise(k_next, batch), **self.rep.aux_noise(k_aux, batch)}
 
     # ------------------------------------------------------------------ the losses (overridden)
     def critic_loss(self, params, batch, noise):
@@ -172,17 +203,12 @@ class Algorithm:
         # 2. Adam on the critic groups
         with jax.named_scope("critic_adam"):
             params, opt_state = self._adam_step(params, opt_state, grads)
-        # 3. the representation's own loss, on the parameters after step 2
+        # 3. the representation's own loss, on the parameters after step 2 (`aux_steps_per_sgd_step` times)
         if rep.aux_groups:
-            with jax.named_scope("aux_grad"):
-                next_action = sg(self.aux_next_action(pre, batch, noise))
-                aux_noise = {k: noise[k] for k in rep.noise_keys}
-                (loss, aux), grads = self._value_and_grad(
-                    lambda p: rep.aux_loss(p, batch, next_action, aux_noise), rep.aux_groups, params)
-            due = {g: step % every == 0 for g, every in rep.aux_every.items()}
-            with jax.named_scope("aux_adam"):
-                params, opt_state = self._adam_step(params, opt_state, grads, due, self.aux_states)
-            metrics.update({rep.aux_loss_name: loss, **aux})
+            params, opt_state, aux_metrics = self._aux_step(pre, params, opt_state, batch, noise, step)
+            metrics.update(aux_metrics)
+            if self._more_aux_keys():
+                params, opt_state = self._more_aux_steps(pre, params, opt_state, batch, noise, step)
 
         # 1 and 4: the policy groups' gradients at `pre`, then Adam on them (actor steps only)
         def policy_step():
@@ -213,6 +239,48 @@ class Algorithm:
                           lambda: {t: params[t] for t in pairs})
             return {**params, **moved, **self._ema(params, rep.targets())}, opt_state, metrics
 
+    def _aux_step(self, pre: Params, params: Params, opt_state: Params, batch: losses.Batch, noise: dict,
+                 step):
+        """One representation step (step 3 of `sgd_step`): θ_aux ← Adam(θ_aux, ∇ L_aux(params; ā′, ξ)).
+
+        Args:
+          pre: the parameters before the SGD step (ā′ = `aux_next_action(pre, batch, noise)`).
+          params: the parameters the loss is taken at; its `aux_groups` are stepped.
+          opt_state: the Adam states (`aux_states` names each aux group's).
+          batch: the minibatch.
+          noise: the draws of this step, keyed by `aux_noise_keys()` (more keys are ignored).
+          step: the gradient-step index (`aux_every`).
+
+        Returns:
+          (params, opt_state, {aux loss name: loss, its aux metrics}) at the parameters before this step.
+        """
+        rep = self.rep
+        with jax.named_scope("aux_grad"):
+            next_action = sg(self.aux_next_action(pre, batch, noise))
+            aux_noise = {k: noise[k] for k in rep.noise_keys}
+            (loss, aux), grads = self._value_and_grad(
+                lambda p: rep.aux_loss(p, batch, next_action, aux_noise), rep.aux_groups, params)
+        due = {g: step % every == 0 for g, every in rep.aux_every.items()}
+        with jax.named_scope("aux_adam"):
+            params, opt_state = self._adam_step(params, opt_state, grads, due, self.aux_states)
+        return params, opt_state, {rep.aux_loss_name: loss, **aux}
+
+    def _more_aux_steps(self, pre, params, opt_state, batch, noise, step):
+        """Representation steps 2..k (`aux_steps_per_sgd_step` = k) after the first: `_aux_step` by
+        `lax.scan` over the draws noise["<key>:more"], carrying the aux groups and their Adam states; their
+        metrics are not reported (the step's are the first representation step's)."""
+        groups, states = self.rep.aux_groups, tuple(dict.fromkeys(self.aux_states.values()))
+
+        def one(carry, draw):
+            p, s, _ = self._aux_step(pre, {**params, **carry[0]}, {**opt_state, **carry[1]}, batch, draw,
+                                     step)
+            return ({g: p[g] for g in groups}, {n: s[n] for n in states}), None
+
+        draws = {k: noise[f"{k}:more"] for k in self.aux_noise_keys()}
+        (p, s), _ = jax.lax.scan(one, ({g: params[g] for g in groups}, {n: opt_state[n] for n in states}),
+                                 draws)
+        return {**params, **p}, {**opt_state, **s}
+
     @staticmethod
     def _ema(params, pairs) -> Params:
         """{target: ema_update(target, online, τ)} for `pairs` = {target: (online, τ)}."""
@@ -239,7 +307,7 @@ class TD3(Algorithm):
         return self.explore(params, obs, key)
 
     def noise_keys(self):
-        return ("smoothing_noise", *(self.rep.noise_keys if self.rep.aux_groups else ()))
+        return ("smoothing_noise", *self.aux_noise_keys(), *self._more_aux_keys())
 
     def _algo_noise(self, k_critic, k_next, k_actor, batch):
         return {"smoothing_noise": self._randn(k_critic, batch)}
@@ -277,16 +345,21 @@ class SAC(Algorithm):
     def act(self, params, obs, key, deterministic):
         return networks.sac_mode(self.nets, params, obs) if deterministic else self.explore(params, obs, key)
 
+    _aux_action_noise_keys = ("flow_action_noise",)
+
     def noise_keys(self):
         keys = ("next_action_noise", "actor_noise", "alpha_noise")
-        return keys + (("flow_action_noise", *self.rep.noise_keys) if self.rep.aux_groups else ())
+        return keys + self.aux_noise_keys() + self._more_aux_keys()
+
+    def _aux_action_noise(self, key, batch):
+        return {"flow_action_noise": self._randn(key, batch)}
 
     def _algo_noise(self, k_critic, k_next, k_actor, batch):
         k_alpha, k_pi = jax.random.split(k_actor)
         out = {"next_action_noise": self._randn(k_critic, batch), "actor_noise": self._randn(k_pi, batch),
                "alpha_noise": self._randn(k_alpha, batch)}
         if self.rep.aux_groups:
-            out["flow_action_noise"] = self._randn(k_next, batch)
+            out.update(self._aux_action_noise(k_next, batch))
         return out
 
     def critic_loss(self, params, batch, noise):
