@@ -3,10 +3,11 @@ representation's critic, `backward(inputs=...)`, torch Adam, one lerp per rate) 
 (the same losses, `jax.grad` over the trained groups, optax) leave both identical.
 
 TD3 (policy delay 1 and 2) and SAC, each with SF² and vanilla (`none`: the same losses on the critic
-Q(s, a), whose noise is explicit too). Every group of the agent (the algorithm's `obs_norm`, `policy`,
-`target_policy` | `log_alpha` and the representation's) gets non-trivial values under its canonical name,
-loaded into both agents; fresh Adam states; the same batches. After every step the test compares every
-parameter and target (canonical names), every Adam first and second moment, and the step's metrics.
+Q(s, a), whose noise is explicit too), SF² also with k > 1 flow steps (`aux_steps_per_sgd_step`). Every
+group of the agent (the algorithm's `obs_norm`, `policy`, `target_policy` | `log_alpha` and the
+representation's) gets non-trivial values under its canonical name, loaded into both agents; fresh Adam
+states; the same batches. After every step the test compares every parameter and target (canonical names),
+every Adam first and second moment, and the step's metrics.
 
 Noise: the JAX step's `Algorithm.step_noise(key, batch)` draws every random input; the test hands the same
 arrays, under the same names (`noise_keys()` of both agents), to both `sgd_step`s. Tolerances:
@@ -86,17 +87,19 @@ def jax_moments(jopt) -> dict[str, dict[str, np.ndarray]]:
     return out
 
 
-# (algo, representation, policy delay, shared_adam): shared_adam = False gives ψ a second Adam state for
-# the flow loss's step
-CASES = [("td3", "sf2", 1, True), ("td3", "sf2", 2, True), ("sac", "sf2", 1, True), ("td3", "none", 2, True),
-         ("sac", "none", 1, True), ("td3", "sf2", 1, False)]
+# (algo, representation, policy delay, shared_adam, aux_steps_per_sgd_step): shared_adam = False gives ψ a
+# second Adam state for the flow loss's step; aux steps k > 1 repeat the flow step with the draws "<key>:more"
+CASES = [("td3", "sf2", 1, True, 1), ("td3", "sf2", 2, True, 1), ("sac", "sf2", 1, True, 1),
+         ("td3", "none", 2, True, 1), ("sac", "none", 1, True, 1), ("td3", "sf2", 1, False, 1),
+         ("sac", "sf2", 1, True, 2), ("td3", "sf2", 2, False, 3)]
 
 
 @pytest.mark.parametrize("dtype", ["float64", "float32"])
-@pytest.mark.parametrize("algo,rep,policy_delay,shared_adam", CASES,
-                         ids=[f"{a}-{r}-delay{d}" + ("" if s else "-own-adam") for a, r, d, s in CASES])
-def test_full_sgd_step(dtype, algo, rep, policy_delay, shared_adam):
-    kw = dict(KW, policy_delay=policy_delay, shared_adam=shared_adam)
+@pytest.mark.parametrize("algo,rep,policy_delay,shared_adam,aux_steps", CASES,
+                         ids=[f"{a}-{r}-delay{d}" + ("" if s else "-own-adam") + (f"-aux{k}" if k > 1 else "")
+                              for a, r, d, s, k in CASES])
+def test_full_sgd_step(dtype, algo, rep, policy_delay, shared_adam, aux_steps):
+    kw = dict(KW, policy_delay=policy_delay, shared_adam=shared_adam, aux_steps_per_sgd_step=aux_steps)
     jdt, tdt = getattr(jnp, dtype), getattr(torch, dtype)
 
     jalg = jalgs.make_algorithm(algo, sf2_jax.SF2Config(**kw), jreps.get(rep), dtype=jdt)

@@ -198,6 +198,33 @@ def test_noise_keys_are_what_step_noise_draws(name, rep):
     assert noise["flow_noise"].shape == (3, B, D) if rep == "sf2" else True
 
 
+@pytest.mark.parametrize("name", ["td3", "sac"])
+def test_more_aux_steps_draw_after_todays_noise_and_step_without_host_sync(name, monkeypatch):
+    """`aux_steps_per_sgd_step` = 3: the draws of flow steps 2 and 3 come after k = 1's from the same
+    generator (so k = 1's draws stay as they were), as "<key>:more" of shape (G, 2, B, ...) for a (G, B)
+    stack (the trainer's); the step takes one Adam step per flow step on ζ (ψ: the critic's and 3) and
+    makes no host synchronization."""
+    one, three = _algo(name), _algo(name, aux_steps_per_sgd_step=3)
+    stack = losses.Batch(*(torch.stack([x, x + 1]) for x in _batch()))   # G = 2
+    a, b = (alg.step_noise(torch.Generator().manual_seed(0), stack) for alg in (one, three))
+    assert list(b) == list(three.noise_keys()) == list(one.noise_keys()) + [
+        f"{k}:more" for k in three.aux_noise_keys()]
+    assert three.aux_noise_keys() == ("flow_action_noise",) * (name == "sac") + ("flow_noise", "flow_time")
+    for k in one.noise_keys():
+        assert torch.equal(a[k], b[k]), k
+    for k in three.aux_noise_keys():
+        assert b[f"{k}:more"].shape == (2, 2, *a[k].shape[1:])
+        assert not torch.equal(b[f"{k}:more"][:, 0], a[k])
+    batch = losses.Batch(*(x[0] for x in stack))
+    noise = {k: v[0] for k, v in b.items()}
+    three.sgd_step(batch, noise, 0)   # the first call builds lazy state
+    with monkeypatch.context() as m:
+        _forbid_host_sync(m)
+        three.sgd_step(batch, noise, 1)
+    steps = {g: int(next(iter(o.state.values()))["step"]) for g, o in three.optimizers.items()}
+    assert steps["zeta"] == 6 and steps["psi"] == 8 and steps["q"] == 2
+
+
 class _ZetaEvery3(representations.SF2Representation):
     """SF² whose ζ takes its flow-step Adam step every 3rd gradient step only (a test schedule)."""
 

@@ -22,7 +22,7 @@ from collections import defaultdict
 from typing import Any
 
 import torch
-from sf2_common.agents.registry import aux_states, check_aux_every
+from sf2_common.agents.registry import aux_states, check_aux_every, check_aux_steps
 from sf2_common.config import SF2Config
 from torch import nn
 from torch.optim.adam import adam as functional_adam
@@ -43,6 +43,7 @@ class Algorithm:
     name = ""
     policy_groups: tuple[str, ...] = ()
     critic_noise_key = ""   # the `step_noise` entry of the TD loss
+    _aux_action_noise_keys: tuple[str, ...] = ()   # ā′'s `step_noise` entries (SAC: flow_action_noise)
 
     def __init__(self, cfg: SF2Config, representation_cls: type[Representation], dtype=torch.float32,
                  device="cpu", compile_mode: str | None = None, cudagraphs: bool = False):
@@ -52,6 +53,7 @@ class Algorithm:
         self.nets = networks.make_networks(cfg, self.name, dtype=dtype, device=self.device)
         self.rep = representation_cls(cfg, self.nets)
         check_aux_every(self.rep)
+        check_aux_steps(cfg, self.rep)
         # {group: module | parameter}: the algorithm's groups, then the representation's (as the JAX core's
         # `init` returns its params)
         core = ("obs_norm", "policy", "target_policy", "log_alpha")
@@ -143,10 +145,29 @@ class Algorithm:
         a = batch.action
         return torch.randn(a.shape, dtype=a.dtype, device=a.device, generator=generator)
 
+    def aux_noise_keys(self) -> tuple[str, ...]:
+        """The `noise_keys()` of the representation's step (step 3): ā′'s noise (SAC), then the
+        representation's `noise_keys`; empty without an aux loss."""
+        if not self.rep.aux_groups:
+            return ()
+        return (*self._aux_action_noise_keys, *self.rep.noise_keys)
+
+    def _more_aux_keys(self) -> tuple[str, ...]:
+        """"<key>:more" for each of `aux_noise_keys()` when `aux_steps_per_sgd_step` > 1: the draws of the
+        later representation steps, stacked on an axis of size k − 1 before the batch axis."""
+        if self.cfg.aux_steps_per_sgd_step == 1:
+            return ()
+        return tuple(f"{k}:more" for k in self.aux_noise_keys())
+
+    def _aux_action_noise(self, generator, batch) -> dict[str, torch.Tensor]:
+        return {}
+
     def step_noise(self, generator: torch.Generator, batch: losses.Batch) -> dict[str, torch.Tensor]:
         """Every random input of one SGD step on `batch`, drawn from `generator` (module docstring): the
         keys are `noise_keys()`, shapes from `batch.obs.shape[:-1]` (a (G, B) stack of batches draws G
-        steps' noise at once). Order: the algorithm's noise, then the representation's `aux_noise`."""
+        steps' noise at once). Order: the algorithm's noise, then the representation's `aux_noise`, then
+        with k = `aux_steps_per_sgd_step` > 1 the draws of representation steps 2..k ("<key>:more", shape
+        (..., k − 1, B, ...))."""
         noise = self._algo_noise(generator, batch)
         if self.rep.aux_groups:
             aux = self.rep.aux_noise(generator, batch)
@@ -154,7 +175,15 @@ class Algorithm:
                 raise ValueError(f"{type(self.rep).__name__}.aux_noise returned {sorted(aux)}, but its "
                                  f"noise_keys are {self.rep.noise_keys}")
             noise.update(aux)
+        if self._more_aux_keys():
+            more = self._aux_step_noise(generator, _repeated(batch, self.cfg.aux_steps_per_sgd_step - 1))
+            noise.update({f"{k}:more": more[k] for k in self.aux_noise_keys()})
         return noise
+
+    def _aux_step_noise(self, generator, batch) -> dict[str, torch.Tensor]:
+        """The random inputs of representation steps (`aux_noise_keys()`) with `batch`'s shapes: ā′'s,
+        then the representation's `aux_noise`."""
+        return {**self._aux_action_noise(generator, batch), **self.rep.aux_noise(generator, batch)}
 
     # ------------------------------------------------------------------ the losses (overridden)
     def critic_loss(self, batch: losses.Batch, noise: dict[str, torch.Tensor]):
@@ -218,13 +247,11 @@ class Algorithm:
             torch.autograd.backward(list(policy.values()), inputs=self._params(policy))
         # 2. Adam on the critic groups
         self._adam(critic_groups)
-        # 3. the representation's own loss, on the parameters after step 2
+        # 3. the representation's own loss, on the parameters after step 2 (`aux_steps_per_sgd_step` times)
         if rep.aux_groups:
-            self._zero(rep.aux_groups)
-            loss, aux_metrics = self._part("_aux")(batch, noise)
-            loss.backward(inputs=self._params(rep.aux_groups))
-            self._adam(self.aux_states[g] for g in rep.aux_groups if g not in skip)
-            metrics.update(aux_metrics)
+            metrics.update(self._aux_step(batch, noise, skip))
+            if self._more_aux_keys():
+                self._more_aux_steps(batch, noise, skip)
         # 4. Adam on the policy groups (actor steps only; zeros as their metrics otherwise)
         if actor_step:
             self._adam(self.policy_groups)
@@ -237,6 +264,31 @@ class Algorithm:
         if lerps:
             self._update("_move_targets", _move_targets)(lerps)
         return metrics
+
+    def _aux_step(self, batch, noise, skip: frozenset[str]) -> Metrics:
+        """One representation step (step 3 of the SGD step): θ_aux ← Adam(θ_aux, ∇ L_aux(θ; ā′, ξ)).
+
+        Args:
+          batch: the minibatch.
+          noise: the draws of this step, keyed by `aux_noise_keys()` (more keys are ignored).
+          skip: the aux groups off their `aux_every` period (no Adam step).
+
+        Returns:
+          {aux loss name: loss, its aux metrics} at the parameters before this step.
+        """
+        rep = self.rep
+        self._zero(rep.aux_groups)
+        loss, aux_metrics = self._part("_aux")(batch, noise)
+        loss.backward(inputs=self._params(rep.aux_groups))
+        self._adam(self.aux_states[g] for g in rep.aux_groups if g not in skip)
+        return aux_metrics
+
+    def _more_aux_steps(self, batch, noise, skip: frozenset[str]) -> None:
+        """Representation steps 2..k (`aux_steps_per_sgd_step` = k) after the first: `_aux_step` with draw j
+        of noise["<key>:more"]; their metrics are not reported (the step's are the first representation
+        step's)."""
+        for j in range(self.cfg.aux_steps_per_sgd_step - 1):
+            self._aux_step(batch, {k: noise[f"{k}:more"][j] for k in self.aux_noise_keys()}, skip)
 
     # the parts of the step, compiled by `_part`
     def _critic(self, batch, noise):
@@ -303,6 +355,13 @@ class Algorithm:
         return [(tau, t, o) for tau, (t, o) in by_rate.items()]
 
 
+def _repeated(batch: losses.Batch, r: int) -> losses.Batch:
+    """`batch` with an axis of size `r` inserted before its batch axis (a view: (..., B, ...) → (..., r, B,
+    ...)), for drawing `r` steps' noise of its shapes at once."""
+    at = batch.obs.dim() - 2
+    return losses.Batch(*(x.unsqueeze(at).expand(*x.shape[:at], r, *x.shape[at:]) for x in batch))
+
+
 def _adam_inputs(optimizer: torch.optim.Adam) -> tuple[list, list, list, list, list, dict]:
     """The arguments of torch's functional Adam (`torch.optim.adam.adam`) that `optimizer.step()` would pass
     it (after its first step has created the state): params that have a gradient, their gradients, first and
@@ -353,7 +412,7 @@ class TD3(Algorithm):
         return networks.td3_action(self.nets, obs) if deterministic else self.explore(obs, generator)
 
     def noise_keys(self):
-        return ("smoothing_noise", *(self.rep.noise_keys if self.rep.aux_groups else ()))
+        return ("smoothing_noise", *self.aux_noise_keys(), *self._more_aux_keys())
 
     def _algo_noise(self, generator, batch):
         return {"smoothing_noise": self._randn(generator, batch)}
@@ -391,14 +450,19 @@ class SAC(Algorithm):
     def act(self, obs, generator, deterministic):
         return networks.sac_mode(self.nets, obs) if deterministic else self.explore(obs, generator)
 
+    _aux_action_noise_keys = ("flow_action_noise",)
+
     def noise_keys(self):
         keys = ("next_action_noise", "actor_noise", "alpha_noise")
-        return keys + (("flow_action_noise", *self.rep.noise_keys) if self.rep.aux_groups else ())
+        return keys + self.aux_noise_keys() + self._more_aux_keys()
+
+    def _aux_action_noise(self, generator, batch):
+        return {"flow_action_noise": self._randn(generator, batch)}
 
     def _algo_noise(self, generator, batch):
         out = {k: self._randn(generator, batch) for k in ("next_action_noise", "actor_noise", "alpha_noise")}
         if self.rep.aux_groups:
-            out["flow_action_noise"] = self._randn(generator, batch)
+            out.update(self._aux_action_noise(generator, batch))
         return out
 
     def critic_loss(self, batch, noise):
