@@ -57,6 +57,12 @@ def test_paper_studies_declare_the_protocol():
     fig9 = spec.load(STUDIES / "fig9-obs-noise.toml")
     assert fig9.seeds == tuple(range(6)) and fig9.evaluation.obs_noise == (0.0, 0.05, 0.1, 0.2)
     assert {m.family for m in fig9.methods} == {"TD3", "SAC"}
+    fig9_left = spec.load(STUDIES / "fig9-left.toml")   # flow steps per SGD step, k = 1 the paper's
+    assert dict(fig9_left.overrides)["num_timesteps"] == "1000000" and fig9_left.seeds == tuple(range(10))
+    assert {(m.algo, m.representation, m.sweep[:2]) for m in fig9_left.methods} == {
+        (a, "sf2", ("aux_steps_per_sgd_step", str(k))) for a in ("td3", "sac") for k in (1, 2, 4, 8)}
+    assert {(c.method, c.above) for c in fig9_left.claims} >= {
+        (f"{a}-sf2-aux-steps-per-sgd-step-8", (f"{a}-sf2-aux-steps-per-sgd-step-1",)) for a in ("td3", "sac")}
     fig5 = spec.load(STUDIES / "fig5-spr-noise.toml")   # SPR over its augmentation std; 0.05 is the paper's
     assert fig5.tasks == ("AcrobotSwingup",) and {m.representation for m in fig5.methods} == {"spr"}
     assert {m.sweep[:2] for m in fig5.methods} >= {("spr_augmentation_std", "0.0"), ("spr_augmentation_std",
