@@ -301,6 +301,33 @@ def test_sweep_and_obs_noise_with_two_seeds(tmp_path):
     assert report(folder.path)["summary.md"].read_text() == before
 
 
+def test_sweep_scored_by_the_iqm_of_normalized_auc(tmp_path):
+    """`report.sweep_score = "iqm_auc"` (paper Fig. 9 left): a sweep's point is its method's aggregate IQM.
+    Value i (0: 0.01, 1: 0.1), seed s, task t: the curve [0, v, v] with v = SCALE[t] · (4i + s), AUC 3v/4,
+    normalized per task (min 0, max 3/4 · SCALE[t] · 7) to (4i + s)/7 on both tasks; the IQM of the eight
+    pooled scores keeps s = 1, 1, 2, 2: (4i + 1.5)/7. The interval is the aggregate table's."""
+    text = SWEEP.replace('seeds = "0-1"', 'seeds = "0-3"').replace('tasks = ["A"]', 'tasks = ["A", "B"]')
+    text = text.replace("final_window = 100", 'sweep_score = "iqm_auc"').split("[evaluation]")[0] + \
+        "[[sweeps]]" + text.split("[[sweeps]]")[1]
+    folder = _study(tmp_path, text)
+    seeds = [0, 1, 2, 3]
+    for i, name in enumerate(["td3-sf2-tau-zeta-0.01", "td3-sf2-tau-zeta-0.1"]):
+        for task in ("A", "B"):
+            v = {s: SCALE[task] * (4 * i + s) for s in seeds}
+            _write_run(folder.run_path(task, name), seeds, {s: [0.0, v[s], v[s]] for s in seeds})
+    written = report(folder.path)
+    summary = written["summary.md"].read_text()
+    assert "## Sweeps: IQM of the normalized AUC over the tasks (paper Fig. 9 left)" in summary
+    for i, value in enumerate(("0.01", "0.1")):
+        row = f"| TD3+SF² (tau_zeta={value}) | 4 × 2 |"
+        aggregate = next(x for x in summary.splitlines() if x.startswith(row))
+        iqm = f"{(4 * i + 1.5) / 7:.3f} ["
+        cell = aggregate.split(" | ")[3]   # Median, IQM, Mean, Optimality Gap
+        assert cell.startswith(iqm), aggregate
+        assert f"| tau_zeta | TD3+SF² | {value} | 4 | {cell} |" in summary
+    assert "sweeps.png" in written
+
+
 def test_a_damaged_run_file_stops_the_report_naming_it(tmp_path):
     """A finished run whose metrics.jsonl.gz is cut (a bad copy), whose metrics.jsonl has a line that is no
     row in the middle (an edit), or whose obs_noise.json is not JSON is never reported as unfinished or

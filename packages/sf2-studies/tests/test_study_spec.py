@@ -59,6 +59,7 @@ def test_paper_studies_declare_the_protocol():
     assert {m.family for m in fig9.methods} == {"TD3", "SAC"}
     fig9_left = spec.load(STUDIES / "fig9-left.toml")   # flow steps per SGD step, k = 1 the paper's
     assert dict(fig9_left.overrides)["num_timesteps"] == "1000000" and fig9_left.seeds == tuple(range(10))
+    assert fig9_left.report.sweep_score == "iqm_auc"   # the figure's y: IQM of the normalized AUC
     assert {(m.algo, m.representation, m.sweep[:2]) for m in fig9_left.methods} == {
         (a, "sf2", ("aux_steps_per_sgd_step", str(k))) for a in ("td3", "sac") for k in (1, 2, 4, 8)}
     assert {(c.method, c.above) for c in fig9_left.claims} >= {
@@ -112,6 +113,8 @@ overrides = { hidden_sizes = [16, 16], deterministic_eval = true, tau = 1e-3 }
     (BASE + "[evaluation]\nobs_noise = [-0.1]\n", ["evaluation.obs_noise"]),
     (BASE + "[evaluation]\nobs_noise = [0.1]\nepisodes = 0\n", ["evaluation.episodes = 0 is invalid"]),
     (BASE + '[report]\nfigures = ["sweeps"]\n', ["asks for 'sweeps'", "no [[sweeps]]"]),
+    (BASE + '[report]\nsweep_score = "auc"\n', ["report.sweep_score = 'auc' is invalid",
+                                                   "'final_return', 'iqm_auc'"]),
     ("budget = -3\n" + BASE, ["budget: -3 is invalid"]),
     ("name = [", ["not valid TOML"]),
 ])

@@ -196,7 +196,8 @@ def learning_curves(study, data: list, stem: Path) -> dict[str, Path]:
 
 # ------------------------------------------------------------------------------------------- Fig. 2
 def sweeps(study, points: dict, stem: Path) -> dict[str, Path]:
-    """points: {field: {base label: [(text, value, n, mean, lo, hi)]}} → one panel per swept field."""
+    """points: {field: {base label: [(text, value, n, score, lo, hi)]}} → one panel per swept field (the
+    score `study.report.sweep_score`'s: `report.sweep_points`)."""
     plt = _plt()
     colors = _Colors()
     titles = dict(study.report.sweeps)
@@ -228,9 +229,14 @@ def sweeps(study, points: dict, stem: Path) -> dict[str, Path]:
         ax.set_xlabel(field)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="best")   # named: matplotlib warns of its cost only when defaulted
-    axes[0][0].set_ylabel(f"mean eval return, final {study.report.final_window:,} env steps")
-    fig.suptitle(f"{study.name}: mean over seeds; error bar: {_CI} of the mean" + _seed_note(ns),
-                 fontsize=10)
+    if study.report.sweep_score == "iqm_auc":
+        axes[0][0].set_ylabel("IQM of normalized AUC over the tasks")
+        fig.suptitle(f"{study.name}: IQM over tasks and seeds; error bar: {_CI}, stratified over tasks"
+                     + _seed_note(ns), fontsize=10)
+    else:
+        axes[0][0].set_ylabel(f"mean eval return, final {study.report.final_window:,} env steps")
+        fig.suptitle(f"{study.name}: mean over seeds; error bar: {_CI} of the mean" + _seed_note(ns),
+                     fontsize=10)
     fig.tight_layout()
     return _save(fig, stem)
 

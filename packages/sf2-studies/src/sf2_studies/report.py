@@ -324,21 +324,37 @@ def _duration(s: float) -> str:
 
 
 def sweep_points(study: Study, rows: list[dict]):
-    """{sweep field: {base label: [(value text, value, seeds, mean, lo, hi)]}} of the final-window
-    return (paper Fig. 2 a/b/d)."""
+    """{sweep field: {base label: [(value text, value, seeds, score, lo, hi)]}}: the mean over seeds of the
+    final-window return (paper Fig. 2 a/b/d), or with `report.sweep_score = "iqm_auc"` each method's IQM of
+    the normalized AUC over the study's tasks, `aggregate_table`'s (paper Fig. 9 left)."""
+    iqm = _iqm_by_label(study, rows) if study.report.sweep_score == "iqm_auc" else None
     out = {}
     for m in study.methods:
         if m.sweep is None:
             continue
         field, text, base = m.sweep
-        vals = [r["final_window_return"] for r in rows if r["method"] == m.label]
-        if not vals:
-            continue
-        mean, lo, hi = stats.mean_interval(vals)
-        out.setdefault(field, {}).setdefault(base, []).append(
-            (text, _number(text), len(vals), float(mean[0]), None if lo is None else float(lo[0]),
-             None if hi is None else float(hi[0])))
+        if iqm is not None:
+            if m.label not in iqm:
+                continue
+            point = iqm[m.label]
+        else:
+            vals = [r["final_window_return"] for r in rows if r["method"] == m.label]
+            if not vals:
+                continue
+            mean, lo, hi = stats.mean_interval(vals)
+            point = (len(vals), float(mean[0]), None if lo is None else float(lo[0]),
+                     None if hi is None else float(hi[0]))
+        out.setdefault(field, {}).setdefault(base, []).append((text, _number(text), *point))
     return out
+
+
+def _iqm_by_label(study: Study, rows: list[dict]) -> dict[str, tuple]:
+    """{method label: (seeds, IQM, lower, upper)} of the normalized AUC from `aggregate_table` (bounds None
+    where it has no interval)."""
+    table, _ = aggregate_table(study, rows)
+    i = stats.METRICS.index("IQM")
+    return {label: (n, float(p[i]), *((None, None) if ci is None else (float(ci[0][i]), float(ci[1][i]))))
+            for entries in table.values() for label, n, p, ci in entries}
 
 
 def _number(text: str):
@@ -449,9 +465,12 @@ def report(path, out=None, command: str | None = None) -> dict[str, Path]:
         md += ["![learning curves](curves.png)", ""]
     if "sweeps" in figs:
         points = sweep_points(study, rows)
-        md += [f"## Sweeps: mean return over the final {study.report.final_window:,} env steps "
-               f"(paper Fig. 2 a/b/d)", "", "| sweep | method | value | seeds | mean [95% CI] |",
-               "|---|---|---|---|---|"]
+        md += (["## Sweeps: IQM of the normalized AUC over the tasks (paper Fig. 9 left)", "",
+                "| sweep | method | value | seeds | IQM [95% CI] |"]
+               if study.report.sweep_score == "iqm_auc" else
+               [f"## Sweeps: mean return over the final {study.report.final_window:,} env steps "
+                f"(paper Fig. 2 a/b/d)", "", "| sweep | method | value | seeds | mean [95% CI] |"])
+        md.append("|---|---|---|---|---|")
         titles = dict(study.report.sweeps)
         for field, by_base in points.items():
             for base, entries in by_base.items():

@@ -40,8 +40,10 @@ RUN_NEUTRAL = ("description", "report", "claims")
 _METHOD = ("label", "name", "algo", "representation", "overrides", "framework")
 _SWEEP = ("field", "values", "title", "methods")
 _EVALUATION = ("obs_noise", "checkpoints", "episodes", "deterministic")
-_REPORT = ("figures", "final_window", "curve_statistic")
+_REPORT = ("figures", "final_window", "curve_statistic", "sweep_score")
 CURVE_STATISTICS = ("mean", "median")   # over seeds at each evaluation (figures.learning_curves)
+# a sweep's point: the mean final-window return over seeds (Fig. 2), or the IQM of the normalized AUC (Fig. 9)
+SWEEP_SCORES = ("final_return", "iqm_auc")
 DEFAULT_FINAL_WINDOW = 50_000   # paper §4.3: "the mean episode return over the final 50k steps"
 
 
@@ -94,6 +96,7 @@ class ReportSettings:
     final_window: int
     sweeps: tuple[tuple[str, str], ...]     # (field, title) in file order
     curve_statistic: str = "mean"           # `CURVE_STATISTICS`
+    sweep_score: str = "final_return"       # `SWEEP_SCORES`
 
 
 @dataclasses.dataclass(frozen=True)
@@ -468,7 +471,11 @@ def _report(table, where: str, sweeps, evaluation) -> ReportSettings:
     if statistic not in CURVE_STATISTICS:
         raise StudyError(f"{where}: report.curve_statistic = {statistic!r} is invalid: one of "
                          f"{', '.join(repr(s) for s in CURVE_STATISTICS)}")
-    return ReportSettings(tuple(figures), window, tuple(sweeps), statistic)
+    score = table.get("sweep_score", "final_return")
+    if score not in SWEEP_SCORES:
+        raise StudyError(f"{where}: report.sweep_score = {score!r} is invalid: one of "
+                         f"{', '.join(repr(s) for s in SWEEP_SCORES)}")
+    return ReportSettings(tuple(figures), window, tuple(sweeps), statistic, score)
 
 
 # ------------------------------------------------------------------------------------------- resolution
