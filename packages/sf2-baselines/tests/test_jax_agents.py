@@ -149,3 +149,19 @@ def test_spr_augmentation_std_reaches_the_augmentation(sigma):
         assert spr_losses[0] == spr_losses[1]
     else:
         assert not np.allclose(views[0], views[1]) and spr_losses[0] != spr_losses[1]
+
+
+def test_aux_steps_per_sgd_step_repeats_a_loss_without_noise():
+    """`aux_steps_per_sgd_step` = 3 with TD3+SimLap, whose loss draws no noise (no "<key>:more" entries):
+    from fresh states, step index 1 gives φ (an aux group only, due every step) three Adam steps and w (due
+    every 10th step) none, its parameters unchanged."""
+    cfg = SF2Config(**small_kwargs(), aux_steps_per_sgd_step=3)
+    agent = make_algorithm("td3", cfg, reps.get("simlap"), dtype=jnp.float64)
+    params, opt = agent.init(jax.random.PRNGKey(0))
+    b = _batch()
+    noise = agent.step_noise(jax.random.PRNGKey(1), b)
+    assert agent.aux_noise_keys() == () and list(noise) == ["smoothing_noise"]
+    p, o, _ = jax.jit(agent.sgd_step)(params, opt, b, noise, jnp.asarray(1))
+    assert int(o["phi"][0].count) == 3 and int(o["task"][0].count) == 0
+    assert all(np.array_equal(x, y) for x, y in zip(jax.tree_util.tree_leaves(p["task"]),
+                                                    jax.tree_util.tree_leaves(params["task"])))

@@ -180,3 +180,19 @@ def test_spr_augmentation_std_reaches_the_augmentation(sigma):
         assert spr_losses[0] == spr_losses[1]
     else:
         assert not torch.allclose(views[0], views[1]) and spr_losses[0] != spr_losses[1]
+
+
+def test_aux_steps_per_sgd_step_repeats_a_loss_without_noise():
+    """`aux_steps_per_sgd_step` = 3 with TD3+SimLap, whose loss draws no noise (no "<key>:more" entries):
+    step index 1 gives φ (an aux group only, due every step) three Adam steps and w (due every 10th step)
+    none, its parameters unchanged."""
+    torch.manual_seed(0)
+    agent = make_algorithm("td3", SF2Config(**small_kwargs(), aux_steps_per_sgd_step=3), reps.get("simlap"),
+                           dtype=torch.float64)
+    before = params.to_canonical({"task": agent.groups["task"]})
+    assert agent.aux_noise_keys() == () and agent.noise_keys() == ("smoothing_noise",)
+    _step(agent, 0, 1)
+    assert {int(s["step"]) for s in agent.optimizers["phi"].state.values()} == {3}
+    assert not agent.optimizers["task"].state
+    after = params.to_canonical({"task": agent.groups["task"]})
+    assert all(np.array_equal(before[k], after[k]) for k in before)

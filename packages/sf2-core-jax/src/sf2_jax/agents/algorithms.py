@@ -207,7 +207,7 @@ class Algorithm:
         if rep.aux_groups:
             params, opt_state, aux_metrics = self._aux_step(pre, params, opt_state, batch, noise, step)
             metrics.update(aux_metrics)
-            if self._more_aux_keys():
+            if self.cfg.aux_steps_per_sgd_step > 1:
                 params, opt_state = self._more_aux_steps(pre, params, opt_state, batch, noise, step)
 
         # 1 and 4: the policy groups' gradients at `pre`, then Adam on them (actor steps only)
@@ -276,9 +276,9 @@ class Algorithm:
                                      step)
             return ({g: p[g] for g in groups}, {n: s[n] for n in states}), None
 
-        draws = {k: noise[f"{k}:more"] for k in self.aux_noise_keys()}
+        draws = {k: noise[f"{k}:more"] for k in self.aux_noise_keys()}   # {} for a loss without noise
         (p, s), _ = jax.lax.scan(one, ({g: params[g] for g in groups}, {n: opt_state[n] for n in states}),
-                                 draws)
+                                 draws, length=self.cfg.aux_steps_per_sgd_step - 1)
         return {**params, **p}, {**opt_state, **s}
 
     @staticmethod

@@ -250,7 +250,7 @@ class Algorithm:
         # 3. the representation's own loss, on the parameters after step 2 (`aux_steps_per_sgd_step` times)
         if rep.aux_groups:
             metrics.update(self._aux_step(batch, noise, skip))
-            if self._more_aux_keys():
+            if self.cfg.aux_steps_per_sgd_step > 1:
                 self._more_aux_steps(batch, noise, skip)
         # 4. Adam on the policy groups (actor steps only; zeros as their metrics otherwise)
         if actor_step:
