@@ -98,8 +98,9 @@ def test_spr_augmentation_std_is_checked_and_older_run_folders_keep_resuming(tmp
                                     "entropy_coef": 0.01, "value_coef": 0.5, "max_grad_norm": 0.5,
                                     "td_lambda": 0.95, "critic": "q", "advantage_refresh": "rollout",
                                     "shared_torso": False, "logsumexp_penalty": 0.1,
-                                    "contrastive_loss": "fwd", "fpo_samples": 8, "fpo_flow_steps": 10,
-                                    "fpo_value_samples": 8, "fpo_log_ratio_clip": 20.0, "physics": "mjx"}
+                                    "contrastive_loss": "fwd", "flow_feature_norm": "none", "fpo_samples": 8,
+                                    "fpo_flow_steps": 10, "fpo_value_samples": 8, "fpo_log_ratio_clip": 20.0,
+                                    "physics": "mjx"}
     assert cfg.spr_augmentation_std == 0.05
     assert run.check_compatible(cfg.to_dict(), (0,)) is True
     with pytest.raises(RunFolderMismatch, match="spr_augmentation_std: 0.05 \\(folder\\) vs 0.1 \\(now\\)"):

@@ -95,6 +95,9 @@ CRL = ("--task", "ant-goal", "--algo", "crl")
     ((*CRL, "--physics", "generalized"), "physics = 'generalized' is invalid: must be one of mjx, spring"),
     (("--task", "CheetahRun", "--physics", "spring"), "only ant-goal has the spring pipeline"),
     ((*CRL, "--max-replay-size", "8", "--min-replay-size", "0"), "must hold at least 2 steps of every env"),
+    ((*CRL, "--flow-feature-norm", "ln"),
+     "flow_feature_norm = 'ln' is invalid: must be one of ('none', 'l2')"),
+    ((*CRL, "--repr", "none", "--flow-feature-norm", "l2"), "only --repr sf2 has a flow"),
 ])
 def test_bad_input_is_refused_before_compiling(args, text, capsys, monkeypatch):
     monkeypatch.setattr(crl, "get_program", lambda cfg: pytest.fail("a program was built"))
@@ -172,3 +175,48 @@ def test_the_flow_step_takes_phis_adam_state_of_the_config(shared, monkeypatch):
     counts = {g: int(optax.tree_utils.tree_get(s, "count")) for g, s in opt.items() if g != "log_alpha"}
     own = {} if shared else {"sa_encoder:aux": 1}
     assert counts == {"sa_encoder": 2 if shared else 1, "g_encoder": 1, "actor": 1, "zeta": 1, **own}
+
+
+def test_flow_features_by_hand():
+    """`flow_features`: "none" is φ; "l2" divides each row by its norm (3-4-5: (3, 4) → (0.6, 0.8)); a zero
+    row stays zero (ε under the root, no NaN)."""
+    phi = jnp.array([[3.0, 4.0], [0.0, 0.0], [-1.0, 0.0]])
+    assert jnp.array_equal(crl.flow_features(phi, "none"), phi)
+    want = jnp.array([[0.6, 0.8], [0.0, 0.0], [-1.0, 0.0]])
+    assert jnp.allclose(crl.flow_features(phi, "l2"), want, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("norm", ["none", "l2"])
+def test_the_l2_flow_sees_only_the_direction_of_phi(norm, monkeypatch):
+    """One flow step of CRL+SF² with φ's and φ̄'s last layer (kernel and bias) scaled by c = 5, so that φ, φ̄
+    become 5φ, 5φ̄: with `flow_feature_norm = "l2"` the flow is fed (5φ)/‖5φ‖ = φ/‖φ‖ and its loss is
+    unchanged (float32, up to the ε under the root); with "none" it is fed 5φ and the loss changes."""
+    monkeypatch.setattr(antgoal, "make", lambda episode_length, backend: antgoal.GoalEnvSpec(
+        _NoPhysics(), antgoal.STATE_SIZE + 2, antgoal.STATE_SIZE, antgoal.GOAL_INDICES, 8, episode_length))
+    cfg = make_config("quick", "ant-goal", algo="crl", representation="sf2")
+    assert cfg.flow_feature_norm == "none"
+    prog = crl.Program(crl.validate(cfg.replace(flow_feature_norm=norm)))
+    state = prog._init_one(jax.random.PRNGKey(0))
+    B, S, A = cfg.batch_size, antgoal.STATE_SIZE, 8
+    k = jax.random.split(jax.random.PRNGKey(1), 6)
+    sample = GoalSample(jax.random.normal(k[0], (B, S)), jax.random.uniform(k[1], (B, A), minval=-1),
+                        jax.random.normal(k[2], (B, S)), jax.random.normal(k[3], (B, S)),
+                        jax.random.uniform(k[4], (B, A), minval=-1), jnp.zeros((B,)))
+    noise = prog._noise(k[5])[1]
+    # the targets differ from the online encoder, as after training (else φ̄′ = φ′ at any scale)
+    params = {**state.params, "target_sa_encoder": jax.tree_util.tree_map(
+        lambda x: 0.7 * x, state.params["target_sa_encoder"])}
+    last = f"Dense_{len(cfg.hidden_sizes)}"
+
+    def scaled(enc, c):
+        return {**enc, last: jax.tree_util.tree_map(lambda x: c * x, enc[last])}
+
+    big = {**params, "sa_encoder": scaled(params["sa_encoder"], 5.0),
+           "target_sa_encoder": scaled(params["target_sa_encoder"], 5.0)}
+    flow = jax.jit(lambda p: prog._flow_step(p, state.opt_state, sample, noise)[2]["flow_loss"])
+    base, five = float(flow(params)), float(flow(big))
+    if norm == "l2":
+        assert five == pytest.approx(base, rel=1e-5)
+    else:
+        assert abs(five - base) > 0.01 * base, (base, five)
+

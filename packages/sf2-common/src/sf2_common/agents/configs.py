@@ -141,6 +141,7 @@ class TrainConfig:
     shared_torso: bool = False    # pgx's one network: a torso under both heads, one loss, Adam state and clip
     logsumexp_penalty: float = 0.1   # CRL's InfoNCE log-sum-exp penalty (--algo crl; docs/crl.md)
     contrastive_loss: str = "fwd"    # CRL's InfoNCE: "fwd" a row's goals, "bwd" a goal's state-actions
+    flow_feature_norm: str = "none"  # CRL+SF²: φ as SF²'s flow takes it, "none" or "l2" (φ/‖φ‖; docs/crl.md)
     # FPO (--algo fpo; docs/fpo.md): (ε, τ) pairs per action, Euler steps per action, actions per V_Q(s)
     fpo_samples: int = 8
     fpo_flow_steps: int = 10
@@ -214,6 +215,7 @@ class TrainConfig:
 ADDED_FIELDS.update({f.name: f.default for f in fields(TrainConfig) if f.name in PPO_FIELDS + FPO_FIELDS})
 ADDED_FIELDS["logsumexp_penalty"] = TrainConfig.logsumexp_penalty
 ADDED_FIELDS["contrastive_loss"] = TrainConfig.contrastive_loss
+ADDED_FIELDS["flow_feature_norm"] = TrainConfig.flow_feature_norm
 ADDED_FIELDS["physics"] = "mjx"   # every run before the field trained on MJX (ant-goal's CRL runs too)
 # CRL's values per preset (`--algo crl`, ant-goal; docs/crl.md): `paper` is JaxGCRL's CRL on `ant` (its
 # train.sh: 512 envs, 10M steps, 50 evaluations, the backward InfoNCE; its CRL defaults) with ζ for CRL+SF²

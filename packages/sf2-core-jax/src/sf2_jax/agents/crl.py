@@ -48,10 +48,32 @@ from .trainer import (  # _seed_map: one seed runs unvmapped
     run_training,
 )
 
-__all__ = ["CRLState", "Encoder", "Actor", "REGISTRY", "Program", "get_program", "train", "method_label",
+__all__ = ["CRLState", "FLOW_FEATURE_NORMS", "flow_features", "Encoder", "Actor", "REGISTRY", "Program",
+           "get_program", "train", "method_label",
            "validate", "evaluate_checkpoint", "evaluate_checkpoint_noises", "TrainingDiverged", "TrainResult"]
 
 _LECUN = nn.initializers.variance_scaling(1 / 3, "fan_in", "uniform")   # JaxGCRL's kernels; biases zero
+FLOW_FEATURE_NORMS = ("none", "l2")   # φ as SF²'s flow takes it (`flow_features`)
+_L2_EPS = 1e-12
+
+
+def flow_features(phi, norm: str):
+    """φ(s, a) as SF²'s flow takes it (the config's `flow_feature_norm`; InfoNCE always takes φ itself).
+
+    "none": φ; "l2": φ / √(‖φ‖² + 1e-12), each row on the unit sphere, so the flow sees φ's direction
+    only: its gradient in φ is orthogonal to φ (the flow cannot change φ's scale, which InfoNCE sets) and
+    its velocity ζ(x, k)φ/‖φ‖ does not grow with φ.
+
+    Args:
+      phi: φ (..., F).
+      norm: one of `FLOW_FEATURE_NORMS`.
+
+    Returns:
+      The features (..., F).
+    """
+    if norm == "none":
+        return phi
+    return phi / jnp.sqrt(jnp.sum(phi * phi, axis=-1, keepdims=True) + _L2_EPS)
 
 
 class Encoder(nn.Module):
@@ -258,17 +280,19 @@ class Program(SingleDeviceProgram):
         return params, opt_state, metrics
 
     def _flow_step(self, params, opt_state, sample, noise):
-        """SF²'s flow loss on φ (Adam state `flow_state`) and ζ, then φ̄ and ζ̄ by EMA."""
+        """SF²'s flow loss on φ (Adam state `flow_state`) and ζ, fed `flow_features` of φ and of φ̄′, then φ̄
+        and ζ̄ by EMA."""
         cfg = self.cfg
         next_sa = jnp.concatenate([sample.next_state, sample.next_action], -1)
-        next_features = jax.lax.stop_gradient(
-            self.sa_encoder.apply({"params": params["target_sa_encoder"]}, next_sa))
+        next_features = jax.lax.stop_gradient(flow_features(
+            self.sa_encoder.apply({"params": params["target_sa_encoder"]}, next_sa), cfg.flow_feature_norm))
         x1 = nw.normalize(sample.next_state, params["obs_norm"])
 
         def flow_loss(trained):
             p = {**params, **trained}
-            features = self.sa_encoder.apply({"params": p["sa_encoder"]},
-                                             jnp.concatenate([sample.state, sample.action], -1))
+            features = flow_features(self.sa_encoder.apply(
+                {"params": p["sa_encoder"]}, jnp.concatenate([sample.state, sample.action], -1)),
+                cfg.flow_feature_norm)
             bootstrap = None if cfg.gamma_su == 0 else next_features
             online, target = losses.velocity_fields(self.nets, p, features, bootstrap, noise["flow_time"])
             return losses.flow_field_loss(self.sf2, online, target, x1, noise["eps"], noise["flow_time"],
@@ -402,6 +426,12 @@ def validate(cfg: TrainConfig, seeds=(0,)) -> TrainConfig:
     if cfg.contrastive_loss not in lc.CONTRASTIVE_LOSSES:
         configs.bad_field("contrastive_loss", cfg.contrastive_loss, f"must be one of {lc.CONTRASTIVE_LOSSES} "
                           "(InfoNCE over a row's goals, or over a goal's state-actions)")
+    if cfg.flow_feature_norm not in FLOW_FEATURE_NORMS:
+        configs.bad_field("flow_feature_norm", cfg.flow_feature_norm, f"must be one of {FLOW_FEATURE_NORMS} "
+                          "(φ itself, or φ/‖φ‖, as SF²'s flow takes it)")
+    if cfg.flow_feature_norm != "none" and cfg.representation != "sf2":
+        configs.bad_field("flow_feature_norm", cfg.flow_feature_norm, "only --repr sf2 has a flow; "
+                          f"--repr {cfg.representation} takes 'none'")
     return cfg
 
 
