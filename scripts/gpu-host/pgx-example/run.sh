@@ -9,13 +9,7 @@
 # Every finished job's log so far comes back in $OUT/pgx-gpu<N>.tar.gz.
 set -u
 source scripts/gpu-host/gpu_env.sh || exit 1
-example=${PGX_EXAMPLE:-.pgx-example}
-(
-  flock 9
-  if [ ! -f /tmp/pgxsite/.done ]; then
-    python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/pgxsite "$example"/wheels/*.whl && touch /tmp/pgxsite/.done
-  fi
-) 9> /tmp/pgxsite.lock
+source scripts/gpu-host/pgx-example/install.sh || exit 1
 export PYTHONPATH=$PWD/scripts/gpu-host/pgx-example:/tmp/pgxsite:${PYTHONPATH:-}
 deadline=$(( $(date +%s) + $3 ))
 logs=/tmp/pgx-logs; claims=/tmp/pgx-claims/$(echo "$OUT" | md5sum | cut -c1-12)

@@ -21,13 +21,7 @@ for part in $parts; do
   case $part in example|gate|paper) ;; *) echo "PARTS: $part unknown; valid: example, gate, paper"; exit 2;; esac
 done
 source scripts/gpu-host/gpu_env.sh || exit 1
-example=${PGX_EXAMPLE:-.pgx-example}
-(
-  flock 9
-  if [ ! -f /tmp/pgxsite/.done ]; then
-    python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/pgxsite "$example"/wheels/*.whl && touch /tmp/pgxsite/.done
-  fi
-) 9> /tmp/pgxsite.lock
+source scripts/gpu-host/pgx-example/install.sh || exit 1
 gpu=${CUDA_VISIBLE_DEVICES:-0}
 logs=/tmp/minatar-speed/gpu${gpu//,/}
 tag=$(echo $games | tr ' ' '+')

@@ -155,22 +155,34 @@ class _NoPhysics:
         return jnp.zeros((keys.shape[0], antgoal.STATE_SIZE + 2))
 
 
-@pytest.mark.parametrize("shared", [True, False])
-def test_the_flow_step_takes_phis_adam_state_of_the_config(shared, monkeypatch):
-    """One SGD step of CRL+SF² advances φ's InfoNCE Adam state twice (InfoNCE, then the flow) where
-    `shared_adam` (both presets: docs/crl.md, "φ's Adam state in the flow step"), else once each for it and
-    φ's own flow state `sa_encoder:aux`; ζ's state once either way."""
+def _stub_physics(monkeypatch):
+    """The ant-goal task's spec with `_NoPhysics` (a step of SGD needs no environment)."""
     monkeypatch.setattr(antgoal, "make", lambda episode_length, backend: antgoal.GoalEnvSpec(
         _NoPhysics(), antgoal.STATE_SIZE + 2, antgoal.STATE_SIZE, antgoal.GOAL_INDICES, 8, episode_length))
-    cfg = make_config("quick", "ant-goal", algo="crl", representation="sf2")
-    assert cfg.shared_adam is True
-    prog = crl.Program(crl.validate(cfg.replace(shared_adam=shared)))
-    state = prog._init_one(jax.random.PRNGKey(0))
+
+
+def _random_sample(cfg):
+    """A minibatch of `cfg.batch_size` random transitions and the six keys split for it (k[5], not used
+    here, is left for the step's noise)."""
     B, S, A = cfg.batch_size, antgoal.STATE_SIZE, 8
     k = jax.random.split(jax.random.PRNGKey(1), 6)
     sample = GoalSample(jax.random.normal(k[0], (B, S)), jax.random.uniform(k[1], (B, A), minval=-1),
                         jax.random.normal(k[2], (B, S)), jax.random.normal(k[3], (B, S)),
                         jax.random.uniform(k[4], (B, A), minval=-1), jnp.zeros((B,)))
+    return sample, k
+
+
+@pytest.mark.parametrize("shared", [True, False])
+def test_the_flow_step_takes_phis_adam_state_of_the_config(shared, monkeypatch):
+    """One SGD step of CRL+SF² advances φ's InfoNCE Adam state twice (InfoNCE, then the flow) where
+    `shared_adam` (both presets: docs/crl.md, "φ's Adam state in the flow step"), else once each for it and
+    φ's own flow state `sa_encoder:aux`; ζ's state once either way."""
+    _stub_physics(monkeypatch)
+    cfg = make_config("quick", "ant-goal", algo="crl", representation="sf2")
+    assert cfg.shared_adam is True
+    prog = crl.Program(crl.validate(cfg.replace(shared_adam=shared)))
+    state = prog._init_one(jax.random.PRNGKey(0))
+    sample, k = _random_sample(cfg)
     _, opt, _ = jax.jit(prog._sgd_step)(state.params, state.opt_state, sample, prog._noise(k[5])[1])
     counts = {g: int(optax.tree_utils.tree_get(s, "count")) for g, s in opt.items() if g != "log_alpha"}
     own = {} if shared else {"sa_encoder:aux": 1}
@@ -191,17 +203,12 @@ def test_the_l2_flow_sees_only_the_direction_of_phi(norm, monkeypatch):
     """One flow step of CRL+SF² with φ's and φ̄'s last layer (kernel and bias) scaled by c = 5, so that φ, φ̄
     become 5φ, 5φ̄: with `flow_feature_norm = "l2"` the flow is fed (5φ)/‖5φ‖ = φ/‖φ‖ and its loss is
     unchanged (float32, up to the ε under the root); with "none" it is fed 5φ and the loss changes."""
-    monkeypatch.setattr(antgoal, "make", lambda episode_length, backend: antgoal.GoalEnvSpec(
-        _NoPhysics(), antgoal.STATE_SIZE + 2, antgoal.STATE_SIZE, antgoal.GOAL_INDICES, 8, episode_length))
+    _stub_physics(monkeypatch)
     cfg = make_config("quick", "ant-goal", algo="crl", representation="sf2")
     assert cfg.flow_feature_norm == "none"
     prog = crl.Program(crl.validate(cfg.replace(flow_feature_norm=norm)))
     state = prog._init_one(jax.random.PRNGKey(0))
-    B, S, A = cfg.batch_size, antgoal.STATE_SIZE, 8
-    k = jax.random.split(jax.random.PRNGKey(1), 6)
-    sample = GoalSample(jax.random.normal(k[0], (B, S)), jax.random.uniform(k[1], (B, A), minval=-1),
-                        jax.random.normal(k[2], (B, S)), jax.random.normal(k[3], (B, S)),
-                        jax.random.uniform(k[4], (B, A), minval=-1), jnp.zeros((B,)))
+    sample, k = _random_sample(cfg)
     noise = prog._noise(k[5])[1]
     # the targets differ from the online encoder, as after training (else φ̄′ = φ′ at any scale)
     params = {**state.params, "target_sa_encoder": jax.tree_util.tree_map(
