@@ -6,8 +6,9 @@
 # deadline is stopped (exit status 124 in its log). Each lane's output comes back in
 # $OUT/lanes.tar.gz; what a lane writes to $OUT itself (gpu_study.sh's archive) comes back as it is.
 #
-#   bash scripts/gpu-host/gpu_lanes.sh SECONDS "0,1: bash scripts/gpu-host/gpu_study.sh studies/own-adam.toml \$(left)" \
-#                                              "2: bash scripts/gpu-host/gpu_study.sh studies/fpo-gate.toml \$(left)"
+#   bash scripts/gpu-host/gpu_lanes.sh SECONDS "0,1: bash scripts/gpu-host/gpu_study.sh studies/own-adam.toml \$(( \$(left) - 30 ))" \
+#                                              "2: bash scripts/gpu-host/gpu_study.sh studies/fpo-gate.toml \$(( \$(left) - 30 ))"
+# (30 s for gpu_study.sh's dry run and archive after its own limit, before the lane's stop)
 # Wheels are installed once, before the lanes start (two lanes installing into /tmp/site at once would race).
 set -uo pipefail
 limit=$1; shift
