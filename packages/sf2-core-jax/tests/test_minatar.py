@@ -204,6 +204,31 @@ def test_contracted_velocity_equals_the_materialized_zeta():
         np.testing.assert_allclose(fast, np.einsum("bdf,bf->bd", zeta, f), rtol=1e-12, atol=1e-13)
 
 
+@pytest.mark.parametrize("shape", [SHAPE, (2, 7, 1)])
+def test_split_first_convolution_equals_the_broadcast_embedding(shape):
+    """h(x, k) with the embedding's part of ζ's first convolution formed per tap (`contract_zeta`) equals
+    the convolution over [grid, embedding at every pixel] (the oracle), values and gradients with respect
+    to every ζ parameter, on the same draws; a grid of two rows has no interior pixel."""
+    cfg = dataclasses.replace(CFG, obs_size=math.prod(shape))
+    rng = np.random.default_rng(7)
+    x, k, w = rng.normal(size=(B, cfg.obs_size)), rng.uniform(size=B), rng.normal(size=(B, *shape[:2], 5))
+    out = {}
+    for fast in (True, False):
+        nets = nwi.make_image_networks(dataclasses.replace(cfg, contract_zeta=fast), shape, "sf2")
+        p = image_params(nets, seed=3)
+
+        def h(z, nets=nets, p=p):
+            return jnp.sum(w * nwi.zeta_hidden(nets, {**p, "zeta": z}, x, k)), nwi.zeta_hidden(nets, p, x, k)
+
+        out[fast] = jax.value_and_grad(h, has_aux=True)(p["zeta"])
+    (_, h_fast), g_fast = out[True]
+    (_, h_plain), g_plain = out[False]
+    assert h_fast.dtype == jnp.float64
+    assert np.max(np.abs(np.asarray(h_fast) - h_plain)) <= 1e-10 * np.max(np.abs(h_plain))
+    for a, b in zip(jax.tree_util.tree_leaves(g_fast), jax.tree_util.tree_leaves(g_plain), strict=True):
+        assert np.max(np.abs(np.asarray(a) - b)) <= 1e-10 * max(np.max(np.abs(b)), 1e-300)
+
+
 @pytest.mark.parametrize("steps,method,gamma_su",
                          [(1, "midpoint", 0.9), (2, "euler", 0.9), (1, "midpoint", 0.0)])
 def test_image_flow_loss_fast_path_equals_plain_oracle(steps, method, gamma_su):

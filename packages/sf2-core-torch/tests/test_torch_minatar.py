@@ -170,6 +170,30 @@ def test_contracted_velocity_equals_the_materialized_zeta():
         np.testing.assert_allclose(fast, np.einsum("bdf,bf->bd", zeta, f.numpy()), rtol=1e-12, atol=1e-13)
 
 
+@pytest.mark.parametrize("shape", [SHAPE, (2, 7, 1)])
+def test_split_first_convolution_equals_the_broadcast_embedding(shape):
+    """h(x, k) with the embedding's part of ζ's first convolution formed per tap (`contract_zeta`) equals
+    the convolution over [grid, embedding at every pixel] (the oracle), values and gradients with respect
+    to every ζ parameter, on the same draws (as the JAX core's test)."""
+    cfg = dataclasses.replace(CFG, obs_size=math.prod(shape))
+    rng = np.random.default_rng(7)
+    x, k = t(rng.normal(size=(B, cfg.obs_size))), t(rng.uniform(size=B))
+    w = t(rng.normal(size=(B, *shape[:2], 5)))
+    out = {}
+    for fast in (True, False):
+        nets = image_nets(dataclasses.replace(cfg, contract_zeta=fast), shape, "sf2", seed=3)
+        h = nwi.zeta_hidden(nets, x, k)
+        (w * h).sum().backward()
+        out[fast] = h.detach().numpy(), params.to_canonical({"zeta": nets.zeta}, grads=True)
+    (h_fast, g_fast), (h_plain, g_plain) = out[True], out[False]
+    assert h_fast.dtype == np.float64
+    assert np.max(np.abs(h_fast - h_plain)) <= 1e-10 * np.max(np.abs(h_plain))
+    assert set(g_fast) == set(g_plain)
+    for name in g_fast:
+        assert np.max(np.abs(g_fast[name] - g_plain[name])) <= 1e-10 * max(np.max(np.abs(g_plain[name])),
+                                                                          1e-300), name
+
+
 @pytest.mark.parametrize("steps,method,gamma_su",
                          [(1, "midpoint", 0.9), (2, "euler", 0.9), (1, "midpoint", 0.0)])
 def test_image_flow_loss_fast_path_equals_plain_oracle(steps, method, gamma_su):

@@ -53,6 +53,13 @@ def _dense_init(key, shape, dtype=jnp.float32):
     return jax.random.truncated_normal(key, -2.0, 2.0, shape, dtype) / math.sqrt(shape[0])
 
 
+def _taps_inside(n: int, kernel: int) -> np.ndarray:
+    """V (n, kernel): V_{i,t} = 1 where tap t of a stride-1 'SAME' convolution at row i reads a row inside
+    [0, n) (XLA's padding: (kernel − 1) // 2 rows before), else 0."""
+    rows = np.arange(n)[:, None] + np.arange(kernel)[None, :] - (kernel - 1) // 2
+    return ((rows >= 0) & (rows < n)).astype(np.float64)
+
+
 def _pixel_last_init(key, shape, dtype=jnp.float32):
     """LeCun-uniform of the 1×1 layer W (H, C, F): fan-in H."""
     bound = math.sqrt(3.0 / shape[0])
@@ -157,6 +164,23 @@ class ImageZeta(nn.Module):
 
     def hidden(self, inp):
         for conv in self.conv:
+            inp = nn.relu(conv(inp))
+        return inp
+
+    def hidden_split(self, grid, emb):
+        """`hidden` of [grid, emb at every pixel] without that broadcast input: the first convolution's
+        embedding rows K^e see one e per sample, so their part at pixel (i, j) is Σ_{y,x} V_{i,y} V_{j,x}
+        (eᵀK^e_{y,x}) (`_taps_inside`: the taps that read inside the grid); its grid rows convolve as
+        before. The same sums as `hidden`, grouped per tap. grid (B, H, W, C), emb (B, E)."""
+        kernel, bias = (self.conv[0].variables["params"][name] for name in ("kernel", "bias"))
+        dtype = jnp.result_type(grid, emb, kernel)
+        kernel, c = kernel.astype(dtype), grid.shape[-1]
+        out = jax.lax.conv_general_dilated(grid.astype(dtype), kernel[:, :, :c], (1, 1), "SAME",
+                                           dimension_numbers=("NHWC", "HWIO", "NHWC"))
+        taps = jnp.einsum("be,yxeh->byxh", emb.astype(dtype), kernel[:, :, c:])
+        rows, cols = (jnp.asarray(_taps_inside(n, k), dtype) for n, k in zip(grid.shape[1:3], kernel.shape))
+        inp = nn.relu(out + jnp.einsum("iy,jx,byxh->bijh", rows, cols, taps) + bias.astype(dtype))
+        for conv in self.conv[1:]:
             inp = nn.relu(conv(inp))
         return inp
 
@@ -568,8 +592,8 @@ def q_head(nets: ImageNetworks, params: Params, features):
 
 
 # ------------------------------------------------------------------------------------------ the image ζ
-def _zeta_input(nets: ImageNetworks, x, k):
-    """[grid of x, embedding(k) at every pixel] (B, H, W, C + E)."""
+def _zeta_parts(nets: ImageNetworks, x, k):
+    """(grid of x (B, H, W, C), embedding(k) (B, E)), checked."""
     cfg = nets.cfg
     nw.check_last("x", x, cfg.obs_size, "obs_size")
     x, k = jnp.asarray(x), jnp.asarray(k)
@@ -580,13 +604,22 @@ def _zeta_input(nets: ImageNetworks, x, k):
                          f"{tuple(x.shape)} and {tuple(k.shape)}")
     dtype = jnp.result_type(x.dtype, k.dtype, float)
     grid = x.astype(dtype).reshape(x.shape[0], *nets.obs_shape)
-    emb = nw.flow_time_embedding(k.astype(dtype), cfg.embedding_size)
-    emb = jnp.broadcast_to(emb[:, None, None, :], (*grid.shape[:3], cfg.embedding_size))
+    return grid, nw.flow_time_embedding(k.astype(dtype), cfg.embedding_size)
+
+
+def _zeta_input(nets: ImageNetworks, x, k):
+    """[grid of x, embedding(k) at every pixel] (B, H, W, C + E)."""
+    grid, emb = _zeta_parts(nets, x, k)
+    emb = jnp.broadcast_to(emb[:, None, None, :], (*grid.shape[:3], emb.shape[-1]))
     return jnp.concatenate([grid, emb], axis=-1)
 
 
 def zeta_hidden(nets: ImageNetworks, params: Params, x, k, target: bool = False):
     """h(x, k): the image ζ's per-pixel features, its convolutions on [grid of x, embedding(k)].
+
+    With `cfg.contract_zeta` (the fast path) the embedding's part of the first convolution is formed once
+    per sample and tap (`ImageZeta.hidden_split`); otherwise the convolution runs over the embedding
+    broadcast to every pixel (the oracle).
 
     Args:
       nets: "sf2" `ImageNetworks`.
@@ -603,8 +636,10 @@ def zeta_hidden(nets: ImageNetworks, params: Params, x, k, target: bool = False)
       ShapeError: `x` or `k` of another shape.
     """
     _require(nets, ("sf2",), "zeta_hidden")
-    return nets.zeta.apply({"params": _group(params, "zeta", target)}, _zeta_input(nets, x, k),
-                           method=ImageZeta.hidden)
+    variables = {"params": _group(params, "zeta", target)}
+    if nets.cfg.contract_zeta:
+        return nets.zeta.apply(variables, *_zeta_parts(nets, x, k), method=ImageZeta.hidden_split)
+    return nets.zeta.apply(variables, _zeta_input(nets, x, k), method=ImageZeta.hidden)
 
 
 def _last(params: Params, target: bool):

@@ -72,6 +72,13 @@ def _conv_same(conv: nn.Conv2d, x: torch.Tensor) -> torch.Tensor:
     return conv(F.pad(x, pads))
 
 
+def _taps_inside(n: int, kernel: int) -> np.ndarray:
+    """V (n, kernel): V_{i,t} = 1 where tap t of a stride-1 'SAME' convolution at row i reads a row inside
+    [0, n) (XLA's padding: (kernel − 1) // 2 rows before), else 0."""
+    rows = np.arange(n)[:, None] + np.arange(kernel)[None, :] - (kernel - 1) // 2
+    return ((rows >= 0) & (rows < n)).astype(np.float64)
+
+
 def _avg_pool_2x2(x: torch.Tensor) -> torch.Tensor:
     """2×2 average pooling, stride 2, 'VALID' (an odd last row or column is dropped), on NHWC."""
     b, h, w, c = x.shape
@@ -167,7 +174,8 @@ class ImageZeta(nn.Module):
             fan_in = width
         self.last = PixelLast(fan_in, obs_shape[2], cfg.feature_size, **kw)
 
-    def hidden(self, x: torch.Tensor, k) -> torch.Tensor:
+    def _parts(self, x: torch.Tensor, k) -> tuple[torch.Tensor, torch.Tensor]:
+        """(grid of x (B, H, W, C), embedding(k) (B, E)), checked."""
         check_last("x", x, self.obs_size, "obs_size")
         k = torch.as_tensor(k, dtype=x.dtype, device=x.device)
         if k.ndim == 0:
@@ -175,10 +183,30 @@ class ImageZeta(nn.Module):
         if tuple(k.shape) != tuple(x.shape[:-1]) or x.ndim != 2:
             raise ShapeError(f"x and flow_time must have shapes (B, {self.obs_size}) and (B,), found "
                              f"{tuple(x.shape)} and {tuple(k.shape)}")
-        grid = x.reshape(x.shape[0], *self.obs_shape)
-        emb = flow_time_embedding(k, self.embedding_size)[:, None, None, :]
-        inp = torch.cat([grid, emb.expand(*grid.shape[:3], self.embedding_size)], dim=-1).permute(0, 3, 1, 2)
+        return x.reshape(x.shape[0], *self.obs_shape), flow_time_embedding(k, self.embedding_size)
+
+    def hidden(self, x: torch.Tensor, k) -> torch.Tensor:
+        grid, emb = self._parts(x, k)
+        emb = emb[:, None, None, :].expand(*grid.shape[:3], self.embedding_size)
+        inp = torch.cat([grid, emb], dim=-1).permute(0, 3, 1, 2)
         for i in range(self.num_conv):
+            inp = F.relu(_conv_same(getattr(self, f"conv_{i}"), inp))
+        return inp.permute(0, 2, 3, 1)
+
+    def hidden_split(self, x: torch.Tensor, k) -> torch.Tensor:
+        """`hidden` without the embedding broadcast to every pixel: the first convolution's embedding rows
+        K^e see one e per sample, so their part at pixel (i, j) is Σ_{y,x} V_{i,y} V_{j,x} (eᵀK^e_{y,x})
+        (`_taps_inside`); its grid rows convolve as before. The same sums as `hidden`, grouped per tap."""
+        grid, emb = self._parts(x, k)
+        conv, c = self.conv_0, grid.shape[-1]
+        kh, kw = conv.kernel_size
+        pads = [(kw - 1) // 2, kw - 1 - (kw - 1) // 2, (kh - 1) // 2, kh - 1 - (kh - 1) // 2]
+        out = F.conv2d(F.pad(grid.permute(0, 3, 1, 2), pads), conv.weight[:, :c], conv.bias)
+        taps = torch.einsum("be,heyx->bhyx", emb, conv.weight[:, c:])
+        rows, cols = (torch.as_tensor(_taps_inside(n, kk), dtype=taps.dtype, device=taps.device)
+                      for n, kk in zip(grid.shape[1:3], (kh, kw)))
+        inp = F.relu(out + torch.einsum("iy,jx,bhyx->bhij", rows, cols, taps))
+        for i in range(1, self.num_conv):
             inp = F.relu(_conv_same(getattr(self, f"conv_{i}"), inp))
         return inp.permute(0, 2, 3, 1)
 
@@ -555,6 +583,10 @@ def q_head(nets: ImageNetworks, features: torch.Tensor) -> torch.Tensor:
 def zeta_hidden(nets: ImageNetworks, x: torch.Tensor, k, target: bool = False) -> torch.Tensor:
     """h(x, k): the image ζ's per-pixel features, its convolutions on [grid of x, embedding(k)].
 
+    With `cfg.contract_zeta` (the fast path) the embedding's part of the first convolution is formed once
+    per sample and tap (`ImageZeta.hidden_split`); otherwise the convolution runs over the embedding
+    broadcast to every pixel (the oracle).
+
     Args:
       nets: "sf2" `ImageNetworks`.
       x: flattened grids (B, D), D = H·W·C in NHWC order.
@@ -569,7 +601,8 @@ def zeta_hidden(nets: ImageNetworks, x: torch.Tensor, k, target: bool = False) -
       ShapeError: `x` or `k` of another shape.
     """
     _require(nets, ("sf2",), "zeta_hidden")
-    return (nets.target_zeta if target else nets.zeta).hidden(x, k)
+    module = nets.target_zeta if target else nets.zeta
+    return module.hidden_split(x, k) if nets.cfg.contract_zeta else module.hidden(x, k)
 
 
 def _last(nets: ImageNetworks, target: bool) -> tuple[torch.Tensor, torch.Tensor]:
