@@ -10,6 +10,9 @@ outputs of each kernel; a GPU's figure, not a CPU's) and transcendentals; the pr
 over every `dot` and library GEMM of the optimized HLO, also per phase: XLA's GPU flops leave most GEMMs
 out); the kernels. Bytes over the device's bandwidth plus product flops over its peak bound the step's
 time where the device is busy end to end (many seeds); at one seed the kernel launches set the pace.
+
+An on-policy `--algo` (`ppo`, `fpo`: `--task minatar-breakout --algo ppo --reps none,sf2,sf2-ae`) gets
+`update_cost`, one update composed of its parts.
 """
 
 from __future__ import annotations
@@ -117,6 +120,100 @@ def step_cost(cfg, n_seeds: int = 1) -> dict:
             "backend": jax.default_backend()}
 
 
+def _cost(fn, args, n_seeds: int, contexts) -> dict:
+    """XLA's flops and bytes per seed of `fn(*args)` (shapes) compiled under `contexts()`, vmapped over
+    `n_seeds` above 1."""
+    import contextlib
+
+    import jax
+
+    if n_seeds > 1:
+        fn = jax.vmap(fn)
+        args = jax.tree.map(lambda x: jax.ShapeDtypeStruct((n_seeds, *x.shape), x.dtype), args)
+    with contextlib.ExitStack() as stack:
+        for context in contexts():
+            stack.enter_context(context)
+        compiled = jax.jit(fn).lower(*args).compile()
+    analysis = compiled.cost_analysis()
+    if isinstance(analysis, list | tuple):   # older JAX: one dict per computation
+        analysis = analysis[0]
+    memory = compiled.memory_analysis()
+    return {"flops": analysis["flops"] / n_seeds, "bytes": analysis["bytes accessed"] / n_seeds,
+            "temp_bytes": getattr(memory, "temp_size_in_bytes", 0) if memory is not None else 0}
+
+
+def update_cost(cfg, n_seeds: int = 1) -> dict:
+    """Compile the parts of one on-policy update from shapes and read their cost.
+
+    The on-policy trainer's (`sf2_jax.agents.onpolicy.Program`) rollout step and, on one minibatch, each
+    loss's clipped Adam step (`_loss_step`: the critic's, the representation's own in `aux_losses`' order,
+    the actor's), the targets' EMA and the whole SGD step, each vmapped over `n_seeds` seeds; nothing runs.
+    XLA counts a loop's body once, so the update is composed: U = T·rollout step + E·K·SGD step (T =
+    `rollout_length`, E = `update_epochs`, K minibatches); the λ-returns and minibatch gathers are left out.
+
+    Args:
+        cfg: an on-policy trainer config (its task, representation, sizes, precision).
+        n_seeds: above 1, each part `jax.vmap`ped over that many seeds, as the trainer runs it.
+
+    Returns:
+        Per seed: {"representation", "seeds", "parts": {part: {"flops", "bytes", "temp_bytes", "per_update"}},
+        "sgd_step" (the whole step, as `parts`' rows), "update_flops", "update_bytes" (the composed U; the
+        parts per update sum the SGD step's from its parts), "backend"}; `temp_bytes` are the program's
+        scratch for all seeds.
+    """
+    import jax
+    import jax.numpy as jnp
+    import optax
+    from sf2_jax.agents.onpolicy import Program
+    from sf2_jax.agents.representations_onpolicy import OnPolicyBatch
+
+    program, key = Program(cfg), jax.random.PRNGKey(0)
+    rep, S, f32 = program.rep, jax.ShapeDtypeStruct, jnp.float32
+    with program.precision():
+        state = jax.eval_shape(program._init_one, key)
+        _, ro = jax.eval_shape(program._act_step, state.params, state.env_state, key)
+    B = cfg.minibatch_size
+    rows = lambda x: S((B, *x.shape[1:]), x.dtype)   # noqa: E731  (one env's row, B of them)
+    obs, one = S((B, *ro.obs.shape[1:]), f32), S((B,), f32)
+    mb = OnPolicyBatch(obs=obs, action=rows(ro.action), reward=one, discount=one, truncation=one,
+                       next_obs=obs, next_action=rows(ro.action), value=one, advantage=one, target=one,
+                       policy_info=jax.tree.map(rows, ro.policy_info))
+    steps = cfg.update_epochs * program.num_minibatches
+
+    def critic(p, batch, k):
+        loss, aux = rep.critic_loss(p, batch, cfg.clip_eps)
+        return cfg.value_coef * loss, aux
+
+    def own(name):
+        return lambda p, batch, k: rep.aux_loss(name, p, batch, rep.aux_noise(k, batch))
+
+    losses = {"critic": (critic, rep.critic_groups, None)}
+    losses.update({name: (own(name), groups, program.aux_states) for name, groups in rep.aux_losses})
+    losses["actor"] = (lambda p, batch, k: program.policy.loss(p, batch, cfg), ("actor",), None)
+    learner = lambda: (program.precision(), program.learner_precision())   # noqa: E731
+    parts = {"rollout step": {**_cost(program._act_step, (state.params, state.env_state, key), n_seeds,
+                                      learner), "per_update": cfg.rollout_length}}
+    for part, (loss, groups, states) in losses.items():
+        def step(params, opt_state, batch, k, loss=loss, groups=groups, states=states):
+            objective = lambda p: loss(p, batch, k)   # noqa: E731
+            return program._loss_step(params, opt_state, objective, groups, states)[:2]
+
+        parts[part] = {**_cost(step, (state.params, state.opt_state, mb, key), n_seeds, learner),
+                       "per_update": steps}
+    if rep.targets():
+        def ema(params):
+            return {t: optax.incremental_update(params[online], params[t], tau)
+                    for t, (online, tau) in rep.targets().items()}
+
+        parts["targets"] = {**_cost(ema, (state.params,), n_seeds, learner), "per_update": steps}
+    whole = {**_cost(program._sgd_step, (state.params, state.opt_state, mb, key), n_seeds, learner),
+             "per_update": steps}
+    return {"representation": cfg.representation, "seeds": n_seeds, "parts": parts, "sgd_step": whole,
+            "update_flops": sum(r["flops"] * r["per_update"] for r in parts.values()),
+            "update_bytes": sum(r["bytes"] * r["per_update"] for r in parts.values()),
+            "backend": jax.default_backend()}
+
+
 def markdown(rows: list[dict], phases: tuple[str, ...]) -> str:
     """Render the step costs, the ratios to the first representation and the product flops per phase.
 
@@ -157,6 +254,47 @@ def markdown(rows: list[dict], phases: tuple[str, ...]) -> str:
     return "\n".join(out)
 
 
+def update_markdown(rows: list[dict]) -> str:
+    """Render the on-policy update costs, per part and in all, and the ratios to the first representation.
+
+    Args:
+        rows: `update_cost` results, the first the reference.
+
+    Returns:
+        step_cost.md's tables.
+    """
+    tf, tb = (lambda x: f"{x / 1e12:.2f}"), (lambda x: f"{x / 1e12:.3f}")
+    names = list(dict.fromkeys(part for r in rows for part in r["parts"]))
+    out = ["Per seed and update (U = the parts × their count per update; XLA's flops and bytes accessed, "
+           "TFLOP / TB):", "",
+           "| part | × per update | " + " | ".join(f"{r['representation']} TFLOP | TB" for r in rows) + " |",
+           "|---|---" + "|---|---" * len(rows) + "|"]
+    for part in names:
+        count = next(r["parts"][part]["per_update"] for r in rows if part in r["parts"])
+        cells = []
+        for r in rows:
+            x = r["parts"].get(part)
+            cells += ([tf(x["flops"] * x["per_update"]), tb(x["bytes"] * x["per_update"])] if x
+                      else ["–", "–"])
+        out.append(f"| {part} | {count} | " + " | ".join(cells) + " |")
+    out.append("| **update** | | " + " | ".join(f"**{tf(r['update_flops'])}** | **{tb(r['update_bytes'])}**"
+                                                 for r in rows) + " |")
+    out += ["", "One call of each part, per seed (GFLOP, GB; scratch: the compiled program's temporaries "
+            "for all seeds, GiB); the whole SGD step compiled as one program:", "",
+            "| representation | part | GFLOP | GB accessed | scratch GiB |", "|---|---|---|---|---|"]
+    for r in rows:
+        for part, x in [*r["parts"].items(), ("SGD step (whole)", r["sgd_step"])]:
+            out.append(f"| {r['representation']} | {part} | {x['flops'] / 1e9:.2f} | "
+                       f"{x['bytes'] / 1e9:.3f} | {x['temp_bytes'] / 2**30:.2f} |")
+    base = rows[0]
+    if len(rows) > 1:
+        out += ["", f"Per update against `{base['representation']}`:", "",
+                "| representation | flops | bytes |", "|---|---|---|"]
+        out += [f"| {r['representation']} | {r['update_flops'] / base['update_flops']:.2f}× | "
+                f"{r['update_bytes'] / base['update_bytes']:.2f}× |" for r in rows[1:]]
+    return "\n".join(out)
+
+
 def main(argv=None) -> int:
     """Run `python -m bench.step_cost`.
 
@@ -177,7 +315,6 @@ def main(argv=None) -> int:
     from sf2_common.errors import ConfigError
 
     from .agent_throughput import framework_configs, parse_sets
-    from .machine import describe
 
     try:   # every config before anything compiles
         overrides = parse_sets(args.set, ["jax"])
@@ -195,18 +332,38 @@ def main(argv=None) -> int:
     from sf2_jax.agents.algorithms import PHASES
 
     rows = []
+    command = "python -m bench.step_cost " + " ".join(argv if argv is not None else sys.argv[1:])
+    if cfgs[0].algo in configs.ONPOLICY_ALGOS:
+        for cfg in cfgs:
+            rows.append(update_cost(cfg, args.seeds))
+            print(f"  {cfg.representation}: {rows[-1]['update_flops'] / 1e12:.2f} TFLOP per update",
+                  flush=True)
+        cfg = cfgs[0]
+        text = (f"Command: `{command}`\n\nOne update of the `paper` preset, {args.task}, {args.algo}, "
+                f"{args.seeds} seed(s) ({cfg.num_envs} envs × {cfg.rollout_length} steps, "
+                f"{cfg.update_epochs} passes of minibatches of {cfg.minibatch_size}, learner precision "
+                f"{cfg.learner_precision}); XLA's cost analysis on the {rows[0]['backend']} backend "
+                "(bench/step_cost.py, `update_cost`)."
+                "\n\n" + update_markdown(rows))
+        return _write(args.out, text, rows, command)
     for cfg in cfgs:
         rows.append(step_cost(cfg, args.seeds))
         print(f"  {cfg.representation}: {rows[-1]['flops'] / 1e9:.3f} GFLOP per SGD step", flush=True)
-    command = "python -m bench.step_cost " + " ".join(argv if argv is not None else sys.argv[1:])
     cfg = cfgs[0]
     text = (f"Command: `{command}`\n\nOne SGD step of the `paper` preset, {args.task}, {args.algo}, "
             f"{args.seeds} seed(s) (batch {cfg.batch_size}, hidden {list(cfg.hidden_sizes)}, learner "
             f"precision {cfg.learner_precision}); XLA's cost analysis on the {rows[0]['backend']} backend "
             "(bench/step_cost.py).\n\n" + markdown(rows, PHASES))
+    return _write(args.out, text, rows, command)
+
+
+def _write(out, text: str, rows: list[dict], command: str) -> int:
+    """Print `text`; with `out`, write step_cost.md, step_cost.json and machine.json there. Returns 0."""
+    from .machine import describe
+
     print(text)
-    if args.out:
-        out = Path(args.out)
+    if out:
+        out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         (out / "step_cost.md").write_text(text + "\n")
         (out / "step_cost.json").write_text(json.dumps(rows, indent=1))

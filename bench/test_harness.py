@@ -529,6 +529,29 @@ def test_step_cost_per_seed_arithmetic_does_not_change_with_the_seed_vmap():
     assert cost[("sf2", 1)]["dot_by_phase"]["aux_grad"] > 0
 
 
+def test_update_cost_composes_the_on_policy_update_of_its_parts():
+    """An on-policy update is `rollout_length` rollout steps and update_epochs × (num_envs ·
+    rollout_length / minibatch_size) SGD steps, each the critic's, the flow loss's and the actor's Adam
+    steps and the targets' EMA: the parts compiled alone add up to the whole SGD step's arithmetic (the
+    same operations, one program), and the update is the parts times their counts."""
+    pytest.importorskip("pgx", reason="MinAtar needs pgx: install sf2-core-jax[minatar]")
+    from sf2_common.agents.configs import make_config
+
+    from bench import step_cost
+
+    cfg = make_config("quick", "minatar-breakout", "ppo", "sf2")
+    got = step_cost.update_cost(cfg, 1)
+    sgd_steps = cfg.update_epochs * cfg.num_envs * cfg.rollout_length // cfg.minibatch_size
+    parts = got["parts"]
+    assert list(parts) == ["rollout step", "critic", "flow_loss", "actor", "targets"]
+    assert [r["per_update"] for r in parts.values()] == [cfg.rollout_length] + [sgd_steps] * 4
+    sgd = sum(r["flops"] for name, r in parts.items() if name != "rollout step")
+    assert sgd == pytest.approx(got["sgd_step"]["flops"], rel=0.01)
+    assert parts["flow_loss"]["flops"] > parts["critic"]["flops"] > 0
+    assert got["update_flops"] == pytest.approx(cfg.rollout_length * parts["rollout step"]["flops"]
+                                                + sgd_steps * sgd, rel=1e-12)
+
+
 def test_hlo_unwraps_transformations_around_the_scopes():
     """`jax.vmap` (the several-seed program) and autodiff wrap each scope traced under them in their
     name; the phase is still the last scope of the list the path names."""
