@@ -149,7 +149,9 @@ def update_cost(cfg, n_seeds: int = 1) -> dict:
     loss's clipped Adam step (`_loss_step`: the critic's, the representation's own in `aux_losses`' order,
     the actor's), the targets' EMA and the whole SGD step, each vmapped over `n_seeds` seeds; nothing runs.
     XLA counts a loop's body once, so the update is composed: U = T·rollout step + E·K·SGD step (T =
-    `rollout_length`, E = `update_epochs`, K minibatches); the λ-returns and minibatch gathers are left out.
+    `rollout_length`, E = `update_epochs`, K minibatches); the λ-returns, minibatch gathers and FPO's
+    per-pass advantage refresh are left out, and a loop inside a part (the env's: pgx's game logic, MJX's
+    solver; FPO's Euler sampler) counts once.
 
     Args:
         cfg: an on-policy trainer config (its task, representation, sizes, precision).
