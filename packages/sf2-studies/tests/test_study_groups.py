@@ -295,7 +295,8 @@ def test_listed_groups_split_the_seeds(tmp_path):
                                               ([], True)])
 def test_a_folder_accepts_other_groups_that_keep_its_runs(tmp_path, monkeypatch, on_disk, accepted):
     """A folder made with groups of 5 accepts the groups 0-4, 5-14 while it holds no run folder of a group
-    that would be gone (5-9); a folder made without seed groups keeps its layout."""
+    that would be gone (5-9); a folder made without seed groups keeps its layout once it holds a run folder,
+    and takes seed groups while it holds none."""
     old = _load(tmp_path)
     folder = StudyFolder(tmp_path / "study")
     folder.open(old, "jax", _resolve(old, monkeypatch))
@@ -311,19 +312,23 @@ def test_a_folder_accepts_other_groups_that_keep_its_runs(tmp_path, monkeypatch,
     flat = StudyFolder(tmp_path / "flat")
     ungrouped = _load(tmp_path, STUDY.replace("seeds_per_run = 5", ""))
     flat.open(ungrouped, "jax", _resolve(ungrouped, monkeypatch))
+    flat.check(new, "jax")                                                  # no run folder: nothing to keep
+    (flat.path / "runs" / "A" / "td3").mkdir(parents=True)
     with pytest.raises(StudyError, match="differ in seeds_per_run"):
         flat.check(new, "jax")
 
 
 def test_merge_takes_a_source_of_other_groups_that_are_still_groups(tmp_path, monkeypatch):
-    """`study merge` into a folder whose study lists the groups 0-4, 5-14 takes a source made with groups of
-    5 while the source holds run folders of 0-4 only; one of 5-9 makes it refuse, writing nothing."""
+    """`study merge` into a folder whose study lists the groups 0-4, 5-14 (and holds a run folder of 5-14)
+    takes a source made with groups of 5 while the source holds run folders of 0-4 only; one of 5-9 makes
+    it refuse, writing nothing."""
     from sf2_studies import merge as merging
 
     old = _load(tmp_path)
     new = _load(tmp_path, STUDY.replace("seeds_per_run = 5", 'seeds_per_run = ["0-4", "5-14"]'))
     dest = StudyFolder(tmp_path / "dest")
     dest.open(new, "jax", _resolve(new, monkeypatch))
+    (dest.path / "runs" / "A" / "td3" / "seeds-5-14").mkdir(parents=True)
     src = StudyFolder(tmp_path / "src")
     src.open(old, "jax", _resolve(old, monkeypatch))
     (src.path / "runs" / "A" / "td3" / "seeds-0-4").mkdir(parents=True)
@@ -336,3 +341,38 @@ def test_merge_takes_a_source_of_other_groups_that_are_still_groups(tmp_path, mo
     (src.path / "runs" / "A" / "td3" / "seeds-5-9").mkdir(parents=True)
     with pytest.raises(StudyError, match="differ in seeds_per_run"):
         merging.merge([src.path], dest.path, runs_of, framework="jax", say=lambda line: None)
+
+
+def test_merge_regroups_a_folder_that_holds_no_run(tmp_path, monkeypatch):
+    """`study merge` of a source made with seed groups into a folder made without them takes the source's
+    study while the folder holds no run folder (its study.toml follows, study.json keeps its commands and
+    drops its entries of the old layout); once the folder holds one, it refuses, writing nothing."""
+    from sf2_studies import merge as merging
+
+    ungrouped = _load(tmp_path, STUDY.replace("seeds_per_run = 5\n", ""))
+    grouped = _load(tmp_path, STUDY.replace("seeds_per_run = 5", 'seeds_per_run = ["0-4", "5-14"]'))
+    dest = StudyFolder(tmp_path / "dest")
+    dest.open(ungrouped, "jax", _resolve(ungrouped, monkeypatch), command="sf2-jax study run old")
+    src = StudyFolder(tmp_path / "src")
+    src.open(grouped, "jax", _resolve(grouped, monkeypatch), command="sf2-jax study run new")
+    (src.path / "runs" / "A" / "td3" / "seeds-0-4").mkdir(parents=True)
+
+    def runs_of(study):
+        return _resolve(study, monkeypatch)
+
+    lines = []
+    merging.merge([src.path], dest.path, runs_of, framework="jax", say=lines.append)
+    assert dest.load_study().seed_groups() == grouped.seed_groups()
+    assert any("study.toml of" in line and "replaced by a source's" in line for line in lines)
+    state = dest.read_state()
+    assert [c["command"] for c in state["commands"]] == ["sf2-jax study run old", "sf2-jax study run new"]
+    assert {r["folder"].split("/")[-1] for r in state["runs"]} == {"seeds-0-4", "seeds-5-14"}
+    first = dest.method_runs(grouped)[("A", "td3")][tuple(range(5))]
+    assert first == dest.path / "runs" / "A" / "td3" / "seeds-0-4"
+    again = StudyFolder(tmp_path / "dest2")
+    again.open(ungrouped, "jax", _resolve(ungrouped, monkeypatch))
+    (again.path / "runs" / "A" / "td3").mkdir(parents=True)
+    before = again.study_path.read_text()
+    with pytest.raises(StudyError, match="differ in seeds_per_run"):
+        merging.merge([src.path], again.path, runs_of, framework="jax", say=lambda line: None)
+    assert again.study_path.read_text() == before

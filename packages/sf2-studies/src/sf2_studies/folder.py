@@ -92,10 +92,12 @@ class StudyFolder:
                              f"`sf2-{old_framework} study run` (runs of two frameworks do not mix)")
 
     def groups_on_disk(self, study: Study) -> set[tuple[int, ...]]:
-        """The seed groups of `study` that have a run folder here (of any task and method, any state)."""
+        """The seed groups of `study` that have a run folder here (of any task and method, any state); without
+        `seeds_per_run`, the one group of every seed if any method's folder is here."""
         base = self.path / self.RUNS
-        return {g for g in study.seed_groups()
-                if study.group_folder(g) and any(base.glob(f"*/*/{study.group_folder(g)}"))}
+        if study.seeds_per_run is None:
+            return {tuple(study.seeds)} if any(p.is_dir() for p in base.glob("*/*")) else set()
+        return {g for g in study.seed_groups() if any(base.glob(f"*/*/{study.group_folder(g)}"))}
 
     def open(self, study: Study, framework: str, runs: list[Run], command: str | None = None) -> dict:
         """`check`, then create or update the folder: its copy of the study file, and study.json (the run

@@ -152,7 +152,8 @@ def merge(sources, into, runs_of: Callable[[Study], list[Run]], *, framework: st
             dest.path.mkdir(parents=True, exist_ok=True)
             atomic_write(dest.study_path, study.text)
         elif dest.load_study().data != study.data:
-            say(f"  study.toml of {dest.path}: replaced by a source's, which adds tasks or methods")
+            say(f"  study.toml of {dest.path}: replaced by a source's, which adds tasks or methods or groups "
+                f"the seeds otherwise, keeping every run folder DEST holds")
             atomic_write(dest.study_path, study.text)
         for name, side in chosen.items():
             target = dest.run_path(expected[name].task, expected[name].rel)
@@ -252,13 +253,12 @@ def _check_studies(opened, dest: StudyFolder, framework: str) -> Study:
         raise StudyError(f"--into {dest.path} is not empty and holds no study ({StudyFolder.STUDY}); "
                          f"choose a study folder of the same study, or a new folder")
     # The study of the merge: the one every other holds runs of (spec.same_runs: description, report, claims
-    # may differ; seed groups while every group a folder holds is one of its; it may add tasks and methods).
-    # DEST's copy first; a source whose study only adds tasks or methods to DEST's becomes DEST's copy.
+    # may differ; seed groups while every group a folder holds is one of its, or a folder holds no run; it
+    # may add tasks and methods). DEST's copy first; else a source's study that holds every folder's runs,
+    # DEST's included, becomes DEST's copy.
     first_name, first, _ = studies[0]
     for _, candidate, _ in studies:
-        holds = (not same_runs(study, candidate, folder.groups_on_disk(study))
-                 for _, study, folder in studies)
-        if (candidate is first or only_adds(first, candidate)) and all(holds):
+        if all(not same_runs(study, candidate, folder.groups_on_disk(study)) for _, study, folder in studies):
             return candidate
     for name, study, folder in studies[1:]:
         keys = same_runs(study, first, folder.groups_on_disk(study))
@@ -461,9 +461,9 @@ def _merge_state(dest: StudyFolder, sources: list[StudyFolder], study: Study, fr
         state = {"id": first.get("id") or os.urandom(16).hex(), "name": study.name, "framework": framework}
     state.setdefault("name", study.name)
     state.setdefault("framework", framework)
-    runs = state.setdefault("runs", [])
+    runs = state["runs"] = [r for r in state.get("runs", []) if _entry_of(study, r)]
     have = {(r.get("task"), r.get("folder")) for r in runs}
-    for entry in (e for s in states for e in s.get("runs", [])):
+    for entry in (e for s in states for e in s.get("runs", []) if _entry_of(study, e)):
         if (entry.get("task"), entry.get("folder")) not in have:
             have.add((entry.get("task"), entry.get("folder")))
             runs.append(entry)
@@ -486,3 +486,14 @@ def _merge_state(dest: StudyFolder, sources: list[StudyFolder], study: Study, fr
         dest.path.mkdir(parents=True, exist_ok=True)
         atomic_write(dest.path / StudyFolder.STATE, json.dumps(state, indent=2, ensure_ascii=False) + "\n")
     return added
+
+
+def _entry_of(study: Study, entry: dict) -> bool:
+    """True when a study.json runs entry names a run folder of `study`'s layout: its seeds one of the seed
+    groups and its folder that group's (runs/<task>/<method>/seeds-0-4, or runs/<task>/<method> without
+    `seeds_per_run`); DEST's entries from before a regrouping it took (it held no run folder) are not."""
+    seeds = tuple(entry.get("seeds", study.seeds))
+    if seeds not in study.seed_groups():
+        return False
+    sub, folder = study.group_folder(seeds), str(entry.get("folder", ""))
+    return folder.endswith("/" + sub) if sub else "/" not in folder

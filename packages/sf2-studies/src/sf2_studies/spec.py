@@ -341,13 +341,14 @@ def _seed_groups(value, seeds, fail):
 def same_runs(old: Study, new: Study, kept_groups) -> list[str]:
     """The keys (`runs_data`) in which `new` declares other runs than `old`, a study folder's copy: [] when
     they are the same study. `new` may add tasks and methods (`_grows`); their seed groups may differ when
-    both group their seeds and every group of `kept_groups` (those the folder holds run folders of) is a
-    group of `new` too."""
+    the folder holds no run folder (`kept_groups`, the groups it holds run folders of, is empty), or when
+    both group their seeds and every group of `kept_groups` is a group of `new` too."""
     mine, theirs = old.runs_data(), new.runs_data()
     keys = sorted(k for k in set(mine) | set(theirs)
                   if mine.get(k) != theirs.get(k) and not _grows(k, mine.get(k), theirs.get(k)))
-    if (keys == ["seeds_per_run"] and old.seeds_per_run is not None and new.seeds_per_run is not None
-            and set(kept_groups) <= set(new.seed_groups())):
+    kept = set(kept_groups)
+    if keys == ["seeds_per_run"] and (not kept or (old.seeds_per_run is not None and new.seeds_per_run
+                                                   is not None and kept <= set(new.seed_groups()))):
         return []
     return keys
 
