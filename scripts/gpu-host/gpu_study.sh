@@ -15,9 +15,10 @@
 # A study with no finished run of its own (fig7-sac at first) forecasts from another's: `--forecast-from results/fig7-td3` (it travels with the repo).
 #
 # Wheels: .whl-jax (git-excluded), what the host's image lacks for training and evaluation, nothing more:
-#   bash ../shared/device/wheels.sh .whl-jax \
+#   bash ../shared/device/wheels.sh .whl-jax pgx==2.6.0 svgwrite \
 #     && rm .whl-jax/{torchrl,tensordict,rliable,arch,pyopengl,flask,flask_cors,mediapy,tensorboardx}-* \
 #     && python3 scripts/gpu-host/slim_wheels.py .whl-jax
+# (pgx and svgwrite, which pgx imports, for the MinAtar tasks: 0.3 MB)
 # For the torch trainer (e.g. `bench.agent_throughput --frameworks torch,jax`) keep TorchRL and tensordict
 # apart and carry both folders (`carry: [".whl-jax", ".whl-torch"]`; scripts/gpu-host/gpu_env.sh installs both):
 #   python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
