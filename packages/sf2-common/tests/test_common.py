@@ -100,7 +100,7 @@ def test_spr_augmentation_std_is_checked_and_older_run_folders_keep_resuming(tmp
                                     "shared_torso": False, "logsumexp_penalty": 0.1,
                                     "contrastive_loss": "fwd", "flow_feature_norm": "none", "fpo_samples": 8,
                                     "fpo_flow_steps": 10, "fpo_value_samples": 8, "fpo_log_ratio_clip": 20.0,
-                                    "physics": "mjx"}
+                                    "physics": "mjx", "seed_loop": "vmap"}
     assert cfg.spr_augmentation_std == 0.05
     assert run.check_compatible(cfg.to_dict(), (0,)) is True
     with pytest.raises(RunFolderMismatch, match="spr_augmentation_std: 0.05 \\(folder\\) vs 0.1 \\(now\\)"):
@@ -160,6 +160,29 @@ def test_physics_is_mjx_except_ant_goals_spring(reg, monkeypatch):
     with pytest.raises(ConfigError, match="physics = 'generalized' is invalid: must be one of mjx, spring"):
         configs.validate(cfg.replace(physics="generalized"), (0,), reg)
     assert configs.parse_overrides(["physics=mjx"]) == {"physics": "mjx"}
+
+
+def test_seed_loop_is_vmap_unless_the_onpolicy_trainer_takes_map(tmp_path, reg, monkeypatch):
+    """`seed_loop`: "vmap" in every preset and in a run folder written before the field (its seeds were
+    vmapped); "map" valid for the on-policy algos only; anything else refused naming the choices."""
+    monkeypatch.setattr(tasks, "check_installed", lambda task: None)   # pgx need not be installed here
+    monkeypatch.setattr(tasks, "playground_tasks", lambda: {"CartpoleBalance": "playground"})
+    ppo = configs.make_config("quick", "minatar-breakout", algo="ppo", representation="none")
+    sac = configs.make_config("quick", "CartpoleBalance", algo="sac", representation="fake")
+    assert ppo.seed_loop == sac.seed_loop == configs.ADDED_FIELDS["seed_loop"] == "vmap"
+    assert configs.validate(ppo.replace(seed_loop="map"), (0,), _ppo_reg()).seed_loop == "map"
+    assert configs.parse_overrides(["seed_loop=map"]) == {"seed_loop": "map"}
+    for cfg, r in ((ppo, _ppo_reg()), (sac, reg)):
+        with pytest.raises(ConfigError, match="seed_loop = 'pmap' is invalid: must be one of vmap, map"):
+            configs.validate(cfg.replace(seed_loop="pmap"), (0,), r)
+    with pytest.raises(ConfigError, match="seed_loop = 'map' is invalid: only the on-policy trainer \\(algo "
+                       "ppo, fpo\\) runs its seeds by jax.lax.map; algo 'sac' takes 'vmap'"):
+        configs.validate(sac.replace(seed_loop="map"), (0,), reg)
+    run = RunFolder(tmp_path / "old")
+    run.write_config({"config": {k: v for k, v in ppo.to_dict().items() if k != "seed_loop"}, "seeds": [0]})
+    assert run.check_compatible(ppo.to_dict(), (0,)) is True
+    with pytest.raises(RunFolderMismatch, match="seed_loop: 'vmap' \\(folder\\) vs 'map' \\(now\\)"):
+        run.check_compatible(ppo.replace(seed_loop="map").to_dict(), (0,))
 
 
 def test_crl_sf2_shares_phis_adam_state_between_infonce_and_flow(monkeypatch):

@@ -24,7 +24,7 @@ __all__ = [
     "parse_seeds", "validate", "Schedule", "schedule", "ConfigError", "bad_field", "LEARNER_PRECISIONS",
     "ADDED_FIELDS", "PAPER_ADAM_EPS", "SUPERSEDED", "superseded_values", "TASK_VALUES", "FAMILY_VALUES",
     "ONPOLICY_ALGOS", "CRITICS", "ADVANTAGE_REFRESH", "PPO_FIELDS", "PPO_VALUES", "FPO_FIELDS", "FPO_VALUES",
-    "PHYSICS",
+    "PHYSICS", "SEED_LOOPS",
 ]
 
 ALGOS = ("td3", "sac", "ppo", "fpo", "crl")
@@ -32,6 +32,9 @@ ONPOLICY_ALGOS = ("ppo", "fpo")   # the on-policy trainer's (sf2_jax.agents.onpo
 CRITICS = ("q", "v")        # PPO's critic: Q(s, a) with λ-returns (PPO-Q), or V(s) with GAE (PPO)
 # `physics`: the simulator pipeline; "spring" (Brax's, JaxGCRL's for `ant`) only for ant-goal (docs/crl.md)
 PHYSICS = ("mjx", "spring")
+# `seed_loop`: how the on-policy trainer's program runs the seeds, batched by `jax.vmap` or one after another
+# by `jax.lax.map` (sf2_jax.agents.trainer._seed_map); the other trainers (and torch's) always vmap
+SEED_LOOPS = ("vmap", "map")
 # `learner_precision` → JAX's matmul precision (torch: TF32, bf16 autocast); docs/core-contract.md
 LEARNER_PRECISIONS = {"highest": "highest", "tensorfloat32": "tensorfloat32", "bfloat16": "BF16_BF16_F32"}
 _SF2_DEFAULTS = {f.name: f.default for f in fields(SF2Config)}
@@ -139,6 +142,7 @@ class TrainConfig:
     critic: str = "q"             # "q": Q(s, a) and λ-returns (PPO-Q, SF²); "v": V(s) and GAE (PPO)
     advantage_refresh: str = "rollout"   # advantages from the rollout-time critic, or the current one
     shared_torso: bool = False    # pgx's one network: a torso under both heads, one loss, Adam state and clip
+    seed_loop: str = "vmap"       # the on-policy program's seeds: "vmap" batched, "map" in turn (SEED_LOOPS)
     logsumexp_penalty: float = 0.1   # CRL's InfoNCE log-sum-exp penalty (--algo crl; docs/crl.md)
     contrastive_loss: str = "fwd"    # CRL's InfoNCE: "fwd" a row's goals, "bwd" a goal's state-actions
     flow_feature_norm: str = "none"  # CRL+SF²: φ as SF²'s flow takes it, "none" or "l2" (φ/‖φ‖; docs/crl.md)
@@ -217,6 +221,7 @@ ADDED_FIELDS["logsumexp_penalty"] = TrainConfig.logsumexp_penalty
 ADDED_FIELDS["contrastive_loss"] = TrainConfig.contrastive_loss
 ADDED_FIELDS["flow_feature_norm"] = TrainConfig.flow_feature_norm
 ADDED_FIELDS["physics"] = "mjx"   # every run before the field trained on MJX (ant-goal's CRL runs too)
+ADDED_FIELDS["seed_loop"] = "vmap"   # every run before the field vmapped its seeds
 # CRL's values per preset (`--algo crl`, ant-goal; docs/crl.md): `paper` is JaxGCRL's CRL on `ant` (its
 # train.sh: 512 envs, 10M steps, 50 evaluations, the backward InfoNCE; its CRL defaults) with ζ for CRL+SF²
 # as wide as the encoders and φ's one Adam state for its InfoNCE and flow steps (SF²'s authors'; with a state
@@ -422,6 +427,7 @@ def validate(cfg: TrainConfig, seeds, registry) -> TrainConfig:
         bad_field("algo", cfg.algo, f"must be one of {', '.join(ALGOS)}")
     _validate_physics(cfg)
     _validate_shared_torso(cfg)
+    _validate_seed_loop(cfg)
     known = registry.names()
     if cfg.representation not in known:
         bad_field("representation", cfg.representation, registry.valid_text())
@@ -520,6 +526,19 @@ def _validate_shared_torso(cfg: TrainConfig) -> None:
         bad_field("shared_torso", cfg.shared_torso, f"pgx's shared torso exists for algo 'ppo' with critic "
                   f"'v' and representation 'none' only, found algo {cfg.algo!r}, critic {cfg.critic!r}, "
                   f"representation {cfg.representation!r} (valid: --algo ppo --repr none --set critic=v)")
+
+
+def _validate_seed_loop(cfg: TrainConfig) -> None:
+    """`seed_loop`: one of `SEED_LOOPS`; "map" only for the on-policy trainer (algo ppo, fpo), the one that
+    reads it."""
+    if cfg.seed_loop not in SEED_LOOPS:
+        bad_field("seed_loop", cfg.seed_loop, f"must be one of {', '.join(SEED_LOOPS)} (vmap: the seeds "
+                  f"batched in one program; map: one after another, jax.lax.map)")
+    if cfg.seed_loop != "vmap" and cfg.algo not in ONPOLICY_ALGOS:
+        onpolicy = ", ".join(ONPOLICY_ALGOS)
+        bad_field("seed_loop", cfg.seed_loop, f"only the on-policy trainer (algo {onpolicy}) runs its seeds "
+                  f"by jax.lax.map; algo {cfg.algo!r} takes 'vmap' (valid for {onpolicy}: "
+                  f"{', '.join(SEED_LOOPS)})")
 
 
 def _validate_onpolicy(cfg: TrainConfig) -> None:

@@ -4,14 +4,14 @@ fpo`, docs/fpo.md), each with a Q(s, a) or V critic, and SF²; the policy is a p
 PureJaxRL's pattern. An update acts `rollout_length` steps in every env (a `lax.scan` over the batched
 `minatar` or `playground_onpolicy` env), computes λ-returns (critic "q") or GAE (critic "v") and trains
 `update_epochs` passes of minibatches; an epoch, the updates between two evaluations, is one `lax.scan`
-of updates: one compiled program, vmapped over seeds, its state donated, no host sync inside. One SGD
-step takes the critic's loss, the representation's own losses (`representations_onpolicy`), the policy's
-loss, then the targets' EMA; each loss's gradient is clipped to `max_grad_norm` (global norm over the
-groups it trains), each group has its own Adam state (ψ's flow step a second one unless `shared_adam`);
-with `shared_torso` (pgx's one network) the critic's and policy's losses are one loss and one step.
-An evaluation runs the policy for one episode on `num_eval_envs` fresh envs per seed, at most
-`episode_length` steps. Run folders, resume, the NaN guard and the rows are the off-policy trainer's
-(`trainer.run_training`, `sf2_common.agents.hostloop`).
+of updates: one compiled program over the seeds (vmapped, or with `seed_loop = "map"` one seed after
+another), its state donated, no host sync inside. One SGD step takes the critic's loss, the
+representation's own losses (`representations_onpolicy`), the policy's loss, then the targets' EMA; each
+loss's gradient is clipped to `max_grad_norm` (global norm over the groups it trains), each group has its
+own Adam state (ψ's flow step a second one unless `shared_adam`); with `shared_torso` (pgx's one network)
+the critic's and policy's losses are one loss and one step. An evaluation runs the policy for one episode
+on `num_eval_envs` fresh envs per seed, at most `episode_length` steps. Run folders, resume, the NaN guard
+and the rows are the off-policy trainer's (`trainer.run_training`, `sf2_common.agents.hostloop`).
 """
 
 from __future__ import annotations
@@ -139,11 +139,11 @@ class Program(SingleDeviceProgram):
 
     # ------------------------------------------------------------------ host entry points
     def _program(self, name: str, n_seeds: int, *static):
-        key = (name, n_seeds == 1, *static)
+        key = (name, n_seeds == 1, self.cfg.seed_loop, *static)
         if key not in self._programs:
             fn, in_axes = {"init": (self._init_one, (0,)), "epoch": (self._epoch_one, (0,)),
                            "evaluate": (functools.partial(self._eval_one, *static), (0, 0))}[name]
-            self._programs[key] = jax.jit(_seed_map(fn, in_axes, n_seeds),
+            self._programs[key] = jax.jit(_seed_map(fn, in_axes, n_seeds, self.cfg.seed_loop),
                                           donate_argnums=(0,) if name == "epoch" else ())
         return self._programs[key]
 

@@ -340,12 +340,38 @@ def episode_returns(env, eval_start, act, key, n_steps: int) -> jax.Array:
     return ret
 
 
-def _seed_map(fn, in_axes, n_seeds: int):
-    """`fn` over the seed axis (axis 0 of the arguments whose `in_axes` entry is 0, and of every output):
-    `jax.vmap`, except at one seed, where `fn` runs on the seed's slice and the axis is added back outside.
-    The same operations; but under a vmap of one seed XLA lays the GEMMs' outputs out column-major on a GPU,
-    so that every LayerNorm is a chain of column reductions instead of one or two Triton kernels
-    (docs/decisions/jax-trainer-step.md)."""
+def _seed_map(fn, in_axes, n_seeds: int, loop: str = "vmap"):
+    """`fn` over the seed axis (axis 0 of the arguments whose `in_axes` entry is 0, and of every output).
+
+    "vmap" batches the seeds into one program, except at one seed, where `fn` runs on the seed's slice and
+    the axis is added back outside: the same operations, but under a vmap of one seed XLA lays the GEMMs'
+    outputs out column-major on a GPU, so that every LayerNorm is a chain of column reductions instead of
+    one or two Triton kernels (docs/decisions/jax-trainer-step.md). "map" runs the seeds one after another
+    in the program (`jax.lax.map`), each on `fn`'s unbatched shapes: under a vmap a convolution becomes a
+    grouped one (`feature_group_count` = seeds), which cuDNN may run slower than the seeds in turn.
+
+    Args:
+      fn: the per-seed function.
+      in_axes: per argument, 0 (sliced along the seed axis) or None (the same for every seed).
+      n_seeds: the length of the seed axis.
+      loop: "vmap" or "map" (`configs.SEED_LOOPS`, the config's `seed_loop`).
+
+    Returns:
+      `fn` over the seed axis, its outputs stacked on axis 0 (as `jax.vmap`'s), with `fn`'s name.
+    """
+    if loop == "map":
+        def mapped(*args):
+            seeded = [a for a, axis in zip(args, in_axes, strict=True) if axis == 0]
+
+            def one(sliced):
+                it = iter(sliced)
+                return fn(*(next(it) if axis == 0 else a for a, axis in zip(args, in_axes, strict=True)))
+
+            return jax.lax.map(one, seeded)
+
+        return functools.wraps(fn)(mapped)   # the compiled module keeps fn's name (bench.hlo finds it by it)
+    if loop != "vmap":
+        raise ValueError(f"seed loop {loop!r} is invalid: must be one of {', '.join(configs.SEED_LOOPS)}")
     if n_seeds != 1:
         return jax.vmap(fn, in_axes=in_axes)
 
