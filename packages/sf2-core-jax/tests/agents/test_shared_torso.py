@@ -109,6 +109,30 @@ def _joint_step_against_pgx(program, params, mb):
             np.testing.assert_allclose(x, y, rtol=1e-10, atol=1e-15)
 
 
+def test_joint_loss_runs_the_torso_once_and_equals_the_heads_applied_apart(program, batch):
+    """`SharedTorso.one_pass` (the joint step's fast path) gives the joint loss and gradient of the plain
+    formulation, the actor and V critic each applying the network (float64, 1e-10), and its compiled
+    gradient holds two convolutions, the torso's forward and its kernel's gradient (the grids take none),
+    where the plain one holds one kernel gradient per head."""
+    cfg, rep = program.cfg, program.rep
+
+    def joint(p, mb, fast):
+        nets = (rep.one_pass(p, mb.obs),) if fast else ()
+        critic, _ = rep.critic_loss(p, mb, cfg.clip_eps, *nets)
+        actor, _ = program.policy.loss(p, mb, cfg, *nets)
+        return actor + cfg.value_coef * critic
+
+    with jax.enable_x64(True):
+        params, mb = _f64(batch)
+        plain, fast = (jax.value_and_grad(lambda p, f=f: joint(p, mb, f))(params) for f in (False, True))
+        for x, y in zip(jax.tree_util.tree_leaves(fast), jax.tree_util.tree_leaves(plain)):
+            np.testing.assert_allclose(x, y, rtol=1e-10, atol=1e-15)
+    params, mb = batch
+    convolutions = {f: jax.jit(jax.grad(lambda p, f=f: joint(p, mb, f))).lower(params).compile().as_text()
+                    .count(" convolution(") for f in (False, True)}
+    assert convolutions[True] == 2 and convolutions[False] > convolutions[True], convolutions
+
+
 def _perturbed(params, part):
     """`params` with every weight of `part` of the network ("torso", "policy" or "value") plus 0.1."""
     net = dict(params["actor"])

@@ -223,17 +223,18 @@ class Program(SingleDeviceProgram):
         with `rep.joint_step` one step of L = L_actor + value_coef · L_critic (pgx's; metric `total_loss`)."""
         cfg, rep = self.cfg, self.rep
 
-        def critic(p):
-            loss, aux = rep.critic_loss(p, mb, cfg.clip_eps)
+        def critic(p, *nets):   # nets: `rep.one_pass`'s, in the joint step
+            loss, aux = rep.critic_loss(p, mb, cfg.clip_eps, *nets)
             return cfg.value_coef * loss, {"critic_loss": loss, **aux}
 
-        def actor(p):
-            loss, aux = self.policy.loss(p, mb, cfg)
+        def actor(p, *nets):
+            loss, aux = self.policy.loss(p, mb, cfg, *nets)
             return loss, {"actor_loss": loss, **aux}
 
         if rep.joint_step:
             def joint(p):
-                (c, m_c), (a, m_a) = critic(p), actor(p)
+                nets = rep.one_pass(p, mb.obs)   # the torso once, under both heads
+                (c, m_c), (a, m_a) = critic(p, nets), actor(p, nets)
                 return a + c, {"total_loss": a + c, **m_c, **m_a}
 
             return self._loss_step(params, opt_state, joint, rep.critic_groups)

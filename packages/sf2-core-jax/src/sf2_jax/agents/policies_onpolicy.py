@@ -92,10 +92,11 @@ class CategoricalPolicy:
         action = jnp.argmax(logits, axis=-1) if deterministic else jax.random.categorical(key, logits)
         return action.astype(jnp.int32)
 
-    def loss(self, params, mb, cfg):
-        """PPO's clipped loss with the entropy bonus (`losses_onpolicy.ppo_policy_loss`)."""
-        return lo.ppo_policy_loss(self.rep.nets, params, mb.obs, mb.action, mb.policy_info, mb.advantage,
-                                  cfg.clip_eps, cfg.entropy_coef)
+    def loss(self, params, mb, cfg, nets=None):
+        """PPO's clipped loss with the entropy bonus (`losses_onpolicy.ppo_policy_loss`); `nets` (default
+        the representation's) as `SharedTorso.one_pass` gives them."""
+        return lo.ppo_policy_loss(nets or self.rep.nets, params, mb.obs, mb.action, mb.policy_info,
+                                  mb.advantage, cfg.clip_eps, cfg.entropy_coef)
 
 
 class FlowPolicy:

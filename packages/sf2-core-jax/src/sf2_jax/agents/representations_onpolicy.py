@@ -141,11 +141,13 @@ class OnPolicyRepresentation:
             return nwi.state_value(self.nets, params, obs)
         return nwi.expected_value(logits, nwi.action_values(self.nets, params, obs))
 
-    def critic_loss(self, params: Params, mb: OnPolicyBatch, clip_eps: float):
-        """The critic's loss, (loss, {metric: scalar}): ½(Q(s, a) − G)², or PPO's clipped V loss."""
+    def critic_loss(self, params: Params, mb: OnPolicyBatch, clip_eps: float, nets=None):
+        """The critic's loss, (loss, {metric: scalar}): ½(Q(s, a) − G)², or PPO's clipped V loss; `nets`
+        (default `self.nets`) as `SharedTorso.one_pass` gives them."""
+        nets = nets or self.nets
         if self.critic == "v":
-            return lo.v_critic_loss(self.nets, params, mb.obs, mb.value, mb.target, clip_eps)
-        return lo.q_critic_loss(self.nets, params, mb.obs, mb.action, mb.target)
+            return lo.v_critic_loss(nets, params, mb.obs, mb.value, mb.target, clip_eps)
+        return lo.q_critic_loss(nets, params, mb.obs, mb.action, mb.target)
 
     def aux_noise(self, key: jax.Array, mb: OnPolicyBatch) -> dict[str, jax.Array]:
         """The random inputs of its losses, keyed by `noise_keys`."""
@@ -208,9 +210,22 @@ class _Value(ActorCritic):
         return self.value(self.torso(obs))
 
 
+class _Given:
+    """A stand-in for a network inside one traced loss: `apply` returns an output computed before it (the
+    shared torso's one pass), whatever the parameters and grids it is given."""
+
+    def __init__(self, output):
+        self.output = output
+
+    def apply(self, variables, obs):
+        del variables, obs
+        return self.output
+
+
 class SharedTorso(NoRepresentation):
     """`none` with `shared_torso` (PPO, critic "v"): pgx's one `ActorCritic` in the group "actor" (the policy
-    reads it whole), V(s) its value head; `joint_step`: one loss, one clipped gradient, one Adam state."""
+    reads it whole), V(s) its value head; `joint_step`: one loss, one clipped gradient, one Adam state, the
+    torso run once for both heads (`one_pass`)."""
 
     supported_algos = ("ppo",)
     critics = ("v",)
@@ -234,8 +249,24 @@ class SharedTorso(NoRepresentation):
     def values(self, params, obs, logits):
         return super().values(self._as_critic(params), obs, logits)
 
-    def critic_loss(self, params, mb, clip_eps):
-        return super().critic_loss(self._as_critic(params), mb, clip_eps)
+    def critic_loss(self, params, mb, clip_eps, nets=None):
+        return super().critic_loss(self._as_critic(params), mb, clip_eps, nets)
+
+    def one_pass(self, params: Params, obs):
+        """The networks for one joint loss at `obs`: the torso and both heads applied once (pgx's forward),
+        the actor's and the V critic's `apply` returning those outputs. Within the traced loss the gradient
+        reaches the parameters through that one pass, so the torso's backward runs once for both heads
+        (applied apart, as `nets` are, it would run once per head: the same gradient, twice the work).
+
+        Args:
+          params: the parameters ({"actor": the `ActorCritic`'s}).
+          obs: the minibatch's grids (B, H, W, C), as the losses are given them.
+
+        Returns:
+          `nets` with `actor` and `critic` replaced, for `critic_loss` and the policy's `loss`.
+        """
+        logits, value = self.net.apply({"params": params["actor"]}, obs)
+        return self.nets.replace(actor=_Given(logits), critic=_Given(value))
 
 
 NoRepresentation.shared = SharedTorso
