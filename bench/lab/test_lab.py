@@ -273,3 +273,24 @@ def test_minatar_gate_has_a_row_per_method_and_marks_unfinished_runs(tmp_path, c
         ["breakout", "ppo-v-shared", "7.0, 9.0 (8.0)", "2.0, 6.0 [2.0, 6.0]",
          "above (unfinished: epoch 2 of 39)"]]
     assert [r[5] for r in rows] == ["+0.5 [too few seeds]", "+4.0 [too few seeds]"]   # 4.5 − 4, 8 − 4
+
+
+def test_minatar_pgx_cost_counts_opcodes_of_every_computation():
+    """`opcode_counts` counts each instruction once by its opcode, a tuple-typed one (whose type carries
+    /*index=N*/ comments) and a ROOT one included, and nothing in attributes or metadata."""
+    from bench.lab.minatar_pgx_cost import opcode_counts
+
+    hlo = """HloModule m
+%body (p: (s32[], f32[4])) -> (s32[], f32[4]) {
+  %p = (s32[], f32[4]{0}) parameter(0)
+  %c = f32[4,8]{1,0} convolution(%a, %b), window={size=2x2}, metadata={op_name="dot(x)"}
+  ROOT %t = (s32[], f32[4]{0}) tuple(%i, %x)
+}
+ENTRY %main {
+  %w = (s32[], f32[4]{0}, /*index=2*/f32[4]{0}) while(%init), condition=%cond, body=%body
+  %d = f32[4,4]{1,0} dot(%x, %y), lhs_contracting_dims={1}, rhs_contracting_dims={0}
+  ROOT %f = f32[4]{0} fusion(%d), kind=kLoop, calls=%fused
+}"""
+    counts = opcode_counts(hlo)
+    assert counts["convolution"] == counts["while"] == counts["dot"] == counts["fusion"] == 1
+    assert counts["instructions"] == 6 and counts["sort"] == 0
