@@ -105,9 +105,7 @@ def step_cost(cfg, n_seeds: int = 1) -> dict:
         args = jax.tree.map(lambda x: jax.ShapeDtypeStruct((n_seeds, *x.shape), x.dtype), args)
     with program._physics_precision(), program.learner_precision():
         compiled = jax.jit(step).lower(*args).compile()
-    analysis = compiled.cost_analysis()
-    if isinstance(analysis, list | tuple):   # older JAX: one dict per computation
-        analysis = analysis[0]
+    analysis = xla_cost(compiled)
     text = compiled.as_text()
     dots = dot_flops(text, PHASES)
     kernels = hlo.count(text, PHASES)["by_phase"]
@@ -118,6 +116,19 @@ def step_cost(cfg, n_seeds: int = 1) -> dict:
             "dot_by_phase": {k: v / n_seeds for k, v in dots["by_phase"].items()},
             "kernels": sum(sum(kinds.values()) for kinds in kernels.values()),
             "backend": jax.default_backend()}
+
+
+def xla_cost(compiled) -> dict:
+    """XLA's cost analysis of a compiled program ("flops", "bytes accessed", ...) as one dict.
+
+    Args:
+        compiled: a `jax.stages.Compiled`.
+
+    Returns:
+        Its `cost_analysis()` (older JAX gives a list of one dict per computation: the first).
+    """
+    analysis = compiled.cost_analysis()
+    return analysis[0] if isinstance(analysis, list | tuple) else analysis
 
 
 def _cost(fn, args, n_seeds: int, contexts) -> dict:
@@ -134,9 +145,7 @@ def _cost(fn, args, n_seeds: int, contexts) -> dict:
         for context in contexts():
             stack.enter_context(context)
         compiled = jax.jit(fn).lower(*args).compile()
-    analysis = compiled.cost_analysis()
-    if isinstance(analysis, list | tuple):   # older JAX: one dict per computation
-        analysis = analysis[0]
+    analysis = xla_cost(compiled)
     memory = compiled.memory_analysis()
     return {"flops": analysis["flops"] / n_seeds, "bytes": analysis["bytes accessed"] / n_seeds,
             "temp_bytes": getattr(memory, "temp_size_in_bytes", 0) if memory is not None else 0}

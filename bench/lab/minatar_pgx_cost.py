@@ -20,7 +20,6 @@ import argparse
 import collections
 import importlib.util
 import json
-import re
 import sys
 from pathlib import Path
 
@@ -39,7 +38,7 @@ def _time_example():
 
 
 def opcode_counts(hlo_text: str) -> dict:
-    """Instructions of an optimized HLO module by opcode, over every computation.
+    """Instructions of an optimized HLO module by opcode, over every computation (`bench.hlo.parse`).
 
     Args:
         hlo_text: `compiled.as_text()`.
@@ -47,21 +46,18 @@ def opcode_counts(hlo_text: str) -> dict:
     Returns:
         {opcode: count} for `OPCODES`, and "instructions": every instruction.
     """
-    found = collections.Counter()
-    for line in hlo_text.splitlines():
-        line = re.sub(r"/\*.*?\*/", "", line)   # tuple types carry /*index=N*/
-        match = re.match(r"\s*(?:ROOT )?%?[\w.\-]+ = [^=]*? ([a-z][\w\-]*)\(", line)
-        if match:
-            found[match.group(1)] += 1
-            found["instructions"] += 1
-    return {name: found.get(name, 0) for name in ("instructions", *OPCODES)}
+    from bench import hlo
+
+    comps, _ = hlo.parse(hlo_text)
+    found = collections.Counter(op for instructions in comps.values() for _, op, _ in instructions)
+    return {"instructions": sum(found.values()), **{name: found.get(name, 0) for name in OPCODES}}
 
 
 def cost(compiled) -> dict:
     """XLA's flops, bytes accessed and scratch of a compiled program, and its opcode counts."""
-    analysis = compiled.cost_analysis()
-    if isinstance(analysis, list | tuple):
-        analysis = analysis[0]
+    from bench.step_cost import xla_cost
+
+    analysis = xla_cost(compiled)
     memory = compiled.memory_analysis()
     return {"flops": analysis.get("flops", 0.0), "bytes": analysis.get("bytes accessed", 0.0),
             "temp_bytes": getattr(memory, "temp_size_in_bytes", 0) if memory is not None else 0,
