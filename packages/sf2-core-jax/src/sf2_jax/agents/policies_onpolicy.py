@@ -95,8 +95,9 @@ class CategoricalPolicy:
     def loss(self, params, mb, cfg, nets=None):
         """PPO's clipped loss with the entropy bonus (`losses_onpolicy.ppo_policy_loss`); `nets` (default
         the representation's) as `SharedTorso.one_pass` gives them."""
-        return lo.ppo_policy_loss(nets or self.rep.nets, params, mb.obs, mb.action, mb.policy_info,
-                                  mb.advantage, cfg.clip_eps, cfg.entropy_coef)
+        nets = self.rep.nets if nets is None else nets
+        return lo.ppo_policy_loss(nets, params, mb.obs, mb.action, mb.policy_info, mb.advantage, cfg.clip_eps,
+                                  cfg.entropy_coef)
 
 
 class FlowPolicy:

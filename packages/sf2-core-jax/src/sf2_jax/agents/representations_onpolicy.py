@@ -144,7 +144,7 @@ class OnPolicyRepresentation:
     def critic_loss(self, params: Params, mb: OnPolicyBatch, clip_eps: float, nets=None):
         """The critic's loss, (loss, {metric: scalar}): ½(Q(s, a) − G)², or PPO's clipped V loss; `nets`
         (default `self.nets`) as `SharedTorso.one_pass` gives them."""
-        nets = nets or self.nets
+        nets = self.nets if nets is None else nets
         if self.critic == "v":
             return lo.v_critic_loss(nets, params, mb.obs, mb.value, mb.target, clip_eps)
         return lo.q_critic_loss(nets, params, mb.obs, mb.action, mb.target)
