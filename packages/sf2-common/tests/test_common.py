@@ -164,7 +164,8 @@ def test_physics_is_mjx_except_ant_goals_spring(reg, monkeypatch):
 
 def test_seed_loop_is_vmap_unless_the_onpolicy_trainer_takes_map(tmp_path, reg, monkeypatch):
     """`seed_loop`: "vmap" in every preset and in a run folder written before the field (its seeds were
-    vmapped); "map" valid for the on-policy algos only; anything else refused naming the choices."""
+    vmapped); "map" valid for the on-policy algos only; anything else refused naming the choices; a folder
+    resumes under either loop, but not under another value of a field that changes the run."""
     monkeypatch.setattr(tasks, "check_installed", lambda task: None)   # pgx need not be installed here
     monkeypatch.setattr(tasks, "playground_tasks", lambda: {"CartpoleBalance": "playground"})
     ppo = configs.make_config("quick", "minatar-breakout", algo="ppo", representation="none")
@@ -181,8 +182,12 @@ def test_seed_loop_is_vmap_unless_the_onpolicy_trainer_takes_map(tmp_path, reg, 
     run = RunFolder(tmp_path / "old")
     run.write_config({"config": {k: v for k, v in ppo.to_dict().items() if k != "seed_loop"}, "seeds": [0]})
     assert run.check_compatible(ppo.to_dict(), (0,)) is True
-    with pytest.raises(RunFolderMismatch, match="seed_loop: 'vmap' \\(folder\\) vs 'map' \\(now\\)"):
-        run.check_compatible(ppo.replace(seed_loop="map").to_dict(), (0,))
+    # how the seeds run is no part of what the run computes (configs.EXECUTION_FIELDS): either resumes it
+    assert configs.EXECUTION_FIELDS == ("seed_loop",)
+    assert run.check_compatible(ppo.replace(seed_loop="map").to_dict(), (0,)) is True
+    with pytest.raises(RunFolderMismatch,
+                       match="differences: clip_eps: 0.2 \\(folder\\) vs 0.3 \\(now\\)\\. Use another"):
+        run.check_compatible(ppo.replace(seed_loop="map", clip_eps=0.3).to_dict(), (0,))
 
 
 def test_crl_sf2_shares_phis_adam_state_between_infonce_and_flow(monkeypatch):

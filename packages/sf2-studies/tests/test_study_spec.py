@@ -159,7 +159,8 @@ def test_folder_of_another_study_file_is_refused_untouched(tmp_path):
 
 def test_folder_takes_added_tasks_and_methods_but_no_changed_ones(tmp_path):
     """A study under way may gain a task or a method (an ablation run beside the finished runs): the folder's
-    copy follows the file. A method changed or removed, or a task removed, is another study."""
+    copy follows the file. A method changed or removed, or a task removed, is another study; a method given
+    an override of an execution field only (`seed_loop`) is the same one."""
     folder = StudyFolder(tmp_path / "study")
     folder.open(_load(tmp_path, BASE, "a.toml"), "jax", [])
     added = BASE.replace('["CartpoleBalance"]', '["CartpoleBalance", "AcrobotSwingup"]') + (
@@ -168,10 +169,16 @@ def test_folder_takes_added_tasks_and_methods_but_no_changed_ones(tmp_path):
     assert folder.load_study().data == _load(tmp_path, added, "b.toml").data
     changed = added.replace('representation = "none"', 'representation = "none"\noverrides = { tau = 0.01 }')
     for text, key in ((BASE, "methods, tasks"), (changed, "methods"),
-                      (added.replace('"CartpoleBalance", ', ""), "tasks")):
+                      (added.replace('"CartpoleBalance", ', ""), "tasks"),
+                      (changed.replace("tau = 0.01", 'tau = 0.01, seed_loop = "map"'), "methods")):
         with pytest.raises(StudyError, match=f"differ in {key}\\."):
             folder.open(_load(tmp_path, text, "c.toml"), "jax", [])
     assert folder.load_study().data == _load(tmp_path, added, "b.toml").data
+    # how a method's seeds run (configs.EXECUTION_FIELDS) is not what its runs compute: the copy follows
+    executed = added.replace('representation = "none"',
+                             'representation = "none"\noverrides = { seed_loop = "map" }')
+    folder.open(_load(tmp_path, executed, "d.toml"), "jax", [])
+    assert folder.load_study().data == _load(tmp_path, executed, "d.toml").data
 
 
 def test_non_empty_folder_without_a_study_is_refused(tmp_path):

@@ -1,10 +1,10 @@
 """The on-policy trainer (`--algo ppo` on MinAtar Breakout; small sizes, CPU): each representation learns
 above the random policy; the same seeds give the same rows; vmapped seeds equal seeds one by one and
-seeds in turn (`seed_loop = "map"`); kill-and-resume equals the uninterrupted run; the NaN guard;
-`sf2-jax train` and `eval` (also under observation noise) through the CLI; bad input refused before
-compiling (exit status 2). The mechanics
-run one tiny SF² w AE config (it has every part: the critic on ψ, the flow and autoencoder losses, ψ's two
-Adam states, the targets), compiled once per seed count for the whole module."""
+seeds in turn (`seed_loop = "map"`, also resuming a vmapped run); kill-and-resume equals the
+uninterrupted run; the NaN guard; `sf2-jax train` and `eval` (also under observation noise) through the CLI;
+bad input refused before compiling (exit status 2). The mechanics run one tiny SF² w AE config (it has
+every part: the critic on ψ, the flow and autoencoder losses, ψ's two Adam states, the targets), compiled
+once per seed count for the whole module."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ pytest.importorskip("pgx", reason="the [minatar] extra: pip install \"packages/s
 from sf2_jax import cli  # noqa: E402
 from sf2_jax.agents import make_config, minatar, onpolicy, trainer  # noqa: E402
 from sf2_jax.agents.onpolicy import TrainingDiverged, train  # noqa: E402
-from sf2_testing import KILL_POINTS, check_cli_eval, cli_args, kill_and_resume, strip_wall  # noqa: E402
+from sf2_testing import KILL_POINTS, Killed, check_cli_eval, cli_args, kill_and_resume, strip_wall  # noqa: E402
 
 TASK = "minatar-breakout"
 
@@ -122,7 +122,7 @@ def test_vmapped_seeds_equal_seeds_one_by_one(reference, both, tiny, tmp_path):
 def test_seeds_by_lax_map_equal_vmapped_seeds(both, tiny, tmp_path):
     """`seed_loop = "map"` (the seeds one after another, `jax.lax.map`) trains seeds 0 and 1 as the vmapped
     program does, up to float32 rounding (each seed runs the same operations, batched or not, which XLA
-    orders differently), in a folder of its own (the field is part of the run). The rows take the file's
+    orders differently), in a folder of its own, whose config.json says "map". The rows take the file's
     tolerance for that rounding (`_assert_close_rows`; observed here within 6e-5 relative after 6 updates);
     the state's floats were within 3e-7 absolute (atol 1e-6), its integers (counters, keys) equal."""
     mapped = train(tiny.replace(seed_loop="map"), (0, 1), tmp_path / "map", progress=False)
@@ -135,6 +135,23 @@ def test_seeds_by_lax_map_equal_vmapped_seeds(both, tiny, tmp_path):
             np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-6)
         else:
             np.testing.assert_array_equal(x, y)
+
+
+def test_a_vmapped_run_resumes_by_lax_map(both, tiny, tmp_path):
+    """A run of vmapped seeds killed after its first checkpoint resumes with `seed_loop = "map"` (an
+    execution field: `configs.EXECUTION_FIELDS`) and ends with the uninterrupted vmapped run's rows, up to the
+    float32 rounding of `test_seeds_by_lax_map_equal_vmapped_seeds`; its config.json keeps "vmap"."""
+    def hook(event, epoch):
+        if (event, epoch) == ("train", 2):
+            raise Killed
+
+    out = tmp_path / "run"
+    with pytest.raises(Killed):
+        train(tiny, (0, 1), out, progress=False, hook=hook)
+    resumed = train(tiny.replace(seed_loop="map"), (0, 1), out, progress=False)
+    assert resumed.resumed_from == 1
+    assert json.loads(resumed.run.config_path.read_text())["config"]["seed_loop"] == "vmap"
+    _assert_close_rows(strip_wall(resumed.run.read_rows()), strip_wall(both.rows))
 
 
 @pytest.mark.parametrize("n_seeds", [1, 3])

@@ -15,6 +15,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+from sf2_common.agents.configs import EXECUTION_FIELDS
 from sf2_common.errors import ConfigError
 
 from .base import StudyError, seeds_text
@@ -119,8 +120,20 @@ class Study:
     claims: tuple = ()                    # claims.Claim: the paper's claims the report checks (claims.py)
 
     def runs_data(self) -> dict:
-        """The parsed file without its `RUN_NEUTRAL` keys: what decides the runs."""
-        return {k: v for k, v in self.data.items() if k not in RUN_NEUTRAL}
+        """The parsed file without its `RUN_NEUTRAL` keys and without the overrides of
+        `configs.EXECUTION_FIELDS` (how a run's program executes; its run folder resumes under either value):
+        what decides the runs."""
+        def without(table):
+            if not isinstance(table, dict) or not isinstance(table.get("overrides"), dict):
+                return table
+            kept = {k: v for k, v in table["overrides"].items() if k not in EXECUTION_FIELDS}
+            rest = {k: v for k, v in table.items() if k != "overrides"}
+            return rest | ({"overrides": kept} if kept else {})
+
+        data = without({k: v for k, v in self.data.items() if k not in RUN_NEUTRAL})
+        if isinstance(data.get("methods"), list):
+            data["methods"] = [without(m) for m in data["methods"]]
+        return data
 
     def seed_groups(self) -> tuple[tuple[int, ...], ...]:
         """The seeds of each run of a (task, method): consecutive chunks of `seeds_per_run` seeds in file

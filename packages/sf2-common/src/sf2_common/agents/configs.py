@@ -24,7 +24,7 @@ __all__ = [
     "parse_seeds", "validate", "Schedule", "schedule", "ConfigError", "bad_field", "LEARNER_PRECISIONS",
     "ADDED_FIELDS", "PAPER_ADAM_EPS", "SUPERSEDED", "superseded_values", "TASK_VALUES", "FAMILY_VALUES",
     "ONPOLICY_ALGOS", "CRITICS", "ADVANTAGE_REFRESH", "PPO_FIELDS", "PPO_VALUES", "FPO_FIELDS", "FPO_VALUES",
-    "PHYSICS", "SEED_LOOPS",
+    "PHYSICS", "SEED_LOOPS", "EXECUTION_FIELDS",
 ]
 
 ALGOS = ("td3", "sac", "ppo", "fpo", "crl")
@@ -35,6 +35,9 @@ PHYSICS = ("mjx", "spring")
 # `seed_loop`: how the on-policy trainer's program runs the seeds, batched by `jax.vmap` or one after another
 # by `jax.lax.map` (sf2_jax.agents.trainer._seed_map); the other trainers (and torch's) always vmap
 SEED_LOOPS = ("vmap", "map")
+# Fields that set how a run's program executes, not what it computes (the same numbers up to float rounding,
+# tested): a run folder resumes under either value and keeps the one it started with in its config.json
+EXECUTION_FIELDS = ("seed_loop",)
 # `learner_precision` → JAX's matmul precision (torch: TF32, bf16 autocast); docs/core-contract.md
 LEARNER_PRECISIONS = {"highest": "highest", "tensorfloat32": "tensorfloat32", "bfloat16": "BF16_BF16_F32"}
 _SF2_DEFAULTS = {f.name: f.default for f in fields(SF2Config)}

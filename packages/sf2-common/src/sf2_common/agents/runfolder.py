@@ -17,7 +17,7 @@ from pathlib import Path
 from sf2_common.errors import ConfigError
 from sf2_common.fileio import GZ, atomic_write, expand, read_text, stored
 
-from .configs import ADDED_FIELDS, superseded_values
+from .configs import ADDED_FIELDS, EXECUTION_FIELDS, superseded_values
 
 __all__ = ["RunFolder", "RunFolderError", "RunFolderMismatch"]
 
@@ -165,7 +165,7 @@ class RunFolder:
 
     def check_compatible(self, config: dict, seeds) -> bool:
         """True if the folder holds this run (resume), False if it holds none; raises what `preflight`
-        raises, or `RunFolderMismatch` naming the differing fields."""
+        raises, or `RunFolderMismatch` naming the differing fields (`configs.EXECUTION_FIELDS` may differ)."""
         old = self.preflight()
         if old is None:
             return False
@@ -173,8 +173,8 @@ class RunFolder:
         # a preset value that changed since the folder was written is the folder's (configs.SUPERSEDED)
         known = {**{k: v for k, v in ADDED_FIELDS.items() if k in config}, **old["config"]}
         kept = superseded_values(known, config)
-        diffs = [f"{k}: {known.get(k)!r} (folder) vs {v!r} (now)"
-                 for k, v in config.items() if known.get(k) != v and k not in kept]
+        diffs = [f"{k}: {known.get(k)!r} (folder) vs {v!r} (now)" for k, v in config.items()
+                 if known.get(k) != v and k not in kept and k not in EXECUTION_FIELDS]
         diffs += [f"{k}: missing now" for k in old["config"] if k not in config]
         if list(old.get("seeds", [])) != list(seeds):
             diffs.append(f"seeds: {old.get('seeds')} (folder) vs {list(seeds)} (now)")
