@@ -3,15 +3,18 @@
 
     python -m bench.agent_profile --task AcrobotSwingup --algo td3 --reps none,sf2 --seeds 1,8 --out OUT
     python -m bench.agent_profile --framework torch --reps sf2 --seeds 1 --out OUT
+    python -m bench.agent_profile --task minatar-seaquest --algo ppo --reps sf2 --seeds 5 --actor-steps 1 \
+        --set seed_loop=map --out OUT
 
 Each case builds the trainer's own program (the `paper` preset cut so an epoch holds `--actor-steps`
-actor steps), runs one epoch (compilation, random prefill), then traces `--epochs` epochs. Everything is
-per SGD step, so kernel counts and device time compare with `python -m bench run --profile`'s single
-updates; `--hlo` adds the kernels per phase counted in the compiled epoch (`bench.hlo`). The torch case
-times each phase of an actor step on the host (as trained, then with the device drained around each),
-then traces the kernels and the CUDA calls that can make the host wait: host time close to the wall time
-means the host paces the epoch, busy time close to it the device. Each summary lists where the device
-idles (`bench.profile.idle_gaps`); the torch case also writes its trace's events (`trace-*.json.gz`).
+actor steps; on-policy, an actor step is one update), runs one epoch (compilation, random prefill), then
+traces `--epochs` epochs. Everything is per SGD step, so kernel counts and device time compare with
+`python -m bench run --profile`'s single updates; `--hlo` adds the kernels per phase counted in the
+compiled epoch (`bench.hlo`). The torch case times each phase of an actor step on the host (as trained,
+then with the device drained around each), then traces the kernels and the CUDA calls that can make the
+host wait: host time close to the wall time means the host paces the epoch, busy time close to it the
+device. Each summary lists where the device idles (`bench.profile.idle_gaps`); the torch case also writes
+its trace's events (`trace-*.json.gz`).
 """
 
 from __future__ import annotations
@@ -40,17 +43,18 @@ class _EpochRunner:
 
 
 def _config(task, algo, rep, n_seeds, actor_steps, epochs, overrides, framework="jax"):
-    """The `paper` preset cut so an epoch holds `actor_steps` actor steps (at least the prefill's),
-    validated (`ConfigError` naming the problem)."""
+    """The `paper` preset cut so an epoch holds `actor_steps` actor steps (at least the prefill's; an
+    on-policy actor step is one update), validated (`ConfigError` naming the problem)."""
+    from sf2_common.agents.configs import schedule
+
     from .agent_throughput import framework_configs
 
     configs, check = framework_configs(framework, tuple(range(n_seeds)))
     base = configs.make_config("paper", task, algo, rep, overrides)
-    per_actor = base.num_envs * base.action_repeat
-    prefill_steps = -(-base.min_replay_size // base.num_envs)
-    per_epoch = max(actor_steps, prefill_steps)
+    sched = schedule(base)
+    per_epoch = max(actor_steps, sched.prefill_actor_steps)
     total = per_epoch * (2 * epochs + 4)
-    cfg = base.replace(num_timesteps=total * per_actor, num_evals=2 * epochs + 5)
+    cfg = base.replace(num_timesteps=total * sched.env_steps_per_actor_step, num_evals=2 * epochs + 5)
     check(cfg)
     return cfg
 
@@ -72,18 +76,18 @@ def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=p
         `bench.profile.trace`'s summary per SGD step, with "phases" when `hlo_dump` is given.
     """
     import jax
-    from sf2_jax.agents.trainer import get_program
+    from sf2_jax.agents.trainers import trainer_module
 
     from .profile import trace
 
     cfg = _config(task, algo, rep, n_seeds, actor_steps, epochs, overrides)
     seeds = tuple(range(n_seeds))
-    program = get_program(cfg)
+    program = trainer_module(task, algo).get_program(cfg)
     state = program.init(seeds)
     state, means, _ = program.epoch(state, 1)
     jax.block_until_ready((state, means))
-    sgd = program.sched.actor_steps_per_epoch * cfg.grad_updates_per_step
-    how = "vmapped" if n_seeds > 1 else "no vmap"   # trainer._seed_map
+    sgd = program.sched.actor_steps_per_epoch * program.sched.sgd_steps_per_actor_step
+    how = ("no vmap" if n_seeds == 1 else "in turn" if cfg.seed_loop == "map" else "vmapped")   # _seed_map
     label = f"{task} {algo}+{rep}, {n_seeds} seed{'s' * (n_seeds > 1)} ({how}), per SGD step"
     log(f"  tracing {label}: {epochs} epochs of {program.sched.actor_steps_per_epoch} actor steps")
     out = trace(_EpochRunner(program, state, sgd), updates=epochs, label=label)

@@ -195,6 +195,27 @@ def test_bad_agent_profile_input_exits_2_before_writing(framework, argv, message
     assert not (tmp_path / "out").exists()
 
 
+def test_agent_profile_epochs_are_whole_actor_steps_of_either_trainer():
+    """`agent_profile._config` cuts the `paper` preset to epochs of `--actor-steps` actor steps: on MinAtar's
+    on-policy trainer an actor step is one update (num_envs × rollout_length env steps), with no prefill;
+    off-policy the epoch holds at least the random prefill (min_replay_size / num_envs, rounded up)."""
+    pytest.importorskip("pgx", reason="MinAtar: the [minatar] extra")
+    pytest.importorskip("mujoco_playground", reason="the off-policy case: a core's [train] extra")
+    from sf2_common.agents.configs import make_config, schedule
+
+    from bench import agent_profile
+
+    ppo = make_config("paper", "minatar-breakout", "ppo", "sf2")
+    td3 = make_config("paper", "AcrobotSwingup", "td3", "sf2")
+    prefill = -(-td3.min_replay_size // td3.num_envs)
+    for base, steps, per_actor, pre in ((ppo, 2, ppo.num_envs * ppo.rollout_length, 0),
+                                        (td3, max(2, prefill), td3.num_envs * td3.action_repeat, prefill)):
+        cfg = agent_profile._config(base.task, base.algo, "sf2", 2, 2, 3, {})
+        sched = schedule(cfg)
+        assert (sched.actor_steps_per_epoch, sched.env_steps_per_actor_step, sched.prefill_actor_steps,
+                sched.num_epochs) == (steps, per_actor, pre, 2 * 3 + 4), base.task
+
+
 def test_agent_profile_hlo_is_the_jax_trainers(capsys, tmp_path):
     """`--hlo` counts XLA's compiled kernels: with the torch trainer it exits 2 before writing anything."""
     pytest.importorskip("mujoco_playground", reason="the profile validates against the Playground task list: "
