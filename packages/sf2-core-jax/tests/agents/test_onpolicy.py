@@ -140,7 +140,8 @@ def test_seeds_by_lax_map_equal_vmapped_seeds(both, tiny, tmp_path):
 def test_a_vmapped_run_resumes_by_lax_map(both, tiny, tmp_path):
     """A run of vmapped seeds killed after its first checkpoint resumes with `seed_loop = "map"` (an
     execution field: `configs.EXECUTION_FIELDS`) and ends with the uninterrupted vmapped run's rows, up to the
-    float32 rounding of `test_seeds_by_lax_map_equal_vmapped_seeds`; its config.json keeps "vmap"."""
+    float32 rounding of `test_seeds_by_lax_map_equal_vmapped_seeds`; its config.json keeps "vmap", and the
+    change is said and logged."""
     def hook(event, epoch):
         if (event, epoch) == ("train", 2):
             raise Killed
@@ -151,6 +152,7 @@ def test_a_vmapped_run_resumes_by_lax_map(both, tiny, tmp_path):
     resumed = train(tiny.replace(seed_loop="map"), (0, 1), out, progress=False)
     assert resumed.resumed_from == 1
     assert json.loads(resumed.run.config_path.read_text())["config"]["seed_loop"] == "vmap"
+    assert "resumes with seed_loop = 'map'; it started with 'vmap'" in resumed.run.log_path.read_text()
     _assert_close_rows(strip_wall(resumed.run.read_rows()), strip_wall(both.rows))
 
 

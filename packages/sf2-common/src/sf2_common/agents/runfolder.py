@@ -184,6 +184,16 @@ class RunFolder:
                 + ". Use another --out, or --fresh to overwrite it.")
         return True
 
+    def say_execution_changes(self, config: dict) -> None:
+        """Say each field of `configs.EXECUTION_FIELDS` whose value in `config` differs from the one the
+        folder's run started with (which its config.json keeps)."""
+        old = (self.read_config() or {}).get("config", {})
+        for k in EXECUTION_FIELDS:
+            started = old.get(k, ADDED_FIELDS.get(k))
+            if k in config and config[k] != started:
+                self.say(f"{self.path} resumes with {k} = {config[k]!r}; it started with {started!r}, which "
+                         f"its config.json keeps (how the program runs, not what it computes)")
+
     def keep_trained_values(self, cfg):
         """`cfg` (a `TrainConfig`) with the superseded preset values this folder's run keeps
         (`configs.superseded_values`), said in one line; `cfg` itself when there are none or the config

@@ -509,6 +509,8 @@ def run_training(cfg: TrainConfig, seeds: tuple[int, ...], out, *, program_of: C
         run.check_framework("jax")
         cfg = run.keep_trained_values(cfg)
         existing = run.check_compatible(cfg.to_dict(), seeds)
+        if existing:
+            run.say_execution_changes(cfg.to_dict())
         sched = configs.schedule(cfg)
         env = hostloop.numerics_environment()
         if not existing:
