@@ -199,8 +199,10 @@ def test_agent_profile_epochs_are_whole_actor_steps_of_either_trainer():
     """`agent_profile._config` cuts the `paper` preset to epochs of `--actor-steps` actor steps: on MinAtar's
     on-policy trainer an actor step is one update (num_envs × rollout_length env steps), with no prefill;
     off-policy the epoch holds at least the random prefill (min_replay_size / num_envs, rounded up)."""
-    pytest.importorskip("pgx", reason="MinAtar: the [minatar] extra")
-    pytest.importorskip("mujoco_playground", reason="the off-policy case: a core's [train] extra")
+    pytest.importorskip("pgx", reason="the MinAtar case needs pgx: pip install "
+                        "\"packages/sf2-core-jax[minatar]\"")
+    pytest.importorskip("mujoco_playground", reason="the off-policy case's Playground task: install a core's "
+                        "[train] extra")
     from sf2_common.agents.configs import make_config, schedule
 
     from bench import agent_profile

@@ -139,7 +139,7 @@ class Program(SingleDeviceProgram):
 
     # ------------------------------------------------------------------ host entry points
     def _program(self, name: str, n_seeds: int, *static):
-        key = (name, n_seeds == 1, self.cfg.seed_loop, *static)
+        key = (name, n_seeds == 1, *static)
         if key not in self._programs:
             fn, in_axes = {"init": (self._init_one, (0,)), "epoch": (self._epoch_one, (0,)),
                            "evaluate": (functools.partial(self._eval_one, *static), (0, 0))}[name]
