@@ -80,7 +80,9 @@ def step_cost(cfg, n_seeds: int = 1) -> dict:
     """Compile one SGD step from shapes and read its cost.
 
     Args:
-        cfg: a trainer config (its representation, sizes, precisions).
+        cfg: a trainer config (its representation, sizes, precisions); `--algo crl` compiles the
+            goal-conditioned trainer's step (actor and temperature, critic, with SF² the flow; phases
+            the same scopes `PHASES`), every other off-policy algo the shared trainer's.
         n_seeds: above 1, the step `jax.vmap`ped over that many seeds, as the trainer runs it.
 
     Returns:
@@ -89,21 +91,36 @@ def step_cost(cfg, n_seeds: int = 1) -> dict:
     """
     import jax
     from sf2_jax.agents.algorithms import PHASES
-    from sf2_jax.agents.trainer import Program
 
-    program = Program(cfg)
-    algo, key = program.algo, jax.random.PRNGKey(0)
-    params, opt_state = jax.eval_shape(algo.init, key)
-    # a batch as the trainer draws it from its replay buffer (shapes only)
-    buffer = program.buffer
-    batch = jax.eval_shape(lambda k: buffer.sample(buffer.init(), k, cfg.batch_size), key)
-    noise = jax.eval_shape(algo.step_noise, key, batch)
-    step = lambda p, o, b, z: algo.sgd_step(p, o, b, z, 0)   # noqa: E731
-    args = (params, opt_state, batch, noise)
+    key = jax.random.PRNGKey(0)
+    if cfg.algo == "crl":
+        from sf2_jax.agents import crl
+
+        program = crl.Program(cfg)
+        state = jax.eval_shape(program._init_one, key)
+        k_sample, noise = jax.eval_shape(program._noise, key)
+        batch = jax.eval_shape(lambda b, k: program.buffer.sample(b, k, cfg.batch_size, cfg.discount),
+                               state.buffer, k_sample)
+        step = program._sgd_step
+        args = (state.params, state.opt_state, batch, noise)
+        contexts = (program.precision, program.learner_precision)
+    else:
+        from sf2_jax.agents.trainer import Program
+
+        program = Program(cfg)
+        algo = program.algo
+        params, opt_state = jax.eval_shape(algo.init, key)
+        # a batch as the trainer draws it from its replay buffer (shapes only)
+        buffer = program.buffer
+        batch = jax.eval_shape(lambda k: buffer.sample(buffer.init(), k, cfg.batch_size), key)
+        noise = jax.eval_shape(algo.step_noise, key, batch)
+        step = lambda p, o, b, z: algo.sgd_step(p, o, b, z, 0)   # noqa: E731
+        args = (params, opt_state, batch, noise)
+        contexts = (program._physics_precision, program.learner_precision)
     if n_seeds > 1:
         step = jax.vmap(step)
         args = jax.tree.map(lambda x: jax.ShapeDtypeStruct((n_seeds, *x.shape), x.dtype), args)
-    with program._physics_precision(), program.learner_precision():
+    with contexts[0](), contexts[1]():
         compiled = jax.jit(step).lower(*args).compile()
     analysis = xla_cost(compiled)
     text = compiled.as_text()

@@ -533,23 +533,31 @@ def test_step_cost_counts_the_dots_of_a_compiled_jax_program():
     assert got["flops"] == 1584.0 and got["dots"] == 6.0
 
 
-def test_step_cost_per_seed_arithmetic_does_not_change_with_the_seed_vmap():
+# TD3+SF²'s critic reads ψ(s, a), TD3's (s, a); CRL's encoders and actor are the same with and without SF²
+@pytest.mark.parametrize("task,algo,same_heads",
+                         [("CartpoleBalance", "td3", False), ("ant-goal", "crl", True)])
+def test_step_cost_per_seed_arithmetic_does_not_change_with_the_seed_vmap(task, algo, same_heads):
     """The SGD step vmapped over 3 seeds does 3 times one seed's products: per seed, its dot flops equal
     the one-seed program's, phase by phase; and the SF² step's products are the vanilla step's plus its
-    flow loss's (`aux_grad`, absent from the vanilla step)."""
+    flow loss's (`aux_grad`, absent from the vanilla step); where the heads are the same networks (CRL,
+    whose trainer scopes its parts with the same names) the critic's and actor's phases match."""
     pytest.importorskip("jax")
     from sf2_common.agents.configs import make_config
 
     from bench import step_cost
 
-    cost = {(rep, n): step_cost.step_cost(make_config("quick", "CartpoleBalance", "td3", rep), n)
+    cost = {(rep, n): step_cost.step_cost(make_config("quick", task, algo, rep), n)
             for rep in ("none", "sf2") for n in (1, 3)}
     for rep in ("none", "sf2"):
         one, three = cost[(rep, 1)], cost[(rep, 3)]
         assert three["dot_flops"] == pytest.approx(one["dot_flops"], rel=1e-12)
         assert three["dot_by_phase"] == pytest.approx(one["dot_by_phase"], rel=1e-12)
-    assert "aux_grad" not in cost[("none", 1)]["dot_by_phase"]
-    assert cost[("sf2", 1)]["dot_by_phase"]["aux_grad"] > 0
+    none, sf2 = cost[("none", 1)]["dot_by_phase"], cost[("sf2", 1)]["dot_by_phase"]
+    assert "aux_grad" not in none
+    assert sf2["aux_grad"] > 0
+    for phase in ("critic_grad", "policy_grad"):
+        assert none[phase] > 0 and sf2[phase] > 0
+        assert (sf2[phase] == pytest.approx(none[phase], rel=1e-12)) == same_heads
 
 
 def test_update_cost_composes_the_on_policy_update_of_its_parts():

@@ -243,7 +243,8 @@ class Program(SingleDeviceProgram):
 
     def _sgd_step(self, params, opt_state, sample, noise):
         """Actor and temperature (at the pre-step critic, JaxGCRL's order), critic, then SF²'s flow and the
-        targets' EMA. Returns (params, opt_state, metrics)."""
+        targets' EMA, each part under the off-policy trainer's `jax.named_scope`s (`algorithms.PHASES`: the
+        flow is the "aux" loss), for `bench.step_cost`. Returns (params, opt_state, metrics)."""
         cfg = self.cfg
         params, opt_state = dict(params), dict(opt_state)
         goal = sample.goal_state[:, self.goal_indices]
@@ -256,22 +257,26 @@ class Program(SingleDeviceProgram):
             loss, aux = lc.crl_actor_loss(log_prob, q, params["log_alpha"])
             return loss, (log_prob, aux)
 
-        (a_loss, (log_prob, a_aux)), grad = jax.value_and_grad(actor_loss, has_aux=True)(params["actor"])
-        (al_loss, al_aux), al_grad = jax.value_and_grad(
-            lambda la: lc.crl_alpha_loss(la, log_prob, self.target_entropy), has_aux=True
-        )(params["log_alpha"])
-        params["actor"], opt_state["actor"] = self._adam_step(self._adam, grad, opt_state["actor"],
-                                                              params["actor"])
-        params["log_alpha"], opt_state["log_alpha"] = self._adam_step(
-            self._alpha_adam, al_grad, opt_state["log_alpha"], params["log_alpha"])
+        with jax.named_scope("policy_grad"):
+            (a_loss, (log_prob, a_aux)), grad = jax.value_and_grad(actor_loss, has_aux=True)(params["actor"])
+            (al_loss, al_aux), al_grad = jax.value_and_grad(
+                lambda la: lc.crl_alpha_loss(la, log_prob, self.target_entropy), has_aux=True
+            )(params["log_alpha"])
+        with jax.named_scope("policy_adam"):
+            params["actor"], opt_state["actor"] = self._adam_step(self._adam, grad, opt_state["actor"],
+                                                                  params["actor"])
+            params["log_alpha"], opt_state["log_alpha"] = self._adam_step(
+                self._alpha_adam, al_grad, opt_state["log_alpha"], params["log_alpha"])
 
         def critic_loss(enc):
             phi, psi = self._energy(enc, sample.state, sample.action, goal)
             return lc.crl_critic_loss(phi, psi, cfg.logsumexp_penalty, cfg.contrastive_loss)
 
-        (c_loss, c_aux), grad = jax.value_and_grad(critic_loss, has_aux=True)(critic)
-        for g in critic:
-            params[g], opt_state[g] = self._adam_step(self._adam, grad[g], opt_state[g], critic[g])
+        with jax.named_scope("critic_grad"):
+            (c_loss, c_aux), grad = jax.value_and_grad(critic_loss, has_aux=True)(critic)
+        with jax.named_scope("critic_adam"):
+            for g in critic:
+                params[g], opt_state[g] = self._adam_step(self._adam, grad[g], opt_state[g], critic[g])
         metrics = {"actor_loss": a_loss, "alpha_loss": al_loss, "critic_loss": c_loss, **a_aux, **al_aux,
                    **c_aux}
         if self.sf2_on:
@@ -283,10 +288,11 @@ class Program(SingleDeviceProgram):
         """SF²'s flow loss on φ (Adam state `flow_state`) and ζ, fed `flow_features` of φ and of φ̄′, then φ̄
         and ζ̄ by EMA."""
         cfg = self.cfg
-        next_sa = jnp.concatenate([sample.next_state, sample.next_action], -1)
-        next_features = jax.lax.stop_gradient(flow_features(
-            self.sa_encoder.apply({"params": params["target_sa_encoder"]}, next_sa), cfg.flow_feature_norm))
-        x1 = nw.normalize(sample.next_state, params["obs_norm"])
+        with jax.named_scope("aux_grad"):
+            next_sa = jnp.concatenate([sample.next_state, sample.next_action], -1)
+            target_phi = self.sa_encoder.apply({"params": params["target_sa_encoder"]}, next_sa)
+            next_features = jax.lax.stop_gradient(flow_features(target_phi, cfg.flow_feature_norm))
+            x1 = nw.normalize(sample.next_state, params["obs_norm"])
 
         def flow_loss(trained):
             p = {**params, **trained}
@@ -299,14 +305,17 @@ class Program(SingleDeviceProgram):
                                           sample.last)
 
         trained = {g: params[g] for g in ("sa_encoder", "zeta")}
-        (loss, aux), grad = jax.value_and_grad(flow_loss, has_aux=True)(trained)
-        params["sa_encoder"], opt_state[self.flow_state] = self._adam_step(
-            self._adam, grad["sa_encoder"], opt_state[self.flow_state], params["sa_encoder"])
-        params["zeta"], opt_state["zeta"] = self._adam_step(self._adam, grad["zeta"], opt_state["zeta"],
-                                                            params["zeta"])
-        params["target_sa_encoder"] = losses.ema_update(params["target_sa_encoder"], params["sa_encoder"],
-                                                        cfg.tau)
-        params["target_zeta"] = losses.ema_update(params["target_zeta"], params["zeta"], cfg.tau_zeta)
+        with jax.named_scope("aux_grad"):
+            (loss, aux), grad = jax.value_and_grad(flow_loss, has_aux=True)(trained)
+        with jax.named_scope("aux_adam"):
+            params["sa_encoder"], opt_state[self.flow_state] = self._adam_step(
+                self._adam, grad["sa_encoder"], opt_state[self.flow_state], params["sa_encoder"])
+            params["zeta"], opt_state["zeta"] = self._adam_step(self._adam, grad["zeta"], opt_state["zeta"],
+                                                                params["zeta"])
+        with jax.named_scope("targets"):
+            params["target_sa_encoder"] = losses.ema_update(params["target_sa_encoder"], params["sa_encoder"],
+                                                            cfg.tau)
+            params["target_zeta"] = losses.ema_update(params["target_zeta"], params["zeta"], cfg.tau_zeta)
         return params, opt_state, {"flow_loss": loss, **aux}
 
     def _noise(self, key):
