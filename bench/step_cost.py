@@ -103,7 +103,6 @@ def step_cost(cfg, n_seeds: int = 1) -> dict:
                                state.buffer, k_sample)
         step = program._sgd_step
         args = (state.params, state.opt_state, batch, noise)
-        contexts = (program.precision, program.learner_precision)
     else:
         from sf2_jax.agents.trainer import Program
 
@@ -116,11 +115,11 @@ def step_cost(cfg, n_seeds: int = 1) -> dict:
         noise = jax.eval_shape(algo.step_noise, key, batch)
         step = lambda p, o, b, z: algo.sgd_step(p, o, b, z, 0)   # noqa: E731
         args = (params, opt_state, batch, noise)
-        contexts = (program._physics_precision, program.learner_precision)
     if n_seeds > 1:
         step = jax.vmap(step)
         args = jax.tree.map(lambda x: jax.ShapeDtypeStruct((n_seeds, *x.shape), x.dtype), args)
-    with contexts[0](), contexts[1]():
+    # the trainers' own contexts: every program at fp32 `highest`, the learner's code at its precision
+    with jax.default_matmul_precision("highest"), program.learner_precision():
         compiled = jax.jit(step).lower(*args).compile()
     analysis = xla_cost(compiled)
     text = compiled.as_text()
