@@ -6,13 +6,14 @@
     python -m bench.agent_profile --task minatar-seaquest --algo ppo --reps sf2 --seeds 5 --out OUT
 
 Each case builds the trainer's own program (the `paper` preset cut so an epoch holds `--actor-steps` actor
-steps; on-policy an actor step is one update: take 1), runs one epoch (compilation, random prefill), then
-traces `--epochs` epochs. Everything is per SGD step, so kernel counts and device time compare with `python
--m bench run --profile`'s single updates; `--hlo` adds the kernels per phase counted in the compiled epoch
-(`bench.hlo`). The torch case times each phase of an actor step on the host (as trained, then drained around
-each), then traces the kernels and the CUDA calls that can make the host wait: host time close to the wall
-time means the host paces the epoch, busy time close to it the device. Each summary lists where the device
-idles (`bench.profile.idle_gaps`); the torch case also writes its trace's events (`trace-*.json.gz`).
+steps and the random prefill at most one epoch; on-policy an actor step is one update: take 1), runs one
+epoch (compilation, random prefill), then traces `--epochs` epochs. Everything is per SGD step, so kernel
+counts and device time compare with `python -m bench run --profile`'s single updates; `--hlo` adds the
+kernels per phase counted in the compiled epoch (`bench.hlo`). The torch case times each phase of an actor
+step on the host (as trained, then drained around each), then traces the kernels and the CUDA calls that can
+make the host wait: host time close to the wall time means the host paces the epoch, busy time close to it
+the device. Each summary lists where the device idles (`bench.profile.idle_gaps`); the torch case also
+writes its trace's events (`trace-*.json.gz`).
 """
 
 from __future__ import annotations
@@ -41,8 +42,10 @@ class _EpochRunner:
 
 
 def _config(task, algo, rep, n_seeds, actor_steps, epochs, overrides, framework="jax"):
-    """The `paper` preset cut so an epoch holds `actor_steps` actor steps (at least the prefill's; an
-    on-policy actor step is one update), validated (`ConfigError` naming the problem)."""
+    """The `paper` preset cut so an epoch holds `actor_steps` actor steps and the random prefill at most
+    one epoch (an SGD step's cost does not depend on what the buffer holds; CRL's paper prefill alone is
+    1000 actor steps of 32 SGD steps each), validated (`ConfigError` naming the problem). An on-policy actor
+    step is one update."""
     from sf2_common.agents.configs import schedule
 
     from .agent_throughput import framework_configs
@@ -50,8 +53,9 @@ def _config(task, algo, rep, n_seeds, actor_steps, epochs, overrides, framework=
     configs, check = framework_configs(framework, tuple(range(n_seeds)))
     base = configs.make_config("paper", task, algo, rep, overrides)
     sched = schedule(base)
-    per_epoch = max(actor_steps, sched.prefill_actor_steps)
-    total = per_epoch * (2 * epochs + 4)
+    if sched.prefill_actor_steps > actor_steps:
+        base = base.replace(min_replay_size=actor_steps * base.num_envs)
+    total = actor_steps * (2 * epochs + 4)
     cfg = base.replace(num_timesteps=total * sched.env_steps_per_actor_step, num_evals=2 * epochs + 5)
     check(cfg)
     return cfg

@@ -198,7 +198,8 @@ def test_bad_agent_profile_input_exits_2_before_writing(framework, argv, message
 def test_agent_profile_epochs_are_whole_actor_steps_of_either_trainer():
     """`agent_profile._config` cuts the `paper` preset to epochs of `--actor-steps` actor steps: on MinAtar's
     on-policy trainer an actor step is one update (num_envs × rollout_length env steps), with no prefill;
-    off-policy the epoch holds at least the random prefill (min_replay_size / num_envs, rounded up)."""
+    off-policy the random prefill (min_replay_size / num_envs, rounded up) is cut to at most one epoch: CRL's
+    paper prefill, 1000 actor steps, to `--actor-steps`, TD3's, shorter than the epoch, kept."""
     pytest.importorskip("pgx", reason="the MinAtar case needs pgx: pip install "
                         "\"packages/sf2-core-jax[minatar]\"")
     pytest.importorskip("mujoco_playground", reason="the off-policy case's Playground task: install a core's "
@@ -209,10 +210,13 @@ def test_agent_profile_epochs_are_whole_actor_steps_of_either_trainer():
 
     ppo = make_config("paper", "minatar-breakout", "ppo", "sf2")
     td3 = make_config("paper", "AcrobotSwingup", "td3", "sf2")
-    prefill = -(-td3.min_replay_size // td3.num_envs)
+    crl = make_config("paper", "ant-goal", "crl", "sf2")
+    td3_prefill, crl_prefill = (-(-c.min_replay_size // c.num_envs) for c in (td3, crl))
+    assert td3_prefill <= 64 < crl_prefill, (td3_prefill, crl_prefill)   # the cases below: one kept, one cut
     for base, steps, per_actor, pre in ((ppo, 2, ppo.num_envs * ppo.rollout_length, 0),
-                                        (td3, max(2, prefill), td3.num_envs * td3.action_repeat, prefill)):
-        cfg = agent_profile._config(base.task, base.algo, "sf2", 2, 2, 3, {})
+                                        (td3, 64, td3.num_envs * td3.action_repeat, td3_prefill),
+                                        (crl, 64, crl.num_envs * crl.action_repeat, 64)):
+        cfg = agent_profile._config(base.task, base.algo, "sf2", 2, steps, 3, {})
         sched = schedule(cfg)
         assert (sched.actor_steps_per_epoch, sched.env_steps_per_actor_step, sched.prefill_actor_steps,
                 sched.num_epochs) == (steps, per_actor, pre, 2 * 3 + 4), base.task
