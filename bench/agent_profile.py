@@ -7,13 +7,12 @@
 
 Each case builds the trainer's own program (the `paper` preset cut so an epoch holds `--actor-steps` actor
 steps and the random prefill at most one epoch; on-policy an actor step is one update: take 1), runs one
-epoch (compilation, random prefill), then traces `--epochs` epochs. Everything is per SGD step, so kernel
-counts and device time compare with `python -m bench run --profile`'s single updates; `--hlo` adds the
-kernels per phase counted in the compiled epoch (`bench.hlo`). The torch case times each phase of an actor
-step on the host (as trained, then drained around each), then traces the kernels and the CUDA calls that can
-make the host wait: host time close to the wall time means the host paces the epoch, busy time close to it
-the device. Each summary lists where the device idles (`bench.profile.idle_gaps`); the torch case also
-writes its trace's events (`trace-*.json.gz`).
+epoch (compilation, prefill), then traces `--epochs` epochs, per SGD step, so kernel counts and device time
+compare with `python -m bench run --profile`'s single updates; `--hlo` adds the kernels per phase counted in
+the compiled epoch (`bench.hlo`). The torch case times each phase of an actor step on the host (as trained,
+then drained around each), then traces the kernels and the CUDA calls that can make the host wait: host time
+close to the wall time means the host paces the epoch, busy time close to it the device. Each summary lists
+where the device idles (`bench.profile.idle_gaps`); the torch case also writes its trace (`trace-*.json.gz`).
 """
 
 from __future__ import annotations
