@@ -7,12 +7,12 @@
 
 Each case builds the trainer's own program (the `paper` preset cut so an epoch holds `--actor-steps` actor
 steps and the random prefill at most one epoch; on-policy an actor step is one update: take 1), runs one
-epoch (compilation, prefill), then traces `--epochs` epochs, per SGD step, so kernel counts and device time
-compare with `python -m bench run --profile`'s single updates; `--hlo` adds the kernels per phase counted in
-the compiled epoch (`bench.hlo`). The torch case times each phase of an actor step on the host (as trained,
-then drained around each), then traces the kernels and the CUDA calls that can make the host wait: host time
-close to the wall time means the host paces the epoch, busy time close to it the device. Each summary lists
-where the device idles (`bench.profile.idle_gaps`); the torch case also writes its trace (`trace-*.json.gz`).
+epoch (compilation, prefill), then traces `--epochs` epochs, per SGD step (comparable with `python -m bench
+run --profile`'s single updates); `--hlo` adds the kernels and kernel time per phase, from the compiled
+epoch (`bench.hlo`). The torch case times each phase of an actor step on the host (as trained, then drained
+around each), then traces the kernels and the CUDA calls that can make the host wait: host time close to the
+wall time means the host paces the epoch, busy time close to it the device. Each summary lists where the
+device idles (`bench.profile.idle_gaps`); the torch case also writes its trace (`trace-*.json.gz`).
 """
 
 from __future__ import annotations
@@ -71,10 +71,11 @@ def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=p
         overrides: config fields to set.
         log: a callable taking one line.
         hlo_dump: the folder XLA dumps to (set in `main` before JAX starts): also count the epoch's
-            kernels per phase (`bench.hlo`).
+            kernels per phase (`bench.hlo`) and sum the traced kernels' time per phase.
 
     Returns:
-        `bench.profile.trace`'s summary per SGD step, with "phases" when `hlo_dump` is given.
+        `bench.profile.trace`'s summary per SGD step, with "phases" (and each device's "by_phase") when
+        `hlo_dump` is given.
     """
     import jax
     from sf2_jax.agents.trainers import trainer_module
@@ -91,14 +92,17 @@ def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=p
     how = ("no vmap" if n_seeds == 1 else "in turn" if cfg.seed_loop == "map" else "vmapped")   # _seed_map
     label = f"{task} {algo}+{rep}, {n_seeds} seed{'s' * (n_seeds > 1)} ({how}), per SGD step"
     log(f"  tracing {label}: {epochs} epochs of {program.sched.actor_steps_per_epoch} actor steps")
-    out = trace(_EpochRunner(program, state, sgd), updates=epochs, label=label)
+    module, kernel_phase = None, None
     if hlo_dump is not None:
         from . import hlo
 
-        f = hlo.find_module(Path(hlo_dump))   # the newest: this case's epoch program
-        out["phases"] = {**hlo.count(f.read_text(), hlo.phases()), "sgd_steps": sgd,
-                         "file": f.name}
-        f.rename(Path(hlo_dump) / f"case-{algo}-{rep}-{n_seeds}seeds-{f.name}")
+        module = hlo.find_module(Path(hlo_dump))   # the newest: this case's epoch program, compiled above
+        kernel_phase = hlo.kernel_phases(module.read_text(), hlo.phases())
+    out = trace(_EpochRunner(program, state, sgd), updates=epochs, label=label, kernel_phase=kernel_phase)
+    if module is not None:
+        out["phases"] = {**hlo.count(module.read_text(), hlo.phases()), "sgd_steps": sgd,
+                         "file": module.name}
+        module.rename(Path(hlo_dump) / f"case-{algo}-{rep}-{n_seeds}seeds-{module.name}")
     return out
 
 

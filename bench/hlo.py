@@ -183,6 +183,30 @@ def count(text: str, phases: tuple[str, ...]) -> dict:
             "unknown_trip_count_loops": unknown_loops, "conditional_branches": branches}
 
 
+def kernel_phases(text: str, phases: tuple[str, ...]) -> dict[str, str]:
+    """Map each kernel a module launches to its phase, by the name a profiler trace gives the kernel.
+
+    XLA names a fusion's kernel after the instruction, its dots and dashes as underscores on a GPU
+    (`loop_add_fusion.11` launches `loop_add_fusion_11`), and a trace event also carries the instruction
+    (`hlo_op`) outside command buffers; both spellings map to the instruction's phase (`phase_of`).
+
+    Args:
+        text: the optimized module's text.
+        phases: the phase scopes.
+
+    Returns:
+        {kernel or instruction name, as `kernel_name` spells it: phase} for every launching instruction.
+    """
+    comps, _ = parse(text)
+    return {kernel_name(name): phase_of(line, phases)
+            for instructions in comps.values() for name, op, line in instructions if op not in FREE}
+
+
+def kernel_name(name: str) -> str:
+    """Spell an instruction's or a kernel's name one way (dots and dashes as underscores)."""
+    return re.sub(r"[.\-]", "_", name)
+
+
 def kernel_kind(op: str, name: str, line: str) -> str:
     """Classify the kernel an instruction launches, from its own name, target and backend config.
 

@@ -41,13 +41,14 @@ def _union(intervals) -> float:
     return total
 
 
-def trace(runner, updates: int = 10, label: str = "") -> dict:
+def trace(runner, updates: int = 10, label: str = "", kernel_phase: dict[str, str] | None = None) -> dict:
     """Trace a warm runner with `jax.profiler` and summarize the device activity per update.
 
     Args:
         runner: a calibrated `bench.timing.Runner`.
         updates: calls traced.
         label: the summary's heading.
+        kernel_phase: `bench.hlo.kernel_phases` of the traced program: also sum the kernel time per phase.
 
     Returns:
         {"label", "wall_ms_per_update", "devices": [`summarize_kernels` of each device]}, or
@@ -86,7 +87,7 @@ def trace(runner, updates: int = 10, label: str = "") -> dict:
         ks = [e for e in events if e.get("ph") == "X" and e.get("pid") == pid and "dur" in e
               and not tname.get((pid, e.get("tid")), "").lower().startswith(("python", "tf_xlapjrt"))]
         if ks:
-            out["devices"].append(summarize_kernels(ks, updates, pname.get(pid, str(pid))))
+            out["devices"].append(summarize_kernels(ks, updates, pname.get(pid, str(pid)), kernel_phase))
     return out
 
 
@@ -129,18 +130,20 @@ def idle_gaps(ks: list[dict], updates: int, top: int = 8, width: int = 48) -> di
                     for (a, b), v in rows]}
 
 
-def summarize_kernels(ks: list[dict], updates: int, device: str) -> dict:
+def summarize_kernels(ks: list[dict], updates: int, device: str,
+                      kernel_phase: dict[str, str] | None = None) -> dict:
     """Summarize one device's kernels per update.
 
     Args:
         ks: trace events with `name`, `ts`, `dur` (µs), from a JAX or a torch.profiler trace.
         updates: updates the events span.
         device: the device's name.
+        kernel_phase: `bench.hlo.kernel_phases` of the traced program, or None.
 
     Returns:
         Per update: kernels, device-busy time (union of the kernels' intervals), the sum of kernel
         times, the split by category (GEMM, fusion, memcpy/memset, other), the costliest kernels and
-        `idle_gaps`.
+        `idle_gaps`; with `kernel_phase`, `by_phase` too (`phase_times`).
     """
     by_name = collections.defaultdict(lambda: [0, 0.0])
     by_cat = collections.defaultdict(lambda: [0, 0.0])
@@ -163,7 +166,35 @@ def summarize_kernels(ks: list[dict], updates: int, device: str) -> dict:
         "by_category": {k: {"count": v[0] / updates, "ms": v[1] / 1e3 / updates} for k, v in by_cat.items()},
         "top": [{"name": k, "count": v[0] / updates, "ms": v[1] / 1e3 / updates} for k, v in top],
         "idle": idle_gaps(ks, updates),
+        **({"by_phase": phase_times(ks, updates, kernel_phase)} if kernel_phase is not None else {}),
     }
+
+
+def phase_times(ks: list[dict], updates: int, kernel_phase: dict[str, str]) -> dict:
+    """Sum the kernels' count and time per phase of the program that launched them.
+
+    A kernel's phase is that of its instruction (`args.hlo_op`, else the kernel's own name, both spelled
+    as `bench.hlo.kernel_name`); a kernel that names no instruction of the program (a library GEMM inside
+    one of XLA's command buffers, a CPU thread's bookkeeping) is "(unmatched)".
+
+    Args:
+        ks: trace events with `name`, `dur` (µs) and, from XLA, `args.hlo_op`.
+        updates: updates the events span.
+        kernel_phase: `bench.hlo.kernel_phases` of the traced program.
+
+    Returns:
+        {phase: {"count", "ms"}} per update.
+    """
+    from .hlo import kernel_name
+
+    out = collections.defaultdict(lambda: [0, 0.0])
+    for e in ks:
+        names = (e.get("args", {}).get("hlo_op"), e.get("name"))
+        keys = [kernel_name(n.split()[0]) for n in names if n and n.split()]
+        phase = next((kernel_phase[k] for k in keys if k in kernel_phase), "(unmatched)")
+        out[phase][0] += 1
+        out[phase][1] += e["dur"]
+    return {p: {"count": c / updates, "ms": t / 1e3 / updates} for p, (c, t) in out.items()}
 
 
 def markdown(summaries: list[dict]) -> str:
@@ -209,6 +240,14 @@ def markdown(summaries: list[dict]) -> str:
                         "| after | before | gaps per update | idle ms per update |", "|---|---|---|---|"]
                 out += [f"| `{t['after']}` | `{t['before']}` | {t['count']:.2f} | {t['ms']:.4f} |"
                         for t in g["top"]]
+            if d.get("by_phase"):
+                total = sum(v["ms"] for v in d["by_phase"].values()) or 1.0
+                out += ["", "Kernel time per phase (each traced kernel matched by name to its instruction "
+                        "in the compiled program, `bench.profile.phase_times`):", "",
+                        "| phase | kernels per update | ms per update | share of kernel time |",
+                        "|---|---|---|---|"]
+                out += [f"| {p} | {v['count']:.1f} | {v['ms']:.4f} | {v['ms'] / total:.1%} |"
+                        for p, v in sorted(d["by_phase"].items(), key=lambda kv: -kv[1]["ms"])]
         if s.get("phases"):   # bench.agent_profile --hlo
             from .hlo import markdown as phases_markdown
             from .hlo import phases

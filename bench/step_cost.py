@@ -149,7 +149,7 @@ def xla_cost(compiled) -> dict:
 
 def _cost(fn, args, n_seeds: int, contexts) -> dict:
     """XLA's flops and bytes per seed of `fn(*args)` (shapes) compiled under `contexts()`, vmapped over
-    `n_seeds` above 1."""
+    `n_seeds` above 1, and its kernel launches per phase (`bench.hlo.count`, all seeds)."""
     import contextlib
 
     import jax
@@ -163,8 +163,10 @@ def _cost(fn, args, n_seeds: int, contexts) -> dict:
         compiled = jax.jit(fn).lower(*args).compile()
     analysis = xla_cost(compiled)
     memory = compiled.memory_analysis()
+    kernels = hlo.count(compiled.as_text(), hlo.phases())["by_phase"]
     return {"flops": analysis["flops"] / n_seeds, "bytes": analysis["bytes accessed"] / n_seeds,
-            "temp_bytes": getattr(memory, "temp_size_in_bytes", 0) if memory is not None else 0}
+            "temp_bytes": getattr(memory, "temp_size_in_bytes", 0) if memory is not None else 0,
+            "kernels_by_phase": {phase: sum(kinds.values()) for phase, kinds in kernels.items()}}
 
 
 def update_cost(cfg, n_seeds: int = 1) -> dict:
@@ -183,10 +185,10 @@ def update_cost(cfg, n_seeds: int = 1) -> dict:
         n_seeds: above 1, each part `jax.vmap`ped over that many seeds, as the trainer runs it.
 
     Returns:
-        Per seed: {"representation", "seeds", "parts": {part: {"flops", "bytes", "temp_bytes", "per_update"}},
-        "sgd_step" (the whole step, as `parts`' rows), "update_flops", "update_bytes" (the composed U; the
-        parts per update sum the SGD step's from its parts), "backend"}; `temp_bytes` are the program's
-        scratch for all seeds.
+        Per seed: {"representation", "seeds", "parts": {part: {"flops", "bytes", "temp_bytes",
+        "kernels_by_phase", "per_update"}}, "sgd_step" (the whole step, as `parts`' rows), "update_flops",
+        "update_bytes" (the composed U; the parts per update sum the SGD step's from its parts), "backend"};
+        `temp_bytes` are the program's scratch and `kernels_by_phase` its launches, for all seeds.
     """
     import jax
     import jax.numpy as jnp
@@ -214,16 +216,16 @@ def update_cost(cfg, n_seeds: int = 1) -> dict:
     def own(name):
         return lambda p, batch, k: rep.aux_loss(name, p, batch, rep.aux_noise(k, batch))
 
-    losses = {"critic": (critic, rep.critic_groups, None)}
-    losses.update({name: (own(name), groups, program.aux_states) for name, groups in rep.aux_losses})
-    losses["actor"] = (lambda p, batch, k: program.policy.loss(p, batch, cfg), ("actor",), None)
+    losses = {"critic": (critic, rep.critic_groups, None, "critic")}
+    losses.update({name: (own(name), groups, program.aux_states, "aux") for name, groups in rep.aux_losses})
+    losses["actor"] = (lambda p, batch, k: program.policy.loss(p, batch, cfg), ("actor",), None, "policy")
     learner = lambda: (program.precision(), program.learner_precision())   # noqa: E731
     parts = {"rollout step": {**_cost(program._act_step, (state.params, state.env_state, key), n_seeds,
                                       learner), "per_update": cfg.rollout_length}}
-    for part, (loss, groups, states) in losses.items():
-        def step(params, opt_state, batch, k, loss=loss, groups=groups, states=states):
+    for part, (loss, groups, states, phase) in losses.items():
+        def step(params, opt_state, batch, k, loss=loss, groups=groups, states=states, phase=phase):
             objective = lambda p: loss(p, batch, k)   # noqa: E731
-            return program._loss_step(params, opt_state, objective, groups, states)[:2]
+            return program._loss_step(params, opt_state, objective, groups, phase, states)[:2]
 
         parts[part] = {**_cost(step, (state.params, state.opt_state, mb, key), n_seeds, learner),
                        "per_update": steps}

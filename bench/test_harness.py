@@ -568,9 +568,12 @@ def test_update_cost_composes_the_on_policy_update_of_its_parts():
     """An on-policy update is `rollout_length` rollout steps and update_epochs × (num_envs ·
     rollout_length / minibatch_size) SGD steps, each the critic's, the flow loss's and the actor's Adam
     steps and the targets' EMA: the parts compiled alone add up to the whole SGD step's arithmetic (the
-    same operations, one program), and the update is the parts times their counts."""
+    same operations, one program), and the update is the parts times their counts. Each part's kernels
+    carry its trainer scopes (what `bench.hlo` and `bench.agent_profile --hlo` sort by): the rollout step's
+    actor phases, each loss's `*_grad` and `*_adam`, every SGD phase in the whole step."""
     pytest.importorskip("pgx", reason="MinAtar needs pgx: install sf2-core-jax[minatar]")
     from sf2_common.agents.configs import make_config
+    from sf2_jax.agents.algorithms import PHASES
 
     from bench import step_cost
 
@@ -585,6 +588,56 @@ def test_update_cost_composes_the_on_policy_update_of_its_parts():
     assert parts["flow_loss"]["flops"] > parts["critic"]["flops"] > 0
     assert got["update_flops"] == pytest.approx(cfg.rollout_length * parts["rollout step"]["flops"]
                                                 + sgd_steps * sgd, rel=1e-12)
+    scopes = {part: set(r["kernels_by_phase"]) - {"(other)"} for part, r in parts.items()}
+    assert scopes["rollout step"] == {"explore", "env_step", "observe"}
+    assert (scopes["critic"], scopes["flow_loss"], scopes["actor"]) == (
+        {"critic_grad", "critic_adam"}, {"aux_grad", "aux_adam"}, {"policy_grad", "policy_adam"})
+    assert set(got["sgd_step"]["kernels_by_phase"]) - {"(other)"} == set(PHASES)
+
+
+_KERNEL_HLO = """HloModule m
+
+%fused (p: f32[4]) -> f32[4] {
+  %p = f32[4]{0} parameter(0)
+  ROOT %m.1 = f32[4]{0} multiply(%p, %p), metadata={op_name="jit(e)/vmap(critic_grad)/mul"}
+}
+
+ENTRY %main (a: f32[4]) -> f32[4] {
+  %a = f32[4]{0} parameter(0)
+  %loop_multiply_fusion.11 = f32[4]{0} fusion(%a), kind=kLoop, calls=%fused, \
+metadata={op_name="jit(e)/vmap(critic_grad)/mul"}
+  %custom-call.3 = f32[4]{0} custom-call(%loop_multiply_fusion.11), custom_call_target="__cublas$gemm", \
+metadata={op_name="jit(e)/aux_grad/dot"}
+  ROOT %copy.2 = f32[4]{0} copy(%custom-call.3)
+}
+"""
+
+
+def test_profile_sums_kernel_time_per_phase_by_the_compiled_instructions():
+    """By hand, two updates traced: the GPU kernel `loop_multiply_fusion_11` is the instruction
+    `loop_multiply_fusion.11` (critic_grad); a cuBLAS kernel names its instruction `custom-call.3`
+    (aux_grad) in `hlo_op`, but inside a command buffer only the buffer (unmatched); the CPU's `copy.2`
+    has no scope ((other)); the parameter launches nothing and is not a kernel. Per update: one kernel
+    each, of 3, 5, 4 and 1 µs."""
+    from bench import hlo, profile
+
+    phases = ("critic_grad", "aux_grad")
+    kernel_phase = hlo.kernel_phases(_KERNEL_HLO, phases)
+    assert kernel_phase == {"m_1": "critic_grad", "loop_multiply_fusion_11": "critic_grad",
+                            "custom_call_3": "aux_grad", "copy_2": "(other)"}
+    ks = [e for t in (0, 100) for e in (
+        {"name": "loop_multiply_fusion_11", "ts": t, "dur": 3},
+        {"name": "sm90_xmma_gemm_f32f32", "ts": t + 10, "dur": 5, "args": {"hlo_op": "custom-call.3"}},
+        {"name": "sm90_xmma_gemm_f32f32", "ts": t + 20, "dur": 4, "args": {"hlo_op": "command_buffer_6"}},
+        {"name": "copy.2", "ts": t + 30, "dur": 1})]
+    got = profile.phase_times(ks, 2, kernel_phase)
+    assert got == {"critic_grad": {"count": 1.0, "ms": 0.003}, "aux_grad": {"count": 1.0, "ms": 0.005},
+                   "(unmatched)": {"count": 1.0, "ms": 0.004}, "(other)": {"count": 1.0, "ms": 0.001}}
+    summary = profile.summarize_kernels(ks, 2, "gpu", kernel_phase)
+    assert summary["by_phase"] == got
+    assert "by_phase" not in profile.summarize_kernels(ks, 2, "gpu")
+    text = profile.markdown([{"label": "case", "wall_ms_per_update": 1.0, "devices": [summary]}])
+    assert "| aux_grad | 1.0 | 0.0050 | 38.5% |" in text   # 5 of 13 µs
 
 
 def test_hlo_unwraps_transformations_around_the_scopes():

@@ -328,24 +328,29 @@ class Program(SingleDeviceProgram):
 
     def _actor_step(self, state: CRLState, actor_step):
         """Act in every env with the policy, store the step, then `grad_updates_per_step` SGD steps unless
-        in the prefill (computed and discarded there by `jnp.where`: one program, no `lax.cond`)."""
+        in the prefill (computed and discarded there by `jnp.where`: one program, no `lax.cond`); its parts
+        under the off-policy trainer's scopes (`trainer.ACTOR_PHASES`)."""
         cfg, S = self.cfg, self.spec.state_size
         train = actor_step >= self.sched.prefill_actor_steps
         key, k_act, k_sgd = jax.random.split(state.key, 3)
         obs = state.env_state.obs
-        with self.learner_precision():
+        with jax.named_scope("explore"), self.learner_precision():
             action, _ = self._policy(state.params["actor"], obs,
                                      jax.random.normal(k_act, (cfg.num_envs, self.spec.action_size)))
-        env_state = self.spec.env.step(state.env_state, action)
-        buffer = self.buffer.insert(state.buffer, obs[:, :S], action, state.episode)
+        with jax.named_scope("env_step"):
+            env_state = self.spec.env.step(state.env_state, action)
         params = dict(state.params)
-        if self.sf2_on:
-            params["obs_norm"] = nw.update_normalizer(params["obs_norm"], obs[:, :S], self.sf2)
+        with jax.named_scope("observe"):
+            buffer = self.buffer.insert(state.buffer, obs[:, :S], action, state.episode)
+            if self.sf2_on:
+                params["obs_norm"] = nw.update_normalizer(params["obs_norm"], obs[:, :S], self.sf2)
 
         def sgd(carry, k):
             params, opt_state, steps = carry
-            k_sample, noise = self._noise(k)
-            sample = self.buffer.sample(buffer, k_sample, cfg.batch_size, cfg.discount)
+            with jax.named_scope("step_noise"):
+                k_sample, noise = self._noise(k)
+            with jax.named_scope("sample"):
+                sample = self.buffer.sample(buffer, k_sample, cfg.batch_size, cfg.discount)
             with self.learner_precision():
                 new_params, new_opt, metrics = self._sgd_step(params, opt_state, sample, noise)
             keep = lambda n, o: jnp.where(train, n, o)   # noqa: E731

@@ -182,12 +182,13 @@ class Program(SingleDeviceProgram):
         rep, pol = self.rep, self.policy
         k_act, k_next, k_env = jax.random.split(key, 3)
         obs = env_state.obs
-        with self.learner_precision():
+        with jax.named_scope("explore"), self.learner_precision():
             value_input = pol.value_input(params, obs, jax.random.fold_in(k_act, 1))
             value = rep.values(params, obs, value_input)
             action, info = pol.act(params, obs, k_act)
-        env_state, tr = self.env.step(env_state, action, k_env)
-        with self.learner_precision():
+        with jax.named_scope("env_step"):
+            env_state, tr = self.env.step(env_state, action, k_env)
+        with jax.named_scope("observe"), self.learner_precision():
             next_value_input = pol.value_input(params, tr.next_obs, jax.random.fold_in(k_next, 1))
             next_value = rep.values(params, tr.next_obs, next_value_input)
             next_sample = pol.draw(params, tr.next_obs, k_next)
@@ -202,25 +203,29 @@ class Program(SingleDeviceProgram):
             done=done.astype(f32), value_input=value_input if keep else None,
             next_value_input=next_value_input if keep else None)
 
-    def _loss_step(self, params, opt_state, loss_fn, groups, states=None):
+    def _loss_step(self, params, opt_state, loss_fn, groups, phase, states=None):
         """One Adam step of `groups` on `loss_fn(params)` → (objective, {metric: scalar}), its gradient
-        clipped to `max_grad_norm` (global norm over `groups`); `states[group]` names a group's Adam state
-        (default: its own). Returns (params, opt_state, metrics)."""
+        clipped to `max_grad_norm` (global norm over `groups`), under the scopes `{phase}_grad` and
+        `{phase}_adam` (`algorithms.PHASES`); `states[group]` names a group's Adam state (default: its own).
+        Returns (params, opt_state, metrics)."""
         def objective(trained):
             return loss_fn({**params, **trained})
 
-        (_, metrics), grads = jax.value_and_grad(objective, has_aux=True)({g: params[g] for g in groups})
-        grads, _ = self._clip.update(grads, self._clip.init(grads))
+        with jax.named_scope(f"{phase}_grad"):
+            (_, metrics), grads = jax.value_and_grad(objective, has_aux=True)({g: params[g] for g in groups})
+            grads, _ = self._clip.update(grads, self._clip.init(grads))
         params, opt_state = dict(params), dict(opt_state)
-        for g in groups:
-            name = (states or {}).get(g, g)
-            updates, opt_state[name] = self._adam.update(grads[g], opt_state[name], params[g])
-            params[g] = optax.apply_updates(params[g], updates)
+        with jax.named_scope(f"{phase}_adam"):
+            for g in groups:
+                name = (states or {}).get(g, g)
+                updates, opt_state[name] = self._adam.update(grads[g], opt_state[name], params[g])
+                params[g] = optax.apply_updates(params[g], updates)
         return params, opt_state, metrics
 
     def _sgd_step(self, params, opt_state, mb: OnPolicyBatch, key):
         """The critic's step, the representation's (in `aux_losses`' order), the actor's, the targets' EMA;
-        with `rep.joint_step` one step of L = L_actor + value_coef · L_critic (pgx's; metric `total_loss`)."""
+        with `rep.joint_step` one step of L = L_actor + value_coef · L_critic (pgx's; metric `total_loss`),
+        profiled as the critic's."""
         cfg, rep = self.cfg, self.rep
 
         def critic(p, *nets):   # nets: `rep.one_pass`'s, in the joint step
@@ -237,20 +242,21 @@ class Program(SingleDeviceProgram):
                 (c, m_c), (a, m_a) = critic(p, nets), actor(p, nets)
                 return a + c, {"total_loss": a + c, **m_c, **m_a}
 
-            return self._loss_step(params, opt_state, joint, rep.critic_groups)
-        params, opt_state, metrics = self._loss_step(params, opt_state, critic, rep.critic_groups)
+            return self._loss_step(params, opt_state, joint, rep.critic_groups, "critic")
+        params, opt_state, metrics = self._loss_step(params, opt_state, critic, rep.critic_groups, "critic")
         noise = rep.aux_noise(key, mb)
         for name, groups in rep.aux_losses:
             def own(p, name=name):
                 loss, aux = rep.aux_loss(name, p, mb, noise)
                 return loss, {name: loss, **aux}
 
-            params, opt_state, m = self._loss_step(params, opt_state, own, groups, self.aux_states)
+            params, opt_state, m = self._loss_step(params, opt_state, own, groups, "aux", self.aux_states)
             metrics.update(m)
-        params, opt_state, m = self._loss_step(params, opt_state, actor, ("actor",))
+        params, opt_state, m = self._loss_step(params, opt_state, actor, ("actor",), "policy")
         metrics.update(m)
-        for target, (online, tau) in rep.targets().items():
-            params[target] = optax.incremental_update(params[online], params[target], tau)
+        with jax.named_scope("targets"):
+            for target, (online, tau) in rep.targets().items():
+                params[target] = optax.incremental_update(params[online], params[target], tau)
         return params, opt_state, metrics
 
     def _update(self, state: OnPolicyState, _):
@@ -275,7 +281,8 @@ class Program(SingleDeviceProgram):
                 return target - value, target
             return lo.gae(reward, discount, ro.truncation, value, next_value, cfg.discount, cfg.td_lambda)
 
-        advantage, target = returns(ro.value, ro.next_value)
+        with jax.named_scope("returns"):
+            advantage, target = returns(ro.value, ro.next_value)
         data = OnPolicyBatch(obs=ro.obs, action=ro.action, reward=reward, discount=discount,
                              truncation=ro.truncation, next_obs=ro.next_obs, next_action=next_action,
                              policy_info=ro.policy_info, value=ro.value, advantage=advantage, target=target)
@@ -299,10 +306,10 @@ class Program(SingleDeviceProgram):
         def refreshed(params, flat):
             """`flat` with its advantages and targets from the current critic (`advantage_refresh = "pass"`):
             GAE from V, or λ-returns from Q at the rollout's draws (the policy's side stays the rollout's)."""
-            with self.learner_precision():
+            with jax.named_scope("returns"), self.learner_precision():
                 value = current_values(params, ro.obs, ro.value_input)
                 next_value = current_values(params, ro.next_obs, ro.next_value_input)
-            advantage, target = returns(value, next_value)
+                advantage, target = returns(value, next_value)
             return flat._replace(advantage=advantage.reshape(-1), target=target.reshape(-1))
 
         def sgd(flat, carry, xs):

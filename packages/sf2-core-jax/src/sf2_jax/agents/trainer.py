@@ -44,8 +44,9 @@ from .algorithms import make_algorithm
 from .checkpoint import Checkpointer
 from .replay import ReplayBuffer
 
-# the `jax.named_scope`s of one actor step (module docstring), in its order
-ACTOR_PHASES = ("explore", "env_step", "observe", "sample", "step_noise")
+# the `jax.named_scope`s of one actor step (module docstring), in its order; the on-policy trainer's
+# rollout step uses the first three and its returns and advantages are "returns"
+ACTOR_PHASES = ("explore", "env_step", "observe", "sample", "step_noise", "returns")
 
 __all__ = ["TrainState", "Program", "get_program", "episode_returns", "TrainingDiverged", "TrainResult",
            "train", "evaluate_checkpoint", "evaluate_checkpoint_noises", "seed_keys", "eval_keys",
