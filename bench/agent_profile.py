@@ -77,25 +77,27 @@ def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=p
         `bench.profile.trace`'s summary per SGD step, with "phases" (and each device's "by_phase") when
         `hlo_dump` is given.
     """
+    import contextlib
+
     import jax
     from sf2_jax.agents.trainers import trainer_module
 
+    from . import hlo
     from .profile import trace
 
     cfg = _config(task, algo, rep, n_seeds, actor_steps, epochs, overrides)
     seeds = tuple(range(n_seeds))
     program = trainer_module(task, algo).get_program(cfg)
-    state = program.init(seeds)
-    state, means, _ = program.epoch(state, 1)
-    jax.block_until_ready((state, means))
+    with hlo.fresh_compilation() if hlo_dump is not None else contextlib.nullcontext():
+        state = program.init(seeds)   # compiled here, dumped with this code's scopes
+        state, means, _ = program.epoch(state, 1)
+        jax.block_until_ready((state, means))
     sgd = program.sched.actor_steps_per_epoch * program.sched.sgd_steps_per_actor_step
     how = ("no vmap" if n_seeds == 1 else "in turn" if cfg.seed_loop == "map" else "vmapped")   # _seed_map
     label = f"{task} {algo}+{rep}, {n_seeds} seed{'s' * (n_seeds > 1)} ({how}), per SGD step"
     log(f"  tracing {label}: {epochs} epochs of {program.sched.actor_steps_per_epoch} actor steps")
     module, kernel_phase = None, None
     if hlo_dump is not None:
-        from . import hlo
-
         module = hlo.find_module(Path(hlo_dump))   # the newest: this case's epoch program, compiled above
         kernel_phase = hlo.kernel_phases(module.read_text(), hlo.phases())
     out = trace(_EpochRunner(program, state, sgd), updates=epochs, label=label, kernel_phase=kernel_phase)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import contextlib
 import json
 import re
 import sys
@@ -47,6 +48,24 @@ def phases() -> tuple[str, ...]:
     from sf2_jax.agents.trainer import ACTOR_PHASES
 
     return ACTOR_PHASES + PHASES
+
+
+@contextlib.contextmanager
+def fresh_compilation():
+    """Compile without JAX's persistent compilation cache (`jax_enable_compilation_cache`), then restore it.
+
+    The cache's key leaves out the `op_name` metadata (`jax_compilation_cache_include_metadata_in_key`), so a
+    program taken from it carries the scopes of whatever code compiled it first (a `sf2-jax train` in the
+    same process turns the cache on), and a cache hit writes no `--xla_dump_to` dump.
+    """
+    import jax
+
+    before = jax.config.jax_enable_compilation_cache
+    jax.config.update("jax_enable_compilation_cache", False)
+    try:
+        yield
+    finally:
+        jax.config.update("jax_enable_compilation_cache", before)
 
 
 def parse(text: str) -> tuple[dict[str, list[tuple[str, str, str]]], str]:

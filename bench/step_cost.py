@@ -119,7 +119,7 @@ def step_cost(cfg, n_seeds: int = 1) -> dict:
         step = jax.vmap(step)
         args = jax.tree.map(lambda x: jax.ShapeDtypeStruct((n_seeds, *x.shape), x.dtype), args)
     # the trainers' own contexts: every program at fp32 `highest`, the learner's code at its precision
-    with jax.default_matmul_precision("highest"), program.learner_precision():
+    with jax.default_matmul_precision("highest"), program.learner_precision(), hlo.fresh_compilation():
         compiled = jax.jit(step).lower(*args).compile()
     analysis = xla_cost(compiled)
     text = compiled.as_text()
@@ -158,7 +158,7 @@ def _cost(fn, args, n_seeds: int, contexts) -> dict:
         fn = jax.vmap(fn)
         args = jax.tree.map(lambda x: jax.ShapeDtypeStruct((n_seeds, *x.shape), x.dtype), args)
     with contextlib.ExitStack() as stack:
-        for context in contexts():
+        for context in (*contexts(), hlo.fresh_compilation()):
             stack.enter_context(context)
         compiled = jax.jit(fn).lower(*args).compile()
     analysis = xla_cost(compiled)
