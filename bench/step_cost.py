@@ -192,7 +192,6 @@ def update_cost(cfg, n_seeds: int = 1) -> dict:
     """
     import jax
     import jax.numpy as jnp
-    import optax
     from sf2_jax.agents.onpolicy import Program
     from sf2_jax.agents.representations_onpolicy import OnPolicyBatch
 
@@ -230,11 +229,10 @@ def update_cost(cfg, n_seeds: int = 1) -> dict:
         parts[part] = {**_cost(step, (state.params, state.opt_state, mb, key), n_seeds, learner),
                        "per_update": steps}
     if rep.targets():
-        def ema(params):
-            return {t: optax.incremental_update(params[online], params[t], tau)
-                    for t, (online, tau) in rep.targets().items()}
+        def targets(params):   # the trainer's EMA step, returning only what it changes (no copies out)
+            return {t: program._targets_step(params)[t] for t in rep.targets()}
 
-        parts["targets"] = {**_cost(ema, (state.params,), n_seeds, learner), "per_update": steps}
+        parts["targets"] = {**_cost(targets, (state.params,), n_seeds, learner), "per_update": steps}
     whole = {**_cost(program._sgd_step, (state.params, state.opt_state, mb, key), n_seeds, learner),
              "per_update": steps}
     return {"representation": cfg.representation, "seeds": n_seeds, "parts": parts, "sgd_step": whole,

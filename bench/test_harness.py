@@ -590,8 +590,8 @@ def test_update_cost_composes_the_on_policy_update_of_its_parts():
                                                 + sgd_steps * sgd, rel=1e-12)
     scopes = {part: set(r["kernels_by_phase"]) - {"(other)"} for part, r in parts.items()}
     assert scopes["rollout step"] == {"explore", "env_step", "observe"}
-    assert (scopes["critic"], scopes["flow_loss"], scopes["actor"]) == (
-        {"critic_grad", "critic_adam"}, {"aux_grad", "aux_adam"}, {"policy_grad", "policy_adam"})
+    assert (scopes["critic"], scopes["flow_loss"], scopes["actor"], scopes["targets"]) == (
+        {"critic_grad", "critic_adam"}, {"aux_grad", "aux_adam"}, {"policy_grad", "policy_adam"}, {"targets"})
     assert set(got["sgd_step"]["kernels_by_phase"]) - {"(other)"} == set(PHASES)
 
 

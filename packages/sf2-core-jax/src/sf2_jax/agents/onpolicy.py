@@ -254,10 +254,16 @@ class Program(SingleDeviceProgram):
             metrics.update(m)
         params, opt_state, m = self._loss_step(params, opt_state, actor, ("actor",), "policy")
         metrics.update(m)
+        return self._targets_step(params), opt_state, metrics
+
+    def _targets_step(self, params):
+        """Every target group of the representation (`rep.targets()`) one EMA step toward its online group,
+        under the scope `targets`. Returns the params."""
+        params = dict(params)
         with jax.named_scope("targets"):
-            for target, (online, tau) in rep.targets().items():
+            for target, (online, tau) in self.rep.targets().items():
                 params[target] = optax.incremental_update(params[online], params[target], tau)
-        return params, opt_state, metrics
+        return params
 
     def _update(self, state: OnPolicyState, _):
         """One on-policy update: the rollout, its returns and advantages, `update_epochs` × minibatches."""
