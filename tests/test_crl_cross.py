@@ -1,7 +1,7 @@
 """JAX and torch agree on CRL's losses (sf2_jax.losses_crl, sf2_torch.losses_crl): one canonical batch of
 representations, actor outputs and noise drawn with numpy into both cores; values, aux metrics and the
-gradients with respect to every input (InfoNCE forward and backward), in float64 (≤ 1e-10 relative) and
-float32 (cross_bridge.TOL); the goal offsets equal exactly on the same uniform draws.
+gradients with respect to every input (InfoNCE forward, backward and symmetric), in float64 (≤ 1e-10
+relative) and float32 (cross_bridge.TOL); the goal offsets equal exactly on the same uniform draws.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ def canonical(seed: int = 0) -> dict[str, np.ndarray]:
 
 @pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("penalty", [0.0, 0.1])
-@pytest.mark.parametrize("direction", ["fwd", "bwd"])
+@pytest.mark.parametrize("direction", ["fwd", "bwd", "sym"])
 def test_critic_loss(dtype, penalty, direction):
     x = canonical()
     (jloss, jaux), jgrad = jax.value_and_grad(lambda p, s: jl.crl_critic_loss(p, s, penalty, direction),

@@ -1,8 +1,8 @@
 """CRL's losses (sf2_torch.losses_crl) against values derived by hand on a batch of three, as the JAX core's
-test_losses_crl.py: the energy, forward and backward InfoNCE with its log-sum-exp penalty and the
-contrastive accuracy (a tie: argmax takes the first), the actor's log σ and its squashed sample, the actor
-and temperature losses with their gradient contract, the truncated geometric goal offset and the shape
-checks (float64).
+test_losses_crl.py: the energy, forward, backward and symmetric InfoNCE with its log-sum-exp penalty
+and the contrastive accuracy (a tie: argmax takes the first), the actor's log σ and its squashed sample,
+the actor and temperature losses with their gradient contract, the truncated geometric goal offset and the
+shape checks (float64).
 """
 
 from __future__ import annotations
@@ -76,8 +76,20 @@ def test_backward_critic_loss(c):
     off = [e(d) for i, row in enumerate(DIST_B) for j, d in enumerate(row) if i != j]
     assert float(aux["logits_neg"]) == pytest.approx(sum(off) / 6, rel=1e-12)
     assert float(aux["logsumexp"]) == pytest.approx(sum(LSE_B) / 3 + E, rel=1e-12)
-    with pytest.raises(ConfigError, match="direction='sym' is invalid: must be one of .'fwd', 'bwd'."):
-        lc.crl_critic_loss(t(PHI), t(PSI), c, direction="sym")
+    with pytest.raises(ConfigError,
+                       match="direction='binary' is invalid: must be one of .'fwd', 'bwd', 'sym'."):
+        lc.crl_critic_loss(t(PHI), t(PSI), c, direction="binary")
+
+
+@pytest.mark.parametrize("c", [0.0, 0.1])
+def test_symmetric_critic_loss(c):
+    """sym on φ and ψ': both softmaxes, −mean_i (2 L_ii − ℓ_i − m_i), the rows' penalty and metrics."""
+    loss, aux = lc.crl_critic_loss(t(PHI), t(PSI_B), c, direction="sym")
+    by_hand = (-sum(2 * DIAG_B[i] - LSE_B[i] - COL_LSE_B[i] for i in range(3)) / 3
+               + c * sum((LSE_B[i] + E) ** 2 for i in range(3)) / 3)
+    assert float(loss.detach()) == pytest.approx(by_hand, rel=1e-12)
+    assert float(aux["accuracy"]) == pytest.approx(1 / 3)
+    assert float(aux["logsumexp"]) == pytest.approx(sum(LSE_B) / 3 + E, rel=1e-12)
 
 
 def test_critic_loss_gradient_pulls_positives_together():
@@ -98,6 +110,17 @@ def test_backward_critic_loss_gradient():
     q = [math.exp(e(DIST_B[0][j]) - COL_LSE_B[j]) for j in range(3)]
     d_l = [-(PHI[0][0] - PSI_B[j][0]) / math.sqrt((PHI[0][0] - PSI_B[j][0]) ** 2 + E) for j in range(3)]
     by_hand = sum((q[j] - (j == 0)) * d_l[j] for j in range(3)) / 3
+    assert float(phi.grad[0, 0]) == pytest.approx(by_hand, rel=1e-10)
+
+
+def test_symmetric_critic_loss_gradient():
+    """sym on ψ', c = 0: d loss / d φ_0 = (1/3) Σ_j (p_0j + q_0j − 2[j = 0]) dL_0j/dφ_0."""
+    phi = t(PHI).requires_grad_()
+    lc.crl_critic_loss(phi, t(PSI_B), 0.0, "sym")[0].backward()
+    p = [math.exp(e(d) - LSE_B[0]) for d in DIST_B[0]]
+    q = [math.exp(e(DIST_B[0][j]) - COL_LSE_B[j]) for j in range(3)]
+    d_l = [-(PHI[0][0] - PSI_B[j][0]) / math.sqrt((PHI[0][0] - PSI_B[j][0]) ** 2 + E) for j in range(3)]
+    by_hand = sum((p[j] + q[j] - 2 * (j == 0)) * d_l[j] for j in range(3)) / 3
     assert float(phi.grad[0, 0]) == pytest.approx(by_hand, rel=1e-10)
 
 

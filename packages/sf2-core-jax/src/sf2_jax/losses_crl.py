@@ -2,13 +2,13 @@
 
 The critic is the energy f(s, a, g) = −‖φ(s, a) − ψ(g)‖ of a state-action encoder φ and a goal encoder ψ,
 trained by InfoNCE over a batch (forward: row i's own goal against the other rows' goals; backward: goal j's
-own state-action against the other rows') with a penalty on the log-sum-exp; the actor is goal-conditioned
-SAC on that energy with a learned temperature; goals are future states of the same trajectory, k steps ahead
-with P(k) ∝ γ^k. Every random draw is an argument, and the functions take the encoders' and the actor's
-outputs, not networks, so the same inputs give the same numbers in JAX and torch (`sf2_torch.losses_crl`).
-Losses return `(loss, aux)`. Gradient contract: the temperature is a constant in the actor loss, the
-log-probability in the temperature loss; everything else carries its gradient to whatever produced it.
-docs/crl.md.
+own state-action against the other rows'; symmetric: both) with a penalty on the log-sum-exp; the actor is
+goal-conditioned SAC on that energy with a learned temperature; goals are future states of the same
+trajectory, k steps ahead with P(k) ∝ γ^k. Every random draw is an argument, and the functions take the
+encoders' and the actor's outputs, not networks, so the same inputs give the same numbers in JAX and torch
+(`sf2_torch.losses_crl`). Losses return `(loss, aux)`. Gradient contract: the temperature is a constant in
+the actor loss, the log-probability in the temperature loss; everything else carries its gradient to
+whatever produced it. docs/crl.md.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ __all__ = ["ENERGY_EPS", "LOG_STD_MIN", "LOG_STD_MAX", "CONTRASTIVE_LOSSES", "en
 sg = jax.lax.stop_gradient
 ENERGY_EPS = 1e-6              # inside the square root of the energy (JaxGCRL's "norm")
 LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0   # the actor's log σ range
-CONTRASTIVE_LOSSES = ("fwd", "bwd")   # InfoNCE's softmax over a row's goals or a column's state-actions
+CONTRASTIVE_LOSSES = ("fwd", "bwd", "sym")   # InfoNCE over a row's goals, a column's state-actions, or both
 
 
 def _check_pair(a_name: str, a, b_name: str, b) -> None:
@@ -46,23 +46,23 @@ def energy(x, y):
 
 
 def crl_critic_loss(phi, psi, logsumexp_penalty, direction="fwd"):
-    """CRL's critic loss: forward or backward InfoNCE over the batch's energies, with a log-sum-exp penalty.
+    """CRL's critic loss: forward, backward or symmetric InfoNCE over the batch's energies, with a penalty.
 
     L_ij = energy(φ_i, ψ_j), ℓ_i = log Σ_j exp L_ij (a row: a state-action against the batch's goals),
     m_j = log Σ_i exp L_ij (a column: a goal against the batch's state-actions); P = c · mean_i (ℓ_i + ε)²;
-    fwd: loss = −mean_i (L_ii − ℓ_i) + P; bwd: loss = −mean_j (L_jj − m_j) + P. The penalty stays on the
-    rows in both (JaxGCRL's `fwd_infonce`, `bwd_infonce`, its log-sum-exp of L + ε), ε = 1e-6,
-    c = `logsumexp_penalty`.
+    fwd: loss = −mean_i (L_ii − ℓ_i) + P; bwd: loss = −mean_j (L_jj − m_j) + P; sym, their sum: loss =
+    −mean_i (2 L_ii − ℓ_i − m_i) + P. The penalty stays on the rows in all three (JaxGCRL's `fwd_infonce`,
+    `bwd_infonce`, `sym_infonce`, its log-sum-exp of L + ε), ε = 1e-6, c = `logsumexp_penalty`.
 
     Args:
       phi: φ(s_i, a_i) (B, F).
       psi: ψ(g_i) (B, F), g_i the goal sampled for row i.
       logsumexp_penalty: c ≥ 0.
-      direction: "fwd" or "bwd" (`CONTRASTIVE_LOSSES`).
+      direction: "fwd", "bwd" or "sym" (`CONTRASTIVE_LOSSES`).
 
     Returns:
       (loss, {"accuracy": mean_i [argmax_j L_ij = i], "logits_pos": mean_i L_ii, "logits_neg": the mean of
-      L_ij over i ≠ j, "logsumexp": mean_i (ℓ_i + ε)}): the rows' metrics in both directions, as JaxGCRL
+      L_ij over i ≠ j, "logsumexp": mean_i (ℓ_i + ε)}): the rows' metrics in every direction, as JaxGCRL
       logs them.
 
     Raises:
@@ -73,10 +73,11 @@ def crl_critic_loss(phi, psi, logsumexp_penalty, direction="fwd"):
     if direction not in CONTRASTIVE_LOSSES:
         raise ConfigError(f"direction={direction!r} is invalid: must be one of {CONTRASTIVE_LOSSES}")
     logits = energy(phi[:, None, :], psi[None, :, :])
-    lse = jax.nn.logsumexp(logits, axis=1 if direction == "fwd" else 0)
     diag = jnp.diagonal(logits)
+    softmax_axes = {"fwd": (1,), "bwd": (0,), "sym": (1, 0)}[direction]
+    contrast = sum(diag - jax.nn.logsumexp(logits, axis=axis) for axis in softmax_axes)
     penalty_lse = jax.nn.logsumexp(logits + ENERGY_EPS, axis=1)
-    loss = -jnp.mean(diag - lse) + logsumexp_penalty * jnp.mean(penalty_lse ** 2)
+    loss = -jnp.mean(contrast) + logsumexp_penalty * jnp.mean(penalty_lse ** 2)
     b = logits.shape[0]
     eye = jnp.eye(b, dtype=logits.dtype)
     aux = {"accuracy": jnp.mean((jnp.argmax(logits, axis=1) == jnp.arange(b)).astype(logits.dtype)),

@@ -22,6 +22,7 @@ import pytest
 from sf2_common.agents import configs
 from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch
 from sf2_jax import cli
+from sf2_jax import losses_crl as lc
 from sf2_jax.agents import antgoal, crl, make_config
 from sf2_jax.agents.goal_replay import GoalSample
 from sf2_testing import cli_args, cli_error, strip_wall
@@ -89,8 +90,8 @@ CRL = ("--task", "ant-goal", "--algo", "crl")
     (("--task", "ant-goal", "--algo", "td3"), "goal-reaching tasks take the goal-conditioned trainer"),
     ((*CRL, "--repr", "sim"), "representation = 'sim' is invalid: must be one of none, sf2"),
     ((*CRL, "--logsumexp-penalty", "-1"), "logsumexp_penalty = -1.0 is invalid"),
-    ((*CRL, "--contrastive-loss", "sym"),
-     "contrastive_loss = 'sym' is invalid: must be one of ('fwd', 'bwd')"),
+    ((*CRL, "--contrastive-loss", "binary"),
+     "contrastive_loss = 'binary' is invalid: must be one of ('fwd', 'bwd', 'sym')"),
     ((*CRL, "--batch-size", "1"), "batch_size = 1 is invalid"),
     ((*CRL, "--physics", "generalized"), "physics = 'generalized' is invalid: must be one of mjx, spring"),
     (("--task", "CheetahRun", "--physics", "spring"), "only ant-goal has the spring pipeline"),
@@ -118,6 +119,8 @@ def test_the_paper_preset_trains_the_backward_infonce(cfg, tmp_path):
         RunFolder(tmp_path / "paper").check_compatible(paper.to_dict(), (0,))
     fwd = paper.replace(contrastive_loss="fwd")
     assert RunFolder(tmp_path / "paper").check_compatible(fwd.to_dict(), (0,)) is True
+    for direction in lc.CONTRASTIVE_LOSSES:   # every loss the cores have is a config's choice
+        assert crl.validate(paper.replace(contrastive_loss=direction)).contrastive_loss == direction
 
 
 def test_the_program_steps_the_configs_physics(cfg, monkeypatch):

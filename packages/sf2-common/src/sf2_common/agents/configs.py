@@ -147,7 +147,7 @@ class TrainConfig:
     shared_torso: bool = False    # pgx's one network: a torso under both heads, one loss, Adam state and clip
     seed_loop: str = "vmap"       # the on-policy program's seeds: "vmap" batched, "map" in turn (SEED_LOOPS)
     logsumexp_penalty: float = 0.1   # CRL's InfoNCE log-sum-exp penalty (--algo crl; docs/crl.md)
-    contrastive_loss: str = "fwd"    # CRL's InfoNCE: "fwd" a row's goals, "bwd" a goal's state-actions
+    contrastive_loss: str = "fwd"    # CRL's InfoNCE: "fwd" a row's goals, "bwd" a goal's state-actions, "sym"
     flow_feature_norm: str = "none"  # CRL+SF²: φ as SF²'s flow takes it, "none" or "l2" (φ/‖φ‖; docs/crl.md)
     # FPO (--algo fpo; docs/fpo.md): (ε, τ) pairs per action, Euler steps per action, actions per V_Q(s)
     fpo_samples: int = 8

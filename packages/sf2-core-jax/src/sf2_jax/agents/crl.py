@@ -439,7 +439,7 @@ def validate(cfg: TrainConfig, seeds=(0,)) -> TrainConfig:
         configs.bad_field("logsumexp_penalty", p, "must be a finite number >= 0")
     if cfg.contrastive_loss not in lc.CONTRASTIVE_LOSSES:
         configs.bad_field("contrastive_loss", cfg.contrastive_loss, f"must be one of {lc.CONTRASTIVE_LOSSES} "
-                          "(InfoNCE over a row's goals, or over a goal's state-actions)")
+                          "(InfoNCE over a row's goals, over a goal's state-actions, or both)")
     if cfg.flow_feature_norm not in FLOW_FEATURE_NORMS:
         configs.bad_field("flow_feature_norm", cfg.flow_feature_norm, f"must be one of {FLOW_FEATURE_NORMS} "
                           "(φ itself, or φ/‖φ‖, as SF²'s flow takes it)")
