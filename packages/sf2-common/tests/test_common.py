@@ -372,6 +372,33 @@ def test_diverged_message_names_the_first_bad_loss():
     assert hostloop.row_metrics({"sgd_steps": np.array([0]), "x": np.array([1.0])}, 0) == {"sgd_steps": 0}
 
 
+def test_rows_write_float32_metrics_in_their_shortest_form_without_loss():
+    """A float32 metric is written in at most 9 significant digits and reads back as the same float32; a
+    float64 one is unchanged (the JSON text of a row is what metrics.jsonl holds)."""
+    rng = np.random.default_rng(0)
+    values = np.concatenate([rng.normal(size=200) * 10.0 ** rng.integers(-12, 12, size=200),
+                             [19.251487731933594, 1e-45, 3.4e38, -0.0, 0.1]]).astype(np.float32)
+    for x in values:
+        y = hostloop.compact(x)
+        assert np.float32(y) == x and json.loads(json.dumps(y)) == y
+        digits = json.dumps(y).lstrip("-").split("e")[0].replace(".", "").strip("0")
+        assert len(digits) <= 9, (x, json.dumps(y))
+    assert json.dumps(hostloop.compact(np.float32(19.251487731933594))) == "19.251488"
+    assert np.isnan(hostloop.compact(np.float32("nan")))
+    assert hostloop.compact(np.float32("inf")) == float("inf")
+    assert hostloop.compact(0.1) == 0.1 and hostloop.compact(np.float64(1 / 3)) == 1 / 3
+    returns = rng.normal(size=8).astype(np.float32) * 100
+    means = {"sgd_steps": np.array([4.0, 4.0], np.float32), "loss": np.array([0.1, 2 / 3], np.float32)}
+    row = hostloop.make_row(1, 7, 100, returns, hostloop.row_metrics(means, 1), None, 0.5, 1.0,
+                            eval_metrics=lambda r: {"success": float(np.mean(r > 0))})
+    assert np.float32(row["eval_return"]) == np.mean(returns) and row["loss"] == 0.6666667
+    assert np.float32(row["eval_return_std"]) == np.std(returns)
+    assert row["success"] == float(np.mean(returns > 0)) and row["sgd_steps"] == 4
+    # a name a reader would take for damage (RunFolder.read_rows) is refused when the row is made
+    with pytest.raises(ConfigError, match=r"metric names must be identifiers .* found \['loss/p'\]"):
+        hostloop.make_row(1, 7, 100, returns, {"loss/p": 1.0}, None, 0.5, 1.0)
+
+
 # ------------------------------------------------------------------------------------------- plots
 def _write_run(path, label, steps, returns_per_seed):
     run = RunFolder(path)

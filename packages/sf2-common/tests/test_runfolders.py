@@ -139,6 +139,23 @@ def test_damaged_metrics_are_an_error_and_change_nothing(tmp_path, fault):
     assert folder_digest(run.path) == before
 
 
+def test_damage_inside_a_key_is_an_error_though_the_row_is_json(tmp_path):
+    """Bytes flipped (`damage`'s XOR 0x5A) across a key's closing quote and the value after it can leave
+    valid JSON with one odd key in place of a metric: still damage, and said as such."""
+    run, _ = _run_folder(tmp_path / "run")
+    lines = run.metrics_path.read_text().splitlines()
+    lines[4] = lines[4].replace('"eval_return": 2.0', '"eval_return' + "".join(
+        chr(ord(c) ^ 0x5A) for c in '": 2.0') + '": 2.0')
+    assert "eval_returnx`z" in lines[4] and json.loads(lines[4])
+    run.metrics_path.write_text("\n".join(lines) + "\n")
+    before = folder_digest(run.path)
+    with pytest.raises(RunFolderError, match="metrics.jsonl line 5 is not a metrics row .a key that is no "
+                                             "metric name: 'eval_returnx`zhtj'."):
+        run.check_compatible({"a": 1}, SEEDS)
+    assert folder_digest(run.path) == before
+    assert len(run.read_rows()) == len(_rows(3)) - 1     # read leniently, the row is left out
+
+
 def test_a_torn_last_row_is_a_kill_not_damage(tmp_path):
     run, _ = _run_folder(tmp_path / "run")
     with open(run.metrics_path, "a") as f:

@@ -16,12 +16,13 @@ import numpy as np
 
 from ..errors import ConfigError
 from .loggers import Sinks
+from .runfolder import METRIC_NAME
 from .runlog import library_log
 
 __all__ = [
     "WALL_FIELDS", "DEADLINE_VARIABLE", "TrainingDiverged", "Session", "BatchedEvaluation", "run_epochs",
     "deadline_from_environment", "checkpoint_now", "diverged_message",
-    "row_metrics", "make_row", "write_curve", "call_hook", "versions", "hardware", "cpu_model",
+    "compact", "row_metrics", "make_row", "write_curve", "call_hook", "versions", "hardware", "cpu_model",
     "numerics_environment", "environment_text", "environment_line",
     "progress_bar", "NoBar", "run_title",
 ]
@@ -62,9 +63,27 @@ def diverged_message(first_bad: dict, sched, epoch: int, seeds, cfg, last_ckpt,
             f"epoch {epoch}, seed {seed}){also}. Nothing of epoch {epoch} was written; {keep}.")
 
 
+def compact(value) -> float:
+    """A number as a Python float; a float32 one as the shortest decimal that reads back as that float32.
+
+    JSON writes a float's shortest float64 repr, up to 17 significant digits for a float32 value; this
+    gives at most 9, with no loss: np.float32 of the row's value is the device's
+    (docs/decisions/compact-metrics.md).
+
+    Args:
+      value: a number, NumPy scalar or 0-d array.
+
+    Returns:
+      The float.
+    """
+    v = np.asarray(value)
+    return float(str(v[()])) if v.dtype == np.float32 else float(v)
+
+
 def row_metrics(means: dict, s_i: int) -> dict:
-    """Epoch means of the training metrics of seed `s_i` (none for an epoch that was all prefill)."""
-    row = {name: float(np.asarray(v)[s_i]) for name, v in sorted(means.items())}
+    """Epoch means of the training metrics of seed `s_i` (none for an epoch that was all prefill), each
+    `compact`."""
+    row = {name: compact(np.asarray(v)[s_i]) for name, v in sorted(means.items())}
     row["sgd_steps"] = int(row["sgd_steps"])
     return row if row["sgd_steps"] else {"sgd_steps": 0}
 
@@ -72,14 +91,19 @@ def row_metrics(means: dict, s_i: int) -> dict:
 def make_row(epoch, seed, env_steps, returns, metrics, sps, eval_seconds, walltime,
              epoch_seconds=None, eval_metrics=None) -> dict:
     """One metrics.jsonl row: the evaluation of `seed` after `epoch` and the epoch's training metrics;
-    `eval_metrics(returns)`, when given, adds the evaluation's own ({name: float})."""
+    `eval_metrics(returns)`, when given, adds the evaluation's own ({name: float}); numbers `compact`."""
+    own = eval_metrics(np.asarray(returns)) if eval_metrics else {}
     row = {"epoch": epoch, "seed": int(seed), "env_steps": int(env_steps),
-           "eval_return": float(np.mean(returns)), "eval_return_std": float(np.std(returns)),
-           **(eval_metrics(np.asarray(returns)) if eval_metrics else {}),
+           "eval_return": compact(np.mean(returns)), "eval_return_std": compact(np.std(returns)),
+           **{name: compact(v) for name, v in own.items()},
            "eval_seconds": round(eval_seconds, 3), "walltime": round(walltime, 3), **metrics}
     if sps is not None:
         row["sps"] = round(sps, 1)
         row["epoch_seconds"] = round(epoch_seconds, 3)
+    odd = [name for name in row if not METRIC_NAME.fullmatch(name)]
+    if odd:   # a reader would take such a row for damage (`RunFolder.read_rows`)
+        raise ConfigError(f"metric names must be identifiers (letters, digits, '_'), found {odd}: rename "
+                          f"them in the loss's aux dict or the evaluation's metrics")
     return row
 
 

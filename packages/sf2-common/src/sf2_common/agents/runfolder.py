@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import shutil
 import sys
 import tempfile
@@ -19,7 +20,9 @@ from sf2_common.fileio import GZ, atomic_write, expand, read_text, stored
 
 from .configs import ADDED_FIELDS, EXECUTION_FIELDS, superseded_values
 
-__all__ = ["RunFolder", "RunFolderError", "RunFolderMismatch"]
+__all__ = ["RunFolder", "RunFolderError", "RunFolderMismatch", "METRIC_NAME"]
+
+METRIC_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")   # a metrics.jsonl key: an identifier (fullmatch)
 
 
 class RunFolderError(ConfigError):
@@ -217,7 +220,9 @@ class RunFolder:
     # ------------------------------------------------------------------ metrics
     def read_rows(self, strict: bool = False) -> list[dict]:
         """The rows of metrics.jsonl (or .gz; none if neither exists), the first of each (epoch, seed). A
-        torn last line is skipped; any other non-row too, or with `strict` a `RunFolderError` naming it."""
+        torn last line is skipped; any other non-row (not JSON, no 'epoch' or 'seed', or a key that is not
+        a `METRIC_NAME`, as damage inside a key leaves it) too, or with `strict` a `RunFolderError` naming
+        it."""
         path = stored(self.metrics_path)
         if path is None:
             return []
@@ -238,6 +243,8 @@ class RunFolder:
                 row = json.loads(line)
                 problem = None if isinstance(row, dict) and "epoch" in row and "seed" in row else \
                     "a JSON value without 'epoch' and 'seed'"
+                odd = [k for k in row if not METRIC_NAME.fullmatch(k)] if problem is None else []
+                problem = problem or (f"a key that is no metric name: {odd[0]!r}" if odd else None)
             except json.JSONDecodeError as err:
                 if i == last:
                     continue  # a torn line from a kill mid-write
