@@ -1,8 +1,8 @@
 """The goal-conditioned trainer (sf2_jax.agents.crl) on `ant-goal` with `--config quick`, through
-`sf2-jax train --task ant-goal --algo crl`: the critic learns (its contrastive accuracy far above chance), a
-run stopped after its first epoch resumes to the same rows, bad input is refused before compiling, and
-the presets' InfoNCE (paper: backward) against folders written before the choice existed, and which Adam
-state CRL+SF²'s flow step advances.
+`sf2-jax train --task ant-goal --algo crl`: the critic learns (its contrastive accuracy far above chance),
+alone and as each of two vmapped seeds, a run stopped after its first epoch resumes to the same rows, bad
+input is refused before compiling, and the presets' InfoNCE (paper: backward) against folders written
+before the choice existed, and which Adam state CRL+SF²'s flow step advances.
 
 The learning signal: a critic that has learned nothing ranks a row's own goal first among the batch's B
 goals with probability 1/B (chance, 1/64 here); the last epoch's mean accuracy over its 2000 SGD steps must
@@ -81,6 +81,19 @@ def test_a_stopped_run_resumes_to_the_same_rows(cfg, cli_run, tmp_path):
     result = crl.train(cfg, "0", out, progress=False, plot=False)
     assert result.resumed_from == 1
     assert strip_wall(result.rows) == strip_wall(reference)
+
+
+@pytest.mark.slow
+def test_vmapped_seeds_each_learn_their_own_critic(cfg, tmp_path):
+    """Seeds 0 and 1 in one vmapped program: each seed's critic learns (accuracy ≥ 5/B, as one seed's
+    must) and the two are separate runs, not one copied (their losses differ)."""
+    result = crl.train(cfg, "0-1", tmp_path / "two", progress=False, plot=False)
+    last = {r["seed"]: r for r in result.rows if r["env_steps"] == 8000}
+    assert sorted(last) == [0, 1]
+    for seed, row in last.items():
+        assert row["accuracy"] >= 5 / cfg.batch_size, (seed, row["accuracy"])
+        assert row["sgd_steps"] == 500 * cfg.grad_updates_per_step
+    assert last[0]["critic_loss"] != last[1]["critic_loss"]
 
 
 CRL = ("--task", "ant-goal", "--algo", "crl")
