@@ -60,7 +60,8 @@ def _config(task, algo, rep, n_seeds, actor_steps, epochs, overrides, framework=
     return cfg
 
 
-def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=print, hlo_dump=None) -> dict:
+def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=print, hlo_dump=None,
+                 label=None) -> dict:
     """Profile the JAX trainer's epochs with `jax.profiler`.
 
     Args:
@@ -72,6 +73,7 @@ def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=p
         log: a callable taking one line.
         hlo_dump: the folder XLA dumps to (set in `main` before JAX starts): also count the epoch's
             kernels per phase (`bench.hlo`) and sum the traced kernels' time per phase.
+        label: the arm's name (default `rep`; `bench.agent_throughput.parse_reps`'s REP@FIELD=VALUE).
 
     Returns:
         `bench.profile.trace`'s summary per SGD step, with "phases" (and each device's "by_phase") when
@@ -94,7 +96,8 @@ def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=p
         jax.block_until_ready((state, means))
     sgd = program.sched.actor_steps_per_epoch * program.sched.sgd_steps_per_actor_step
     how = ("no vmap" if n_seeds == 1 else "in turn" if cfg.seed_loop == "map" else "vmapped")   # _seed_map
-    label = f"{task} {algo}+{rep}, {n_seeds} seed{'s' * (n_seeds > 1)} ({how}), per SGD step"
+    arm = label or rep
+    label = f"{task} {algo}+{arm}, {n_seeds} seed{'s' * (n_seeds > 1)} ({how}), per SGD step"
     log(f"  tracing {label}: {epochs} epochs of {program.sched.actor_steps_per_epoch} actor steps")
     module, kernel_phase = None, None
     if hlo_dump is not None:
@@ -104,7 +107,8 @@ def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=p
     if module is not None:
         out["phases"] = {**hlo.count(module.read_text(), hlo.phases()), "sgd_steps": sgd,
                          "file": module.name}
-        module.rename(Path(hlo_dump) / f"case-{algo}-{rep}-{n_seeds}seeds-{module.name}")
+        name = arm.replace("@", "+").replace("=", "-")   # a plain file name
+        module.rename(Path(hlo_dump) / f"case-{algo}-{name}-{n_seeds}seeds-{module.name}")
     return out
 
 
@@ -163,7 +167,7 @@ def _runtime_calls(events: list[dict], updates: int) -> list[dict]:
 
 
 def profile_torch_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=print,
-                       events_to=None) -> dict:
+                       events_to=None, label=None) -> dict:
     """Profile the torch trainer's epochs: host time per phase, then a `torch.profiler` trace.
 
     Args:
@@ -174,6 +178,7 @@ def profile_torch_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides,
         overrides: config fields to set.
         log: a callable taking one line.
         events_to: a path for the trace's device and CUDA runtime/driver events (gzipped JSON).
+        label: the arm's name (default `rep`; `bench.agent_throughput.parse_reps`'s REP@FIELD=VALUE).
 
     Returns:
         The summary: `host` (phases as trained and drained), `runtime` (CUDA calls that can wait) and
@@ -212,7 +217,8 @@ def profile_torch_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides,
         for phase, obj, name in (("explore", ag.algo, "explore"), ("step_noise", ag.algo, "step_noise"),
                                  ("sgd_step", ag.algo, "sgd_step"), ("sample", ag.replay, "sample")):
             setattr(obj, name, timer.wrap(phase, getattr(obj, name)))
-    label = f"{task} {algo}+{rep}, {n_seeds} seed{'s' * (n_seeds > 1)} (torch trainer), per SGD step"
+    arm = label or rep
+    label = f"{task} {algo}+{arm}, {n_seeds} seed{'s' * (n_seeds > 1)} (torch trainer), per SGD step"
     log(f"  timing and tracing {label}: 3 × {epochs} epochs of "
         f"{program.sched.actor_steps_per_epoch} actor steps")
     updates = epochs * sgd
@@ -268,7 +274,9 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m bench.agent_profile", description=__doc__.split("\n\n")[0])
     p.add_argument("--task", default="AcrobotSwingup")
     p.add_argument("--algo", default="td3")
-    p.add_argument("--reps", default="none,sf2")
+    p.add_argument("--reps", default="none,sf2",
+                   help="comma list of representations, each optionally REP@FIELD=VALUE[@...] (an arm's own "
+                        "config fields, e.g. sf2@contract_zeta=false)")
     p.add_argument("--seeds", default="1,8", help="numbers of vmapped seeds, e.g. 1,8")
     p.add_argument("--actor-steps", type=int, default=64, help="actor steps per traced epoch")
     p.add_argument("--epochs", type=int, default=2, help="traced epochs per case")
@@ -282,15 +290,17 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     from sf2_common.errors import ConfigError
 
-    from .agent_throughput import parse_sets
+    from .agent_throughput import parse_reps, parse_sets
     from .machine import describe
     from .profile import markdown
 
     try:   # every case's config, before anything is built or written
         overrides = parse_sets(args.set, [args.framework])
-        cases = [(int(x), rep) for x in args.seeds.split(",") for rep in args.reps.split(",") if rep]
-        for n, rep in cases:
-            _config(args.task, args.algo, rep, n, args.actor_steps, args.epochs, overrides, args.framework)
+        arms = parse_reps(args.reps, [args.framework])
+        cases = [(int(x), arm) for x in args.seeds.split(",") for arm in arms]
+        for n, (_, rep, own) in cases:
+            _config(args.task, args.algo, rep, n, args.actor_steps, args.epochs, {**overrides, **own},
+                    args.framework)
     except (ConfigError, ValueError) as err:
         p.error(str(err))
     if args.hlo and args.framework != "jax":
@@ -308,12 +318,12 @@ def main(argv=None) -> int:
     command = "python -m bench.agent_profile " + " ".join(argv if argv is not None else sys.argv[1:])
     summaries = []
     case = profile_torch_case if args.framework == "torch" else profile_case
-    for n, rep in cases:
+    for n, (arm, rep, own) in cases:
         extra = {"hlo_dump": hlo_dump} if hlo_dump else {}
         if args.framework == "torch":
-            extra = {"events_to": out / f"trace-{rep}-x{n}.json.gz"}
-        summaries.append(case(args.task, args.algo, rep, n, args.actor_steps, args.epochs, overrides,
-                              **extra))
+            extra = {"events_to": out / f"trace-{arm.replace('@', '+').replace('=', '-')}-x{n}.json.gz"}
+        summaries.append(case(args.task, args.algo, rep, n, args.actor_steps, args.epochs,
+                              {**overrides, **own}, label=arm, **extra))
         (out / "agent_profile.md").write_text(f"Command: `{command}`\n\n" + markdown(summaries))
     (out / "agent_profile.json").write_text(json.dumps(summaries, indent=1))
     if hlo_dump:

@@ -116,6 +116,29 @@ def parse_sets(items, frameworks) -> dict:
         raise
 
 
+def parse_reps(text: str, frameworks) -> list[tuple[str, str, dict]]:
+    """Split `--reps` into arms: a representation, optionally with config fields of its own after `@`.
+
+    `none,sf2,sf2@contract_zeta=false` measures three arms, the third SF² with the oracle ζ; each
+    `@FIELD=VALUE` is typed like `--set` and applied after it.
+
+    Args:
+        text: the comma list.
+        frameworks: the frameworks measured (`parse_sets`).
+
+    Returns:
+        [(label, representation, {field: typed value})], in the order given; a `ConfigError` names a bad
+        field, a `ValueError` an empty arm.
+    """
+    arms = []
+    for label in _names(text):
+        rep, *items = label.split("@")
+        if not rep or any(not item for item in items):
+            raise ValueError(f"--reps: {label!r} is not REP or REP@FIELD=VALUE[@FIELD=VALUE...]")
+        arms.append((label, rep, parse_sets(items, frameworks)))
+    return arms
+
+
 def config_for(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epochs: int, overrides: dict,
                framework: str = "jax"):
     """Build the validated `paper` config of one measurement.
@@ -146,7 +169,7 @@ def config_for(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epo
 
 
 def measure(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epochs: int,
-            overrides: dict, framework: str = "jax", log=print) -> dict:
+            overrides: dict, framework: str = "jax", log=print, label: str | None = None) -> dict:
     """Time training epochs of one case after its warm-up epochs.
 
     Args:
@@ -157,6 +180,7 @@ def measure(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epochs
         overrides: config fields to set.
         framework: "jax" or "torch".
         log: a callable taking one line.
+        label: the row's `rep` (default `rep`; an arm of `parse_reps`, e.g. "sf2@contract_zeta=false").
 
     Returns:
         One row of `COLUMNS`.
@@ -177,7 +201,8 @@ def measure(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epochs
         state, means, _ = program.epoch(state, e)
         _block(framework, (state, means))
     first = time.perf_counter() - t
-    tag = f"{framework} {task} {algo}+{rep} x{n_seeds} {cfg.learner_precision}"
+    label = label or rep
+    tag = f"{framework} {task} {algo}+{label} x{n_seeds} {cfg.learner_precision}"
     log(f"  {tag}: warm-up ({warm} epoch{'s' * (warm > 1)}: compile, prefill, first SGD step) {first:.1f} s")
     times, sgds = [], []
     for e in range(warm + 1, warm + epochs + 1):
@@ -194,7 +219,7 @@ def measure(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epochs
     med = statistics.median(times)
     sgd = sgds[0]
     del state
-    return {"framework": framework, "task": task, "algo": algo, "rep": rep, "seeds": n_seeds,
+    return {"framework": framework, "task": task, "algo": algo, "rep": label, "seeds": n_seeds,
             "learner_precision": cfg.learner_precision,
             "env_steps_per_epoch": sched.env_steps_per_epoch, "sgd_steps_per_epoch": sgd,
             "timed_epochs": epochs, "warmup_epochs": warm, "warmup_s": round(first, 2),
@@ -243,6 +268,11 @@ def markdown(rows: list[dict], info: dict) -> str:
         if rep != "none" and base:
             notes.append(f"- {fw} {task} {algo}+{rep} / {algo} ({prec}, {n} seed{'s' * (n > 1)}): time per "
                          f"env step {base['sps_per_seed'] / r['sps_per_seed']:.2f}×")
+        plain = by.get((fw, task, algo, rep.split("@")[0], prec, n))
+        if "@" in rep and plain:
+            notes.append(f"- {fw} {task} {algo}+{rep} / {algo}+{rep.split('@')[0]} ({prec}, {n} "
+                         f"seed{'s' * (n > 1)}): time per env step "
+                         f"{plain['sps_per_seed'] / r['sps_per_seed']:.2f}×")
         one = by.get((fw, task, algo, rep, prec, 1))
         if n > 1 and one:
             total = r["sps_total"] / one["sps_total"]
@@ -275,7 +305,9 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m bench.agent_throughput", description=__doc__.split("\n\n")[0])
     p.add_argument("--tasks", "--task", default="AcrobotSwingup", type=_names, help="comma list of tasks")
     p.add_argument("--algos", default="td3", type=_names)
-    p.add_argument("--reps", default="none,sf2", type=_names)
+    p.add_argument("--reps", default="none,sf2",
+                   help="comma list of representations, each optionally REP@FIELD=VALUE[@...] (an arm's own "
+                        "config fields, e.g. sf2@contract_zeta=false)")
     p.add_argument("--seeds", default="1,8", help="numbers of vmapped seeds to measure, e.g. 1,8")
     p.add_argument("--precisions", default="highest", type=_names,
                    help="learner_precision values (highest, tensorfloat32, bfloat16)")
@@ -304,11 +336,12 @@ def main(argv=None) -> int:
         p.error(f"--epochs {args.epochs}, --env-steps {args.env_steps}: each must be >= 1")
     try:
         overrides = parse_sets(args.set, args.frameworks)
-        for task, fw, prec, algo, rep in itertools.product(args.tasks, args.frameworks, args.precisions,
-                                                           args.algos, args.reps):
+        arms = parse_reps(args.reps, args.frameworks)
+        for task, fw, prec, algo, (_, rep, own) in itertools.product(args.tasks, args.frameworks,
+                                                                     args.precisions, args.algos, arms):
             config_for(task, algo, rep, max(seed_counts), args.env_steps, args.epochs,
-                       {**overrides, "learner_precision": prec}, framework=fw)
-    except ConfigError as err:
+                       {**overrides, **own, "learner_precision": prec}, framework=fw)
+    except (ConfigError, ValueError) as err:
         p.error(str(err))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -321,9 +354,10 @@ def main(argv=None) -> int:
             for fw in args.frameworks:
                 for prec in args.precisions:
                     for algo in args.algos:
-                        for rep in args.reps:
+                        for label, rep, own in arms:
                             rows.append(measure(task, algo, rep, n, args.env_steps, args.epochs,
-                                                {**overrides, "learner_precision": prec}, framework=fw))
+                                                {**overrides, **own, "learner_precision": prec},
+                                                framework=fw, label=label))
                             with open(out / "throughput.csv", "w", newline="") as f:
                                 w = csv.DictWriter(f, fieldnames=COLUMNS)
                                 w.writeheader()

@@ -162,6 +162,8 @@ def test_bad_bench_input_exits_2_before_anything_runs(argv, message, tmp_path, c
     ("agent_throughput", ["--precisions", "fp8"], "learner_precision = 'fp8' is invalid"),
     ("agent_throughput", ["--reps", "bogus"], "representation = 'bogus' is invalid"),
     ("agent_throughput", ["--set", "compile=off"], "unknown config field 'compile'"),
+    ("agent_throughput", ["--reps", "none,sf2@nope=1"], "unknown config field 'nope'"),
+    ("agent_throughput", ["--reps", "sf2@"], "'sf2@' is not REP or REP@FIELD=VALUE"),
     ("agent_throughput", ["--frameworks", "torch", "--set", "compile=fast"], "compile = 'fast' is invalid"),
     ("physics", ["--tasks", "CheetahRun,Nope"], "--tasks: unknown task 'Nope'"),
     ("physics", ["--envs", "128,0"], "each must be >= 1"),
@@ -183,6 +185,7 @@ def test_bad_throughput_input_exits_2_before_anything_runs(module, argv, message
     (["--task", "Nope"], "unknown task 'Nope'"),
     (["--reps", "bogus"], "representation = 'bogus' is invalid"),
     (["--seeds", "two"], "invalid literal for int()"),
+    (["--reps", "sf2@contract_zeta=maybe"], "contract_zeta"),
 ])
 def test_bad_agent_profile_input_exits_2_before_writing(framework, argv, message, capsys, tmp_path):
     pytest.importorskip("mujoco_playground", reason="the profile validates against the Playground task list: "
@@ -454,6 +457,36 @@ def test_set_takes_the_torch_trainers_fields_with_the_torch_framework_alone():
     assert parse_sets([], ["jax"]) == {}
     with pytest.raises(ConfigError, match=r"unknown config field 'compile'.*need the torch framework alone"):
         parse_sets(items, ["jax", "torch"])
+
+
+def test_an_arm_of_reps_carries_its_own_fields_and_its_ratio_to_the_plain_arm():
+    """`--reps none,sf2,sf2@contract_zeta=false` is three arms: the third SF² with the oracle ζ (its own
+    fields typed like `--set`, applied after it), reported under its label and as a time per env step
+    against the plain `sf2` arm of the same run."""
+    pytest.importorskip("mujoco_playground", reason="the paper preset's config needs the Playground "
+                        "task list: install a core's [train] extra")
+    from sf2_common.errors import ConfigError
+
+    from bench.agent_throughput import config_for, markdown, parse_reps
+
+    arms = parse_reps("none,sf2,sf2@contract_zeta=false@batch_size=64", ["jax"])
+    assert arms == [("none", "none", {}), ("sf2", "sf2", {}), ("sf2@contract_zeta=false@batch_size=64", "sf2",
+                                                                {"contract_zeta": False, "batch_size": 64})]
+    cfg, _ = config_for("AcrobotSwingup", "td3", "sf2", 1, 1000, 1, {"batch_size": 32, **arms[2][2]})
+    assert cfg.contract_zeta is False and cfg.batch_size == 64
+    with pytest.raises(ConfigError, match="unknown config field 'nope'"):
+        parse_reps("sf2@nope=1", ["jax"])
+    with pytest.raises(ValueError, match="not REP or REP@FIELD=VALUE"):
+        parse_reps("sf2@@batch_size=64", ["jax"])
+    row = dict(framework="jax", task="T", algo="td3", learner_precision="highest", seeds=1,
+               env_steps_per_epoch=1000, sgd_steps_per_epoch=10, warmup_s=1.0, warmup_epochs=1,
+               median_epoch_s=1.0)
+    rows = [{**row, "rep": rep, "sps_per_seed": sps, "sps_total": sps}
+            for rep, sps in (("none", 1000.0), ("sf2", 400.0), ("sf2@contract_zeta=false", 500.0))]
+    text = markdown(rows, {"command": "c"})
+    assert "| sf2@contract_zeta=false |" in text
+    assert "td3+sf2@contract_zeta=false / td3 (highest, 1 seed): time per env step 2.00×" in text
+    assert "td3+sf2@contract_zeta=false / td3+sf2 (highest, 1 seed): time per env step 0.80×" in text
 
 
 _DOT_HLO = """\
