@@ -142,22 +142,27 @@ def summarize_kernels(ks: list[dict], updates: int, device: str,
 
     Returns:
         Per update: kernels, device-busy time (union of the kernels' intervals), the sum of kernel
-        times, the split by category (GEMM, fusion, memcpy/memset, other), the costliest kernels and
-        `idle_gaps`; with `kernel_phase`, `by_phase` too (`phase_times`).
+        times, the split by category (GEMM, fusion, memcpy/memset, other), the costliest kernels (`top`),
+        `idle_gaps` and every kernel by time (`kernels`); with `kernel_phase`, `by_phase` too
+        (`phase_times`) and each kernel's phase.
     """
     by_name = collections.defaultdict(lambda: [0, 0.0])
     by_cat = collections.defaultdict(lambda: [0, 0.0])
+    phase_of = {}
     for e in ks:
         name = e.get("name", "?")
         hlo = e.get("args", {}).get("hlo_op") or e.get("args", {}).get("long_name") or ""
         key = f"{name} [{hlo[:60]}]" if hlo and hlo != name else name
         by_name[key][0] += 1
         by_name[key][1] += e["dur"]
+        if kernel_phase is not None:
+            phase_of[key] = kernel_phase_of(e, kernel_phase)
         c = by_cat[_category(name)]
         c[0] += 1
         c[1] += e["dur"]
     busy = _union((e["ts"], e["ts"] + e["dur"]) for e in ks) / 1e3 / updates
-    top = sorted(by_name.items(), key=lambda kv: -kv[1][1])[:12]
+    ranked = sorted(by_name.items(), key=lambda kv: -kv[1][1])
+    top = ranked[:12]
     return {
         "device": device,
         "kernels_per_update": len(ks) / updates,
@@ -167,7 +172,27 @@ def summarize_kernels(ks: list[dict], updates: int, device: str,
         "top": [{"name": k, "count": v[0] / updates, "ms": v[1] / 1e3 / updates} for k, v in top],
         "idle": idle_gaps(ks, updates),
         **({"by_phase": phase_times(ks, updates, kernel_phase)} if kernel_phase is not None else {}),
+        "kernels": [{"name": k, "count": v[0] / updates, "ms": v[1] / 1e3 / updates,
+                     **({"phase": phase_of[k]} if kernel_phase is not None else {})} for k, v in ranked],
     }
+
+
+def kernel_phase_of(event: dict, kernel_phase: dict[str, str]) -> str:
+    """The phase of one traced kernel: that of its instruction (`args.hlo_op`, else the kernel's own name,
+    both spelled as `bench.hlo.kernel_name`), or "(unmatched)".
+
+    Args:
+        event: a trace event with `name` and, from XLA, `args.hlo_op`.
+        kernel_phase: `bench.hlo.kernel_phases` of the traced program.
+
+    Returns:
+        The phase's name.
+    """
+    from .hlo import kernel_name
+
+    names = (event.get("args", {}).get("hlo_op"), event.get("name"))
+    keys = [kernel_name(n.split()[0]) for n in names if n and n.split()]
+    return next((kernel_phase[k] for k in keys if k in kernel_phase), "(unmatched)")
 
 
 def phase_times(ks: list[dict], updates: int, kernel_phase: dict[str, str]) -> dict:
@@ -185,13 +210,9 @@ def phase_times(ks: list[dict], updates: int, kernel_phase: dict[str, str]) -> d
     Returns:
         {phase: {"count", "ms"}} per update.
     """
-    from .hlo import kernel_name
-
     out = collections.defaultdict(lambda: [0, 0.0])
     for e in ks:
-        names = (e.get("args", {}).get("hlo_op"), e.get("name"))
-        keys = [kernel_name(n.split()[0]) for n in names if n and n.split()]
-        phase = next((kernel_phase[k] for k in keys if k in kernel_phase), "(unmatched)")
+        phase = kernel_phase_of(e, kernel_phase)
         out[phase][0] += 1
         out[phase][1] += e["dur"]
     return {p: {"count": c / updates, "ms": t / 1e3 / updates} for p, (c, t) in out.items()}
@@ -246,8 +267,15 @@ def markdown(summaries: list[dict]) -> str:
                         "in the compiled program, `bench.profile.phase_times`):", "",
                         "| phase | kernels per update | ms per update | share of kernel time |",
                         "|---|---|---|---|"]
+                ranked = sorted(d["by_phase"].items(), key=lambda kv: -kv[1]["ms"])
                 out += [f"| {p} | {v['count']:.1f} | {v['ms']:.4f} | {v['ms'] / total:.1%} |"
-                        for p, v in sorted(d["by_phase"].items(), key=lambda kv: -kv[1]["ms"])]
+                        for p, v in ranked]
+                first = next((p for p, _ in ranked if not p.startswith("(")), None)
+                own = [k for k in d.get("kernels", []) if k.get("phase") == first][:10]
+                if own:
+                    out += ["", f"The costliest kernels of {first}:", "",
+                            "| kernel [HLO op] | per update | ms per update |", "|---|---|---|"]
+                    out += [f"| `{k['name']}` | {k['count']:g} | {k['ms']:.4f} |" for k in own]
         if s.get("phases"):   # bench.agent_profile --hlo
             from .hlo import markdown as phases_markdown
             from .hlo import phases

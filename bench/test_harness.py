@@ -668,9 +668,16 @@ def test_profile_sums_kernel_time_per_phase_by_the_compiled_instructions():
                    "(unmatched)": {"count": 1.0, "ms": 0.004}, "(other)": {"count": 1.0, "ms": 0.001}}
     summary = profile.summarize_kernels(ks, 2, "gpu", kernel_phase)
     assert summary["by_phase"] == got
+    assert [(k["name"], k["phase"]) for k in summary["kernels"]] == [
+        ("sm90_xmma_gemm_f32f32 [custom-call.3]", "aux_grad"), ("sm90_xmma_gemm_f32f32 [command_buffer_6]",
+                                                                 "(unmatched)"),
+        ("loop_multiply_fusion_11", "critic_grad"), ("copy.2", "(other)")]
+    assert sum(k["ms"] for k in summary["kernels"]) == pytest.approx(summary["kernel_ms_per_update"])
     assert "by_phase" not in profile.summarize_kernels(ks, 2, "gpu")
     text = profile.markdown([{"label": "case", "wall_ms_per_update": 1.0, "devices": [summary]}])
     assert "| aux_grad | 1.0 | 0.0050 | 38.5% |" in text   # 5 of 13 µs
+    assert "The costliest kernels of aux_grad:" in text
+    assert "| `sm90_xmma_gemm_f32f32 [custom-call.3]` | 1 | 0.0050 |" in text
 
 
 def test_hlo_unwraps_transformations_around_the_scopes():
