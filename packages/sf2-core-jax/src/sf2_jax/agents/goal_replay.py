@@ -110,7 +110,10 @@ class TrajectoryBuffer:
             inside = (mid < size) & same(jnp.minimum(mid, size - 1))
             return jnp.where(inside, mid, lo), jnp.where(inside, hi, mid)
 
-        lo, _ = jax.lax.fori_loop(0, self.search_steps, body, (index, jnp.full_like(index, size)))
+        # unrolled: the ⌈log2(capacity + 1)⌉ steps become straight-line code XLA fuses, not a loop whose
+        # every iteration a GPU host launches apart
+        lo, _ = jax.lax.fori_loop(0, self.search_steps, body, (index, jnp.full_like(index, size)),
+                                  unroll=True)
         return lo - index
 
     def sample(self, buf: dict[str, Any], key: jax.Array, n: int, gamma: float) -> GoalSample:
