@@ -60,6 +60,11 @@ def _config(task, algo, rep, n_seeds, actor_steps, epochs, overrides, framework=
     return cfg
 
 
+def _file_part(arm: str) -> str:
+    """An arm's name as part of a plain file name: "sf2@contract_zeta=false" → "sf2+contract_zeta-false"."""
+    return arm.replace("@", "+").replace("=", "-")
+
+
 def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=print, hlo_dump=None,
                  label=None) -> dict:
     """Profile the JAX trainer's epochs with `jax.profiler`.
@@ -107,8 +112,7 @@ def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=p
     if module is not None:
         out["phases"] = {**hlo.count(module.read_text(), hlo.phases()), "sgd_steps": sgd,
                          "file": module.name}
-        name = arm.replace("@", "+").replace("=", "-")   # a plain file name
-        module.rename(Path(hlo_dump) / f"case-{algo}-{name}-{n_seeds}seeds-{module.name}")
+        module.rename(Path(hlo_dump) / f"case-{algo}-{_file_part(arm)}-{n_seeds}seeds-{module.name}")
     return out
 
 
@@ -321,7 +325,7 @@ def main(argv=None) -> int:
     for n, (arm, rep, own) in cases:
         extra = {"hlo_dump": hlo_dump} if hlo_dump else {}
         if args.framework == "torch":
-            extra = {"events_to": out / f"trace-{arm.replace('@', '+').replace('=', '-')}-x{n}.json.gz"}
+            extra = {"events_to": out / f"trace-{_file_part(arm)}-x{n}.json.gz"}
         summaries.append(case(args.task, args.algo, rep, n, args.actor_steps, args.epochs,
                               {**overrides, **own}, label=arm, **extra))
         (out / "agent_profile.md").write_text(f"Command: `{command}`\n\n" + markdown(summaries))
