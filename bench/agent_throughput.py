@@ -268,9 +268,10 @@ def markdown(rows: list[dict], info: dict) -> str:
         if rep != "none" and base:
             notes.append(f"- {fw} {task} {algo}+{rep} / {algo} ({prec}, {n} seed{'s' * (n > 1)}): time per "
                          f"env step {base['sps_per_seed'] / r['sps_per_seed']:.2f}×")
-        plain = by.get((fw, task, algo, rep.split("@")[0], prec, n))
-        if "@" in rep and plain:
-            notes.append(f"- {fw} {task} {algo}+{rep} / {algo}+{rep.split('@')[0]} ({prec}, {n} "
+        plain_rep = rep.split("@")[0]
+        plain = by.get((fw, task, algo, plain_rep, prec, n))
+        if plain_rep != rep and plain:
+            notes.append(f"- {fw} {task} {algo}+{rep} / {algo}+{plain_rep} ({prec}, {n} "
                          f"seed{'s' * (n > 1)}): time per env step "
                          f"{plain['sps_per_seed'] / r['sps_per_seed']:.2f}×")
         one = by.get((fw, task, algo, rep, prec, 1))

@@ -16,6 +16,8 @@ import os
 import tempfile
 import time
 
+from .hlo import kernel_name
+
 
 def _category(name: str) -> str:
     n = name.lower()
@@ -155,7 +157,7 @@ def summarize_kernels(ks: list[dict], updates: int, device: str,
         key = f"{name} [{hlo[:60]}]" if hlo and hlo != name else name
         by_name[key][0] += 1
         by_name[key][1] += e["dur"]
-        if kernel_phase is not None:
+        if kernel_phase is not None and key not in phase_of:
             phase_of[key] = kernel_phase_of(e, kernel_phase)
         c = by_cat[_category(name)]
         c[0] += 1
@@ -188,8 +190,6 @@ def kernel_phase_of(event: dict, kernel_phase: dict[str, str]) -> str:
     Returns:
         The phase's name.
     """
-    from .hlo import kernel_name
-
     names = (event.get("args", {}).get("hlo_op"), event.get("name"))
     keys = [kernel_name(n.split()[0]) for n in names if n and n.split()]
     return next((kernel_phase[k] for k in keys if k in kernel_phase), "(unmatched)")
