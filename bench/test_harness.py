@@ -487,6 +487,9 @@ def test_an_arm_of_reps_carries_its_own_fields_and_its_ratio_to_the_plain_arm():
     assert "| sf2@contract_zeta=false |" in text
     assert "td3+sf2@contract_zeta=false / td3 (highest, 1 seed): time per env step 2.00×" in text
     assert "td3+sf2@contract_zeta=false / td3+sf2 (highest, 1 seed): time per env step 0.80×" in text
+    assert "Paper (§4.4" in text and "JaxGCRL" not in text   # each family's published reference only
+    crl_text = markdown([{**r, "algo": "crl"} for r in rows], {"command": "c"})
+    assert "JaxGCRL's README" in crl_text and "Paper (§4.4" not in crl_text
     from bench.agent_profile import _file_part
 
     assert _file_part(arms[2][0]) == "sf2+contract_zeta-false+batch_size-64"   # the profile's file names
