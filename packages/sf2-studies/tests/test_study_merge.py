@@ -443,3 +443,44 @@ def test_rows_difference_names_a_learned_value_before_timing():
     assert first_difference(a, timed) is None and first_difference(a, timed, learned=False) == (
         0, 0, "walltime", 1.0, 6.0)
     assert first_difference(a, a[:1]) == (1, 0, None, None, None)
+
+
+def test_study_file_takes_the_runs_another_study_shares_and_nothing_else(tmp_path, runs_of):
+    """`--study`: a new study (the baselines of "merging" and a method of its own) takes "merging"'s runs
+    of the methods both have, at the same paths with the same configs; a run at a shared path whose config
+    differs, the other study's own methods and its commands stay out, and DEST records the merge command."""
+    own = ('[[methods]]\nlabel = "TD3+SF², own Adam"\nname = "td3-sf2-own"\nalgo = "td3"\n'
+           'representation = "sf2"\n')
+    mine = STUDY.replace('"merging"', '"reuse"').replace(
+        '[[methods]]\nlabel = "TD3+SF²"\nalgo = "td3"\nrepresentation = "sf2"\n', "") + own
+    (tmp_path / "reuse.toml").write_text(mine)
+    src = _source(tmp_path, "other", runs_of, commands=["2026-01-01 10:00:00"],
+                  finished=["A/td3/seeds-0-1", "B/td3/seeds-2-3", "A/td3-sf2/seeds-0-1"])
+    conf = src / "runs/B/td3/seeds-2-3/config.json"   # same path, another config: not this study's run
+    conf.write_text(conf.read_text().replace('"num_envs": 4', '"num_envs": 8'))
+    dest = tmp_path / "results"
+    before = folder_digest(src)
+    out, said = _merge([src], dest, runs_of, study_file=tmp_path / "reuse.toml",
+                       command="sf2-jax study merge X")
+    assert out.created and out.merged == ["A/td3/seeds-0-1"]
+    assert "B/td3/seeds-2-3 in " in said and "num_envs: 8 (folder) vs 4 (now)" in said
+    assert "ignored   1 run folder(s)" in said        # td3-sf2: no run of "reuse" has its path
+    assert (dest / "study.toml").read_text() == mine and folder_digest(src) == before
+    state = json.loads((dest / "study.json").read_text())
+    assert state["name"] == "reuse" and [c["command"] for c in state["commands"]] == ["sf2-jax study merge X"]
+    assert [(r["task"], r["folder"]) for r in state["runs"]] == [("A", "td3/seeds-0-1")]
+    assert (gzip.decompress((dest / "runs/A/td3/seeds-0-1/metrics.jsonl.gz").read_bytes())
+            == (src / "runs/A/td3/seeds-0-1/metrics.jsonl").read_bytes())
+    # the copy counts as done for `study run`: the folder's state of that run
+    study = StudyFolder(dest).load_study()
+    run = next(r for r in runs_of(study) if f"{r.task}/{r.rel}" == "A/td3/seeds-0-1")
+    assert StudyFolder(dest).run_state(run, study).status == "done"
+    # again: nothing changes, not even the record of commands
+    held = folder_digest(dest)
+    out, said = _merge([src], dest, runs_of, study_file=tmp_path / "reuse.toml", command="again")
+    assert not out.merged and "identical to DEST's" in said and folder_digest(dest) == held
+    # a DEST of another study is refused, nothing written
+    (tmp_path / "merging.toml").write_text(STUDY)
+    with pytest.raises(StudyError, match="holds study 'reuse', not the study of .*merging.toml"):
+        _merge([src], dest, runs_of, study_file=tmp_path / "merging.toml")
+    assert folder_digest(dest) == held

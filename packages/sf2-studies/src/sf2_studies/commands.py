@@ -5,7 +5,7 @@
     PROG study run FILE --out DIR [--tasks A,B] [--methods m1,m2] [--seeds 0-4] [--workers N]
                    [--ray ADDRESS] [--finish-within SECONDS] [--forecast-from DIR] [--dry-run]
     PROG study report DIR [--out REPORT_DIR]
-    PROG study merge SOURCE... --into DIR [--partial]
+    PROG study merge SOURCE... --into DIR [--partial] [--study STUDY.toml]
     PROG study compress DIR
     PROG study compare DIR... --out DIR
     PROG study export DIR --out FILE.csv|FILE.parquet
@@ -87,6 +87,11 @@ def add_parser(sub, prog: str) -> None:
     g.add_argument("--partial", action="store_true",
                    help="also merge unfinished runs (where DIR has none or less of it); without checkpoints "
                    "they cannot resume: `study run` then needs the run folder removed to train it again")
+    g.add_argument("--study", default=None, metavar="STUDY.toml",
+                   help="take runs of other studies: DIR holds this study file's study, and of each SOURCE "
+                   "(any study) only the run folders at one of its runs' paths whose config and seeds are "
+                   "that run's are merged (e.g. the baselines two studies share), the rest ignored; DIR's "
+                   "study.json records this command instead of the sources' commands")
     g.add_argument("--keep-reruns", action="store_true",
                    help="a finished run DIR already holds with other metrics (the same config and seeds "
                    "run twice: GPU runs differ) is kept in DIR/rerun/<task>-<method>/<seeds>/, out of the "
@@ -137,7 +142,7 @@ def main(backend: Backend, args) -> int:
         if args.study_command == "compare":
             return _compare(args, command)
         if args.study_command == "merge":
-            return _merge(backend, args)
+            return _merge(backend, args, command)
         if args.study_command == "compress":
             return _compress(backend, args)
         if args.study_command == "export":
@@ -272,11 +277,12 @@ def _resolve(backend, study):
             os.environ["JAX_PLATFORMS"] = platforms
 
 
-def _merge(backend, args) -> int:
+def _merge(backend, args, command: str) -> int:
     from .merge import merge
 
     merge(args.sources, args.into, functools.partial(_resolve, backend), framework=backend.name,
-          partial=args.partial, reruns=args.keep_reruns)
+          partial=args.partial, reruns=args.keep_reruns,
+          study_file=None if args.study is None else _study_file(args.study), command=command)
     return 0
 
 

@@ -13,6 +13,7 @@ import dataclasses
 import json
 import os
 import shutil
+import socket
 import tarfile
 import tempfile
 import time
@@ -26,7 +27,7 @@ from sf2_common.agents.runfolder import RunFolder, RunFolderError, RunFolderMism
 from sf2_common.fileio import GZ, atomic_write, compress, stored
 
 from .folder import OBS_NOISE, StudyFolder, read_obs_noise
-from .spec import Run, Study, StudyError, loads, only_adds, same_runs, seeds_text
+from .spec import Run, Study, StudyError, load, loads, only_adds, same_runs, seeds_text
 
 __all__ = ["KEPT", "Outcome", "first_difference", "merge", "rows_difference"]
 
@@ -72,18 +73,24 @@ class Outcome:
 
 
 def merge(sources, into, runs_of: Callable[[Study], list[Run]], *, framework: str, partial: bool = False,
-          reruns: bool = False, say: Callable[[str], None] = print) -> Outcome:
+          reruns: bool = False, study_file=None, command: str | None = None,
+          say: Callable[[str], None] = print) -> Outcome:
     """Merge the study folders or archives `sources` into the study folder `into` (module docstring).
     `runs_of(study)`: the study's runs resolved against the framework's configs (`spec.resolve`);
     `framework`: its name ("jax"). Raises `StudyError` (nothing written) for a source that is not a study
     folder or archive of one, another study, another framework, a run whose config is not the study's, or
-    a finished run that DEST holds with other metrics (unless `reruns`: module docstring)."""
+    a finished run that DEST holds with other metrics (unless `reruns`: module docstring).
+    With `study_file` the sources may hold other studies: DEST holds that file's study, and takes of each
+    source only the run folders at one of its runs' paths whose config is that run's (the runs two studies
+    share); the rest is ignored, the sources' commands are not joined, and `command` is recorded instead."""
     if not sources:
         raise StudyError("study merge: name at least one SOURCE (a study folder or a .tar.gz archive of one)")
     dest = StudyFolder(into)
+    foreign = study_file is not None
     with contextlib.ExitStack() as stack:
         opened = [_open_source(str(s), stack) for s in sources]
-        study = _check_studies(opened, dest, framework)
+        study = _study_of_file(study_file, opened, dest, framework) if foreign else _check_studies(
+            opened, dest, framework)
         runs = runs_of(study)
         expected = {f"{r.task}/{r.rel}": r for r in runs}
         outcome = Outcome(created=not dest.study_path.exists())
@@ -93,9 +100,17 @@ def merge(sources, into, runs_of: Callable[[Study], list[Run]], *, framework: st
         kept_reruns: dict[Path, _Side] = {}
         conflicts, lines = [], []
         for name_src, src in opened:
-            for extra in _stray_runs(src, expected):
+            strays = _stray_runs(src, expected)
+            if foreign and strays:
+                lines.append(f"  ignored   {len(strays)} run folder(s) in {name_src}: no run of study "
+                             f"{study.name!r} has their path")
+            for extra in [] if foreign else strays:
                 lines.append(f"  ignored   {extra} in {name_src}: not a run folder of study {study.name!r}")
             for name, run in expected.items():
+                other = _other_config(src, run) if foreign else None
+                if other:
+                    lines.append(f"  ignored   {name} in {name_src}: not this study's run ({other})")
+                    continue
                 new = _look(src, run, study, name_src)
                 if new.status == "new":
                     continue
@@ -152,8 +167,8 @@ def merge(sources, into, runs_of: Callable[[Study], list[Run]], *, framework: st
             dest.path.mkdir(parents=True, exist_ok=True)
             atomic_write(dest.study_path, study.text)
         elif dest.load_study().data != study.data:
-            say(f"  study.toml of {dest.path}: replaced by a source's, which adds tasks or methods or groups "
-                f"the seeds otherwise, keeping every run folder DEST holds")
+            say(f"  study.toml of {dest.path}: replaced by {study_file if foreign else 'a source'}'s, which "
+                f"adds tasks or methods or groups the seeds otherwise, keeping every run folder DEST holds")
             atomic_write(dest.study_path, study.text)
         for name, side in chosen.items():
             target = dest.run_path(expected[name].task, expected[name].rel)
@@ -165,8 +180,9 @@ def merge(sources, into, runs_of: Callable[[Study], list[Run]], *, framework: st
                     f"{aside}")
         for target, side in kept_reruns.items():
             _install(side.path, target)
-        outcome.commands_added = _merge_state(dest, [src for _, src in opened], study, framework,
-                                              [expected[n] for n in chosen])
+        outcome.commands_added = _merge_state(dest, [] if foreign else [src for _, src in opened], study,
+                                              framework, [expected[n] for n in chosen],
+                                              command if foreign and chosen else None)
     say(f"{study.name} → {dest.path}{' (new)' if outcome.created else ''}: {len(outcome.merged)} run(s) "
         f"merged, {len(outcome.replaced)} replaced, {len(outcome.skipped)} skipped"
         + (f", {len(outcome.reruns)} kept as rerun(s)" if outcome.reruns else "") + "; "
@@ -270,6 +286,48 @@ def _check_studies(opened, dest: StudyFolder, framework: str) -> Study:
     adders = [name for name, study, _ in studies[1:] if only_adds(first, study)]
     raise StudyError(f"{', '.join(adders)} add different tasks or methods to the study of {first_name}; "
                      f"merge them into a folder whose study.toml holds all of them; nothing was merged")
+
+
+def _study_of_file(path, opened, dest: StudyFolder, framework: str) -> Study:
+    """The study of `path` for a merge of other studies' runs (`merge`'s `study_file`); `StudyError` for a
+    source of another framework, or a DEST that holds another study."""
+    study = load(Path(path))
+    if study.framework is not None and study.framework != framework:
+        raise StudyError(f"{path} is a study of sf2-{study.framework}; merge with "
+                         f"`sf2-{study.framework} study merge`")
+    for name, src in opened:
+        got = _state(src, name).get("framework")
+        if got is not None and got != framework:
+            raise StudyError(f"merge source {name} holds runs of sf2-{got}; runs of two frameworks do not "
+                             f"mix")
+    if dest.path.exists() and not dest.path.is_dir():
+        raise StudyError(f"--into {dest.path} is a file, not a study folder")
+    if dest.study_path.exists():
+        held = dest.load_study()
+        keys = same_runs(held, study, dest.groups_on_disk(held))
+        if keys and not only_adds(held, study):
+            raise StudyError(f"--into {dest.path} holds study {held.name!r}, not the study of {path} "
+                             f"({study.name!r}): their study.toml differ in {', '.join(keys)}; nothing was "
+                             f"merged")
+    elif dest.path.exists() and any(dest.path.iterdir()):
+        raise StudyError(f"--into {dest.path} is not empty and holds no study ({StudyFolder.STUDY}); "
+                         f"choose a study folder of {path}'s study, or a new folder")
+    return study
+
+
+def _other_config(src: StudyFolder, run: Run) -> str | None:
+    """Why the source's run folder at `run`'s path is not `run` (its config or seeds differ), or None (it
+    is, or there is none)."""
+    path = src.path_of(run)
+    if not (path / RunFolder.CONFIG).is_file():
+        return None
+    try:
+        _Reading(path).check_compatible(run.config.to_dict(), run.seeds)
+    except RunFolderMismatch as err:
+        return str(err).replace(" Use another --out, or --fresh to overwrite it.", "").rstrip(".")
+    except RunFolderError:
+        return None   # `_look` names a damaged folder and refuses the merge
+    return None
 
 
 def _stray_runs(src: StudyFolder, expected) -> list[str]:
@@ -450,9 +508,10 @@ def _copy(src: Path, dst: Path) -> None:
 
 # ------------------------------------------------------------------------------------------- study.json
 def _merge_state(dest: StudyFolder, sources: list[StudyFolder], study: Study, framework: str,
-                 merged: list[Run]) -> int:
-    """DEST's study.json with every source's runs entries and commands joined in (module docstring);
-    written only if it changed. Returns the number of commands added."""
+                 merged: list[Run], command: str | None = None) -> int:
+    """DEST's study.json with every source's runs entries and commands joined in (module docstring), and
+    `command` (the merge's own, where given) recorded; written only if it changed. Returns the number of
+    commands added."""
     old = dest.read_state()
     state = json.loads(json.dumps(old))
     states = [s.read_state() for s in sources]
@@ -473,6 +532,9 @@ def _merge_state(dest: StudyFolder, sources: list[StudyFolder], study: Study, fr
             runs.append({"task": run.task, "folder": run.rel, "methods": [m.name for m in run.methods],
                          "seeds": list(run.seeds)})
     commands = list(state.get("commands", []))
+    if command is not None:
+        commands.append({"command": command, "host": socket.gethostname(),
+                         "time": time.strftime("%Y-%m-%d %H:%M:%S")})
     seen = {json.dumps(c, sort_keys=True) for c in commands}
     for c in (c for s in states for c in s.get("commands", [])):
         key = json.dumps(c, sort_keys=True)
