@@ -257,17 +257,9 @@ def _check_studies(opened, dest: StudyFolder, framework: str) -> Study:
         if got is not None and got != framework:
             raise StudyError(f"merge source {name} holds runs of sf2-{got}; merge it with `sf2-{got} study "
                              f"merge` (runs of two frameworks do not mix)")
-    if dest.path.exists() and not dest.path.is_dir():
-        raise StudyError(f"--into {dest.path} is a file, not a study folder")
-    if dest.study_path.exists():
-        studies.insert(0, (f"--into {dest.path}", dest.load_study(), dest))
-        got = _state(dest, str(dest.path)).get("framework")
-        if got is not None and got != framework:
-            raise StudyError(f"--into {dest.path} holds runs of sf2-{got}; merge with `sf2-{got} study "
-                             f"merge`")
-    elif dest.path.exists() and any(dest.path.iterdir()):
-        raise StudyError(f"--into {dest.path} is not empty and holds no study ({StudyFolder.STUDY}); "
-                         f"choose a study folder of the same study, or a new folder")
+    held = _dest_study(dest, framework, "the same study")
+    if held is not None:
+        studies.insert(0, (f"--into {dest.path}", held, dest))
     # The study of the merge: the one every other holds runs of (spec.same_runs: description, report, claims
     # may differ; seed groups while every group a folder holds is one of its, or a folder holds no run; it
     # may add tasks and methods). DEST's copy first; else a source's study that holds every folder's runs,
@@ -300,19 +292,31 @@ def _study_of_file(path, opened, dest: StudyFolder, framework: str) -> Study:
         if got is not None and got != framework:
             raise StudyError(f"merge source {name} holds runs of sf2-{got}; runs of two frameworks do not "
                              f"mix")
-    if dest.path.exists() and not dest.path.is_dir():
-        raise StudyError(f"--into {dest.path} is a file, not a study folder")
-    if dest.study_path.exists():
-        held = dest.load_study()
+    held = _dest_study(dest, framework, f"{path}'s study")
+    if held is not None:
         keys = same_runs(held, study, dest.groups_on_disk(held))
         if keys and not only_adds(held, study):
             raise StudyError(f"--into {dest.path} holds study {held.name!r}, not the study of {path} "
                              f"({study.name!r}): their study.toml differ in {', '.join(keys)}; nothing was "
                              f"merged")
-    elif dest.path.exists() and any(dest.path.iterdir()):
-        raise StudyError(f"--into {dest.path} is not empty and holds no study ({StudyFolder.STUDY}); "
-                         f"choose a study folder of {path}'s study, or a new folder")
     return study
+
+
+def _dest_study(dest: StudyFolder, framework: str, which: str) -> Study | None:
+    """The study DEST holds, or None for a new or empty folder; `StudyError` for a file, a folder of other
+    files, or runs of another framework (`which`: the study a folder should hold, for the message)."""
+    if dest.path.exists() and not dest.path.is_dir():
+        raise StudyError(f"--into {dest.path} is a file, not a study folder")
+    if dest.study_path.exists():
+        got = _state(dest, str(dest.path)).get("framework")
+        if got is not None and got != framework:
+            raise StudyError(f"--into {dest.path} holds runs of sf2-{got}; merge with `sf2-{got} study "
+                             f"merge`")
+        return dest.load_study()
+    if dest.path.exists() and any(dest.path.iterdir()):
+        raise StudyError(f"--into {dest.path} is not empty and holds no study ({StudyFolder.STUDY}); "
+                         f"choose a study folder of {which}, or a new folder")
+    return None
 
 
 def _other_config(src: StudyFolder, run: Run) -> str | None:
