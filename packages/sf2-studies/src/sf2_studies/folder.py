@@ -34,6 +34,17 @@ class RunState:
     total_env_steps: int   # the run's budget, summed over seeds
 
 
+def run_entry(run: Run) -> dict:
+    """A run's entry in study.json's `runs`: its task, folder under the task, methods and seeds."""
+    return {"task": run.task, "folder": run.rel, "methods": [m.name for m in run.methods],
+            "seeds": list(run.seeds)}
+
+
+def command_entry(command: str) -> dict:
+    """A command's entry in study.json's `commands`: the command line, this host and the time now."""
+    return {"command": command, "host": socket.gethostname(), "time": time.strftime("%Y-%m-%d %H:%M:%S")}
+
+
 class StudyFolder:
     STUDY, STATE, RUNS, REPORT = "study.toml", "study.json", "runs", "report"
     RERUN = "rerun"   # reruns kept by `study merge --keep-reruns` (merge.py), compared by reruns.py
@@ -111,11 +122,9 @@ class StudyFolder:
         state = self.read_state()
         state.setdefault("id", uuid.uuid4().hex)
         state.update(name=study.name, framework=framework)
-        state["runs"] = [{"task": r.task, "folder": r.rel, "methods": [m.name for m in r.methods],
-                          "seeds": list(r.seeds)} for r in runs]
+        state["runs"] = [run_entry(r) for r in runs]
         if command is not None:
-            state.setdefault("commands", []).append({"command": command, "host": socket.gethostname(),
-                                                     "time": time.strftime("%Y-%m-%d %H:%M:%S")})
+            state.setdefault("commands", []).append(command_entry(command))
         atomic_write(self.path / self.STATE, json.dumps(state, indent=2, ensure_ascii=False) + "\n")
         return state
 

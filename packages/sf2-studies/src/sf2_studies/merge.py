@@ -13,7 +13,6 @@ import dataclasses
 import json
 import os
 import shutil
-import socket
 import tarfile
 import tempfile
 import time
@@ -26,7 +25,7 @@ from sf2_common.agents.lock import FolderLock, holder_of
 from sf2_common.agents.runfolder import RunFolder, RunFolderError, RunFolderMismatch
 from sf2_common.fileio import GZ, atomic_write, compress, stored
 
-from .folder import OBS_NOISE, StudyFolder, read_obs_noise
+from .folder import OBS_NOISE, StudyFolder, command_entry, read_obs_noise, run_entry
 from .spec import Run, Study, StudyError, load, loads, only_adds, same_runs, seeds_text
 
 __all__ = ["KEPT", "Outcome", "first_difference", "merge", "rows_difference"]
@@ -533,12 +532,10 @@ def _merge_state(dest: StudyFolder, sources: list[StudyFolder], study: Study, fr
     for run in merged:   # a source whose study.json lacks the entry (hand-made): the run's own
         if (run.task, run.rel) not in have:
             have.add((run.task, run.rel))
-            runs.append({"task": run.task, "folder": run.rel, "methods": [m.name for m in run.methods],
-                         "seeds": list(run.seeds)})
+            runs.append(run_entry(run))
     commands = list(state.get("commands", []))
     if command is not None:
-        commands.append({"command": command, "host": socket.gethostname(),
-                         "time": time.strftime("%Y-%m-%d %H:%M:%S")})
+        commands.append(command_entry(command))
     seen = {json.dumps(c, sort_keys=True) for c in commands}
     for c in (c for s in states for c in s.get("commands", [])):
         key = json.dumps(c, sort_keys=True)
