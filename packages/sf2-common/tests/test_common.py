@@ -295,6 +295,39 @@ def test_ppo_fields_are_checked_before_anything_is_built(changes, text, monkeypa
                                                 representation="none"), (0,), _ppo_reg())
 
 
+def test_an_override_the_algo_never_reads_is_refused_naming_its_readers(known_tasks, monkeypatch):
+    """`--set clip_eps=0.1` on TD3, `batch_size` on PPO, `fpo_samples` on PPO and the like: each refused,
+    naming the algos that read the field and the algo's own such fields. The same fields on the algos that
+    read them pass; so do overrides that leave such a field's value as it was (a whole config passed back as
+    flags), and the presets' values (the replay sizes are set for every algo)."""
+    monkeypatch.setattr(configs.tasks, "check_installed", lambda task: None)
+    refused = [("CartpoleBalance", "td3", "clip_eps", 0.1, "ppo, fpo"),
+               ("minatar-breakout", "ppo", "batch_size", 64, "td3, sac, crl"),
+               ("minatar-breakout", "ppo", "fpo_samples", 2, "fpo"),
+               ("CartpoleBalance", "sac", "noise_clip", 0.1, "td3"),
+               ("ant-goal", "crl", "rollout_length", 8, "ppo, fpo"),
+               ("CartpoleBalance", "td3", "init_log_alpha", -2.0, "sac, crl")]
+    for task, algo, name, value, readers in refused:
+        with pytest.raises(ConfigError) as err:
+            configs.make_config("quick", task, algo=algo, representation="none", overrides={name: str(value)})
+        text = str(err.value)
+        assert (f"config field {name} = {value!r} would change nothing but the run's config.json: "
+                f"only --algo {readers} read it, not --algo {algo}") in text, text
+        own = sorted(f for f, by in configs.READ_BY.items() if algo in by)
+        assert text.endswith(f"--algo {algo}'s: {', '.join(own)})"), text
+        unchanged = configs.make_config("quick", task, algo=algo, representation="none")
+        assert configs.make_config("quick", task, algo=algo, representation="none",
+                                   overrides={name: getattr(unchanged, name)}) == unchanged
+    accepted = [("CartpoleBalance", "td3", dict(noise_clip=0.4, batch_size=64, policy_delay=3)),
+                ("CartpoleBalance", "sac", dict(init_log_alpha=-1.0, policy_delay=1)),
+                ("minatar-breakout", "ppo", dict(clip_eps=0.1, seed_loop="map")),
+                ("CartpoleBalance", "fpo", dict(fpo_samples=4, clip_eps=0.1)),
+                ("ant-goal", "crl", dict(batch_size=32, logsumexp_penalty=0.0, init_log_alpha=-1.0))]
+    for task, algo, overrides in accepted:
+        cfg = configs.make_config("quick", task, algo=algo, representation="none", overrides=overrides)
+        assert {name: getattr(cfg, name) for name in overrides} == overrides
+
+
 def test_parsing_follows_the_field_types():
     assert configs.parse_overrides(["batch_size=1_024", "hidden_sizes=(32, 16)", "layer_norm=off",
                                     "tau=0.5", "integrator= euler"]) == dict(

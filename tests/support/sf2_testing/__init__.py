@@ -28,6 +28,8 @@ BAD_TRAIN_INPUTS = [
     (["--task", "CartpoleBalance", "--set", "batch_size=0"], ["batch_size = 0", ">= 1"]),
     (["--task", "CartpoleBalance", "--set", "batch_size=1.5"], ["batch_size", "integer"]),
     (["--task", "CartpoleBalance", "--set", "bogus=1"], ["unknown config field 'bogus'"]),
+    (["--task", "CartpoleBalance", "--set", "clip_eps=0.1"],
+     ["config field clip_eps = 0.1 would change nothing", "only --algo ppo, fpo read it, not --algo td3"]),
     (["--task", "CartpoleBalance", "--set", "gamma_su"], ["expected field=value"]),
     (["--task", "CartpoleBalance", "--gamma-su", "1.0"], ["gamma_su", "0 <= gamma_su < 1"]),
     (["--task", "CartpoleBalance", "--embedding-size", "7"], ["embedding_size", "even"]),

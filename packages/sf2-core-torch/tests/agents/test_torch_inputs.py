@@ -42,6 +42,7 @@ TORCH_ONLY = [
     (["--task", "CartpoleBalance", "--cudagraphs", "maybe"], ["cudagraphs = 'maybe'", "auto, on, off"]),
     (["--task", "CartpoleBalance", "--device", "tpu"], ["device = 'tpu'", "cpu, cuda"]),
     (["--task", "CartpoleBalance", "--device", "cpu", "--cudagraphs", "on"], ["CUDA graphs need a CUDA"]),
+    (["--task", "CartpoleBalance", "--algo", "fpo"], ["algo = 'fpo'", "this core trains td3, sac"]),
 ]
 
 

@@ -24,7 +24,7 @@ __all__ = [
     "parse_seeds", "validate", "Schedule", "schedule", "ConfigError", "bad_field", "LEARNER_PRECISIONS",
     "ADDED_FIELDS", "PAPER_ADAM_EPS", "SUPERSEDED", "superseded_values", "TASK_VALUES", "FAMILY_VALUES",
     "ONPOLICY_ALGOS", "CRITICS", "ADVANTAGE_REFRESH", "PPO_FIELDS", "PPO_VALUES", "FPO_FIELDS", "FPO_VALUES",
-    "PHYSICS", "SEED_LOOPS", "EXECUTION_FIELDS",
+    "PHYSICS", "SEED_LOOPS", "EXECUTION_FIELDS", "READ_BY",
 ]
 
 ALGOS = ("td3", "sac", "ppo", "fpo", "crl")
@@ -49,6 +49,19 @@ PPO_FIELDS = ("rollout_length", "update_epochs", "minibatch_size", "clip_eps", "
               "max_grad_norm", "td_lambda", "critic", "advantage_refresh", "shared_torso")
 ADVANTAGE_REFRESH = ("rollout", "pass")   # advantages from the rollout-time critic, or the current one
 FPO_FIELDS = ("fpo_samples", "fpo_flow_steps", "fpo_value_samples", "fpo_log_ratio_clip")
+# Fields that only some algos' trainers read, field -> those algos (every other field is read by every algo,
+# or depends on the representation; `seed_loop` and `shared_torso` have checks of their own): an override
+# that changes one for another algo is refused (`make_config`)
+READ_BY = {
+    **dict.fromkeys((f for f in PPO_FIELDS if f != "shared_torso"), ONPOLICY_ALGOS),
+    **dict.fromkeys(FPO_FIELDS, ("fpo",)),
+    **dict.fromkeys(("logsumexp_penalty", "contrastive_loss", "flow_feature_norm"), ("crl",)),
+    **dict.fromkeys(("batch_size", "grad_updates_per_step", "min_replay_size", "max_replay_size"),
+                    ("td3", "sac", "crl")),
+    **dict.fromkeys(("exploration_noise", "noise_clip", "smoothing_noise"), ("td3",)),
+    "policy_delay": ("td3", "sac"),
+    **dict.fromkeys(("alpha_learning_rate", "target_entropy_scale", "init_log_alpha"), ("sac", "crl")),
+}
 # Adam's ε as the authors' trainers build it (SAC: optax's default; the temperature's is 1e-8 always)
 PAPER_ADAM_EPS = {"td3": 1e-5, "sac": 1e-8, "ppo": 1e-5, "fpo": 1e-8}
 # Preset values changed since run folders were written, (algo, field) -> (old, new): such folders keep theirs
@@ -270,9 +283,24 @@ def make_config(preset: str, task: str, algo: str = "td3", representation: str =
     values.update({name: value_of(task) for name, value_of in TASK_VALUES.get(preset, {}).items()})
     values.update({name: by_algo[algo] for name, by_algo in FAMILY_VALUES.get(preset, {}).items()
                    if algo in by_algo})
+    defaults = {f.name: f.default for f in fields(config_class)}
     for name, value in (overrides or {}).items():
-        values[name] = parse_value(name, value, config_class) if isinstance(value, str) else value
+        value = parse_value(name, value, config_class) if isinstance(value, str) else value
+        _check_read(name, value, values.get(name, defaults.get(name)), algo)
+        values[name] = value
     return config_class.from_dict(values)
+
+
+def _check_read(name: str, value, before, algo: str) -> None:
+    """`ConfigError` for an override that changes (from `before`) a field `algo`'s trainer never reads
+    (`READ_BY`); the same value, as a whole config passed back as flags holds, passes."""
+    readers = READ_BY.get(name)
+    if readers is None or algo not in ALGOS or algo in readers or value == before:
+        return
+    own = sorted(f for f, by in READ_BY.items() if algo in by)
+    raise ConfigError(f"config field {name} = {value!r} would change nothing but the run's config.json: "
+                      f"only --algo {', '.join(readers)} read it, not --algo {algo}; drop it (the fields "
+                      f"that only some algos read, --algo {algo}'s: {', '.join(own) or 'none'})")
 
 
 # ------------------------------------------------------------------------------------------- parsing
@@ -435,6 +463,9 @@ def validate(cfg: TrainConfig, seeds, registry) -> TrainConfig:
     if cfg.representation not in known:
         bad_field("representation", cfg.representation, registry.valid_text())
     rep_cls = registry.get(cfg.representation)
+    trained = [a for a in ALGOS if any(a in _algos(registry, r) for r in known)]
+    if cfg.algo not in trained:
+        bad_field("algo", cfg.algo, f"this core trains {', '.join(trained)} (sf2-jax trains every algo)")
     if cfg.algo not in rep_cls.supported_algos:
         combos = ", ".join(f"{a}+{r}" for r in known for a in _algos(registry, r))
         raise ConfigError(f"algo {cfg.algo!r} with representation {cfg.representation!r} does not exist; "
