@@ -1,5 +1,5 @@
-"""`sf2-jax`: train, evaluate and plot TD3/SAC agents (vanilla, SF², a baseline) on MuJoCo Playground and
-PPO agents (PPO-Q, PPO, SF² w/o or w AE) on MinAtar.
+"""`sf2-jax`: train, evaluate and plot TD3/SAC agents (vanilla, SF², a baseline) and FPO agents on MuJoCo
+Playground, PPO agents (PPO-Q, PPO, SF² w/o or w AE) on MinAtar and CRL agents (CRL, CRL+SF²) on ant-goal.
 
     sf2-jax train --task CartpoleBalance --algo td3 --repr sf2,none --config quick --seeds 0-1 --out runs/cmp
     sf2-jax train --task minatar-breakout --algo ppo --repr sf2-ae --config quick --seeds 0-1 --out runs/mb
@@ -7,12 +7,12 @@ PPO agents (PPO-Q, PPO, SF² w/o or w AE) on MinAtar.
     sf2-jax plot runs/cmp/td3-sf2 runs/cmp/td3-none --out curves.png
     sf2-jax tasks
 
-Every `TrainConfig` field can be overridden with its own flag (`--batch-size 128`) or `--set
-batch_size=128` (repeatable). `--repr` takes none, sf2 and, with sf2-baselines installed, sim, simlap,
-simlap_authors, spr; with `--algo ppo` none, sf2, sf2-ae; with `--algo crl` none, sf2. MinAtar trains with
-the on-policy trainer (`agents.onpolicy`), `--algo crl` (ant-goal) with `agents.crl`, any other with the
-off-policy one; `eval` picks the folder's. Bad input is reported before anything is compiled (exit status
-2); a NaN/inf loss stops the run (3). `study` comes with sf2-studies; `sf2_common.cli` is shared.
+Every `TrainConfig` field can be overridden with its own flag (`--batch-size 128`) or `--set batch_size=128`
+(repeatable). `--repr` takes none, sf2 and, with sf2-baselines installed, sim, simlap, simlap_authors, spr;
+with `--algo ppo` none, sf2, sf2-ae; with `--algo fpo` or `crl` none, sf2. `--algo ppo` (MinAtar) and `fpo`
+train with the on-policy trainer (`agents.onpolicy`), `--algo crl` (ant-goal) with `agents.crl`, td3 and sac
+with the off-policy one; `eval` picks the folder's. Bad input is reported before anything is compiled (exit
+status 2); a NaN/inf loss stops the run (3). `study` comes with sf2-studies; `sf2_common.cli` is shared.
 """
 
 from __future__ import annotations
