@@ -61,8 +61,11 @@ def _config(task, algo, rep, n_seeds, actor_steps, epochs, overrides, framework=
 
 
 def _file_part(arm: str) -> str:
-    """An arm's name as part of a plain file name: "sf2@contract_zeta=false" → "sf2+contract_zeta-false"."""
-    return arm.replace("@", "+").replace("=", "-")
+    """An arm's name as part of a plain file name: "sf2@contract_zeta=false" → "sf2+contract_zeta-false",
+    "sf2@zeta_hidden_sizes=(128,128)" → "sf2+zeta_hidden_sizes-128x128"."""
+    for old, new in (("@", "+"), ("=", "-"), (",", "x"), *((c, "") for c in " ()[]")):
+        arm = arm.replace(old, new)
+    return arm
 
 
 def profile_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides, log=print, hlo_dump=None,

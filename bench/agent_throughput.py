@@ -36,6 +36,17 @@ def _names(s: str) -> tuple[str, ...]:
     return tuple(x for x in s.split(",") if x)
 
 
+def _arms(s: str) -> tuple[str, ...]:
+    """`--reps`'s comma list, split only outside brackets: `sf2@zeta_hidden_sizes=(128,128)` is one arm."""
+    parts, depth, start = [], 0, 0
+    for i, ch in enumerate(s):
+        depth += (ch in "([") - (ch in ")]")
+        if ch == "," and depth == 0:
+            parts.append(s[start:i])
+            start = i + 1
+    return tuple(x for x in (*parts, s[start:]) if x)
+
+
 def _block(framework: str, x):
     if framework == "jax":
         import jax
@@ -120,7 +131,8 @@ def parse_reps(text: str, frameworks) -> list[tuple[str, str, dict]]:
     """Split `--reps` into arms: a representation, optionally with config fields of its own after `@`.
 
     `none,sf2,sf2@contract_zeta=false` measures three arms, the third SF² with the oracle ζ; each
-    `@FIELD=VALUE` is typed like `--set` and applied after it.
+    `@FIELD=VALUE` is typed like `--set` and applied after it. A size list goes in brackets, whose commas do
+    not split arms: `sf2@zeta_hidden_sizes=(128,128)`.
 
     Args:
         text: the comma list.
@@ -131,7 +143,7 @@ def parse_reps(text: str, frameworks) -> list[tuple[str, str, dict]]:
         field, a `ValueError` an empty arm.
     """
     arms = []
-    for label in _names(text):
+    for label in _arms(text):
         rep, *items = label.split("@")
         if not rep or any(not item for item in items):
             raise ValueError(f"--reps: {label!r} is not REP or REP@FIELD=VALUE[@FIELD=VALUE...]")

@@ -462,7 +462,7 @@ def test_set_takes_the_torch_trainers_fields_with_the_torch_framework_alone():
 def test_an_arm_of_reps_carries_its_own_fields_and_its_ratio_to_the_plain_arm():
     """`--reps none,sf2,sf2@contract_zeta=false` is three arms: the third SF² with the oracle ζ (its own
     fields typed like `--set`, applied after it), reported under its label and as a time per env step
-    against the plain `sf2` arm of the same run."""
+    against the plain `sf2` arm of the same run. A size list's commas inside brackets do not split arms."""
     pytest.importorskip("mujoco_playground", reason="the paper preset's config needs the Playground "
                         "task list: install a core's [train] extra")
     from sf2_common.errors import ConfigError
@@ -474,6 +474,12 @@ def test_an_arm_of_reps_carries_its_own_fields_and_its_ratio_to_the_plain_arm():
                                                                 {"contract_zeta": False, "batch_size": 64})]
     cfg, _ = config_for("AcrobotSwingup", "td3", "sf2", 1, 1000, 1, {"batch_size": 32, **arms[2][2]})
     assert cfg.contract_zeta is False and cfg.batch_size == 64
+    sized = parse_reps("none,sf2@zeta_hidden_sizes=(128,128)@batch_size=64,sf2@zeta_hidden_sizes=[64]",
+                       ["jax"])
+    assert sized == [("none", "none", {}),
+                     ("sf2@zeta_hidden_sizes=(128,128)@batch_size=64", "sf2",
+                      {"zeta_hidden_sizes": (128, 128), "batch_size": 64}),
+                     ("sf2@zeta_hidden_sizes=[64]", "sf2", {"zeta_hidden_sizes": (64,)})]
     with pytest.raises(ConfigError, match="unknown config field 'nope'"):
         parse_reps("sf2@nope=1", ["jax"])
     with pytest.raises(ValueError, match="not REP or REP@FIELD=VALUE"):
@@ -493,6 +499,7 @@ def test_an_arm_of_reps_carries_its_own_fields_and_its_ratio_to_the_plain_arm():
     from bench.agent_profile import _file_part
 
     assert _file_part(arms[2][0]) == "sf2+contract_zeta-false+batch_size-64"   # the profile's file names
+    assert _file_part(sized[1][0]) == "sf2+zeta_hidden_sizes-128x128+batch_size-64"
 
 
 _DOT_HLO = """\
