@@ -2,6 +2,7 @@
 
     python -m bench.lab.forecast_check results/fig7-td3 results/fig7-sac \\
         --runs results/fig7-sac/runs/AcrobotSwingup/*/seeds-* [--markdown]
+    python -m bench.lab.forecast_check results/fig7-sac --by-task [--new-task-rule any-seed-count]
 
 The runs named by `--runs` (finished run folders inside the study folders given) are forecast as the
 runner would have forecast them before any of them ran (`study run --dry-run`, `--finish-within`,
@@ -10,7 +11,10 @@ sf2_studies/runner.py `Forecast`; with `--leave-one-out` each of them from all r
 the forecasts of a study's next runs fare once it has the others). Per run: the forecast, the wall time it
 took (its last metrics row's `walltime`, restarts included, as `Forecast` reads it) and their ratio; then
 the sums and the spread of the ratios. A ratio above 1 is a run that took longer than forecast: one
-`--finish-within` could have started too late. results/fig7-sac/README.md "Cost per run" uses it.
+`--finish-within` could have started too late. results/fig7-sac/README.md "Cost per run" uses it. With
+`--by-task` each task's runs (all finished runs without `--runs`) are forecast from the other tasks' alone,
+as the runner forecasts a task with no finished run; `--new-task-rule any-seed-count` tries the alternative
+to its rule for that case that docs/decisions/forecasts.md checked and kept out.
 """
 
 from __future__ import annotations
@@ -28,13 +32,30 @@ from bench.report import print_rows
 FIELDS = ("run", "seeds", "forecast_s", "actual_s", "ratio")
 
 
-def check(history: list[runner.Job], targets: list[runner.Job], each: bool = False) -> list[dict]:
+class AnySeedCount(runner.Forecast):
+    """`runner.Forecast` with its last preference (a task with no finished run) over every seed count: the
+    largest finished rate, each scaled to the job's seed count by `scale`, instead of the slowest run of
+    the job's own seed count where one exists."""
+
+    def rate(self, task: str, folder: str, seeds: int = 1) -> float:
+        if (self._at(task, folder, seeds) is not None or self.relative(task, folder, seeds) is not None
+                or self._rates(task, folder) or self.has_task(task)):
+            return super().rate(task, folder, seeds)
+        return max(r * self.scale(m, seeds) for t, f in self.rates for m, r in self._rates(t, f))
+
+
+RULES = {"seed-count": runner.Forecast, "any-seed-count": AnySeedCount}
+
+
+def check(history: list[runner.Job], targets: list[runner.Job], each: bool = False,
+          forecast_cls: type[runner.Forecast] = runner.Forecast) -> list[dict]:
     """One row of FIELDS per target job, forecast from `history` (the targets themselves left out of it) as
     a job with none of its env steps done. With `each` (leave one out) every target is forecast from all
-    of `history` but itself: how the forecasts of a study's next runs fare, now that it has the others."""
+    of `history` but itself: how the forecasts of a study's next runs fare, now that it has the others.
+    `forecast_cls` is the forecaster (`RULES`)."""
     def forecast_without(left_out: list[runner.Job]) -> runner.Forecast:
         names = {t.path.resolve() for t in left_out}
-        forecast = runner.Forecast([j for j in history if j.path.resolve() not in names])
+        forecast = forecast_cls([j for j in history if j.path.resolve() not in names])
         if not forecast.known:
             raise StudyError("no finished run outside --runs to forecast from: give more study folders or "
                              "fewer --runs")
@@ -49,6 +70,16 @@ def check(history: list[runner.Job], targets: list[runner.Job], each: bool = Fal
         rows.append({"run": job.name, "seeds": len(getattr(job.run, "seeds", None) or (0,)),
                      "forecast_s": round(predicted, 1), "actual_s": round(actual, 1),
                      "ratio": round(actual / predicted, 3)})
+    return rows
+
+
+def check_by_task(history: list[runner.Job], targets: list[runner.Job],
+                  forecast_cls: type[runner.Forecast] = runner.Forecast) -> list[dict]:
+    """`check` task by task: each task's targets forecast from every run of `history` on other tasks."""
+    rows = []
+    for task in sorted({t.run.task for t in targets}):
+        rows += check([j for j in history if j.run.task != task], [t for t in targets if t.run.task == task],
+                      forecast_cls=forecast_cls)
     return rows
 
 
@@ -69,22 +100,35 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.lab.forecast_check",
                                      description=__doc__.split("\n")[0])
     parser.add_argument("studies", nargs="+", type=Path, help="study folders (their finished runs)")
-    parser.add_argument("--runs", nargs="+", type=Path, required=True,
-                        help="finished run folders of those studies to forecast from all the others")
+    parser.add_argument("--runs", nargs="+", type=Path,
+                        help="finished run folders of those studies to forecast from all the others "
+                             "(required without --by-task; with it, all finished runs by default)")
+    parser.add_argument("--by-task", action="store_true",
+                        help="forecast each task's runs from the other tasks' runs alone")
+    parser.add_argument("--new-task-rule", choices=sorted(RULES), default="seed-count",
+                        help="the forecast of a task with no finished run: the runner's (seed-count) or the "
+                             "alternative docs/decisions/forecasts.md kept out (any-seed-count)")
     parser.add_argument("--leave-one-out", action="store_true",
                         help="forecast each of --runs from every other finished run (the others of --runs "
                              "included), not all of them from the runs outside --runs")
     parser.add_argument("--markdown", action="store_true", help="a Markdown table instead of JSON lines")
     args = parser.parse_args(argv)
+    if args.runs is None and not args.by_task:
+        parser.error("--runs is required without --by-task")
+    if args.by_task and args.leave_one_out:
+        parser.error("--by-task and --leave-one-out are two ways of choosing the history: give one")
     try:
         backend = jax_backend()
         history = [j for s in args.studies for j in commands.finished_runs(backend, s)]
         by_path = {j.path.resolve(): j for j in history}
-        missing = [str(p) for p in args.runs if p.resolve() not in by_path]
+        missing = [str(p) for p in args.runs or () if p.resolve() not in by_path]
         if missing:
             raise StudyError(f"--runs: not a finished run of {', '.join(map(str, args.studies))}: "
                              f"{', '.join(missing)}")
-        rows = check(history, [by_path[p.resolve()] for p in args.runs], each=args.leave_one_out)
+        targets = history if args.runs is None else [by_path[p.resolve()] for p in args.runs]
+        rule = RULES[args.new_task_rule]
+        rows = (check_by_task(history, targets, rule) if args.by_task
+                else check(history, targets, each=args.leave_one_out, forecast_cls=rule))
     except StudyError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

@@ -176,6 +176,40 @@ def test_forecast_check_against_hand_derived_forecasts(tmp_path):
     assert forecast_check.main([str(tmp_path / "nope"), "--runs", str(tmp_path / "A" / "m")]) == 2
 
 
+def test_forecast_check_by_task_and_the_new_task_rules(tmp_path):
+    """1,000 env steps per seed. A/m: 5 seeds 100 s (0.02 s per env step), 10 seeds 140 s (0.014); B/m: 10
+    seeds 100 s (0.01); B/q: 5 seeds 200 s (0.04). C (5 seeds 60 s, 10 seeds 90 s) forecast from A and B
+    alone (`--by-task`; no run of C, the runner's last preference): its rule takes the slowest run of the
+    job's seed count, 0.04 x 5,000 = 200 s at 5 seeds, 0.014 x 10,000 = 140 s at 10 (shorter than at 5);
+    the alternative scales every run to the job's seed count (A/m's 5 -> 10 ratio 0.7, 10 -> 5 1/0.7) and
+    takes the largest, 200 s at 5 seeds (0.04) and 0.04 x 0.7 x 10,000 = 280 s at 10."""
+    from types import SimpleNamespace
+
+    pytest.importorskip("sf2_studies", reason="the forecasts are the study runner's: install sf2-studies")
+    from sf2_studies import runner
+
+    from bench.lab import forecast_check
+
+    def job(task, name, seeds, wall):
+        path = tmp_path / task / name / f"seeds-{seeds}"
+        path.mkdir(parents=True)
+        (path / "metrics.jsonl").write_text(json.dumps({"epoch": 1, "seed": 0, "env_steps": 1000,
+                                                        "walltime": wall}) + "\n")
+        run = SimpleNamespace(task=task, folder=name, rel=f"{name}/seeds-{seeds}", seeds=tuple(range(seeds)))
+        return runner.Job(run, path, [], 1000 * seeds, 1000 * seeds)
+
+    history = [job("A", "m", 5, 100.0), job("A", "m", 10, 140.0), job("B", "m", 10, 100.0),
+               job("B", "q", 5, 200.0), job("C", "m", 5, 60.0), job("C", "m", 10, 90.0)]
+    expected = {"seed-count": [200.0, 140.0], "any-seed-count": [200.0, 280.0]}
+    for rule, seconds in expected.items():
+        rows = forecast_check.check_by_task(history, history[4:], forecast_check.RULES[rule])
+        assert [(r["run"], r["forecast_s"]) for r in rows] == [
+            ("C/m/seeds-5", seconds[0]), ("C/m/seeds-10", seconds[1])], rule
+    # every task in turn: A/m at 5 seeds from B and C; the runner's rule, the slowest 5-seed run (B/q)
+    rows = forecast_check.check_by_task(history, history)
+    assert [r["run"] for r in rows] == [j.name for j in history] and rows[0]["forecast_s"] == 200.0
+
+
 def test_checkpoint_cost_timings_are_medians_after_the_warm_up(monkeypatch):
     """`checkpoint_cost._timings` on a fake clock: an awaited save takes 10 s, a background save returns
     after 1 s and its `finish` takes 5 s, a restore 3 s, except in the warm-up (epochs 0 and 1), where each
