@@ -4,17 +4,14 @@
         --runs results/fig7-sac/runs/AcrobotSwingup/*/seeds-* [--markdown]
     python -m bench.lab.forecast_check results/fig7-sac --by-task [--new-task-rule any-seed-count]
 
-The runs named by `--runs` (finished run folders inside the study folders given) are forecast as the
-runner would have forecast them before any of them ran (`study run --dry-run`, `--finish-within`,
-`--forecast-from`): from every *other* finished run of those study folders, by
-sf2_studies/runner.py `Forecast`; with `--leave-one-out` each of them from all runs but itself (how
-the forecasts of a study's next runs fare once it has the others). Per run: the forecast, the wall time it
-took (its last metrics row's `walltime`, restarts included, as `Forecast` reads it) and their ratio; then
-the sums and the spread of the ratios. A ratio above 1 is a run that took longer than forecast: one
-`--finish-within` could have started too late. results/fig7-sac/README.md "Cost per run" uses it. With
-`--by-task` each task's runs (all finished runs without `--runs`) are forecast from the other tasks' alone,
-as the runner forecasts a task with no finished run; `--new-task-rule any-seed-count` tries the alternative
-to its rule for that case that docs/decisions/forecasts.md checked and kept out.
+The runs named by `--runs` (finished run folders of the study folders given) are forecast as the runner
+would have before any of them ran (`--dry-run`, `--finish-within`, `--forecast-from`): from every *other*
+finished run there, by sf2_studies/runner.py `Forecast`; with `--leave-one-out` each from all runs but
+itself; with `--by-task` each task's runs (all runs without `--runs`) from the other tasks' alone, as for a
+task with no finished run (`--new-task-rule any-seed-count`: the alternative docs/decisions/forecasts.md
+kept out). Per run: the forecast, the wall time taken (its last `walltime`, restarts included) and their
+ratio, then the sums and the ratios' spread; a ratio above 1 is a run `--finish-within` could have started
+too late. results/fig7-sac/README.md "Cost per run" uses it.
 """
 
 from __future__ import annotations
