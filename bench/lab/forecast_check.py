@@ -35,8 +35,7 @@ class AnySeedCount(runner.Forecast):
     the job's own seed count where one exists."""
 
     def rate(self, task: str, folder: str, seeds: int = 1) -> float:
-        if (self._at(task, folder, seeds) is not None or self.relative(task, folder, seeds) is not None
-                or self._rates(task, folder) or self.has_task(task)):
+        if self.has_task(task):   # the runner's first three preferences, and its last over the task's runs
             return super().rate(task, folder, seeds)
         return max(r * self.scale(m, seeds) for t, f in self.rates for m, r in self._rates(t, f))
 
