@@ -484,3 +484,41 @@ def test_study_file_takes_the_runs_another_study_shares_and_nothing_else(tmp_pat
     with pytest.raises(StudyError, match="holds study 'reuse', not the study of .*merging.toml"):
         _merge([src], dest, runs_of, study_file=tmp_path / "merging.toml")
     assert folder_digest(dest) == held
+
+
+def test_study_file_may_rewrite_a_method_whose_runs_dest_holds_as_they_are(tmp_path, monkeypatch):
+    """After a preset value changed, a study file pins a method to the value its runs trained with (and
+    relabels it): `--study` takes the file into DEST, whose runs of it are runs of the rewritten method
+    (`StudyFolder.refit`), and `study run`'s check passes. Pinned to another value, both refuse, DEST
+    unchanged."""
+    monkeypatch.setattr(task_table, "validate_task", lambda task: task)
+
+    def make(preset, task, algo, rep, overrides):
+        cfg = _make(preset, task, algo, rep, overrides)
+        return cfg.replace(**{k: float(v) for k, v in overrides.items()})
+
+    runs_of = lambda study: spec.resolve(study, make, lambda cfg, seeds: cfg)  # noqa: E731
+    src = _source(tmp_path, "gpu", runs_of, finished=["A/td3/seeds-0-1"])
+    dest = tmp_path / "results"
+    _merge([src], dest, runs_of)
+    tau = TrainConfig.tau
+
+    def pinned(value):
+        path = tmp_path / f"pinned-{value}.toml"
+        path.write_text(STUDY.replace('label = "TD3"\n', f'label = "TD3, τ {value}"\nname = "td3"\n'
+                                      f'overrides = {{ tau = {value} }}\n'))
+        return path
+
+    with pytest.raises(StudyError, match="differ in methods"):
+        _merge([src], dest, runs_of, study_file=pinned(2 * tau))
+    before = folder_digest(dest)
+    with pytest.raises(StudyError, match="was made from another study file"):
+        StudyFolder(dest).check(spec.load(pinned(2 * tau)), "jax", runs_of(spec.load(pinned(2 * tau))))
+    assert folder_digest(dest) == before
+    out, said = _merge([src], dest, runs_of, study_file=pinned(tau), command="merge --study")
+    assert "identical to DEST's" in said and "rewrites methods" in said and not out.merged
+    assert (dest / "study.toml").read_text() == pinned(tau).read_text()
+    study = spec.load(pinned(tau))
+    StudyFolder(dest).check(study, "jax", runs_of(study))
+    run = next(r for r in runs_of(study) if f"{r.task}/{r.rel}" == "A/td3/seeds-0-1")
+    assert StudyFolder(dest).run_state(run, study).status == "done"

@@ -181,7 +181,7 @@ def _run(backend, args, command: str) -> int:
     runs = _resolve(backend, study)
     selected = spec.select_runs(study, runs, _names(args.tasks), _names(args.methods), args.seeds)
     folder = StudyFolder(args.out)
-    folder.check(study, backend.name)
+    folder.check(study, backend.name, runs)
     jobs, done = runner.plan(study, folder, selected, args.log)
     # Forecasts (the dry run's estimate, --finish-within) draw on every finished run of the folder, and of
     # the --forecast-from folders.

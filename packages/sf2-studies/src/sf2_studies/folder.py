@@ -16,10 +16,10 @@ import uuid
 from pathlib import Path
 
 from sf2_common.agents.obsnoise import OBS_NOISE
-from sf2_common.agents.runfolder import RunFolder, RunFolderMismatch
+from sf2_common.agents.runfolder import RunFolder, RunFolderError, RunFolderMismatch
 from sf2_common.fileio import atomic_write, compress, read_text, stored
 
-from .spec import Run, Study, StudyError, loads, same_runs, seeds_folder
+from .spec import Run, Study, StudyError, changed_methods, loads, same_runs, seeds_folder
 
 __all__ = ["StudyFolder", "RunState", "OBS_NOISE", "LOG", "evaluation_settings", "evaluation_done",
            "read_obs_noise", "command_line"]
@@ -80,9 +80,10 @@ class StudyFolder:
                              f"`study run FILE --out {self.path}`")
         return loads(self.study_path.read_text(encoding="utf-8"), self.study_path)
 
-    def check(self, study: Study, framework: str) -> None:
+    def check(self, study: Study, framework: str, runs: list[Run] | None = None) -> None:
         """Raise `StudyError` if the folder holds another study or one run by another framework; write
-        nothing."""
+        nothing. With `runs` (the study's, resolved), a method the file rewrites under its name passes when
+        every run folder of it here is a run of the new table (`refit`)."""
         if self.path.exists() and not self.path.is_dir():
             raise StudyError(f"--out {self.path} is a file, not a folder")
         if not self.study_path.exists():
@@ -91,7 +92,8 @@ class StudyFolder:
                                  f"an empty or new folder")
             return
         old = self.load_study()
-        keys = same_runs(old, study, self.groups_on_disk(old))
+        keys = same_runs(old, study, self.groups_on_disk(old),
+                         self.refit(old, study, runs) if runs is not None else frozenset())
         if keys:
             raise StudyError(
                 f"study folder {self.path} was made from another study file: its copy {self.study_path} "
@@ -101,6 +103,23 @@ class StudyFolder:
         if old_framework and old_framework != framework:
             raise StudyError(f"study folder {self.path} holds runs of sf2-{old_framework}; continue it with "
                              f"`sf2-{old_framework} study run` (runs of two frameworks do not mix)")
+
+    def refit(self, old: Study, new: Study, runs: list[Run]) -> frozenset[str]:
+        """The methods of `old` (this folder's copy) that `new` rewrites under their names whose run folders
+        here all hold runs of `new`'s `runs` (their configs and seeds: `check_compatible`), e.g. a method
+        pinned to the preset value its runs trained with after the preset changed."""
+        fit = set()
+        for name in changed_methods(old, new):
+            mine = [r for r in runs if name in (m.name for m in r.methods)]
+            try:
+                ok = bool(mine) and all(
+                    RunFolder(self.path_of(r)).check_compatible(r.config.to_dict(), r.seeds)
+                    or not self.path_of(r).exists() for r in mine)
+            except (RunFolderError, OSError, ValueError):   # another run, or one that cannot be read
+                ok = False
+            if ok:
+                fit.add(name)
+        return frozenset(fit)
 
     def groups_on_disk(self, study: Study) -> set[tuple[int, ...]]:
         """The seed groups of `study` that have a run folder here (of any task and method, any state); without
@@ -113,7 +132,7 @@ class StudyFolder:
     def open(self, study: Study, framework: str, runs: list[Run], command: str | None = None) -> dict:
         """`check`, then create or update the folder: its copy of the study file, and study.json (the run
         folder of every method, the command appended). Returns the state."""
-        self.check(study, framework)
+        self.check(study, framework, runs)
         self.path.mkdir(parents=True, exist_ok=True)
         if not self.study_path.exists() or self.load_study().data != study.data:
             # new, or a file that differs from the copy only in what no run depends on (spec.RUN_NEUTRAL:

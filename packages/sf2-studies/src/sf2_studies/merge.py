@@ -88,7 +88,7 @@ def merge(sources, into, runs_of: Callable[[Study], list[Run]], *, framework: st
     foreign = study_file is not None
     with contextlib.ExitStack() as stack:
         opened = [_open_source(str(s), stack) for s in sources]
-        study = _study_of_file(study_file, opened, dest, framework) if foreign else _check_studies(
+        study = _study_of_file(study_file, opened, dest, framework, runs_of) if foreign else _check_studies(
             opened, dest, framework)
         runs = runs_of(study)
         expected = {f"{r.task}/{r.rel}": r for r in runs}
@@ -167,7 +167,8 @@ def merge(sources, into, runs_of: Callable[[Study], list[Run]], *, framework: st
             atomic_write(dest.study_path, study.text)
         elif dest.load_study().data != study.data:
             say(f"  study.toml of {dest.path}: replaced by {study_file if foreign else 'a source'}'s, which "
-                f"adds tasks or methods or groups the seeds otherwise, keeping every run folder DEST holds")
+                f"adds tasks or methods, rewrites methods DEST's runs of which it still names, or groups the "
+                f"seeds otherwise, keeping every run folder DEST holds")
             atomic_write(dest.study_path, study.text)
         for name, side in chosen.items():
             target = dest.run_path(expected[name].task, expected[name].rel)
@@ -279,9 +280,10 @@ def _check_studies(opened, dest: StudyFolder, framework: str) -> Study:
                      f"merge them into a folder whose study.toml holds all of them; nothing was merged")
 
 
-def _study_of_file(path, opened, dest: StudyFolder, framework: str) -> Study:
+def _study_of_file(path, opened, dest: StudyFolder, framework: str, runs_of: Callable) -> Study:
     """The study of `path` for a merge of other studies' runs (`merge`'s `study_file`); `StudyError` for a
-    source of another framework, or a DEST that holds another study."""
+    source of another framework, or a DEST that holds another study (a method the file rewrites passes when
+    DEST's runs of it are runs of the file's: `StudyFolder.refit`)."""
     study = load(Path(path))
     if study.framework is not None and study.framework != framework:
         raise StudyError(f"{path} is a study of sf2-{study.framework}; merge with "
@@ -293,8 +295,9 @@ def _study_of_file(path, opened, dest: StudyFolder, framework: str) -> Study:
                              f"mix")
     held = _dest_study(dest, framework, f"{path}'s study")
     if held is not None:
-        keys = same_runs(held, study, dest.groups_on_disk(held))
-        if keys and not only_adds(held, study):
+        refit = dest.refit(held, study, runs_of(study))
+        keys = same_runs(held, study, dest.groups_on_disk(held), refit)
+        if keys and not only_adds(held, study, refit):
             raise StudyError(f"--into {dest.path} holds study {held.name!r}, not the study of {path} "
                              f"({study.name!r}): their study.toml differ in {', '.join(keys)}; nothing was "
                              f"merged")

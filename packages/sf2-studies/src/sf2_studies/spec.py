@@ -27,7 +27,7 @@ else:  # pragma: no cover - Python 3.10: the backport (a dependency of sf2-commo
 
 __all__ = [
     "StudyError", "Method", "Evaluation", "ReportSettings", "Study", "Run", "load", "loads", "resolve",
-    "select_runs", "same_runs", "only_adds", "seeds_text",
+    "select_runs", "same_runs", "only_adds", "changed_methods", "seeds_text",
     "slug", "kind", "FIGURES", "FRAMEWORKS", "RUN_NEUTRAL",
 ]
 
@@ -351,14 +351,16 @@ def _seed_groups(value, seeds, fail):
     return tuple(groups)
 
 
-def same_runs(old: Study, new: Study, kept_groups) -> list[str]:
+def same_runs(old: Study, new: Study, kept_groups, refit=frozenset()) -> list[str]:
     """The keys (`runs_data`) in which `new` declares other runs than `old`, a study folder's copy: [] when
-    they are the same study. `new` may add tasks and methods (`_grows`); their seed groups may differ when
-    the folder holds no run folder (`kept_groups`, the groups it holds run folders of, is empty), or when
-    both group their seeds and every group of `kept_groups` is a group of `new` too."""
+    they are the same study. `new` may add tasks and methods (`_grows`), and rewrite the methods named in
+    `refit` (those whose runs in the folder are runs of `new`'s method of that name: `changed_methods`);
+    their seed groups may differ when the folder holds no run folder (`kept_groups`, the groups it holds
+    run folders of, is empty), or when both group their seeds and every group of `kept_groups` is a group
+    of `new` too."""
     mine, theirs = old.runs_data(), new.runs_data()
     keys = sorted(k for k in set(mine) | set(theirs)
-                  if mine.get(k) != theirs.get(k) and not _grows(k, mine.get(k), theirs.get(k)))
+                  if mine.get(k) != theirs.get(k) and not _grows(k, mine.get(k), theirs.get(k), refit))
     kept = set(kept_groups)
     if keys == ["seeds_per_run"] and (not kept or (old.seeds_per_run is not None and new.seeds_per_run
                                                    is not None and kept <= set(new.seed_groups()))):
@@ -366,21 +368,38 @@ def same_runs(old: Study, new: Study, kept_groups) -> list[str]:
     return keys
 
 
-def only_adds(old: Study, new: Study) -> bool:
-    """True when `new` declares `old`'s runs plus tasks or methods of its own, nothing else changed."""
+def only_adds(old: Study, new: Study, refit=frozenset()) -> bool:
+    """True when `new` declares `old`'s runs plus tasks or methods of its own, nothing else changed (but the
+    methods named in `refit`, as in `same_runs`)."""
     mine, theirs = old.runs_data(), new.runs_data()
     keys = [k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k)]
-    return bool(keys) and all(_grows(k, mine.get(k), theirs.get(k)) for k in keys)
+    return bool(keys) and all(_grows(k, mine.get(k), theirs.get(k), refit) for k in keys)
 
 
-def _grows(key: str, old, new) -> bool:
+def changed_methods(old: Study, new: Study) -> set[str]:
+    """The names of `old`'s methods that `new` declares under the same name with another table (a label,
+    an override pinning a preset value that has changed since): `refit` candidates."""
+    theirs = {_name(m): m for m in new.runs_data().get("methods", [])}
+    return {_name(m) for m in old.runs_data().get("methods", [])
+            if _name(m) in theirs and theirs[_name(m)] != m}
+
+
+def _name(table) -> str | None:
+    """The name of a method table as `_method` gives it (its `name`, else its label's slug)."""
+    if not isinstance(table, dict):
+        return None
+    return table.get("name", slug(str(table.get("label", "")).strip()))
+
+
+def _grows(key: str, old, new, refit=frozenset()) -> bool:
     """True when `new` only adds to `old`'s tasks or methods: every task, and every method table exactly as it
-    was, is still there, so the runs a folder holds stay runs of the study (a method added to a study under
-    way, e.g. an ablation, runs beside the finished ones)."""
+    was (or a method of `refit` under its name), is still there, so the runs a folder holds stay runs of the
+    study (a method added to a study under way, e.g. an ablation, runs beside the finished ones)."""
     if key == "tasks" and isinstance(old, list) and isinstance(new, list):
         return set(old) <= set(new)
     if key == "methods" and isinstance(old, list) and isinstance(new, list):
-        return all(m in new for m in old)
+        names = {_name(m) for m in new}
+        return all(m in new or (_name(m) in refit and _name(m) in names) for m in old)
     return False
 
 
