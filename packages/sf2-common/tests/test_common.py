@@ -205,6 +205,27 @@ def test_crl_sf2_shares_phis_adam_state_between_infonce_and_flow(monkeypatch):
                                      now.to_dict()) == {}
 
 
+def test_crl_sf2_feeds_its_flow_the_direction_of_phi(monkeypatch):
+    """CRL+SF²'s flow takes φ/‖φ‖ in both presets (`REPRESENTATION_VALUES`; docs/crl.md) and CRL, which has no
+    flow, keeps "none"; a folder trained with φ as it is keeps "none", one written before the field too."""
+    monkeypatch.setattr(tasks, "check_installed", lambda task: None)
+    for preset in ("paper", "quick"):
+        sf2 = configs.make_config(preset, "ant-goal", algo="crl", representation="sf2")
+        assert sf2.flow_feature_norm == "l2"
+        assert configs.make_config(preset, "ant-goal", algo="crl", representation="none").flow_feature_norm \
+            == "none"
+    now = configs.make_config("paper", "ant-goal", algo="crl", representation="sf2")
+    raw = now.replace(flow_feature_norm="none").to_dict()
+    assert configs.superseded_values(raw, now.to_dict()) == {"flow_feature_norm": "none"}
+    before = {k: v for k, v in now.to_dict().items() if k != "flow_feature_norm"}
+    added = configs.ADDED_FIELDS["flow_feature_norm"]
+    assert configs.superseded_values({**before, "flow_feature_norm": added}, now.to_dict()) \
+        == {"flow_feature_norm": "none"}
+    # an override back to φ as it is stays what the user asked for
+    assert configs.make_config("paper", "ant-goal", algo="crl", representation="sf2",
+                               overrides={"flow_feature_norm": "none"}).flow_feature_norm == "none"
+
+
 def _ppo_reg():
     """A registry whose `none` takes ppo (the on-policy trainer's representations are the cores')."""
     r = registry.Registry("nothing-installed-under-this-group", baselines=())

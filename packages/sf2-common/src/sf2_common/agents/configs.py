@@ -23,8 +23,8 @@ __all__ = [
     "TrainConfig", "PRESETS", "ALGOS", "SF2_FIELDS", "make_config", "parse_overrides", "parse_value",
     "parse_seeds", "validate", "Schedule", "schedule", "ConfigError", "bad_field", "LEARNER_PRECISIONS",
     "ADDED_FIELDS", "PAPER_ADAM_EPS", "SUPERSEDED", "superseded_values", "TASK_VALUES", "FAMILY_VALUES",
-    "ONPOLICY_ALGOS", "CRITICS", "ADVANTAGE_REFRESH", "PPO_FIELDS", "PPO_VALUES", "FPO_FIELDS", "FPO_VALUES",
-    "PHYSICS", "SEED_LOOPS", "EXECUTION_FIELDS", "READ_BY",
+    "REPRESENTATION_VALUES", "ONPOLICY_ALGOS", "CRITICS", "ADVANTAGE_REFRESH", "PPO_FIELDS", "PPO_VALUES",
+    "FPO_FIELDS", "FPO_VALUES", "PHYSICS", "SEED_LOOPS", "EXECUTION_FIELDS", "READ_BY",
 ]
 
 ALGOS = ("td3", "sac", "ppo", "fpo", "crl")
@@ -66,8 +66,10 @@ READ_BY = {
 PAPER_ADAM_EPS = {"td3": 1e-5, "sac": 1e-8, "ppo": 1e-5, "fpo": 1e-8}
 # Preset values changed since run folders were written, (algo, field) -> (old, new): such folders keep theirs
 SUPERSEDED = {("sac", "adam_eps"): (1e-5, PAPER_ADAM_EPS["sac"]),
-              ("fpo", "advantage_refresh"): ("rollout", "pass"), ("crl", "shared_adam"): (False, True)}
-# Each preset's values, then its per-task and per-family values, then the overrides (decisions/presets.md)
+              ("fpo", "advantage_refresh"): ("rollout", "pass"), ("crl", "shared_adam"): (False, True),
+              ("crl", "flow_feature_norm"): ("none", "l2")}
+# Each preset's values, then its per-task, per-family and per-representation values, then the overrides
+# (decisions/presets.md)
 PRESETS = {
     "paper": dict(checkpoint_every=10, learner_precision="tensorfloat32"),
     "quick": dict(num_timesteps=80_000, num_envs=16, num_evals=9, num_eval_envs=10, deterministic_eval=True,
@@ -260,6 +262,9 @@ CRL_VALUES = {
 for _preset, _values in CRL_VALUES.items():   # FAMILY_VALUES[preset][field]["crl"], copying the shared dicts
     for _name, _value in _values.items():
         FAMILY_VALUES[_preset][_name] = {**FAMILY_VALUES[_preset].get(_name, {}), "crl": _value}
+# Each preset's values of one (algo, representation), over the algo's: CRL+SF²'s flow is fed φ/‖φ‖ (fed φ
+# itself, its bootstrap term runs away late on spring: docs/decisions/crl-sf2-late-divergence.md)
+REPRESENTATION_VALUES = {preset: {("crl", "sf2"): dict(flow_feature_norm="l2")} for preset in PRESETS}
 
 
 # ------------------------------------------------------------------------------------------- presets
@@ -283,6 +288,7 @@ def make_config(preset: str, task: str, algo: str = "td3", representation: str =
     values.update({name: value_of(task) for name, value_of in TASK_VALUES.get(preset, {}).items()})
     values.update({name: by_algo[algo] for name, by_algo in FAMILY_VALUES.get(preset, {}).items()
                    if algo in by_algo})
+    values.update(REPRESENTATION_VALUES.get(preset, {}).get((algo, representation), {}))
     defaults = {f.name: f.default for f in fields(config_class)}
     for name, value in (overrides or {}).items():
         value = parse_value(name, value, config_class) if isinstance(value, str) else value
