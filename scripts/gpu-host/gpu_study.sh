@@ -48,14 +48,21 @@ if [ ! -d "$folder" ]; then
 else
   echo "host $(hostname): kept from an earlier command ($folder is here; its unfinished runs resume)"
 fi
+# A study run into a second folder (STUDY_RESULTS) also forecasts from the study's own folder, whose other
+# arms and seeds have run on its tasks, unless the command names --forecast-from itself
+own=results/$(basename "$study" .toml)
+forecast=()
+if [ "$results" != "$own" ] && [ -d "$own/runs" ] && [[ " $* " != *" --forecast-from "* ]]; then
+  forecast=(--forecast-from "$own")
+fi
 nvidia-smi --query-gpu=name,memory.total --format=csv,noheader
 start=$(date +%s)
 # the trainers checkpoint the last epoch that ends before the kill (sf2_common.agents.hostloop.checkpoint_now)
 export SF2_DEADLINE=$(( start + limit ))
-timeout --signal=TERM "$limit" python3 -m sf2_jax.cli study run "$study" --out "$folder" --no-progress "$@"
+timeout --signal=TERM "$limit" python3 -m sf2_jax.cli study run "$study" --out "$folder" --no-progress "$@" ${forecast[@]+"${forecast[@]}"}
 rc=$?
 echo "study run exit status $rc after $(( $(date +%s) - start )) s"
-python3 -m sf2_jax.cli study run "$study" --out "$folder" --dry-run "$@" || true
+python3 -m sf2_jax.cli study run "$study" --out "$folder" --dry-run "$@" ${forecast[@]+"${forecast[@]}"} || true
 mkdir -p "$OUT"
 tar czf "$OUT/$name.tar.gz" -C "$folder" --exclude='checkpoints' --exclude='final' --exclude='damaged' \
   --exclude='*.npz' --exclude='.study-lock' --exclude='.sf2-lock' .
