@@ -454,7 +454,7 @@ def _method(table, where: str, entry: str) -> Method:
             raise StudyError(f"{where}: {entry}: {key} is required (a string), e.g. label = \"TD3+SF²\", "
                              f"algo = \"td3\", representation = \"sf2\"")
     label = table["label"].strip()
-    name = table.get("name", slug(label))
+    name = _name(table)
     if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]*", name):
         raise StudyError(f"{where}: {entry}: name {name!r} is not a folder name (letters, digits, . _ -)")
     framework = table.get("framework")
