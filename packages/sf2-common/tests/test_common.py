@@ -226,6 +226,26 @@ def test_crl_sf2_feeds_its_flow_the_direction_of_phi(monkeypatch):
                                overrides={"flow_feature_norm": "none"}).flow_feature_norm == "none"
 
 
+def test_crl_sf2_takes_the_narrow_zeta_in_the_paper_preset(monkeypatch):
+    """The `paper` preset's CRL+SF² has ζ (128, 64) (`REPRESENTATION_VALUES`: its paired study did not find
+    the encoders' 256 × 256 better; docs/decisions/crl-sf2-zeta-width.md), CRL and `quick` keep theirs; a
+    folder trained with 256 × 256 keeps it (config.json holds lists), any other width is no older value."""
+    monkeypatch.setattr(tasks, "check_installed", lambda task: None)
+    now = configs.make_config("paper", "ant-goal", algo="crl", representation="sf2")
+    assert now.zeta_hidden_sizes == (128, 64)
+    assert configs.make_config("paper", "ant-goal", algo="crl", representation="none").zeta_hidden_sizes \
+        == configs.CRL_VALUES["paper"]["zeta_hidden_sizes"] == (256, 256)
+    assert configs.make_config("quick", "ant-goal", algo="crl", representation="sf2").zeta_hidden_sizes \
+        == configs.CRL_VALUES["quick"]["zeta_hidden_sizes"]
+    wide = now.replace(zeta_hidden_sizes=(256, 256)).to_dict()
+    assert wide["zeta_hidden_sizes"] == [256, 256]
+    assert configs.superseded_values(wide, now.to_dict()) == {"zeta_hidden_sizes": [256, 256]}
+    other = now.replace(zeta_hidden_sizes=(128, 128)).to_dict()
+    assert configs.superseded_values(other, now.to_dict()) == {}
+    assert configs.make_config("paper", "ant-goal", algo="crl", representation="sf2",
+                               overrides={"zeta_hidden_sizes": "256,256"}).zeta_hidden_sizes == (256, 256)
+
+
 def _ppo_reg():
     """A registry whose `none` takes ppo (the on-policy trainer's representations are the cores')."""
     r = registry.Registry("nothing-installed-under-this-group", baselines=())

@@ -382,6 +382,27 @@ def test_an_fpo_folder_trained_with_rollout_time_advantages_keeps_them(tmp_path,
     assert run.check_compatible(now.to_dict(), (0,)) is True
 
 
+def test_a_crl_sf2_folder_trained_with_the_wide_zeta_keeps_it(tmp_path, capsys, cheetah_only):
+    """The `paper` preset's CRL+SF² narrowed ζ to (128, 64): a folder trained at 256 × 256 (its config.json
+    holds a list) resumes with the tuple (256, 256), the config it was trained with, and passes a study's
+    check; a folder of another width is another run."""
+    from sf2_common.agents.configs import make_config
+
+    now = make_config("paper", "ant-goal", "crl", "sf2")
+    before = now.replace(zeta_hidden_sizes=(256, 256))
+    run = RunFolder(tmp_path / "run")
+    run.write_config({"config": before.to_dict(), "seeds": [0]})
+    capsys.readouterr()
+    kept = run.keep_trained_values(now)
+    assert kept == before and kept.zeta_hidden_sizes == (256, 256)
+    assert "zeta_hidden_sizes = [256, 256] (the preset now gives [128, 64])" in capsys.readouterr().err
+    assert run.check_compatible(now.to_dict(), (0,)) is True
+    other = RunFolder(tmp_path / "other")
+    other.write_config({"config": now.replace(zeta_hidden_sizes=(128, 128)).to_dict(), "seeds": [0]})
+    with pytest.raises(RunFolderMismatch, match=r"zeta_hidden_sizes: \[128, 128\] .folder. vs \[128, 64\]"):
+        other.check_compatible(now.to_dict(), (0,))
+
+
 def test_what_a_rerun_drops_from_metrics_is_said_in_one_line(tmp_path, capsys):
     """Rows written twice (two writers before the lock) and rows of epochs after the checkpoint resumed from
     are dropped by the rewrite, and one line says what and how many."""

@@ -67,7 +67,8 @@ PAPER_ADAM_EPS = {"td3": 1e-5, "sac": 1e-8, "ppo": 1e-5, "fpo": 1e-8}
 # Preset values changed since run folders were written, (algo, field) -> (old, new): such folders keep theirs
 SUPERSEDED = {("sac", "adam_eps"): (1e-5, PAPER_ADAM_EPS["sac"]),
               ("fpo", "advantage_refresh"): ("rollout", "pass"), ("crl", "shared_adam"): (False, True),
-              ("crl", "flow_feature_norm"): ("none", "l2")}
+              ("crl", "flow_feature_norm"): ("none", "l2"),
+              ("crl", "zeta_hidden_sizes"): ((256, 256), (128, 64))}
 # Each preset's values, then its per-task, per-family and per-representation values, then the overrides
 # (decisions/presets.md)
 PRESETS = {
@@ -263,17 +264,21 @@ for _preset, _values in CRL_VALUES.items():   # FAMILY_VALUES[preset][field]["cr
     for _name, _value in _values.items():
         FAMILY_VALUES[_preset][_name] = {**FAMILY_VALUES[_preset].get(_name, {}), "crl": _value}
 # Each preset's values of one (algo, representation), over the algo's: CRL+SF²'s flow is fed φ/‖φ‖ (fed φ
-# itself, its bootstrap term runs away late on spring: docs/decisions/crl-sf2-late-divergence.md)
+# itself, its bootstrap term runs away late on spring: docs/decisions/crl-sf2-late-divergence.md), and in
+# `paper` its ζ is (128, 64), not as wide as CRL's encoders (docs/decisions/crl-sf2-zeta-width.md)
 REPRESENTATION_VALUES = {preset: {("crl", "sf2"): dict(flow_feature_norm="l2")} for preset in PRESETS}
+REPRESENTATION_VALUES["paper"][("crl", "sf2")]["zeta_hidden_sizes"] = (128, 64)
 
 
 # ------------------------------------------------------------------------------------------- presets
 def superseded_values(folder: dict, now: dict) -> dict:
     """The fields of `SUPERSEDED` in which a run folder's config `folder` holds the old value and the
     config `now` the new one: {field: the folder's value}. Both are `TrainConfig.to_dict()` forms."""
+    def plain(value):   # to_dict's lists for the tuples SUPERSEDED names
+        return list(value) if isinstance(value, tuple) else value
     return {field: folder[field] for (algo, field), (old, new) in SUPERSEDED.items()
-            if now.get("algo") == algo == folder.get("algo") and folder.get(field) == old
-            and now.get(field) == new}
+            if now.get("algo") == algo == folder.get("algo") and plain(folder.get(field)) == plain(old)
+            and plain(now.get(field)) == plain(new)}
 
 
 def make_config(preset: str, task: str, algo: str = "td3", representation: str = "sf2",

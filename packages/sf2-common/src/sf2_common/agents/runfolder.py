@@ -210,7 +210,7 @@ class RunFolder:
             self.say(f"{self.path} was trained with " + ", ".join(
                 f"{k} = {v!r} (the preset now gives {now[k]!r})" for k, v in kept.items())
                 + "; it keeps its values (another --out, or --fresh, trains with the preset's)")
-            cfg = cfg.replace(**kept)
+            cfg = cfg.replace(**{k: tuple(v) if isinstance(v, list) else v for k, v in kept.items()})
         return cfg
 
     def write_config(self, payload: dict) -> None:
