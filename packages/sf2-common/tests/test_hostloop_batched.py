@@ -185,6 +185,23 @@ def test_a_deadline_checkpoints_the_last_epoch_that_ends_before_it(tmp_path, clo
     assert [x for x in session.log if x.startswith("save")] == ["save 0", "save 3"]
 
 
+@pytest.mark.parametrize("session_type", [_PerEpoch, _Batched])
+def test_a_deadline_counts_a_checkpoints_background_write(tmp_path, clock, session_type):
+    """The same timings with saves that return at once but write for 2 s more (`write_seconds`): after
+    epoch 1 (t = 103) the next checkpoint would be complete only by 103 + 2 + 2·(1 + 2) = 111, past 108, so
+    epoch 1 is checkpointed (epoch 2's, the one the save's own 0 s chose, would still be writing at a kill at
+    108), and so is every epoch after it."""
+    session = session_type(clock)
+    session.write_seconds = lambda: 2.0
+    _loop(session, RunFolder(tmp_path / "run"), checkpoint_every=100, deadline=108.0)
+    assert [x for x in session.log if x.startswith("save")] == ["save 0", "save 1", "save 2", "save 3"]
+    clock.now = 100.0
+    session = session_type(clock)
+    session.write_seconds = lambda: None    # no write measured yet: the save's own time (0 s) as before
+    _loop(session, RunFolder(tmp_path / "unmeasured"), checkpoint_every=100, deadline=108.0)
+    assert [x for x in session.log if x.startswith("save")] == ["save 0", "save 2", "save 3"]
+
+
 def test_a_malformed_deadline_is_refused_naming_the_variable(monkeypatch):
     monkeypatch.setenv(hostloop.DEADLINE_VARIABLE, "soon")
     with pytest.raises(ConfigError, match="SF2_DEADLINE='soon' is invalid: must be a Unix time"):

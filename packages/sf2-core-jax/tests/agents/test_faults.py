@@ -133,6 +133,32 @@ def test_a_background_save_holds_the_state_it_was_given(reference, tiny_cfg, tmp
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 
 
+def test_a_background_save_says_how_long_its_whole_write_took(tmp_path, monkeypatch):
+    """`write_seconds` times a checkpoint from `save` until its files are complete, a background one's too
+    (the deadline of hostloop.checkpoint_now uses it): Orbax made to report its write in progress for 10
+    polls of 0.05 s gives at least 0.5 s, though `save` returned at once; a fresh Checkpointer takes its
+    restore's time until it has written one."""
+    state = {"a": jnp.arange(1000.0), "b": jnp.ones((10, 10), jnp.int32)}
+    ckpt = Checkpointer(tmp_path / "checkpoints")
+    assert ckpt.write_seconds is None
+    in_progress, polls = ckpt.manager.is_saving_in_progress, []
+    monkeypatch.setattr(ckpt.manager, "is_saving_in_progress",
+                        lambda: polls.append(1) or len(polls) <= 10 or in_progress())
+    try:
+        ckpt.save(1, state, {"env_steps": 0}, wait=False)
+        ckpt.finish()
+        assert len(polls) > 10 and ckpt.write_seconds >= 10 * 0.05
+    finally:
+        ckpt.close()
+    fresh = Checkpointer(tmp_path / "checkpoints")
+    try:
+        restored, _ = fresh.restore(1, state)
+        assert fresh.write_seconds is not None and fresh.write_seconds >= 0.0
+    finally:
+        fresh.close()
+    np.testing.assert_array_equal(np.asarray(restored["a"]), np.arange(1000.0))
+
+
 def test_killed_in_the_middle_of_a_save(reference, tiny_cfg, tmp_path):
     """Orbax had finished checkpoint 2 when the kill came, only its manifest is missing: checkpoint 2
     restores completely (the reader checks it without the manifest), so the run resumes from it."""

@@ -105,6 +105,36 @@ def test_a_background_save_holds_the_state_it_was_given(reference, tiny_cfg, tmp
         np.testing.assert_array_equal(np.asarray(x), y)
 
 
+def test_a_background_save_says_how_long_its_whole_write_took(tmp_path, monkeypatch):
+    """`write_seconds` times a checkpoint from `save` until its files are complete, a background one's too
+    (the deadline of hostloop.checkpoint_now uses it): a `torch.save` made to take 0.5 s in the writer's
+    thread gives at least 0.5 s, though `save` returned before it; a fresh Checkpointer takes its restore's
+    time until it has written one."""
+    import time
+
+    from sf2_torch.agents import checkpoint
+
+    real = checkpoint.torch.save
+
+    def slow(*args, **kw):
+        time.sleep(0.5)
+        return real(*args, **kw)
+
+    ckpt = Checkpointer(tmp_path / "checkpoints")
+    assert ckpt.write_seconds is None
+    monkeypatch.setattr(checkpoint.torch, "save", slow)
+    ckpt.save(1, {"x": torch.arange(1000.0)}, [np.ones((10, 10), np.int32)], {"env_steps": 0}, wait=False)
+    ckpt.finish()
+    monkeypatch.undo()
+    assert ckpt.write_seconds >= 0.5
+    ckpt.close()
+    fresh = Checkpointer(tmp_path / "checkpoints")
+    state, leaves, _ = fresh.restore(1)
+    assert fresh.write_seconds is not None and fresh.write_seconds >= 0.0
+    assert torch.equal(state["x"], torch.arange(1000.0)) and leaves[0].shape == (10, 10)
+    fresh.close()
+
+
 def test_a_background_save_that_fails_raises_in_the_caller(tmp_path):
     """A write that fails in the thread is raised by the next call (`finish` here), not lost."""
     (tmp_path / "taken").write_text("a file where the checkpoint folder should be")

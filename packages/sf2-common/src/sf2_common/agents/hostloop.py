@@ -204,7 +204,9 @@ class Session(Protocol):
         returns: more columns of the evaluation's rows (e.g. the share of successful episodes)."""
 
     def save(self, epoch: int, env_steps: int) -> None:
-        """Write checkpoint `epoch`."""
+        """Write checkpoint `epoch` (it may return before the files are complete and write them in the
+        background; a session may then offer `write_seconds() -> float | None`: how long its last
+        checkpoint took from `save` until complete on disk, which the deadline then uses)."""
 
     def loss_order(self) -> tuple[str, ...]:
         """The order the SGD step computes its losses in (ties of the NaN guard's report)."""
@@ -329,7 +331,10 @@ def _run_epochs(session, bar, t_start, *, cfg, sched, seeds, run, title, rows, s
         sps = sched.env_steps_per_epoch / epoch_seconds
         save = epoch % cfg.checkpoint_every == 0 or epoch == sched.num_epochs or epoch == stop_after_epoch
         evaluations = cost["eval"] * (len(pending) + 1)     # this checkpoint's: the epochs not yet evaluated
-        if not save and checkpoint_now(time.time(), deadline, epoch_seconds, evaluations, cost["save"]):
+        # a save that returns before its files are complete: the deadline needs the whole write
+        written = getattr(session, "write_seconds", None)
+        saving = max(cost["save"], (written() if written else None) or 0.0)
+        if not save and checkpoint_now(time.time(), deadline, epoch_seconds, evaluations, saving):
             save = True
             print(f"checkpoint at epoch {epoch}: the next would come after {DEADLINE_VARIABLE}",
                   file=sys.stderr)

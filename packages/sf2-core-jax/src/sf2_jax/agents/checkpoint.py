@@ -9,11 +9,15 @@ temporary folder and renames it when complete, so a kill mid-save leaves the pre
 other method waits for it first (docs/decisions/background-checkpoints.md). The file manifest
 (`sf2_common.agents.checkpoints`) is written last and checked first by `restore`: a damaged file is one
 `CheckpointDamaged` naming it, intact files that do not fit the program a `CheckpointMismatch`.
+`write_seconds`: how long the last checkpoint took from `save` until complete (a background save's is
+watched; before one, the restore's time stands in).
 """
 
 from __future__ import annotations
 
 import math
+import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +48,8 @@ class Checkpointer:
             self.directory, options=ocp.CheckpointManagerOptions(
                 max_to_keep=keep, create=True, cleanup_tmp_directories=True))
         self._writing: int | None = None   # the epoch whose files Orbax is still writing
+        self._watcher: threading.Thread | None = None
+        self.write_seconds: float | None = None     # module docstring
 
     def path(self, epoch: int) -> Path:
         """The folder of checkpoint `epoch`."""
@@ -69,16 +75,31 @@ class Checkpointer:
         leaves = jax.tree_util.tree_leaves(state)
         flat = {f"{i:05d}": x for i, x in enumerate(leaves) if _size(x)}
         meta = {**meta, "epoch": int(epoch), "num_leaves": len(leaves)}
+        called = time.monotonic()
         self.manager.save(int(epoch), args=ocp.args.Composite(
             state=ocp.args.StandardSave(flat), meta=ocp.args.JsonSave(meta)), force=True)
         self._writing = int(epoch)
         if wait:
             self.finish()
+            self.write_seconds = time.monotonic() - called
+        elif hasattr(self.manager, "is_saving_in_progress"):
+            self._watcher = threading.Thread(target=self._watch, args=(called,), daemon=True,
+                                             name=f"checkpoint-{int(epoch)}-watch")
+            self._watcher.start()
+
+    def _watch(self, called: float) -> None:
+        """Record when a background save is complete (polled: Orbax offers no callback)."""
+        while self.manager.is_saving_in_progress():
+            time.sleep(0.05)
+        self.write_seconds = time.monotonic() - called
 
     def finish(self) -> None:
         """Wait for a background save (`save(wait=False)`) to be complete on disk and write its manifest."""
         if self._writing is not None:
             self.manager.wait_until_finished()
+            if self._watcher is not None:
+                self._watcher.join()
+                self._watcher = None
             checkpoints.write_manifest(self.path(self._writing))
             self._writing = None
 
@@ -88,6 +109,7 @@ class Checkpointer:
         not what was written, `CheckpointMismatch` if they do not fit `template`."""
         ocp = self._ocp
         self.finish()
+        started = time.monotonic()
         folder = self.path(epoch)
         intact = checkpoints.verify(folder, epoch)
         leaves, treedef = jax.tree_util.tree_flatten(template)
@@ -124,6 +146,8 @@ class Checkpointer:
                 out.append(jax.numpy.asarray(got))
             else:  # zero-size leaf: not stored
                 out.append(jax.numpy.zeros(x.shape, x.dtype))
+        if self.write_seconds is None:
+            self.write_seconds = time.monotonic() - started
         # Uncommitted arrays, like a jitted function's outputs: committed ones would make every jitted
         # function compile again for the resumed state.
         return jax.tree_util.tree_unflatten(treedef, out), meta

@@ -559,6 +559,9 @@ class SeedsSession:
         # written in the background while the next epoch trains (checkpoint.py)
         self.ckpt.save(epoch, self.state, {"env_steps": env_steps, "seeds": list(self.seeds)}, wait=False)
 
+    def write_seconds(self) -> float | None:
+        return self.ckpt.write_seconds
+
     def loss_order(self) -> tuple[str, ...]:
         return self.program.loss_order
 

@@ -8,7 +8,8 @@ renamed when complete, so a kill mid-save leaves the previous one intact; the `k
 `save(wait=False)` returns once the state is copied to the host and a thread writes the files; every other
 method waits for it first (docs/decisions/background-checkpoints.md). The file manifest
 (`sf2_common.agents.checkpoints`) is written last and checked first by `restore`: a damaged file is one
-`CheckpointDamaged` naming it, intact files that do not load a `CheckpointMismatch`.
+`CheckpointDamaged` naming it, intact files that do not load a `CheckpointMismatch`. `write_seconds`: how
+long the last checkpoint took from `save` until complete (before one, the restore's time stands in).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import os
 import pickle
 import shutil
 import threading
+import time
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -42,6 +44,8 @@ class Checkpointer:
         self.keep = int(keep)
         self._writer: threading.Thread | None = None
         self._error: BaseException | None = None
+        self._called = 0.0                          # when the last `save` began (time.monotonic)
+        self.write_seconds: float | None = None     # module docstring
 
     def path(self, epoch: int) -> Path:
         """The folder of checkpoint `epoch`."""
@@ -67,6 +71,7 @@ class Checkpointer:
         disk; without, once `state` and `env_leaves` are copied to the host: a thread writes the files and
         `finish` (which the next call of any method makes) waits for it and raises what it raised."""
         self.finish()
+        self._called = time.monotonic()
         if wait:
             self._write(epoch, state, env_leaves, meta)
             return
@@ -111,11 +116,13 @@ class Checkpointer:
         os.replace(tmp, final)
         for old in self._on_disk()[:-self.keep] if self.keep > 0 else []:
             shutil.rmtree(self.directory / str(old), ignore_errors=True)
+        self.write_seconds = time.monotonic() - self._called
 
     def restore(self, epoch: int, map_location=None) -> tuple[dict, list[np.ndarray], dict]:
         """(torch state, env arrays, meta) of checkpoint `epoch`. Raises `CheckpointDamaged` if its files
         are not what was written, `CheckpointMismatch` if intact files do not load."""
         self.finish()
+        started = time.monotonic()
         path = self.path(epoch)
         intact = checkpoints.verify(path, epoch)
         try:
@@ -129,6 +136,8 @@ class Checkpointer:
                 raise CheckpointMismatch(f"checkpoint {epoch} in {self.directory} cannot be loaded by this "
                                          f"program: {reason}") from err
             raise CheckpointDamaged(epoch, path, f"it cannot be read ({reason})") from None
+        if self.write_seconds is None:
+            self.write_seconds = time.monotonic() - started
         return state, leaves, meta
 
     def close(self) -> None:

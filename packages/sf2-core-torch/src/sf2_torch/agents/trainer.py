@@ -426,6 +426,9 @@ class _Session:
     def save(self, epoch: int, env_steps: int) -> None:
         _save(self.ckpt, self.program, self.state, epoch, env_steps, self.state.seeds)
 
+    def write_seconds(self) -> float | None:
+        return self.ckpt.write_seconds
+
     def loss_order(self) -> tuple[str, ...]:
         return self.program.loss_order
 
