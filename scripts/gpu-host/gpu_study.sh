@@ -49,11 +49,14 @@ else
   echo "host $(hostname): kept from an earlier command ($folder is here; its unfinished runs resume)"
 fi
 # A study run into a second folder (STUDY_RESULTS) also forecasts from the study's own folder, whose other
-# arms and seeds have run on its tasks, unless the command names --forecast-from itself
+# arms and seeds have run on its tasks, unless the command names --forecast-from itself; and it does not
+# run again what that folder holds finished with exactly the same config and seeds (--skip-done-in: a
+# run that kept a superseded preset value there, as fig7-sac's, is another config and runs here)
 own=results/$(basename "$study" .toml)
 forecast=()
-if [ "$results" != "$own" ] && [ -d "$own/runs" ] && [[ " $* " != *" --forecast-from "* ]]; then
-  forecast=(--forecast-from "$own")
+if [ "$results" != "$own" ] && [ -d "$own/runs" ]; then
+  if [[ " $* " != *" --forecast-from "* ]]; then forecast+=(--forecast-from "$own"); fi
+  if [[ " $* " != *" --skip-done-in "* ]]; then forecast+=(--skip-done-in "$own"); fi
 fi
 nvidia-smi --query-gpu=name,memory.total --format=csv,noheader
 start=$(date +%s)

@@ -200,6 +200,44 @@ def test_forecast_from_another_study(tmp_path, monkeypatch, capsys):
             commands._run(backend, argparse.Namespace(**{**vars(args), "forecast_from": [str(bad)]}), "cmd")
 
 
+def test_skip_done_in_another_folder(tmp_path, monkeypatch, capsys):
+    """`--skip-done-in`: a study run into a second folder (to be merged back) does not run again what the
+    study's own folder holds finished with exactly its config and seeds: A/td3/seeds-0-4 there is skipped;
+    A/td3-sf2/seeds-0-4 there has another adam_eps (as a superseded preset value would) and runs; a run
+    begun in the second folder continues there; the own folder is read only; bad folders are refused."""
+    study = _load(tmp_path)
+    runs = _resolve(study, monkeypatch)
+    own = StudyFolder(tmp_path / "own")
+    own.open(study, "jax", runs)
+    for run in runs:
+        if run.task == "A" and run.seeds[0] == 0:
+            config = run.config if run.folder == "td3" else run.config.replace(adam_eps=1e-3)
+            _fabricate(own.path_of(run), run.__class__(**{**vars(run), "config": config}), run.seeds,
+                       last_epoch=2)
+    before = {f: f.read_bytes() for f in own.path.rglob("*") if f.is_file()}
+    second = StudyFolder(tmp_path / "second")
+    backend = runner.Backend("sf2-fake", "jax", "fake", _make, lambda cfg, seeds: cfg)
+    args = argparse.Namespace(file=str(study.path), out=str(second.path), tasks="A", methods=None,
+                              seeds="0-9", workers=None, ray=None, dry_run=True, no_progress=True,
+                              finish_within=None, forecast_from=[], skip_done_in=[str(own.path)], log=None)
+    assert commands._run(backend, args, "cmd") == 0
+    out = [line.split(":")[0] for line in capsys.readouterr().out.splitlines()[1:]]
+    assert out == ["  elsewhere A/td3/seeds-0-4", "  new      A/td3/seeds-5-9",
+                   "  new      A/td3-sf2/seeds-0-4", "  new      A/td3-sf2/seeds-5-9"]
+    # begun in the second folder: it resumes there, whatever the own folder holds
+    td3 = next(r for r in runs if r.task == "A" and r.folder == "td3" and r.seeds[0] == 0)
+    second.open(study, "jax", runs)
+    _fabricate(second.path_of(td3), td3, td3.seeds, last_epoch=1)
+    assert commands._run(backend, args, "cmd") == 0
+    out = [line.split(":")[0] for line in capsys.readouterr().out.splitlines()[1:]]
+    assert out[0] == "  partial  A/td3/seeds-0-4" and not any("elsewhere" in line for line in out)
+    assert {f: f.read_bytes() for f in own.path.rglob("*") if f.is_file()} == before
+    for bad, match in ((tmp_path / "nowhere", "--skip-done-in .*nowhere: no such folder"),
+                       (second.path, "is the study folder being run")):
+        with pytest.raises(StudyError, match=match):
+            commands._run(backend, argparse.Namespace(**{**vars(args), "skip_done_in": [str(bad)]}), "cmd")
+
+
 REPORT = """
 name = "joined"
 seeds = "0-3"

@@ -3,7 +3,8 @@
 `main(backend, args)`:
 
     PROG study run FILE --out DIR [--tasks A,B] [--methods m1,m2] [--seeds 0-4] [--workers N]
-                   [--ray ADDRESS] [--finish-within SECONDS] [--forecast-from DIR] [--dry-run]
+                   [--ray ADDRESS] [--finish-within SECONDS] [--forecast-from DIR] [--skip-done-in DIR]
+                   [--dry-run]
     PROG study report DIR [--out REPORT_DIR]
     PROG study merge SOURCE... --into DIR [--partial] [--study STUDY.toml]
     PROG study compress DIR
@@ -55,6 +56,10 @@ def add_parser(sub, prog: str) -> None:
                    help="another study folder whose finished runs also feed the forecasts (--dry-run, "
                    "--finish-within), e.g. results/fig7-td3 for fig7-sac's first runs, which have no "
                    "finished run of their own to forecast from; read only (repeatable)")
+    r.add_argument("--skip-done-in", metavar="DIR", action="append", default=[],
+                   help="another study folder: a run it holds finished with exactly this run's config "
+                   "(no superseded preset value) and seeds is not run here, e.g. the study's own results "
+                   "folder when --out is a second one to merge back into it; read only (repeatable)")
     r.add_argument("--ray", metavar="ADDRESS", default=None,
                    help="dispatch each run as a Ray task to this cluster ('local': start one here, 'auto')")
     r.add_argument("--ray-gpus", type=float, default=1.0,
@@ -183,6 +188,8 @@ def _run(backend, args, command: str) -> int:
     folder = StudyFolder(args.out)
     folder.check(study, backend.name, runs)
     jobs, done = runner.plan(study, folder, selected, args.log)
+    elsewhere = _done_elsewhere(study, folder, jobs, getattr(args, "skip_done_in", []))
+    jobs = [job for job in jobs if job.name not in elsewhere]
     # Forecasts (the dry run's estimate, --finish-within) draw on every finished run of the folder, and of
     # the --forecast-from folders.
     history = done if len(selected) == len(runs) else runner.plan(study, folder, runs)[1]
@@ -194,6 +201,7 @@ def _run(backend, args, command: str) -> int:
                  if study.seeds_per_run else ""))
         for job in done:
             print(f"  done     {job.name}")
+        _say_elsewhere(elsewhere)
         forecast = runner.Forecast(history)
         for job in jobs:
             state = "partial" if job.done_steps else "new"
@@ -209,6 +217,7 @@ def _run(backend, args, command: str) -> int:
             print(total)
         return 0
     folder.open(study, backend.name, runs, command)
+    _say_elsewhere(elsewhere)
     if args.ray is not None:
         from .rayrun import run_ray
 
@@ -219,6 +228,7 @@ def _run(backend, args, command: str) -> int:
                                    workers=args.workers, progress=not args.no_progress,
                                    finish_within=args.finish_within, history=history)
     print(f"{study.name}: {len(outcome.done)} of {len(selected)} run(s) done"
+          + (f", {len(elsewhere)} finished elsewhere (--skip-done-in)" if elsewhere else "")
           + (f", {len(outcome.failed)} failed" if outcome.failed else "")
           + (f", {len(outcome.busy)} held by another runner" if outcome.busy else "")
           + (f", {len(outcome.deferred)} not started (would not end within --finish-within)"
@@ -241,6 +251,49 @@ def _finished_elsewhere(backend, paths, folder) -> list:
                              "runs are already the forecast's; give another study's folder")
         jobs += finished_runs(backend, path, "--forecast-from")
     return jobs
+
+
+def _done_elsewhere(study, folder, jobs, paths) -> dict:
+    """Of the runs `jobs` that have not begun here, those a study folder of `paths` (--skip-done-in) holds
+    finished with exactly their config (every field but `configs.EXECUTION_FIELDS`; a preset value it
+    kept as superseded is another config) and seeds: {job name: that run folder}. Read only; a path that
+    is not a folder, or is the folder being run, is refused by name."""
+    from sf2_common.agents.configs import ADDED_FIELDS, EXECUTION_FIELDS
+    from sf2_common.agents.runfolder import RunFolder, RunFolderError
+
+    from .folder import StudyFolder
+
+    found = {}
+    for path in paths:
+        other = StudyFolder(path)
+        if not other.path.is_dir():
+            raise StudyError(f"--skip-done-in {path}: no such folder; give a study folder that `study run` "
+                             "or `study merge` wrote (e.g. results/fig10-minatar)")
+        if other.path.resolve() == folder.path.resolve():
+            raise StudyError(f"--skip-done-in {path} is the study folder being run (--out): its finished "
+                             "runs are never run again anyway; give another folder")
+        for job in jobs:
+            if job.name in found or job.done_steps:
+                continue
+            there = other.path_of(job.run)
+            try:
+                saved = RunFolder(there).read_config()
+            except RunFolderError:     # a damaged run there is no finished one: it runs here
+                continue
+            if not isinstance(saved, dict) or not isinstance(saved.get("config"), dict):
+                continue
+            want = job.run.config.to_dict()
+            have = {**{k: v for k, v in ADDED_FIELDS.items() if k in want}, **saved["config"]}
+            same = all(have.get(k) == v for k, v in want.items() if k not in EXECUTION_FIELDS)
+            if same and list(saved.get("seeds", [])) == list(job.run.seeds) \
+                    and other.run_state(job.run, study).status == "done":
+                found[job.name] = there
+    return found
+
+
+def _say_elsewhere(elsewhere: dict) -> None:
+    for name, there in elsewhere.items():
+        print(f"  elsewhere {name}: finished in {there}, not run here (--skip-done-in)")
 
 
 def finished_runs(backend, path, what: str = "study folder") -> list:
