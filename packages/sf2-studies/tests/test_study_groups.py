@@ -233,7 +233,7 @@ def test_skip_done_in_another_folder(tmp_path, monkeypatch, capsys):
     assert out[0] == "  partial  A/td3/seeds-0-4" and not any("elsewhere" in line for line in out)
     assert {f: f.read_bytes() for f in own.path.rglob("*") if f.is_file()} == before
     for bad, match in ((tmp_path / "nowhere", "--skip-done-in .*nowhere: no such folder"),
-                       (second.path, "is the study folder being run")):
+                       (second.path, "is the study folder being run"), (tmp_path, "is not a study folder")):
         with pytest.raises(StudyError, match=match):
             commands._run(backend, argparse.Namespace(**{**vars(args), "skip_done_in": [str(bad)]}), "cmd")
 

@@ -257,7 +257,7 @@ def _done_elsewhere(study, folder, jobs, paths) -> dict:
     """Of the runs `jobs` that have not begun here, those a study folder of `paths` (--skip-done-in) holds
     finished with exactly their config (every field but `configs.EXECUTION_FIELDS`; a preset value it
     kept as superseded is another config) and seeds: {job name: that run folder}. Read only; a path that
-    is not a folder, or is the folder being run, is refused by name."""
+    is not a study folder, or is the folder being run, is refused by name."""
     from sf2_common.agents.configs import ADDED_FIELDS, EXECUTION_FIELDS
     from sf2_common.agents.runfolder import RunFolder, RunFolderError
 
@@ -272,6 +272,7 @@ def _done_elsewhere(study, folder, jobs, paths) -> dict:
         if other.path.resolve() == folder.path.resolve():
             raise StudyError(f"--skip-done-in {path} is the study folder being run (--out): its finished "
                              "runs are never run again anyway; give another folder")
+        other.load_study()     # a folder that is not a study folder is refused by name
         for job in jobs:
             if job.name in found or job.done_steps:
                 continue
