@@ -331,6 +331,8 @@ def test_a_folder_trained_with_a_superseded_preset_value_keeps_it(tmp_path, caps
     assert kept == before
     assert "adam_eps = 1e-05 (the preset now gives 1e-08)" in capsys.readouterr().err
     assert run.check_compatible(now.to_dict(), (0,)) is True    # a study's check of the folder passes too
+    with pytest.raises(RunFolderMismatch, match="adam_eps: 1e-05 .folder. vs 1e-08 .now."):   # not the same
+        run.check_compatible(now.to_dict(), (0,), exact=True)                            # config, exactly
     # any other value is another run, and so is TD3's ε in a TD3 folder changed by hand
     with pytest.raises(RunFolderMismatch, match="adam_eps: 1e-05 .folder. vs 0.001 .now."):
         run.check_compatible(now.replace(adam_eps=1e-3).to_dict(), (0,))

@@ -258,7 +258,6 @@ def _done_elsewhere(study, folder, jobs, paths) -> dict:
     finished with exactly their config (every field but `configs.EXECUTION_FIELDS`; a preset value it
     kept as superseded is another config) and seeds: {job name: that run folder}. Read only; a path that
     is not a study folder, or is the folder being run, is refused by name."""
-    from sf2_common.agents.configs import ADDED_FIELDS, EXECUTION_FIELDS
     from sf2_common.agents.runfolder import RunFolder, RunFolderError
 
     from .folder import StudyFolder
@@ -277,17 +276,11 @@ def _done_elsewhere(study, folder, jobs, paths) -> dict:
             if job.name in found or job.done_steps:
                 continue
             there = other.path_of(job.run)
-            try:
-                saved = RunFolder(there).read_config()
-            except RunFolderError:     # a damaged run there is no finished one: it runs here
+            try:       # another config or seeds, or a damaged run there, is no finished one: it runs here
+                same = RunFolder(there).check_compatible(job.run.config.to_dict(), job.run.seeds, exact=True)
+            except RunFolderError:
                 continue
-            if not isinstance(saved, dict) or not isinstance(saved.get("config"), dict):
-                continue
-            want = job.run.config.to_dict()
-            have = {**{k: v for k, v in ADDED_FIELDS.items() if k in want}, **saved["config"]}
-            same = all(have.get(k) == v for k, v in want.items() if k not in EXECUTION_FIELDS)
-            if same and list(saved.get("seeds", [])) == list(job.run.seeds) \
-                    and other.run_state(job.run, study).status == "done":
+            if same and other.run_state(job.run, study).status == "done":
                 found[job.name] = there
     return found
 

@@ -242,8 +242,9 @@ ADDED_FIELDS["flow_feature_norm"] = TrainConfig.flow_feature_norm
 ADDED_FIELDS["physics"] = "mjx"   # every run before the field trained on MJX (ant-goal's CRL runs too)
 ADDED_FIELDS["seed_loop"] = "vmap"   # every run before the field vmapped its seeds
 # CRL's values per preset (`--algo crl`, ant-goal; docs/crl.md): `paper` is JaxGCRL's CRL on `ant` (its
-# train.sh: 512 envs, 10M steps, 50 evaluations, the backward InfoNCE; its CRL defaults) with ζ for CRL+SF²
-# as wide as the encoders and φ's one Adam state for its InfoNCE and flow steps (SF²'s authors'; with a state
+# train.sh: 512 envs, 10M steps, 50 evaluations, the backward InfoNCE; its CRL defaults) with ζ as wide as
+# the encoders (CRL+SF²'s own, narrower: REPRESENTATION_VALUES) and φ's one Adam state for its InfoNCE and
+# flow steps (SF²'s authors'; with a state
 # of its own the flow's bootstrap term diverges on spring: docs/crl.md); `quick` shows the critic learning on
 # a CPU in about a minute
 CRL_VALUES = {
@@ -266,8 +267,8 @@ for _preset, _values in CRL_VALUES.items():   # FAMILY_VALUES[preset][field]["cr
 # Each preset's values of one (algo, representation), over the algo's: CRL+SF²'s flow is fed φ/‖φ‖ (fed φ
 # itself, its bootstrap term runs away late on spring: docs/decisions/crl-sf2-late-divergence.md), and in
 # `paper` its ζ is (128, 64), not as wide as CRL's encoders (docs/decisions/crl-sf2-zeta-width.md)
-REPRESENTATION_VALUES = {preset: {("crl", "sf2"): dict(flow_feature_norm="l2")} for preset in PRESETS}
-REPRESENTATION_VALUES["paper"][("crl", "sf2")]["zeta_hidden_sizes"] = (128, 64)
+REPRESENTATION_VALUES = {"paper": {("crl", "sf2"): dict(flow_feature_norm="l2", zeta_hidden_sizes=(128, 64))},
+                         "quick": {("crl", "sf2"): dict(flow_feature_norm="l2")}}
 
 
 # ------------------------------------------------------------------------------------------- presets

@@ -166,16 +166,17 @@ class RunFolder:
             raise RunFolderMismatch(f"run folder {self.path} holds a run of sf2-{framework_of(conf)}; use "
                                     f"another --out (or --fresh to overwrite it)")
 
-    def check_compatible(self, config: dict, seeds) -> bool:
+    def check_compatible(self, config: dict, seeds, exact: bool = False) -> bool:
         """True if the folder holds this run (resume), False if it holds none; raises what `preflight`
-        raises, or `RunFolderMismatch` naming the differing fields (`configs.EXECUTION_FIELDS` may differ)."""
+        raises, or `RunFolderMismatch` naming the differing fields (`configs.EXECUTION_FIELDS` may differ;
+        with `exact`, a superseded preset value the folder kept is a difference too)."""
         old = self.preflight()
         if old is None:
             return False
         # a field the folder's config predates has the value that run trained with (configs.ADDED_FIELDS);
         # a preset value that changed since the folder was written is the folder's (configs.SUPERSEDED)
         known = {**{k: v for k, v in ADDED_FIELDS.items() if k in config}, **old["config"]}
-        kept = superseded_values(known, config)
+        kept = {} if exact else superseded_values(known, config)
         diffs = [f"{k}: {known.get(k)!r} (folder) vs {v!r} (now)" for k, v in config.items()
                  if known.get(k) != v and k not in kept and k not in EXECUTION_FIELDS]
         diffs += [f"{k}: missing now" for k in old["config"] if k not in config]
