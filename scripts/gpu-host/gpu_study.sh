@@ -36,6 +36,17 @@ set -uo pipefail
 study=$1; limit=$2; shift 2
 results=${STUDY_RESULTS:-results/$(basename "$study" .toml)}
 name=$(basename "$results")
+# A lane's later study may be left too little of the command (`$(( $(left) - 30 ))` at or below zero made
+# `timeout` refuse it and tar find no folder): say so and start nothing; what an earlier command of the
+# held host left in /tmp/study-<name> stays there for the next
+if ! [[ "$limit" =~ ^-?[0-9]+$ ]]; then
+  echo "gpu_study.sh: SECONDS must be a whole number of seconds, not '$limit'" >&2
+  exit 2
+fi
+if [ "$limit" -lt 60 ]; then
+  echo "gpu_study.sh: $limit s left for $name: under 60 s, not started (nothing archived)"
+  exit 0
+fi
 folder=/tmp/study-$name
 source scripts/gpu-host/gpu_env.sh || exit 1
 # A new host starts from the runs this repository already holds (results/<name>), so finished runs are
