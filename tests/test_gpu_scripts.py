@@ -60,7 +60,7 @@ def test_the_archive_is_written_before_the_listing(tmp_path):
     name = f"archive-first-{tmp_path.name}"
     try:
         done = subprocess.run(
-            ["bash", "scripts/gpu-host/gpu_study.sh", "studies/any.toml", "120"], cwd=work,
+            ["bash", "scripts/gpu-host/gpu_study.sh", "studies/smoke.toml", "120"], cwd=work,
             env={"PATH": f"{bin_}:/usr/bin:/bin", "OUT": str(out), "NAME": name,
                  "STUDY_RESULTS": f"results/{name}"}, capture_output=True, text=True, timeout=60)
         assert done.returncode == 0, done.stderr
