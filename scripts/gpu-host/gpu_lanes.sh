@@ -8,7 +8,7 @@
 #
 #   bash scripts/gpu-host/gpu_lanes.sh SECONDS "0,1: bash scripts/gpu-host/gpu_study.sh studies/own-adam.toml \$(( \$(left) - 30 ))" \
 #                                              "2: bash scripts/gpu-host/gpu_study.sh studies/fpo-gate.toml \$(( \$(left) - 30 ))"
-# (30 s for gpu_study.sh's dry run and archive after its own limit, before the lane's stop)
+# (30 s for gpu_study.sh's archive, then its listing, after its own limit, before the lane's stop)
 # Wheels are installed once, before the lanes start (two lanes installing into /tmp/site at once would race).
 set -uo pipefail
 limit=$1; shift
