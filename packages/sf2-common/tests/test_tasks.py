@@ -5,12 +5,14 @@ on-policy `ppo`; a MinAtar task without pgx names the extra to install. Users' e
 and entry point: their kind and preset values, the checks of their observations and actions (fakes with
 Playground's conventions), `ObsKey`.
 
-Playground is not needed: its task list is replaced by a fixed one, or hidden to prove it is not read.
+Playground is not needed: its task list is replaced by a fixed one, or hidden to prove it is not read; the
+list's cache between processes reads a fake registry.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import subprocess
 import sys
 import types
@@ -318,3 +320,62 @@ def test_a_locomotion_task_whose_models_cannot_be_fetched_says_why(monkeypatch):
     with pytest.raises(subprocess.CalledProcessError):   # a DM Control task's failure is not about models
         tasks.load_env("CheetahRun")
     tasks.load_env.cache_clear()
+
+
+@pytest.fixture
+def registry_cache(monkeypatch, tmp_path):
+    """Playground's task names kept under tmp_path, its stamp fixed, and a fake registry to import."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.setattr(tasks, "_registry_stamp", lambda: "v1")
+    suites = {k.suite: types.SimpleNamespace(ALL_ENVS=()) for k in tasks.KINDS.values() if k.suite}
+    suites["dm_control_suite"] = types.SimpleNamespace(ALL_ENVS=("CheetahRun", "FishSwim"))
+    suites["locomotion"] = types.SimpleNamespace(ALL_ENVS=("Go1JoystickFlatTerrain",))
+    fake = types.ModuleType("mujoco_playground")
+    fake.registry = types.SimpleNamespace(**suites)
+    monkeypatch.setitem(sys.modules, "mujoco_playground", fake)
+    tasks.playground_tasks.cache_clear()
+    yield tmp_path / "sf2" / "playground-tasks.json"
+    tasks.playground_tasks.cache_clear()
+
+
+REGISTRY = {"CheetahRun": "playground", "FishSwim": "playground", "Go1JoystickFlatTerrain": "locomotion"}
+
+
+def test_playground_task_names_are_kept_and_read_back_without_the_registry(registry_cache, monkeypatch):
+    assert tasks.playground_tasks() == REGISTRY
+    assert json.loads(registry_cache.read_text()) == {"stamp": "v1", "tasks": REGISTRY}
+    monkeypatch.delitem(sys.modules, "mujoco_playground")
+    monkeypatch.setattr("builtins.__import__", _refuse_playground(__import__))
+    tasks.playground_tasks.cache_clear()
+    assert tasks.playground_tasks() == REGISTRY
+    assert list(tasks.playground_tasks()) == list(REGISTRY)   # the registries' order, for the error message
+
+
+def test_a_stale_or_damaged_cache_is_read_again_from_the_registry(registry_cache):
+    registry_cache.parent.mkdir(parents=True)
+    for kept in ({"stamp": "v0", "tasks": {"Gone": "playground"}}, "not json", {"stamp": "v1"}):
+        registry_cache.write_text(json.dumps(kept) if isinstance(kept, dict) else kept)
+        tasks.playground_tasks.cache_clear()
+        assert tasks.playground_tasks() == REGISTRY
+        assert json.loads(registry_cache.read_text()) == {"stamp": "v1", "tasks": REGISTRY}
+
+
+def test_an_unwritable_cache_still_lists_the_tasks(registry_cache, monkeypatch, tmp_path):
+    (tmp_path / "file").write_text("")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "file"))   # sf2/ cannot be made under a file
+    assert tasks.playground_tasks() == REGISTRY
+    assert not registry_cache.exists()
+
+
+def test_without_a_stamp_nothing_is_kept(registry_cache, monkeypatch):
+    monkeypatch.setattr(tasks, "_registry_stamp", lambda: None)
+    assert tasks.playground_tasks() == REGISTRY
+    assert not registry_cache.exists()
+
+
+def _refuse_playground(real):
+    def guarded(name, *args, **kwargs):
+        if name.startswith("mujoco_playground"):
+            raise AssertionError("Playground imported although its task names are kept")
+        return real(name, *args, **kwargs)
+    return guarded

@@ -2,9 +2,14 @@
 the agents reading 'state') through the CLI and the API with equal rows, to the toy's optimum; a Brax env
 is wrapped by Brax's wrappers; every Playground registry name is a task of its suite's kind whose preset
 values are Playground's env config (read without building the envs: locomotion and manipulation need
-Menagerie's assets)."""
+Menagerie's assets); the names, once listed, are read in another process without importing Playground."""
 
 from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -57,6 +62,25 @@ def test_every_playground_registry_name_is_a_task_with_playgrounds_env_config():
             assert paper.num_timesteps == tasks.paper_budget(task)
             if kind != "playground":
                 assert paper.num_timesteps == tasks.OFF_POLICY_BUDGET
+
+
+def test_playgrounds_task_names_are_read_back_in_another_process_without_importing_it(tmp_path, monkeypatch):
+    from mujoco_playground import registry
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    tasks.playground_tasks.cache_clear()
+    try:
+        listed = tasks.playground_tasks()
+    finally:
+        tasks.playground_tasks.cache_clear()
+    assert set(listed) == set(registry.ALL_ENVS)
+    assert (tmp_path / "sf2" / "playground-tasks.json").exists()
+    probe = ("import json, sys; from sf2_common.agents import tasks; listed = tasks.playground_tasks(); "
+             "print(json.dumps([list(listed.items()), 'mujoco_playground' in sys.modules]))")
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True,
+                          env={**os.environ, "XDG_CACHE_HOME": str(tmp_path)})
+    again, imported = json.loads(done.stdout)
+    assert [tuple(pair) for pair in again] == list(listed.items()) and not imported
 
 
 @pytest.mark.parametrize("task", ["Go1JoystickFlatTerrain", "PandaPickCube"])

@@ -17,6 +17,9 @@ import difflib
 import functools
 import importlib
 import importlib.util
+import json
+import os
+import pathlib
 import subprocess
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
@@ -145,12 +148,65 @@ _USER = (f"or your own environment: module:callable, or a name of the entry-poin
          f"(docs/agents.md)")
 
 
+def _registry_stamp() -> str | None:
+    """Playground's version, folder and its suites' modification times, read without importing it.
+
+    Returns:
+      A string that changes when Playground's task lists can have changed; None where Playground is not
+      installed or a suite's module is not where this version keeps it.
+    """
+    spec = importlib.util.find_spec("mujoco_playground")
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    root = pathlib.Path(next(iter(spec.submodule_search_locations)))
+    try:
+        times = [(root / "_src" / k.suite / "__init__.py").stat().st_mtime_ns
+                 for k in KINDS.values() if k.suite]
+        version = metadata.version("playground")
+    except (OSError, metadata.PackageNotFoundError):
+        return None
+    return f"{version} {root} {max(times)}"
+
+
+def _registry_cache() -> pathlib.Path:
+    """The file that keeps Playground's task names between processes ($XDG_CACHE_HOME or ~/.cache)."""
+    return pathlib.Path(os.environ.get("XDG_CACHE_HOME") or pathlib.Path.home() / ".cache") / "sf2" / \
+        "playground-tasks.json"
+
+
 @functools.lru_cache(maxsize=1)
 def playground_tasks() -> dict[str, str]:
-    """{name: kind} of every task in Playground's registries, e.g. 'CartpoleBalance': 'playground'."""
+    """{name: kind} of every task in Playground's registries, e.g. 'CartpoleBalance': 'playground'.
+
+    Importing Playground to read its registries takes seconds (its torch wrapper included), so the names
+    are kept in `_registry_cache()` under `_registry_stamp()` and read from there while the stamp holds.
+
+    Returns:
+      Every registered task's name and its key in `KINDS`.
+
+    Raises:
+      ImportError: Playground is not installed.
+    """
+    stamp, cache = _registry_stamp(), _registry_cache()
+    if stamp is not None:
+        try:
+            kept = json.loads(cache.read_text())
+            if kept["stamp"] == stamp:
+                return dict(kept["tasks"])
+        except (OSError, ValueError, KeyError, TypeError):
+            pass
     from mujoco_playground import registry
 
-    return {name: k.name for k in KINDS.values() if k.suite for name in getattr(registry, k.suite).ALL_ENVS}
+    found = {name: k.name for k in KINDS.values() if k.suite for name in getattr(registry, k.suite).ALL_ENVS}
+    if stamp is not None:
+        try:
+            cache.parent.mkdir(parents=True, exist_ok=True)
+            part = cache.with_name(f"{cache.name}.{os.getpid()}")
+            part.write_text(json.dumps({"stamp": stamp, "tasks": found}))
+            os.replace(part, cache)
+        except OSError:
+            pass
+    return found
 
 
 @functools.lru_cache(maxsize=1)
