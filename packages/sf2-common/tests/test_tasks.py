@@ -353,7 +353,9 @@ def test_playground_task_names_are_kept_and_read_back_without_the_registry(regis
 
 def test_a_stale_or_damaged_cache_is_read_again_from_the_registry(registry_cache):
     registry_cache.parent.mkdir(parents=True)
-    for kept in ({"stamp": "v0", "tasks": {"Gone": "playground"}}, "not json", {"stamp": "v1"}):
+    for kept in ({"stamp": "v0", "tasks": {"Gone": "playground"}}, "not json", {"stamp": "v1"},
+                 {"stamp": "v1", "tasks": {"CheetahRun": "a kind sf2 no longer has"}},
+                 {"stamp": "v1", "tasks": 3}):
         registry_cache.write_text(json.dumps(kept) if isinstance(kept, dict) else kept)
         tasks.playground_tasks.cache_clear()
         assert tasks.playground_tasks() == REGISTRY

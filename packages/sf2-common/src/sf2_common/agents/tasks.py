@@ -13,6 +13,7 @@ Playground nor pgx is imported to validate a MinAtar task.
 
 from __future__ import annotations
 
+import contextlib
 import difflib
 import functools
 import importlib
@@ -149,11 +150,12 @@ _USER = (f"or your own environment: module:callable, or a name of the entry-poin
 
 
 def _registry_stamp() -> str | None:
-    """Playground's version, folder and its suites' modification times, read without importing it.
+    """Playground's version, folder and its suites' modification times, and `KINDS`'s suites, read without
+    importing Playground.
 
     Returns:
-      A string that changes when Playground's task lists can have changed; None where Playground is not
-      installed or a suite's module is not where this version keeps it.
+      A string that changes when the task lists or the kinds they map to can have changed; None where
+      Playground is not installed or a suite's module is not where this version keeps it.
     """
     spec = importlib.util.find_spec("mujoco_playground")
     if spec is None or not spec.submodule_search_locations:
@@ -165,7 +167,8 @@ def _registry_stamp() -> str | None:
         version = metadata.version("playground")
     except (OSError, metadata.PackageNotFoundError):
         return None
-    return f"{version} {root} {max(times)}"
+    kinds = ",".join(f"{k.name}={k.suite}" for k in KINDS.values() if k.suite)
+    return f"{version} {root} {max(times)} {kinds}"
 
 
 def _registry_cache() -> pathlib.Path:
@@ -191,21 +194,23 @@ def playground_tasks() -> dict[str, str]:
     if stamp is not None:
         try:
             kept = json.loads(cache.read_text())
-            if kept["stamp"] == stamp:
-                return dict(kept["tasks"])
+            listed = dict(kept["tasks"])
+            if kept["stamp"] == stamp and set(listed.values()) <= set(KINDS):
+                return listed
         except (OSError, ValueError, KeyError, TypeError):
             pass
     from mujoco_playground import registry
 
     found = {name: k.name for k in KINDS.values() if k.suite for name in getattr(registry, k.suite).ALL_ENVS}
     if stamp is not None:
+        part = cache.with_name(f"{cache.name}.{os.getpid()}")
         try:
             cache.parent.mkdir(parents=True, exist_ok=True)
-            part = cache.with_name(f"{cache.name}.{os.getpid()}")
             part.write_text(json.dumps({"stamp": stamp, "tasks": found}))
-            os.replace(part, cache)
+            os.replace(part, cache)   # whole or not at all, for processes reading it at the same time
         except OSError:
-            pass
+            with contextlib.suppress(OSError):
+                part.unlink(missing_ok=True)
     return found
 
 
