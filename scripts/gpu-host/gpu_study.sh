@@ -77,7 +77,7 @@ timeout --signal=TERM "$limit" python3 -m sf2_jax.cli study run "$study" --out "
 rc=$?
 echo "study run exit status $rc after $(( $(date +%s) - start )) s"
 # The archive first, then the listing of what is left: a lane stopped during the listing (fig7-sac's takes
-# over 30 s to import and forecast) still brings back every run that finished
+# seconds to check its tasks and forecast) still brings back every run that finished
 mkdir -p "$OUT"
 tar czf "$OUT/$name.tar.gz" -C "$folder" --exclude='checkpoints' --exclude='final' --exclude='damaged' \
   --exclude='*.npz' --exclude='.study-lock' --exclude='.sf2-lock' .
