@@ -27,6 +27,7 @@ from dataclasses import dataclass, replace
 from importlib import metadata
 
 from sf2_common.errors import ConfigError
+from sf2_common.fileio import atomic_write
 
 __all__ = [
     "PAPER_TASKS", "PAPER_BUDGETS", "PAPER_ACTION_REPEAT", "valid_tasks", "validate_task",
@@ -203,14 +204,8 @@ def playground_tasks() -> dict[str, str]:
 
     found = {name: k.name for k in KINDS.values() if k.suite for name in getattr(registry, k.suite).ALL_ENVS}
     if stamp is not None:
-        part = cache.with_name(f"{cache.name}.{os.getpid()}")
-        try:
-            cache.parent.mkdir(parents=True, exist_ok=True)
-            part.write_text(json.dumps({"stamp": stamp, "tasks": found}))
-            os.replace(part, cache)   # whole or not at all, for processes reading it at the same time
-        except OSError:
-            with contextlib.suppress(OSError):
-                part.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):   # an unwritable cache folder: the names are read again next time
+            atomic_write(cache, json.dumps({"stamp": stamp, "tasks": found}))
     return found
 
 
