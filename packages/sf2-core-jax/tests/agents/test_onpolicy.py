@@ -1,10 +1,10 @@
 """The on-policy trainer (`--algo ppo` on MinAtar Breakout; small sizes, CPU): each representation learns
-above the random policy; the same seeds give the same rows; vmapped seeds equal seeds one by one and
-seeds in turn (`seed_loop = "map"`, also resuming a vmapped run); kill-and-resume equals the
-uninterrupted run; the NaN guard; `sf2-jax train` and `eval` (also under observation noise) through the CLI;
-bad input refused before compiling (exit status 2). The mechanics run one tiny SF² w AE config (it has
-every part: the critic on ψ, the flow and autoencoder losses, ψ's two Adam states, the targets), compiled
-once per seed count for the whole module."""
+above the random policy; the same seeds give the same rows; vmapped seeds equal seeds one by one and seeds
+in turn (`seed_loop = "map"`, also resuming a vmapped run; evaluation vmapped under both); kill-and-resume
+equals the uninterrupted run; the NaN guard; `sf2-jax train` and `eval` (also under observation noise)
+through the CLI; bad input refused before compiling (exit status 2). The mechanics run one tiny SF² w AE
+config (it has every part: the critic on ψ, the flow and autoencoder losses, ψ's two Adam states, the
+targets), compiled once per seed count for the whole module."""
 
 from __future__ import annotations
 
@@ -154,6 +154,27 @@ def test_a_vmapped_run_resumes_by_lax_map(both, tiny, tmp_path):
     assert json.loads(resumed.run.config_path.read_text())["config"]["seed_loop"] == "vmap"
     assert "resumes with seed_loop = 'map'; it started with 'vmap'" in resumed.run.log_path.read_text()
     _assert_close_rows(strip_wall(resumed.run.read_rows()), strip_wall(both.rows))
+
+
+def test_evaluation_vmaps_the_seeds_under_either_seed_loop(tiny):
+    """Evaluation runs the policy alone on `num_eval_envs` envs a seed, which in turn would be latency-bound:
+    under `seed_loop = "map"` its program is the vmapped one (the same jaxpr), while the epoch's is not (the
+    seeds in turn, a `lax.map`); both programs return the same evaluation."""
+    vmapped, mapped = onpolicy.Program(tiny), onpolicy.Program(tiny.replace(seed_loop="map"))
+    seeds = (0, 1)
+    state = vmapped.init(seeds)
+    params = {g: state.params[g] for g in vmapped.acting}
+    keys = trainer.eval_keys(seeds, 1)
+
+    def jaxpr(program, name, *args, static=()):
+        return str(jax.make_jaxpr(program._program(name, len(seeds), *static))(*args))
+
+    static = (tiny.num_eval_envs, 0.0, tiny.deterministic_eval)
+    assert jaxpr(mapped, "evaluate", params, keys, static=static) == jaxpr(
+        vmapped, "evaluate", params, keys, static=static)
+    assert jaxpr(mapped, "epoch", state) != jaxpr(vmapped, "epoch", state)
+    np.testing.assert_array_equal(mapped.evaluate(state.params, seeds, 1),
+                                  vmapped.evaluate(state.params, seeds, 1))
 
 
 @pytest.mark.parametrize("n_seeds", [1, 3])

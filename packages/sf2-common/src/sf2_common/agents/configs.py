@@ -33,7 +33,8 @@ CRITICS = ("q", "v")        # PPO's critic: Q(s, a) with λ-returns (PPO-Q), or 
 # `physics`: the simulator pipeline; "spring" (Brax's, JaxGCRL's for `ant`) only for ant-goal (docs/crl.md)
 PHYSICS = ("mjx", "spring")
 # `seed_loop`: how the on-policy trainer's program runs the seeds, batched by `jax.vmap` or one after another
-# by `jax.lax.map` (sf2_jax.agents.trainer._seed_map); the other trainers (and torch's) always vmap
+# by `jax.lax.map` (sf2_jax.agents.trainer._seed_map); its evaluation and the other trainers (and torch's)
+# always vmap
 SEED_LOOPS = ("vmap", "map")
 # Fields that set how a run's program executes, not what it computes (the same numbers up to float rounding,
 # tested): a run folder resumes under either value and keeps the one it started with in its config.json

@@ -1,17 +1,17 @@
-"""The on-policy trainer: PPO on MinAtar (`--algo ppo`, docs/minatar.md) and FPO on Playground (`--algo
-fpo`, docs/fpo.md), each with a Q(s, a) or V critic, and SF²; the policy is a plug-in (`policies_onpolicy`).
+"""The on-policy trainer: PPO on MinAtar (`--algo ppo`, docs/minatar.md) and FPO on Playground (`--algo fpo`,
+docs/fpo.md), each with a Q(s, a) or V critic, and SF²; the policy is a plug-in (`policies_onpolicy`).
 
 PureJaxRL's pattern. An update acts `rollout_length` steps in every env (a `lax.scan` over the batched
 `minatar` or `playground_onpolicy` env), computes λ-returns (critic "q") or GAE (critic "v") and trains
-`update_epochs` passes of minibatches; an epoch, the updates between two evaluations, is one `lax.scan`
-of updates: one compiled program over the seeds (vmapped, or with `seed_loop = "map"` one seed after
-another), its state donated, no host sync inside. One SGD step takes the critic's loss, the
-representation's own losses (`representations_onpolicy`), the policy's loss, then the targets' EMA; each
-loss's gradient is clipped to `max_grad_norm` (global norm over the groups it trains), each group has its
-own Adam state (ψ's flow step a second one unless `shared_adam`); with `shared_torso` (pgx's one network)
-the critic's and policy's losses are one loss and one step. An evaluation runs the policy for one episode
-on `num_eval_envs` fresh envs per seed, at most `episode_length` steps. Run folders, resume, the NaN guard
-and the rows are the off-policy trainer's (`trainer.run_training`, `sf2_common.agents.hostloop`).
+`update_epochs` passes of minibatches; an epoch, the updates between two evaluations, is one `lax.scan` of
+updates: one compiled program over the seeds (vmapped, or with `seed_loop = "map"` one seed after another;
+evaluation always vmapped, the policy alone), its state donated, no host sync inside. One SGD step takes the
+critic's loss, the representation's own losses (`representations_onpolicy`), the policy's loss, then the
+targets' EMA; each loss's gradient is clipped to `max_grad_norm` (global norm over the groups it trains), each
+group has its own Adam state (ψ's flow step a second one unless `shared_adam`); with `shared_torso` (pgx's one
+network) the critic's and policy's losses are one loss and one step. An evaluation runs the policy for one
+episode on `num_eval_envs` fresh envs per seed, at most `episode_length` steps. Run folders, resume, the NaN
+guard and the rows are the off-policy trainer's (`trainer.run_training`, `sf2_common.agents.hostloop`).
 """
 
 from __future__ import annotations
@@ -143,7 +143,10 @@ class Program(SingleDeviceProgram):
         if key not in self._programs:
             fn, in_axes = {"init": (self._init_one, (0,)), "epoch": (self._epoch_one, (0,)),
                            "evaluate": (functools.partial(self._eval_one, *static), (0, 0))}[name]
-            self._programs[key] = jax.jit(_seed_map(fn, in_axes, n_seeds, self.cfg.seed_loop),
+            # evaluation runs the policy alone, whose small batch (num_eval_envs) a map of seeds in turn
+            # would leave latency-bound: it vmaps the seeds under either `seed_loop`
+            loop = "vmap" if name == "evaluate" else self.cfg.seed_loop
+            self._programs[key] = jax.jit(_seed_map(fn, in_axes, n_seeds, loop),
                                           donate_argnums=(0,) if name == "epoch" else ())
         return self._programs[key]
 
