@@ -49,7 +49,7 @@ def cfg(tiny_cfg):
 def plain(cfg, tmp_path_factory):
     """The run with the per-epoch evaluation (a session without `evaluate_many`)."""
     with pytest.MonkeyPatch.context() as mp:
-        mp.delattr(trainer._Session, "evaluate_many")
+        mp.delattr(trainer.BatchedSeedsSession, "evaluate_many")
         return train(cfg, (0, 1), tmp_path_factory.mktemp("plain"), progress=False)
 
 

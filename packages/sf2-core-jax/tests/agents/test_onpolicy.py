@@ -1,6 +1,7 @@
 """The on-policy trainer (`--algo ppo` on MinAtar Breakout; small sizes, CPU): each representation learns
 above the random policy; the same seeds give the same rows; vmapped seeds equal seeds one by one and seeds
-in turn (`seed_loop = "map"`, also resuming a vmapped run; evaluation vmapped under both); kill-and-resume
+in turn (`seed_loop = "map"`, also resuming a vmapped run; evaluation vmapped under both); evaluations
+batched between checkpoints equal those of each epoch alone; kill-and-resume
 equals the uninterrupted run; the NaN guard; `sf2-jax train` and `eval` (also under observation noise)
 through the CLI; bad input refused before compiling (exit status 2). The mechanics run one tiny SF² w AE
 config (it has every part: the critic on ψ, the flow and autoencoder losses, ψ's two Adam states, the
@@ -175,6 +176,39 @@ def test_evaluation_vmaps_the_seeds_under_either_seed_loop(tiny):
     assert jaxpr(mapped, "epoch", state) != jaxpr(vmapped, "epoch", state)
     np.testing.assert_array_equal(mapped.evaluate(state.params, seeds, 1),
                                   vmapped.evaluate(state.params, seeds, 1))
+
+
+def test_evaluate_many_equals_evaluate_of_each(tiny):
+    """`Program.evaluate_many` (the host loop's between checkpoints when `checkpoint_every` > 1) against the
+    plain `evaluate` it replaces: three policies (scaled parameters) at three epochs in one program give each
+    policy's `evaluate` at its epoch, up to float32 rounding (vmapping over the epochs adds a batch axis to
+    the policy's products); the policies, and one policy's evaluations at two epochs, really differ
+    (actions sampled, `deterministic_eval` off; 16 envs of 200 steps)."""
+    cfg = tiny.replace(deterministic_eval=False, num_eval_envs=16, episode_length=200)
+    program, seeds, epochs = onpolicy.Program(cfg), (0, 1), [4, 5, 6]
+    acting = {g: program.init(seeds).params[g] for g in program.acting}
+    policies = [jax.tree_util.tree_map(lambda x, s=s: x * s, acting) for s in (1.0, 4.0, 16.0)]
+    stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *policies)
+    many = np.asarray(program.evaluate_many(stacked, seeds, epochs))
+    one = np.stack([np.asarray(program.evaluate(p, seeds, e)) for p, e in zip(policies, epochs)])
+    other_keys = np.asarray(program.evaluate(policies[0], seeds, epochs[1]))
+    assert many.shape == (3, 2, 16)
+    np.testing.assert_allclose(many, one, rtol=1e-5, atol=1e-6)
+    assert not np.array_equal(one[0], one[2]) and not np.array_equal(one[0], other_keys)
+
+
+def test_batched_evaluation_writes_the_per_epoch_rows(both, tiny, tmp_path):
+    """With `checkpoint_every = 2` the host loop evaluates epochs 1-2 in one program before checkpoint 2 and
+    epoch 3 alone (padded to two epochs: the program compiles once) before the last: the per-epoch
+    evaluation's rows (`both`), up to float32 rounding (`_assert_close_rows`), and the same final state
+    (resuming between checkpoints is the host loop's, shared with the off-policy trainer's tests)."""
+    assert tiny.checkpoint_every == 1   # `both` evaluates each epoch on its own
+    cfg = tiny.replace(checkpoint_every=2)
+    batched = train(cfg, (0, 1), tmp_path / "batched", progress=False)
+    _assert_close_rows(strip_wall(batched.rows), strip_wall(both.rows))
+    _assert_same(batched.state, both.state)
+    key = ("evaluate_many", cfg.num_eval_envs, 0.0, cfg.deterministic_eval)
+    assert onpolicy.get_program(cfg)._programs[key]._cache_size() == 1
 
 
 @pytest.mark.parametrize("n_seeds", [1, 3])

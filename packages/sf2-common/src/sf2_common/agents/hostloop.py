@@ -1,7 +1,7 @@
 """The host loop of both trainers: `run_epochs` drives a framework's `Session` through the schedule in one
 order (train → NaN guard → evaluate → rows → checkpoint) and writes the same rows, curve and progress bar
-for both. A `BatchedEvaluation` session (JAX) evaluates the epochs between two checkpoints in one program,
-each from its own parameters and keys (docs/decisions/batched-evaluation.md)."""
+for both. A `BatchedEvaluation` session (JAX's off- and on-policy trainers) evaluates the epochs between two
+checkpoints in one program, each from its own parameters and keys (docs/decisions/batched-evaluation.md)."""
 
 from __future__ import annotations
 

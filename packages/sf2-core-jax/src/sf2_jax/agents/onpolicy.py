@@ -10,9 +10,8 @@ critic's loss, the representation's own losses (`representations_onpolicy`), the
 targets' EMA; each loss's gradient is clipped to `max_grad_norm` (global norm over the groups it trains), each
 group has its own Adam state (ψ's flow step a second one unless `shared_adam`); with `shared_torso` (pgx's one
 network) the critic's and policy's losses are one loss and one step. An evaluation runs the policy for one
-episode on `num_eval_envs` fresh envs per seed, at most `episode_length` steps. Run folders, resume, the NaN
-guard and the rows are the off-policy trainer's (`trainer.run_training`, `sf2_common.agents.hostloop`).
-"""
+episode on `num_eval_envs` fresh envs per seed, at most `episode_length` steps; run folders, resume, the
+NaN guard, the rows and the evaluations batched between checkpoints are the off-policy trainer's."""
 
 from __future__ import annotations
 
@@ -42,7 +41,7 @@ from .configs import validate
 from .policies_onpolicy import CategoricalPolicy, FlowPolicy
 from .representations_onpolicy import REGISTRY, OnPolicyBatch, build
 from .trainer import (  # _seed_map: one seed runs unvmapped
-    SeedsSession,
+    BatchedSeedsSession,
     SingleDeviceProgram,
     TrainingDiverged,
     TrainResult,
@@ -166,6 +165,19 @@ class Program(SingleDeviceProgram):
         with self.precision():
             program = self._program("evaluate", len(seeds), n, float(obs_noise), self.cfg.deterministic_eval)
             return program({g: params[g] for g in self.acting}, eval_keys(seeds, epoch))
+
+    def evaluate_many(self, params, seeds, epochs) -> jax.Array:
+        """Episode returns (len(epochs), n_seeds, num_eval_envs): `evaluate` of each epoch's policy (`params`:
+        its `acting` groups, leaves stacked (len(epochs), n_seeds, ...)) with that epoch's keys, in one
+        program vmapped over the epochs (sf2_common.agents.hostloop.BatchedEvaluation says why)."""
+        static = (self.cfg.num_eval_envs, 0.0, self.cfg.deterministic_eval)
+        key = ("evaluate_many", *static)
+        if key not in self._programs:
+            per_seed = jax.vmap(functools.partial(self._eval_one, *static))
+            self._programs[key] = jax.jit(jax.vmap(per_seed))
+        keys = jnp.stack([eval_keys(seeds, e) for e in epochs])
+        with self.precision():
+            return self._programs[key]({g: params[g] for g in self.acting}, keys)
 
     # ------------------------------------------------------------------ per-seed pieces (vmapped)
     def _init_one(self, key) -> OnPolicyState:
@@ -454,11 +466,18 @@ def train(cfg: TrainConfig, seeds, out, *, resume: bool = True, fresh: bool = Fa
                         stop_after_epoch=stop_after_epoch, plot=plot, log=log)
 
 
-class _Session(SeedsSession):
-    """The `sf2_common.agents.hostloop.Session` of one run: the vmapped state of all seeds."""
+class _Session(BatchedSeedsSession):
+    """The `sf2_common.agents.hostloop.Session` of one run: the vmapped state of all seeds, evaluated in
+    batches between checkpoints when `checkpoint_every` > 1."""
 
     def evaluate(self, epoch: int) -> np.ndarray:
         return np.asarray(self.program.evaluate(self.state.params, self.seeds, epoch))
+
+    def acting(self):
+        return {g: self.state.params[g] for g in self.program.acting}
+
+    def evaluate_stacked(self, params, epochs: list[int]) -> jax.Array:
+        return self.program.evaluate_many(params, self.seeds, epochs)
 
 
 def _restore_acting(ckpt: Checkpointer, job: CheckpointJob):

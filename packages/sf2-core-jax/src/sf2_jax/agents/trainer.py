@@ -51,7 +51,7 @@ ACTOR_PHASES = ("explore", "env_step", "observe", "sample", "step_noise", "retur
 __all__ = ["TrainState", "Program", "get_program", "episode_returns", "TrainingDiverged", "TrainResult",
            "train", "evaluate_checkpoint", "evaluate_checkpoint_noises", "seed_keys", "eval_keys",
            "acting_params", "flatten_params", "device_note", "EVAL_STREAM", "WALL_FIELDS", "run_training",
-           "SingleDeviceProgram", "SeedsSession"]
+           "SingleDeviceProgram", "SeedsSession", "BatchedSeedsSession"]
 
 EVAL_STREAM = 0x5EED  # eval keys: fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), epoch)
 # WALL_FIELDS, TrainingDiverged and the host loop's framework-free helpers (rows, the NaN guard's
@@ -569,19 +569,18 @@ class SeedsSession:
         _write_final(self.run, self.state, self.seeds)
 
 
-class _Session(SeedsSession):
-    """The off-policy trainer's session: `SeedsSession` with its batched evaluation."""
+class BatchedSeedsSession(SeedsSession):
+    """`SeedsSession` with the host loop's batched evaluation (`hostloop.BatchedEvaluation`). A subclass
+    defines `acting()` (the policy's parameters in the state now) and `evaluate_stacked(params, epochs)` (its
+    program's `evaluate_many`)."""
 
-    def __init__(self, program: Program, ckpt: Checkpointer, run: RunFolder, seeds, state):
+    def __init__(self, program, ckpt: Checkpointer, run: RunFolder, seeds, state):
         super().__init__(program, ckpt, run, seeds, state)
         self.snapshots: dict[int, dict] = {}   # epoch -> a copy of its acting params (`snapshot`)
 
-    def evaluate(self, epoch: int) -> np.ndarray:
-        return np.asarray(self.program.evaluate(self.state.params, self.state.eval_start, self.seeds, epoch))
-
     def snapshot(self, epoch: int) -> None:
         # a copy: the next epoch's program donates (overwrites) the state's buffers
-        self.snapshots[epoch] = jax.tree_util.tree_map(jnp.copy, acting_params(self.state.params))
+        self.snapshots[epoch] = jax.tree_util.tree_map(jnp.copy, self.acting())
 
     def evaluate_many(self, epochs: list[int]) -> np.ndarray:
         # One batch shape per run: a shorter batch (the schedule's last, a stop) is padded with its last
@@ -591,8 +590,20 @@ class _Session(SeedsSession):
         snaps = [self.snapshots.pop(e) for e in epochs]
         params = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *snaps, *[snaps[-1]] * pad)
         padded = epochs + [epochs[-1]] * pad
-        returns = self.program.evaluate_many(params, self.state.eval_start, self.seeds, padded)
-        return np.asarray(returns)[: len(epochs)]
+        return np.asarray(self.evaluate_stacked(params, padded))[: len(epochs)]
+
+
+class _Session(BatchedSeedsSession):
+    """The off-policy trainer's session: `SeedsSession` with its batched evaluation."""
+
+    def evaluate(self, epoch: int) -> np.ndarray:
+        return np.asarray(self.program.evaluate(self.state.params, self.state.eval_start, self.seeds, epoch))
+
+    def acting(self):
+        return acting_params(self.state.params)
+
+    def evaluate_stacked(self, params, epochs: list[int]) -> jax.Array:
+        return self.program.evaluate_many(params, self.state.eval_start, self.seeds, epochs)
 
 
 class SingleDeviceProgram:
