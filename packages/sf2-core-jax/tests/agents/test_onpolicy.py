@@ -3,9 +3,9 @@ above the random policy; the same seeds give the same rows; vmapped seeds equal 
 in turn (`seed_loop = "map"`, also resuming a vmapped run; evaluation vmapped under both); evaluations
 batched between checkpoints equal those of each epoch alone; kill-and-resume equals the uninterrupted run;
 the NaN guard; `sf2-jax train` and `eval` (also under observation noise) through the CLI; bad input refused
-before compiling (exit status 2). The mechanics run one tiny SF² w AE
-config (it has every part: the critic on ψ, the flow and autoencoder losses, ψ's two Adam states, the
-targets), compiled once per seed count for the whole module."""
+before compiling (exit status 2). The mechanics run one tiny SF² w AE config (it has every part: the critic
+on ψ, the flow and autoencoder losses, ψ's two Adam states, the targets), compiled once per seed count for
+the whole module."""
 
 from __future__ import annotations
 
