@@ -202,6 +202,28 @@ def test_a_deadline_counts_a_checkpoints_background_write(tmp_path, clock, sessi
     assert [x for x in session.log if x.startswith("save")] == ["save 0", "save 2", "save 3"]
 
 
+@pytest.mark.parametrize("session_type", [_PerEpoch, _Batched])
+def test_a_resumed_run_prices_its_first_evaluation_from_its_rows(tmp_path, clock, session_type):
+    """A run stopped at checkpoint 1 (its rows: epoch 0's evaluation 1 s, epoch 1's 1 s per epoch, or 1.5 s
+    batched) resumes at t = 200 with the deadline at 205. Epoch 2 ends at 202: its checkpoint's evaluation
+    priced at 0 s (nothing run in this process yet) would put the next checkpoint by 202 + 2 = 204, before
+    205, and leave epochs 2 and 3 to a kill at 205 (epoch 3 trains until 205 or later); priced from the rows
+    it would come by 202 + 2 + 2·1 = 206 (207 batched), after 205, so epoch 2 is checkpointed."""
+    run, first = RunFolder(tmp_path / "run"), session_type(clock)
+    _loop(first, run, stop_after_epoch=1, checkpoint_every=100)
+    assert first.log[-1] == "save 1"
+    clock.now = 200.0
+    again = session_type(clock)
+    again.policy = 1
+    _loop(again, run, 1, checkpoint_every=100, deadline=205.0)
+    assert [x for x in again.log if x.startswith("save")] == ["save 2", "save 3"]
+    rows = [{"epoch": 0, "eval_seconds": 9.0}, {"epoch": 1, "eval_seconds": 2.0},
+            {"epoch": 2, "eval_seconds": 0.5}, {"epoch": 2}]
+    assert hostloop._resumed_eval_seconds(rows) == 2.0        # the largest after epoch 0
+    assert hostloop._resumed_eval_seconds(rows[:1]) == 9.0    # epoch 0's where no later one has it
+    assert hostloop._resumed_eval_seconds([]) == 0.0
+
+
 def test_a_malformed_deadline_is_refused_naming_the_variable(monkeypatch):
     monkeypatch.setenv(hostloop.DEADLINE_VARIABLE, "soon")
     with pytest.raises(ConfigError, match="SF2_DEADLINE='soon' is invalid: must be a Unix time"):

@@ -278,7 +278,8 @@ def run_epochs(session: Session, *, cfg, sched, seeds, run, title: str, rows: li
     checkpoint) and `walltime` (spent so far) come from a resume; library logs go to train.log
     (`runlog`), and every row to the sinks `log` names (`loggers`) as `hook("rows")` begins. `deadline`
     (Unix seconds; default `SF2_DEADLINE`'s): an epoch is also checkpointed when the next checkpoint would
-    come after it (`checkpoint_now`), so a kill at the deadline loses no trained epoch. Returns all rows."""
+    come after it (`checkpoint_now`; a resumed process prices its evaluation from the run's rows until it
+    has run one), so a kill at the deadline loses no trained epoch. Returns all rows."""
     deadline = deadline_from_environment() if deadline is None else deadline
     t_start = time.time() - walltime
     with library_log(run), Sinks(log, run, seeds, cfg, rows) as sinks:
@@ -295,6 +296,8 @@ def _run_epochs(session, bar, t_start, *, cfg, sched, seeds, run, title, rows, s
                 stop_after_epoch, plot, deadline) -> list[dict]:
     """The body of `run_epochs` (its docstring)."""
     cost = {"eval": 0.0, "save": 0.0}   # wall seconds of the last evaluation (per epoch) and checkpoint
+    if start > 0:   # a resume: nothing measured in this process yet
+        cost["eval"] = _resumed_eval_seconds(rows)
     if start == 0:  # evaluate the initial policy, checkpoint 0
         session.start()
         call_hook(hook, "evaluate", 0)
@@ -366,6 +369,24 @@ def _run_epochs(session, bar, t_start, *, cfg, sched, seeds, run, title, rows, s
         if plot:
             write_curve(rows, run, title)
     return rows
+
+
+def _resumed_eval_seconds(rows: list[dict]) -> float:
+    """What a resumed process prices an epoch's evaluation at until it has run one (`checkpoint_now`).
+
+    A resumed process compiles its evaluation again, so the price is the largest `eval_seconds` the run's
+    rows hold after epoch 0 (a batch's share included its compilation), or epoch 0's where no later row has
+    one: dearer than the evaluations that follow, which can only checkpoint early, never too late.
+
+    Args:
+      rows: the rows a resume keeps (up to its checkpoint).
+
+    Returns:
+      Wall seconds per epoch; 0.0 where no row has `eval_seconds`.
+    """
+    timed = [(r.get("epoch", 0) > 0, r["eval_seconds"]) for r in rows if r.get("eval_seconds") is not None]
+    later = [s for after, s in timed if after]
+    return float(max(later or [s for _, s in timed] or [0.0]))
 
 
 def _evaluate(session, done, batched: bool, *, seeds, sched, run, rows, t_start, hook) -> np.ndarray:
