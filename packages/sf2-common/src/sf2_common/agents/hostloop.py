@@ -376,7 +376,8 @@ def _resumed_eval_seconds(rows: list[dict]) -> float:
 
     A resumed process compiles its evaluation again, so the price is the largest `eval_seconds` the run's
     rows hold after epoch 0 (a batch's share included its compilation), or epoch 0's where no later row has
-    one: dearer than the evaluations that follow, which can only checkpoint early, never too late.
+    one: dearer than the evaluations that follow, so its error checkpoints early (the save's price stays 0
+    until one is measured: no row records it).
 
     Args:
       rows: the rows a resume keeps (up to its checkpoint).
@@ -384,9 +385,9 @@ def _resumed_eval_seconds(rows: list[dict]) -> float:
     Returns:
       Wall seconds per epoch; 0.0 where no row has `eval_seconds`.
     """
-    timed = [(r.get("epoch", 0) > 0, r["eval_seconds"]) for r in rows if r.get("eval_seconds") is not None]
-    later = [s for after, s in timed if after]
-    return float(max(later or [s for _, s in timed] or [0.0]))
+    timed = [r for r in rows if r.get("eval_seconds") is not None]
+    later = [r["eval_seconds"] for r in timed if r.get("epoch", 0) > 0]
+    return float(max(later or [r["eval_seconds"] for r in timed] or [0.0]))
 
 
 def _evaluate(session, done, batched: bool, *, seeds, sched, run, rows, t_start, hook) -> np.ndarray:
