@@ -76,7 +76,7 @@ def clock(monkeypatch):
     return clock
 
 
-def _loop(session, run, last=None, checkpoint_every=2, **kw):
+def _loop(session, run, last=None, checkpoint_every=2, plot=False, **kw):
     """3 epochs of 32 env steps; checkpoints at 0, every `checkpoint_every` epochs and the last."""
     cfg = configs.TrainConfig(num_timesteps=96, num_envs=4, num_evals=4, min_replay_size=4,
                               checkpoint_every=checkpoint_every)
@@ -84,7 +84,7 @@ def _loop(session, run, last=None, checkpoint_every=2, **kw):
     walltime = max((r.get("walltime", 0.0) for r in rows), default=0.0)
     return hostloop.run_epochs(session, cfg=cfg, sched=configs.schedule(cfg), seeds=(3, 4), run=run,
                                title="t", rows=rows, start=0 if last is None else last + 1, last=last,
-                               walltime=walltime, progress=False, plot=False, **kw)
+                               walltime=walltime, progress=False, plot=plot, **kw)
 
 
 def _strip(rows):
@@ -230,3 +230,19 @@ def test_a_malformed_deadline_is_refused_naming_the_variable(monkeypatch):
         hostloop.deadline_from_environment()
     monkeypatch.setenv(hostloop.DEADLINE_VARIABLE, " ")
     assert hostloop.deadline_from_environment() is None
+
+
+@pytest.mark.parametrize("session_type", [_PerEpoch, _Batched])
+def test_the_curve_is_drawn_after_each_checkpoints_rows_and_never_twice(tmp_path, clock, monkeypatch,
+                                                                        session_type):
+    """Checkpoints at 0, 2 and 3 (two rows, one per seed, an epoch): the per-epoch loop draws after epochs
+    1, 2 and 3's rows, the batched one after 2 and 3's; the last holds every row and is not drawn again at
+    the end. A rerun of a finished run trains nothing and draws its curve once."""
+    drawn = []
+    monkeypatch.setattr(hostloop, "write_curve", lambda rows, run, title: drawn.append(len(rows)))
+    run = RunFolder(tmp_path / "run")
+    _loop(session_type(clock), run, plot=True)
+    assert drawn == ([4, 6, 8] if session_type is _PerEpoch else [6, 8])
+    drawn.clear()
+    assert len(_loop(session_type(clock), run, last=3, plot=True)) == 8
+    assert drawn == [8]

@@ -320,6 +320,7 @@ def _run_epochs(session, bar, t_start, *, cfg, sched, seeds, run, title, rows, s
     batched = cfg.checkpoint_every > 1 and hasattr(session, "evaluate_many")
     pending = []    # trained epochs not yet evaluated (batched): (epoch, means, sps, epoch seconds)
     shown = ""      # the progress bar's last evaluation
+    drawn = None    # how many rows the curve written last holds (the last epoch's is the final curve)
     for epoch in range(start, sched.num_epochs + 1):
         call_hook(hook, "train", epoch)
         t0 = time.time()
@@ -360,13 +361,14 @@ def _run_epochs(session, bar, t_start, *, cfg, sched, seeds, run, title, rows, s
                 call_hook(hook, "checkpoint", epoch)
             if plot:
                 write_curve(rows, run, title)
+                drawn = len(rows)
         bar.update(sched.env_steps_per_epoch)
         bar.set_postfix_str(f"{sps:,.0f} steps/s{shown}")
         if stop_after_epoch is not None and epoch >= stop_after_epoch:
             break
     else:
         session.finish()
-        if plot:
+        if plot and drawn != len(rows):
             write_curve(rows, run, title)
     return rows
 
