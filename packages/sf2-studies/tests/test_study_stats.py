@@ -92,3 +92,46 @@ def test_mean_and_iqm_intervals_per_column():
     # rliable's IQM of 1 2 3 4 10 (trim_mean 0.25: int(1.25) = 1 cut at each end): mean(2, 3, 4) = 3
     assert iqm[0] == pytest.approx(3.0) == metrics.aggregate_iqm(values[:, 0])
     assert ilo[0] <= 3.0 <= ihi[0]
+
+
+def _rliables(data, fn, reps, confidence=0.95):
+    """rliable's own interval of `fn` on `data` (an array, or a tuple resampled independently) under
+    `stats.SEED`, one call of `fn` per resample: the plain formulation the fast path replaces."""
+    state = np.random.get_state()
+    np.random.seed(stats.SEED)
+    try:
+        _, want = library.get_interval_estimates({"d": data}, fn, reps=reps,
+                                                 confidence_interval_size=confidence)
+    finally:
+        np.random.set_state(state)
+    return want["d"]
+
+
+def test_every_interval_is_rliables_to_the_last_bit():
+    """The fast path (`stratified_bootstrap` with rliable's aggregates over a resample axis) against
+    rliable's `get_interval_estimates` calling rliable's own statistic once per resample, at sizes where
+    NumPy sums pairwise (15 seeds × 7 tasks, 15 seeds per column) and with unequal seed counts."""
+    rng = np.random.default_rng(7)
+    reps = 700
+    scores = rng.random((15, 7))
+    _, got = stats.aggregate_intervals({"a": scores}, resamples=reps)
+    want = _rliables(scores, lambda x: np.array([metrics.aggregate_median(x), metrics.aggregate_iqm(x),
+                                                 metrics.aggregate_mean(x),
+                                                 metrics.aggregate_optimality_gap(x)]), reps)
+    np.testing.assert_array_equal(got["a"], want)
+
+    x, y = rng.random((7, 3)), rng.random((4, 3)) * 0.8
+    for statistic, confidence in (("IQM", 0.95), ("Median", 0.95), ("Mean", 0.9)):
+        agg = getattr(metrics, stats.STATISTICS[statistic])
+        _, lo, hi = stats.difference_interval(x, y, statistic, resamples=reps, confidence=confidence)
+        want = _rliables((x, y), lambda a, b, agg=agg: np.array([agg(a) - agg(b)]), reps, confidence)
+        assert (lo, hi) == (float(want[0][0]), float(want[1][0])), statistic
+
+    curves = rng.random((15, 4)) * 100
+    plain = {"mean": lambda v: np.mean(v, axis=0), "median": lambda v: np.median(v, axis=0),
+             "iqm": lambda v: np.array([metrics.aggregate_iqm(v[:, j]) for j in range(v.shape[1])])}
+    for statistic, fn in plain.items():
+        point, lo, hi = stats.column_interval(curves, statistic, resamples=reps)
+        want = _rliables(curves, fn, reps)
+        np.testing.assert_array_equal(point, fn(curves))
+        np.testing.assert_array_equal(np.stack([lo, hi]), want, err_msg=statistic)

@@ -1,8 +1,10 @@
 """The numbers of a study (paper §4.2, Appendix C): per run the area under the evaluation-return curve
 and the mean return over the final env steps; per task min–max normalization; per algorithm family the
 median, interquartile mean (IQM), mean and optimality gap with 95% stratified-bootstrap confidence
-intervals (5000 resamples). The aggregates and every interval come from rliable (Agarwal et al., 2021;
-`rliable.metrics`, `rliable.library.get_interval_estimates`); this module only arranges the scores.
+intervals (5000 resamples). The aggregates are rliable's (Agarwal et al., 2021; `rliable.metrics`); every
+interval is `rliable.library.get_interval_estimates`' own, drawn by `stratified_bootstrap` with rliable's
+aggregates restated over a leading resample axis (`BATCHED`): equal to the last bit, without a call per
+resample.
 
 Intervals are percentile-bootstrap intervals over seeds (within each task: stratified), none below
 `MIN_SEEDS` seeds (docs/decisions/intervals.md), each under a fixed global seed (`SEED`). The per-column
@@ -17,18 +19,18 @@ from sf2_common.agents.stats import (
     MIN_SEEDS,
     RESAMPLES,
     SEED,
-    global_seed,
     informative,
     interval_over_seeds,
     mean_interval,
     require_rliable,
+    stratified_bootstrap,
 )
 
 __all__ = [
     "MIN_SEEDS", "RESAMPLES", "CONFIDENCE", "SEED", "METRICS", "auc", "final_window_mean",
     "normalize_by_task", "aggregate", "aggregate_intervals", "mean_interval",
     "iqm_interval", "column_interval", "COLUMN_STATISTICS",
-    "informative", "require_rliable", "STATISTICS", "difference", "difference_interval",
+    "informative", "require_rliable", "STATISTICS", "BATCHED", "difference", "difference_interval",
     "probability_of_improvement",
 ]
 
@@ -81,6 +83,35 @@ def normalize_by_task(scores: dict) -> dict:
 
 
 # ------------------------------------------------------------------------------------------- aggregates
+def _batched_median(x):
+    return np.median(np.mean(x, axis=1), axis=1)
+
+
+def _batched_iqm(x):
+    from scipy.stats import trim_mean
+
+    return trim_mean(x.reshape(x.shape[0], -1), proportiontocut=0.25, axis=1)
+
+
+def _batched_mean(x):
+    return np.mean(np.mean(x, axis=1), axis=1)
+
+
+def _batched_optimality_gap(x, gamma=1):
+    return gamma - np.mean(np.minimum(x, gamma).reshape(x.shape[0], -1), axis=1)
+
+
+# rliable.metrics' aggregates of scores (n_runs, n_tasks), each restated for (resamples, n_runs, n_tasks) →
+# (resamples,) with the same NumPy and SciPy calls in the same order of summation
+BATCHED = {"aggregate_median": _batched_median, "aggregate_iqm": _batched_iqm,
+           "aggregate_mean": _batched_mean, "aggregate_optimality_gap": _batched_optimality_gap}
+
+
+def _batched_metrics(x):
+    return np.stack([BATCHED[name](x) for name in ("aggregate_median", "aggregate_iqm", "aggregate_mean",
+                                                   "aggregate_optimality_gap")], axis=1)
+
+
 def _aggregate_fn(metrics):
     def fn(x):
         return np.array([metrics.aggregate_median(x), metrics.aggregate_iqm(x), metrics.aggregate_mean(x),
@@ -99,19 +130,16 @@ def aggregate(scores) -> np.ndarray:
 def aggregate_intervals(score_dict: dict, resamples: int = RESAMPLES, seed: int = SEED):
     """{method: (n_seeds, n_tasks) normalized scores} → ({method: point estimates of `METRICS`},
     {method: (2, 4) lower/upper bounds or None}): rliable's `get_interval_estimates`, percentile
-    method, stratified over tasks, `CONFIDENCE`. None where the method has fewer than `MIN_SEEDS` seeds."""
-    library, metrics = require_rliable()
+    method, stratified over tasks, `CONFIDENCE` (`stratified_bootstrap`). None where the method has fewer
+    than `MIN_SEEDS` seeds."""
+    _, metrics = require_rliable()
     fn = _aggregate_fn(metrics)
     points, intervals = {}, {}
     for name, scores in score_dict.items():
         scores = np.asarray(scores, dtype=float)
-        if not informative(scores.shape[0]):
-            points[name], intervals[name] = fn(scores), None
-            continue
-        with global_seed(seed):
-            p, i = library.get_interval_estimates({name: scores}, fn, reps=resamples,
-                                                  confidence_interval_size=CONFIDENCE)
-        points[name], intervals[name] = p[name], i[name]
+        points[name] = fn(scores)
+        intervals[name] = (np.stack(stratified_bootstrap(scores, _batched_metrics, resamples, seed))
+                           if informative(scores.shape[0]) else None)
     return points, intervals
 
 
@@ -123,15 +151,14 @@ def column_interval(values, statistic: str = "mean", resamples: int = RESAMPLES,
     if statistic not in COLUMN_STATISTICS:
         raise ValueError(f"statistic {statistic!r}: one of {', '.join(COLUMN_STATISTICS)}")
     if statistic == "iqm":
-        _, metrics = require_rliable()
-
-        def fn(x):  # rliable's IQM of each column's seeds
-            return np.array([metrics.aggregate_iqm(x[:, j]) for j in range(x.shape[1])])
+        def fn(x):  # rliable's IQM of each column's seeds, the seeds moved last and contiguous as there
+            seeds_last = np.ascontiguousarray(np.moveaxis(x, -2, -1))
+            return _batched_iqm(seeds_last.reshape(-1, 1, x.shape[-2])).reshape(seeds_last.shape[:-1])
     else:
         plain = {"mean": np.mean, "median": np.median}[statistic]
 
         def fn(x):
-            return plain(x, axis=0)
+            return plain(x, axis=-2)
     return interval_over_seeds(values, fn, resamples, seed)
 
 
@@ -164,22 +191,16 @@ def difference_interval(x, y, statistic: str = "IQM", resamples: int = RESAMPLES
     lower, upper) of statistic(x) − statistic(y) (`STATISTICS`: rliable's aggregate IQM, median or mean)
     with its `confidence` percentile bootstrap interval (95%; an equivalence test takes 90%): rliable's
     `get_interval_estimates` on the pair, i.e. its `StratifiedIndependentBootstrap` (each method's seeds
-    resampled independently within each task). lower = upper = None when either method has fewer than
-    `MIN_SEEDS` seeds."""
-    library, _ = require_rliable()
-    agg = _aggregate(statistic)    # resolved once: `fn` runs once per bootstrap resample
-
-    def fn(a, b):
-        return np.array([_difference(agg, a, b)])
-
+    resampled independently within each task; `stratified_bootstrap`). lower = upper = None when either
+    method has fewer than `MIN_SEEDS` seeds."""
     x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
-    point = float(fn(x, y)[0])
+    point = float(_difference(_aggregate(statistic), x, y))
     if not (informative(x.shape[0]) and informative(y.shape[0])):
         return point, None, None
-    with global_seed(seed):
-        _, i = library.get_interval_estimates({"d": (x, y)}, fn, reps=resamples,
-                                              confidence_interval_size=confidence)
-    return point, float(i["d"][0][0]), float(i["d"][1][0])
+    batched = BATCHED[STATISTICS[statistic]]
+    lower, upper = stratified_bootstrap((x, y), lambda a, b: batched(a) - batched(b), resamples, seed,
+                                        confidence)
+    return point, float(lower[0]), float(upper[0])
 
 
 def probability_of_improvement(x, y) -> float:

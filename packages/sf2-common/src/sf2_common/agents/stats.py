@@ -1,6 +1,8 @@
-"""95% percentile-bootstrap intervals over seeds by rliable (Agarwal et al., 2021), for a run's table and
+"""95% percentile-bootstrap intervals over seeds, rliable's (Agarwal et al., 2021), for a run's table and
 curve and the studies: none below `MIN_SEEDS` seeds, each under a fixed global seed
-(docs/decisions/intervals.md); rliable (from sf2-studies) is imported when an interval is computed."""
+(docs/decisions/intervals.md). `stratified_bootstrap` draws rliable's resamples and takes arch's percentile
+interval of a statistic computed on all of them at once; equal to `rliable.library.get_interval_estimates`
+to the last bit, without its Python call per resample (docs/decisions/bootstrap-fast-path.md)."""
 
 from __future__ import annotations
 
@@ -9,7 +11,7 @@ import contextlib
 import numpy as np
 
 __all__ = ["MIN_SEEDS", "RESAMPLES", "CONFIDENCE", "SEED", "RLIABLE_INSTALL", "require_rliable",
-           "informative", "global_seed", "interval_over_seeds", "mean_interval"]
+           "informative", "global_seed", "stratified_bootstrap", "interval_over_seeds", "mean_interval"]
 
 MIN_SEEDS = 3          # fewer seeds: no interval
 RESAMPLES = 5000       # paper §4.2: "95th percentiles confidence intervals computed using 5000 samples"
@@ -44,17 +46,56 @@ def global_seed(seed: int):
         np.random.set_state(state)
 
 
+def stratified_bootstrap(arrays, statistic, resamples: int = RESAMPLES, seed: int = SEED,
+                         confidence: float = CONFIDENCE):
+    """rliable's stratified percentile-bootstrap interval of a statistic, computed on every resample at once.
+
+    Resample r draws, for each array in turn, `np.random.choice(n_seeds, array.shape)` from NumPy's global
+    generator seeded with `seed` (rliable's `StratifiedBootstrap` and `StratifiedIndependentBootstrap`):
+    each entry takes the row it names in its own column, so every column (a task, an evaluation) is
+    resampled over its own seeds and every array on its own. The bounds are arch's percentile interval,
+    the (1 − confidence)/2 and (1 + confidence)/2 percentiles of the statistic over the resamples.
+
+    Args:
+        arrays: a (n_seeds, n_columns) array, or a sequence of them with the same columns.
+        statistic: the arrays, each with a leading resample axis (resamples, n_seeds, n_columns) → an
+            array (resamples, k).
+        resamples: bootstrap resamples.
+        seed: seed of NumPy's global generator while drawing (the caller's state is restored).
+        confidence: the interval's coverage.
+
+    Returns:
+        (lower, upper), each (k,).
+    """
+    single = isinstance(arrays, np.ndarray)
+    arrays = [np.asarray(a, dtype=float) for a in ([arrays] if single else arrays)]
+    with global_seed(seed):
+        if len(arrays) == 1:   # one draw of every resample's indices: the same stream as one per resample
+            rows = [np.random.choice(arrays[0].shape[0], (resamples, *arrays[0].shape), replace=True)]
+        else:
+            rows = [np.empty((resamples, *a.shape), dtype=int) for a in arrays]
+            for r in range(resamples):
+                for a, idx in zip(arrays, rows, strict=True):
+                    idx[r] = np.random.choice(a.shape[0], a.shape, replace=True)
+    drawn = [a[idx, np.arange(a.shape[1])] for a, idx in zip(arrays, rows, strict=True)]
+    values = np.asarray(statistic(*drawn), dtype=float).reshape(resamples, -1)
+    alpha = (1.0 - confidence) / 2
+    lower, upper = np.percentile(values, [100 * alpha, 100 * (1.0 - alpha)], axis=0)
+    return lower, upper
+
+
 def interval_over_seeds(values, fn, resamples: int = RESAMPLES, seed: int = SEED):
     """A statistic over seeds of each column with its 95% percentile-bootstrap interval.
 
     Args:
         values: (n_seeds,) or (n_seeds, n_points) scores; each column is resampled over its seeds.
-        fn: the statistic, (n_seeds, n_points) -> (n_points,).
+        fn: the statistic over the seeds axis, the second to last: (..., n_seeds, n_points) →
+            (..., n_points), for the scores and for every resample at once (`stratified_bootstrap`).
         resamples: bootstrap resamples.
-        seed: seed of NumPy's global generator while rliable resamples.
+        seed: seed of NumPy's global generator while resampling.
 
     Returns:
-        (fn(values), lower, upper); lower = upper = None below `MIN_SEEDS` seeds (rliable not needed).
+        (fn(values), lower, upper); lower = upper = None below `MIN_SEEDS` seeds.
     """
     v = np.asarray(values, dtype=float)
     if v.ndim == 1:
@@ -62,15 +103,12 @@ def interval_over_seeds(values, fn, resamples: int = RESAMPLES, seed: int = SEED
     point = fn(v)
     if not informative(v.shape[0]):
         return point, None, None
-    library, _ = require_rliable()
-    with global_seed(seed):
-        _, i = library.get_interval_estimates({"x": v}, fn, reps=resamples,
-                                              confidence_interval_size=CONFIDENCE)
-    return point, i["x"][0], i["x"][1]
+    lower, upper = stratified_bootstrap(v, fn, resamples, seed)
+    return point, lower, upper
 
 
 def _mean(x):
-    return np.mean(x, axis=0)
+    return np.mean(x, axis=-2)
 
 
 def mean_interval(values, resamples: int = RESAMPLES, seed: int = SEED):
