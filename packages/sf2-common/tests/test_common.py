@@ -503,23 +503,22 @@ def test_final_table_pools_folders_of_one_method_and_refuses_disjoint_points(tmp
         plotting.final_table([a, b])
 
 
-def test_final_table_without_rliable_has_means_and_no_interval(tmp_path, monkeypatch, capsys):
-    """rliable belongs to the train extra, but a finished training's table and curve do not fail without
-    it (a lean GPU host): the means stay, the interval is NaN, the band's label and a warning say why."""
+def test_final_table_without_rliable_has_the_same_interval(tmp_path, monkeypatch, capsys):
+    """rliable belongs to sf2-studies, not to a lean GPU host; a finished training's table and curve band
+    do not need it (`stats.stratified_bootstrap` draws its resamples): the same interval with and without
+    it, and no warning."""
     a = _write_run(tmp_path / "a", "TD3+X", [0, 10, 20], [[0.0, 1.0, 2.0], [0.0, 1.0, 4.0], [0.0, 1.0, 6.0]])
+    (want,) = plotting.final_table([a])
     monkeypatch.setitem(sys.modules, "rliable", None)  # `import rliable` raises ImportError
-    plotting._rliable_missing.cache_clear()
-    try:
-        (row,) = plotting.final_table([a])
-        assert (row["final_return"], row["seeds"]) == (4.0, 3)
-        assert np.isnan(row["ci_low"]) and np.isnan(row["ci_high"])
-        assert "rliable is not installed" in plotting.band_label(3)
-        assert "n=2 < 3" in plotting.band_label(2)
-        cli.print_table([row])
-    finally:
-        plotting._rliable_missing.cache_clear()
+    (row,) = plotting.final_table([a])
+    assert (row["final_return"], row["seeds"]) == (4.0, 3)
+    assert want["ci_low"] < 4.0 < want["ci_high"]
+    assert (row["ci_low"], row["ci_high"]) == (want["ci_low"], want["ci_high"])
+    assert plotting.band_label(3) == "95% bootstrap CI of the mean (n=3)"
+    assert "n=2 < 3" in plotting.band_label(2)
+    cli.print_table([row])
     out, err = capsys.readouterr()
-    assert "no rliable" in out and err.count("warning: no confidence intervals") == 1
+    assert f"[{row['ci_low']:.1f}, {row['ci_high']:.1f}]" in out and "warning" not in err
 
 
 # ------------------------------------------------------------------------------------------- the loop

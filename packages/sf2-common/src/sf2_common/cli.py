@@ -236,8 +236,7 @@ def print_table(table, seconds=None) -> None:
     print(head)
     print("-" * len(head))
     for row in table:
-        ci = f"[{row['ci_low']:.1f}, {row['ci_high']:.1f}]" if row["ci_low"] == row["ci_low"] else (
-            "n < 3" if row["seeds"] < 3 else "no rliable")
+        ci = f"[{row['ci_low']:.1f}, {row['ci_high']:.1f}]" if row["ci_low"] == row["ci_low"] else "n < 3"
         per_seed = ", ".join(f"{x:.1f}" for x in row["per_seed"])
         line = (f"{row['task']:22} {row['method']:12} {row['seeds']:>5} {row['env_steps']:>10} "
                 f"{row['final_return']:>18.1f} {ci:>17}  {per_seed}")
@@ -248,7 +247,7 @@ def print_table(table, seconds=None) -> None:
     if any(r["seeds"] > 1 for r in table):
         print("(final eval return: mean over seeds of each seed's mean over its evaluation episodes; 95% CI: "
               "percentile bootstrap of that mean over seeds (rliable, 5000 resamples); none below 3 seeds, "
-              "where it would not be informative, and none without rliable installed)")
+              "where it would not be informative)")
 
 
 # ------------------------------------------------------------------------------------------- eval, plot

@@ -1,12 +1,10 @@
 """Learning curves of one run folder (per-seed lines, mean and band) or several (a line and band per method
 and task), and the final-return table. The band is the 95% percentile-bootstrap interval of the mean over
-seeds (`stats.mean_interval`), none below `stats.MIN_SEEDS` seeds. matplotlib (Agg) and rliable are
-imported when needed; a folder's method is the `label` in its config.json, so no framework is needed."""
+seeds (`stats.mean_interval`), none below `stats.MIN_SEEDS` seeds. matplotlib (Agg) is imported when
+needed; a folder's method is the `label` in its config.json, so no framework is needed."""
 
 from __future__ import annotations
 
-import functools
-import sys
 import textwrap
 from collections import defaultdict
 from pathlib import Path
@@ -31,34 +29,17 @@ def method_label(algo: str, representation: str, registry=None) -> str:
 
 def mean_ci(values, resamples: int = stats.RESAMPLES) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """values (n_seeds, n_points) → (mean over seeds, lower, upper) of the 95% interval of the mean;
-    lower = upper = NaN below `stats.MIN_SEEDS` seeds and without rliable (warned once: never an error)."""
-    values = np.asarray(values, dtype=float)
-    if stats.informative(values.shape[0]) and _rliable_missing():
-        mean = values.mean(axis=0)
-        return mean, np.full_like(mean, np.nan), np.full_like(mean, np.nan)
-    mean, lo, hi = stats.mean_interval(values, resamples)
+    lower = upper = NaN below `stats.MIN_SEEDS` seeds."""
+    mean, lo, hi = stats.mean_interval(np.asarray(values, dtype=float), resamples)
     if lo is None:
         lo = hi = np.full_like(mean, np.nan)
     return mean, lo, hi
-
-
-@functools.cache
-def _rliable_missing() -> str | None:
-    """None if rliable imports, else why not (warned once on stderr)."""
-    try:
-        stats.require_rliable()
-    except ImportError as err:
-        print(f"warning: no confidence intervals in tables and curves: {err}", file=sys.stderr)
-        return str(err)
-    return None
 
 
 def band_label(n_seeds: int) -> str:
     """What a band (or its absence) is, for legends and footnotes."""
     if not stats.informative(n_seeds):
         return f"no CI: n={n_seeds} < {stats.MIN_SEEDS} seeds is not informative"
-    if _rliable_missing():
-        return f"no CI: rliable is not installed ({stats.RLIABLE_INSTALL})"
     return f"95% bootstrap CI of the mean (n={n_seeds})"
 
 

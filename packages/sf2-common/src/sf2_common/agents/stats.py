@@ -25,7 +25,7 @@ def require_rliable():
     try:
         from rliable import library, metrics
     except ImportError as err:
-        raise ImportError(f"the bootstrap intervals need rliable ({err}); install it with sf2-studies: "
+        raise ImportError(f"the study statistics need rliable ({err}); install it with sf2-studies: "
                           f"{RLIABLE_INSTALL}") from err
     return library, metrics
 
