@@ -9,6 +9,7 @@ import pytest
 pytest.importorskip("rliable", reason="sf2-studies' dependencies: pip install packages/sf2-studies")
 
 from rliable import library, metrics  # noqa: E402
+from sf2_common.agents import stats as common_stats  # noqa: E402
 from sf2_studies import stats  # noqa: E402
 
 
@@ -107,10 +108,14 @@ def _rliables(data, fn, reps, confidence=0.95):
     return want["d"]
 
 
-def test_every_interval_is_rliables_to_the_last_bit():
+@pytest.mark.parametrize("chunk", [None, 200])
+def test_every_interval_is_rliables_to_the_last_bit(chunk, monkeypatch):
     """The fast path (`stratified_bootstrap` with rliable's aggregates over a resample axis) against
     rliable's `get_interval_estimates` calling rliable's own statistic once per resample, at sizes where
-    NumPy sums pairwise (15 seeds × 7 tasks, 15 seeds per column) and with unequal seed counts."""
+    NumPy sums pairwise (15 seeds × 7 tasks, 15 seeds per column) and with unequal seed counts; in one
+    chunk of resamples, and in chunks of 200 scores (1–6 resamples each, their draws consecutive)."""
+    if chunk is not None:
+        monkeypatch.setattr(common_stats, "CHUNK_ENTRIES", chunk)
     rng = np.random.default_rng(7)
     reps = 700
     scores = rng.random((15, 7))
@@ -135,3 +140,10 @@ def test_every_interval_is_rliables_to_the_last_bit():
         want = _rliables(curves, fn, reps)
         np.testing.assert_array_equal(point, fn(curves))
         np.testing.assert_array_equal(np.stack([lo, hi]), want, err_msg=statistic)
+
+
+def test_stratified_bootstrap_refuses_arrays_it_cannot_stratify():
+    with pytest.raises(ValueError, match=r"same columns, got \[\(3, 2\), \(3, 4\)\]"):
+        common_stats.stratified_bootstrap((np.zeros((3, 2)), np.zeros((3, 4))), lambda a, b: a[:, 0, :1])
+    with pytest.raises(ValueError, match=r"got \[\(3,\)\]"):
+        common_stats.stratified_bootstrap([np.zeros(3)], lambda a: a)

@@ -10,13 +10,15 @@ import contextlib
 
 import numpy as np
 
-__all__ = ["MIN_SEEDS", "RESAMPLES", "CONFIDENCE", "SEED", "RLIABLE_INSTALL", "require_rliable",
-           "informative", "global_seed", "stratified_bootstrap", "interval_over_seeds", "mean_interval"]
+__all__ = ["MIN_SEEDS", "RESAMPLES", "CONFIDENCE", "SEED", "CHUNK_ENTRIES", "RLIABLE_INSTALL",
+           "require_rliable", "informative", "global_seed", "stratified_bootstrap", "interval_over_seeds",
+           "mean_interval"]
 
 MIN_SEEDS = 3          # fewer seeds: no interval
 RESAMPLES = 5000       # paper §4.2: "95th percentiles confidence intervals computed using 5000 samples"
 CONFIDENCE = 0.95
 SEED = 0
+CHUNK_ENTRIES = 1 << 22   # resampled scores held at once by `stratified_bootstrap` (32 MiB of float64)
 RLIABLE_INSTALL = "pip install packages/sf2-studies"
 
 
@@ -54,7 +56,8 @@ def stratified_bootstrap(arrays, statistic, resamples: int = RESAMPLES, seed: in
     generator seeded with `seed` (rliable's `StratifiedBootstrap` and `StratifiedIndependentBootstrap`):
     each entry takes the row it names in its own column, so every column (a task, an evaluation) is
     resampled over its own seeds and every array on its own. The bounds are arch's percentile interval,
-    the (1 − confidence)/2 and (1 + confidence)/2 percentiles of the statistic over the resamples.
+    the (1 − confidence)/2 and (1 + confidence)/2 percentiles of the statistic over the resamples. The
+    resamples are drawn and scored in consecutive chunks of at most `CHUNK_ENTRIES` scores.
 
     Args:
         arrays: a (n_seeds, n_columns) array, or a sequence of them with the same columns.
@@ -66,21 +69,30 @@ def stratified_bootstrap(arrays, statistic, resamples: int = RESAMPLES, seed: in
 
     Returns:
         (lower, upper), each (k,).
+
+    Raises:
+        ValueError: an array is not 2-D, or the arrays' columns differ.
     """
-    single = isinstance(arrays, np.ndarray)
-    arrays = [np.asarray(a, dtype=float) for a in ([arrays] if single else arrays)]
+    arrays = [np.asarray(a, dtype=float) for a in ([arrays] if isinstance(arrays, np.ndarray) else arrays)]
+    if not arrays or any(a.ndim != 2 or a.shape[1] != arrays[0].shape[1] for a in arrays):
+        raise ValueError(f"stratified_bootstrap: (n_seeds, n_columns) arrays with the same columns, got "
+                         f"{[a.shape for a in arrays]}")
+    chunk = max(1, min(resamples, CHUNK_ENTRIES // max(1, sum(a.size for a in arrays))))
+    values = []
     with global_seed(seed):
-        if len(arrays) == 1:   # one draw of every resample's indices: the same stream as one per resample
-            rows = [np.random.choice(arrays[0].shape[0], (resamples, *arrays[0].shape), replace=True)]
-        else:
-            rows = [np.empty((resamples, *a.shape), dtype=int) for a in arrays]
-            for r in range(resamples):
-                for a, idx in zip(arrays, rows, strict=True):
-                    idx[r] = np.random.choice(a.shape[0], a.shape, replace=True)
-    drawn = [a[idx, np.arange(a.shape[1])] for a, idx in zip(arrays, rows, strict=True)]
-    values = np.asarray(statistic(*drawn), dtype=float).reshape(resamples, -1)
+        for start in range(0, resamples, chunk):   # consecutive draws: the stream of one draw per resample
+            m = min(chunk, resamples - start)
+            if len(arrays) == 1:
+                rows = [np.random.choice(arrays[0].shape[0], (m, *arrays[0].shape), replace=True)]
+            else:
+                rows = [np.empty((m, *a.shape), dtype=int) for a in arrays]
+                for r in range(m):
+                    for a, idx in zip(arrays, rows, strict=True):
+                        idx[r] = np.random.choice(a.shape[0], a.shape, replace=True)
+            drawn = [a[idx, np.arange(a.shape[1])] for a, idx in zip(arrays, rows, strict=True)]
+            values.append(np.asarray(statistic(*drawn), dtype=float).reshape(m, -1))
     alpha = (1.0 - confidence) / 2
-    lower, upper = np.percentile(values, [100 * alpha, 100 * (1.0 - alpha)], axis=0)
+    lower, upper = np.percentile(np.concatenate(values), [100 * alpha, 100 * (1.0 - alpha)], axis=0)
     return lower, upper
 
 
