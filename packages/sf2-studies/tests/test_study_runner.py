@@ -213,9 +213,9 @@ def test_makespan_follows_the_runners_order():
     assert runner.makespan([10, 1, 1, 1, 5], 8) == 10
 
 
-def _forecast_job(root, task, name, seeds, total=1000, wall=None):
+def _forecast_job(root, task, name, seeds, total=1000, wall=None, sweep=None):
     """A `runner.Job` of `seeds` seeds and `total` env steps under `root`: finished in `wall` seconds (its
-    metrics.jsonl says so), or to do without `wall`."""
+    metrics.jsonl says so), or to do without `wall`; `sweep`: its method's (field, value, base label)."""
     from types import SimpleNamespace
 
     path = root / ("done" if wall is not None else "todo") / task / f"{name}-{seeds}"
@@ -223,7 +223,8 @@ def _forecast_job(root, task, name, seeds, total=1000, wall=None):
     if wall is not None:
         (path / "metrics.jsonl").write_text(json.dumps({"epoch": 1, "seed": 0, "env_steps": total,
                                                         "walltime": wall}) + "\n")
-    run = SimpleNamespace(task=task, folder=name, rel=name, seeds=tuple(range(seeds)))
+    run = SimpleNamespace(task=task, folder=name, rel=name, seeds=tuple(range(seeds)),
+                          methods=(SimpleNamespace(sweep=sweep),))
     return runner.Job(run, path, [], total, total if wall is not None else 0)
 
 
@@ -292,6 +293,28 @@ def test_forecast_caps_a_run_of_fewer_seeds_by_one_of_more(tmp_path):
     expected = {("A", "m", 5): 200.0, ("B", "m", 5): 150.0, ("B", "q", 5): 75.0, ("C", "m", 5): 200.0}
     for (task, name, seeds), seconds in expected.items():
         assert forecast.seconds(job(task, name, seeds)) == pytest.approx(seconds), (task, name, seeds)
+
+
+def test_forecast_prices_a_linear_cost_sweep_from_its_run_values(tmp_path):
+    """Points of a sweep over `aux_steps_per_sgd_step` (`runner.LINEAR_COST`; base "TD3+SF²", folders k1, k2,
+    ...), 10 seeds, rates in s per env step. A: k1 0.1, k2 0.15, td3 0.05; B: k1 0.2; C: td3 0.05 only.
+    A/k4: slope (0.15 - 0.1) / (2 - 1) = 0.05, from k2 0.15 + 0.05 x 2 = 0.25 (from k1 the same); A/k8:
+    0.15 + 0.05 x 6 = 0.45; A/k0.5, below every run value: k1's 0.1. B/k2 with one run value: the bound
+    0.2 x 2 / 1 = 0.4, B/k8 1.6. C has no run of the sweep: C/k2 from C/td3 times k2 / td3 on A (`relative`),
+    0.05 x 3 = 0.15; C/k8 (no run anywhere): C's slowest run times 8 / 1 (the smallest value run), 0.4. A
+    sweep over another field (tau_zeta) on C: C's slowest, 0.05, unscaled. A/k1 its own 0.1."""
+    def job(task, name, value=None, wall=None, field="aux_steps_per_sgd_step"):
+        sweep = None if value is None else (field, str(value), "TD3+SF²")
+        return _forecast_job(tmp_path, task, name, 10, wall=wall, sweep=sweep)
+
+    forecast = runner.Forecast([job("A", "k1", 1, 100.0), job("A", "k2", 2, 150.0),
+                                job("A", "td3", None, 50.0), job("B", "k1", 1, 200.0),
+                                job("C", "td3", None, 50.0)])
+    expected = {("A", "k4", 4): 0.25, ("A", "k8", 8): 0.45, ("A", "k0.5", 0.5): 0.1, ("B", "k2", 2): 0.4,
+                ("B", "k8", 8): 1.6, ("C", "k2", 2): 0.15, ("C", "k8", 8): 0.4, ("A", "k1", 1): 0.1}
+    for (task, name, value), rate in expected.items():
+        assert forecast.seconds(job(task, name, value)) == pytest.approx(1000 * rate), (task, name, value)
+    assert forecast.seconds(job("C", "t", 0.1, field="tau_zeta")) == pytest.approx(1000 * 0.05)
 
 
 def test_finish_within_starts_only_runs_forecast_to_end_in_time(tmp_path, monkeypatch):

@@ -29,9 +29,12 @@ from .progress import Progress, duration
 from .spec import Run, Study, StudyError
 
 __all__ = ["Backend", "Job", "plan", "Forecast", "estimate", "makespan", "eval_argv", "child_env",
-           "visible_gpus", "run_local", "Outcome", "LOCK"]
+           "visible_gpus", "run_local", "Outcome", "LOCK", "LINEAR_COST"]
 
 LOCK = FolderLock.NAME
+# Config fields whose value a run's time per env step grows with linearly, a + b × value with a, b ≥ 0 (the
+# flow steps per SGD step): a sweep over one prices a value not run yet on a task from the values run there.
+LINEAR_COST = ("aux_steps_per_sgd_step",)
 
 
 @dataclasses.dataclass
@@ -101,10 +104,14 @@ class Forecast:
     """Seconds of training a job still needs: its remaining env steps at the wall-clock seconds per env step
     of finished runs (its own task and method at its seed count first; else another method on its task
     scaled by the largest ratio between the two; else its own runs at other seed counts, scaled; else the
-    slowest run of its task). `known` is False without any finished run. docs/decisions/forecasts.md."""
+    slowest run of its task). A sweep's method over a `LINEAR_COST` field with no run of its own on the task
+    is priced from the sweep's values run there (`swept`) before the rest. `known` is False without any
+    finished run. docs/decisions/forecasts.md."""
 
     def __init__(self, done: list[Job]):
         self.rates: dict[tuple[str, str], list[tuple[int, float]]] = {}   # (seeds, s per env step)
+        # (task, field, base label) -> {folder: value} of finished runs of a sweep over a LINEAR_COST field
+        self.sweeps: dict[tuple[str, str, str], dict[str, float]] = {}
         for job in done:
             self.add(job)
 
@@ -118,6 +125,8 @@ class Forecast:
         if wall > 0 and job.total_steps > 0:
             self.rates.setdefault((job.run.task, job.run.folder), []).append(
                 (_seed_count(job), wall / job.total_steps))
+            for field, value, base in _linear_sweeps(job):
+                self.sweeps.setdefault((job.run.task, field, base), {})[job.run.folder] = value
 
     @property
     def known(self) -> bool:
@@ -173,12 +182,63 @@ class Forecast:
         exact = [r for m, r in pool if m == seeds]
         return max(exact) if exact else max(r * self.scale(m, seeds) for m, r in pool)
 
+    def swept(self, task: str, field: str, base: str, value: float, seeds: int) -> float | None:
+        """The rate of the sweep (`field`, `base`)'s `value` on `task` at `seeds` seeds from its values run
+        there (None without one): a single run value v0 at rate r0 bounds it by r0 × max(1, value / v0) (a
+        line a + b × v through the origin or above it); with several, each run value's rate plus the steepest
+        slope between two neighbouring ones times the distance, the largest (for a value below every run
+        one, the rate of the smallest)."""
+        run = sorted((v, r) for f, v in self.sweeps.get((task, field, base), {}).items()
+                     if (r := self._at(task, f, seeds)) is not None)
+        if not run:
+            return None
+        if len({v for v, _ in run}) == 1:
+            v0, r0 = max(run, key=lambda p: p[1])
+            return r0 * max(1.0, value / v0) if v0 > 0 else r0
+        slope = max(0.0, *((r2 - r1) / (v2 - v1) for (v1, r1), (v2, r2) in zip(run, run[1:]) if v2 > v1))
+        below = [r + slope * (value - v) for v, r in run if v <= value]
+        return max(below) if below else run[0][1]
+
+    def job_rate(self, job: Job) -> float:
+        """`rate` of the job's task, folder and seed count; for a point of a sweep over a `LINEAR_COST` field
+        with no run of its own on the task, `swept` from the sweep's runs there, else `relative`, else `rate`
+        times value / the smallest value of the sweep run on any task (at least 1: `rate` then prices a run
+        of the task, not of this value)."""
+        task, folder, seeds = job.run.task, job.run.folder, _seed_count(job)
+        sweeps = _linear_sweeps(job)
+        if not sweeps or self._rates(task, folder):
+            return self.rate(task, folder, seeds)
+        for field, value, base in sweeps:
+            rate = self.swept(task, field, base, value, seeds)
+            if rate is not None:
+                return rate
+        relative = self.relative(task, folder, seeds)
+        if relative is not None:
+            return relative
+        field, value, base = sweeps[0]
+        ref = [v for (_, f, b), run in self.sweeps.items() if (f, b) == (field, base) for v in run.values()]
+        return self.rate(task, folder, seeds) * (max(1.0, value / min(ref)) if ref and min(ref) > 0 else 1.0)
+
     def seconds(self, job: Job) -> float:
-        return (job.total_steps - job.done_steps) * self.rate(job.run.task, job.run.folder, _seed_count(job))
+        return (job.total_steps - job.done_steps) * self.job_rate(job)
 
 
 def _seed_count(job: Job) -> int:
     return len(getattr(job.run, "seeds", None) or (0,))
+
+
+def _linear_sweeps(job: Job) -> list[tuple[str, float, str]]:
+    """(field, value, base label) of each method of the job's run that a sweep over a `LINEAR_COST` field
+    generated."""
+    out = []
+    for method in getattr(job.run, "methods", ()):
+        sweep = getattr(method, "sweep", None)
+        if sweep is not None and sweep[0] in LINEAR_COST:
+            try:
+                out.append((sweep[0], float(sweep[1]), sweep[2]))
+            except ValueError:
+                continue
+    return out
 
 
 def estimate(done: list[Job], todo: list[Job], forecast: Forecast | None = None,
