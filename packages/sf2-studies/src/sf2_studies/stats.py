@@ -22,7 +22,6 @@ from sf2_common.agents.stats import (
     informative,
     interval_over_seeds,
     mean_interval,
-    require_rliable,
     stratified_bootstrap,
 )
 
@@ -37,6 +36,16 @@ __all__ = [
 STATISTICS = {"IQM": "aggregate_iqm", "Median": "aggregate_median", "Mean": "aggregate_mean"}  # of a claim
 METRICS = ("Median", "IQM", "Mean", "Optimality Gap")
 COLUMN_STATISTICS = ("mean", "median", "iqm")   # over seeds, per column (`column_interval`)
+
+
+def require_rliable():
+    """(rliable.library, rliable.metrics), or an ImportError that says how to install rliable."""
+    try:
+        from rliable import library, metrics
+    except ImportError as err:
+        raise ImportError(f"the study statistics need rliable ({err}); install it with sf2-studies: "
+                          "pip install packages/sf2-studies") from err
+    return library, metrics
 
 
 # ------------------------------------------------------------------------------------------- per run

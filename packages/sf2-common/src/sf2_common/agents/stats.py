@@ -10,26 +10,14 @@ import contextlib
 
 import numpy as np
 
-__all__ = ["MIN_SEEDS", "RESAMPLES", "CONFIDENCE", "SEED", "CHUNK_ENTRIES", "RLIABLE_INSTALL",
-           "require_rliable", "informative", "global_seed", "stratified_bootstrap", "interval_over_seeds",
-           "mean_interval"]
+__all__ = ["MIN_SEEDS", "RESAMPLES", "CONFIDENCE", "SEED", "CHUNK_ENTRIES", "informative", "global_seed",
+           "stratified_bootstrap", "interval_over_seeds", "mean_interval"]
 
 MIN_SEEDS = 3          # fewer seeds: no interval
 RESAMPLES = 5000       # paper §4.2: "95th percentiles confidence intervals computed using 5000 samples"
 CONFIDENCE = 0.95
 SEED = 0
 CHUNK_ENTRIES = 1 << 22   # resampled scores held at once by `stratified_bootstrap` (32 MiB of float64)
-RLIABLE_INSTALL = "pip install packages/sf2-studies"
-
-
-def require_rliable():
-    """(rliable.library, rliable.metrics), or an ImportError that says how to install rliable."""
-    try:
-        from rliable import library, metrics
-    except ImportError as err:
-        raise ImportError(f"the study statistics need rliable ({err}); install it with sf2-studies: "
-                          f"{RLIABLE_INSTALL}") from err
-    return library, metrics
 
 
 def informative(n_seeds: int) -> bool:
