@@ -512,9 +512,10 @@ def test_report_counts_the_environments_that_change_the_numbers(tmp_path):
             "NVIDIA_TF32_OVERRIDE, CUBLAS_WORKSPACE_CONFIG set: 1 run.") in summary, summary
 
 
-def _family_study(tmp_path, name, family, bases):
+def _family_study(tmp_path, name, family, bases, folder_name=None):
     """A two-task study of one family (vanilla and +SF²) whose seed s of method m scores the curve
-    [0, v, v], v = SCALE[task] · (bases[m] + s), with one claim: SF² above vanilla (IQM)."""
+    [0, v, v], v = SCALE[task] · (bases[m] + s), with one claim: SF² above vanilla (IQM); its folder is
+    tmp_path / (folder_name or name)."""
     low = family.lower()
     text = f"""
 name = "{name}"
@@ -535,7 +536,7 @@ text = "SF² above vanilla"
 method = "{low}-sf2"
 above = ["{low}"]
 """
-    folder = StudyFolder(tmp_path / name)
+    folder = StudyFolder(tmp_path / (folder_name or name))
     folder.open(loads(text, tmp_path / f"{name}.toml"), "jax", [], command=f"sf2-jax study run {name}.toml")
     for task in ("A", "B"):
         for m, base in bases.items():
@@ -586,13 +587,37 @@ def test_compare_puts_each_studys_own_numbers_side_by_side(tmp_path):
     assert written["aggregate.png"].stat().st_size > 1000 and "sf2-jax study compare t s" in summary
 
 
+def test_compare_names_columns_by_folder_so_one_study_in_two_folders_compares(tmp_path):
+    """One study file run into two folders (as fig7-sac at Adam ε 1e-5 and, in results/fig7-sac-eps1e-8, at
+    1e-8): study `t` in folder `t` (SF² base 10, vanilla 0) and in folder `t-rerun` (the bases swapped).
+    As in test_compare_puts_each_studys_own_numbers_side_by_side, SF² − vanilla is +10/13 in the first and
+    −10/13 in the second; each column is named by its folder, the heading says which study it holds, and
+    two folders of one name are told apart by their paths."""
+    from sf2_studies.compare import compare
+
+    t = _family_study(tmp_path, "t", "TD3", {"": 0.0, "-sf2": 10.0})
+    r = _family_study(tmp_path, "t", "TD3", {"": 10.0, "-sf2": 0.0}, folder_name="t-rerun")
+    summary = compare([t.path, r.path], tmp_path / "cmp")["summary.md"].read_text()
+    assert summary.startswith("# Studies compared: `t`, `t-rerun` (study `t`)\n")
+    assert "Verdicts: `t` **supported**; `t-rerun` **contradicted**." in summary
+    row = next(x for x in summary.splitlines() if x.startswith("| all 2 tasks | SF² − vanilla |"))
+    cells = row.split(" | ")[2:]
+    assert cells[0].startswith(f"+{10 / 13:.3f} [") and cells[1].startswith(f"-{10 / 13:.3f} ["), row
+    assert "| scope | comparison | `t` | `t-rerun` |" in summary
+    # two folders named `t` under different parents: each column is its path
+    a = _family_study(tmp_path / "a", "t", "TD3", {"": 0.0, "-sf2": 10.0})
+    b = _family_study(tmp_path / "b", "t", "TD3", {"": 10.0, "-sf2": 0.0})
+    summary = compare([a.path, b.path], tmp_path / "cmp2")["summary.md"].read_text()
+    assert f"| scope | comparison | `{a.path}` | `{b.path}` |" in summary
+
+
 def test_compare_refuses_one_folder_the_same_study_twice_and_a_file_as_out(tmp_path):
     from sf2_studies.compare import compare
 
     t = _family_study(tmp_path, "t", "TD3", {"": 0.0, "-sf2": 10.0})
     with pytest.raises(StudyError, match="two or more study folders; got 1"):
         compare([t.path], tmp_path / "cmp")
-    with pytest.raises(StudyError, match="the same study twice"):
+    with pytest.raises(StudyError, match="the same study folder twice"):
         compare([t.path, t.path], tmp_path / "cmp")
     s = _family_study(tmp_path, "s", "SAC", {"": 10.0, "-sf2": 0.0})
     (tmp_path / "file").write_text("keep")

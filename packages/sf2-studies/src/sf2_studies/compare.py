@@ -10,7 +10,8 @@ per task each method's AUC in returns, the scale that does compare across studie
 `aggregate.png/svg` (one row of panels per family, `figures.aggregate`). Claims are matched by
 their text with the family's name blanked (`claim_key`), comparisons by scope and the two methods without
 their family ("SF² (γ=0.99) − vanilla"), so the fig7-td3 and fig7-sac claims meet row by row; a claim or
-comparison only one study has shows "—" in the others' columns.
+comparison only one study has shows "—" in the others' columns. A column is named by its folder, so one
+study file run twice into two folders (fig7-sac at two Adam ε, results/fig7-sac-eps1e-8) compares too.
 """
 
 from __future__ import annotations
@@ -25,14 +26,20 @@ from .spec import StudyError
 __all__ = ["compare", "claim_key"]
 
 
-def _read(path):
+def _read(path, label):
     folder = StudyFolder(path)
     study = folder.load_study()
     data = report.collect(study, folder)
     rows = report.results_rows(study, data)
     table, covers = report.aggregate_table(study, rows)
     checked = claims.check(study, rows, report.obs_noise_rows(data)) if study.claims else []
-    return study, table, covers, checked, rows
+    return types.SimpleNamespace(name=label, study=study), table, covers, checked, rows
+
+
+def _labels(paths) -> list[str]:
+    """Each folder's column name: its own name, or the path as given where two folders share a name."""
+    base = [Path(p).name for p in paths]
+    return [b if base.count(b) == 1 else str(p) for b, p in zip(base, paths)]
 
 
 def _cell(c: claims.Comparison) -> str:
@@ -50,11 +57,12 @@ def compare(paths, out, command: str | None = None) -> dict[str, Path]:
 
     if len(paths) < 2:
         raise StudyError(f"study compare needs two or more study folders; got {len(paths)}")
-    read = [_read(p) for p in paths]
-    names = [study.name for study, *_ in read]
-    if len(set(names)) < len(names):
-        raise StudyError(f"study compare: the folders hold the same study twice ({', '.join(names)}); "
-                         "compare different studies")
+    resolved = [Path(p).resolve() for p in paths]
+    if len(set(resolved)) < len(resolved):
+        raise StudyError(f"study compare: the same study folder twice ({', '.join(map(str, paths))}); "
+                         "compare different folders")
+    read = [_read(p, label) for p, label in zip(paths, _labels(paths))]
+    names = [col.name for col, *_ in read]
     out = Path(out)
     blocking = next((p for p in (out, *out.parents) if p.exists()), None)
     if blocking is not None and not blocking.is_dir():
@@ -64,25 +72,25 @@ def compare(paths, out, command: str | None = None) -> dict[str, Path]:
     families = [f for _, table, *_ in read for f in table]
     clash = len(set(families)) < len(families)   # the same family in two studies: name the study too
     tables, covers = {}, {}
-    md = [f"# Studies compared: {', '.join(f'`{n}`' for n in names)}", ""]
+    md = [f"# Studies compared: {', '.join(_title(col) for col, *_ in read)}", ""]
     if command:
         md += ["Command:", "", "```", command, "```", ""]
     md += ["Each study's numbers as its own `study report` gives them (normalization per task over that "
            "study's runs, intervals over its seeds): nothing is pooled across studies, so compare verdicts "
            "and orders, and returns rather than normalized scores.", "",
            "## Aggregate normalized AUC per family (paper Fig. 1 / 7)", ""]
-    for (study, table, cover, *_), path in zip(read, paths):
-        md += [f"From `{study.name}` ({path}):", ""]
+    for (col, table, cover, *_), path in zip(read, paths):
+        md += [f"From `{col.name}` ({path}):", ""]
         for c in cover.values():
-            md += report._md_coverage(study, c)
+            md += report._md_coverage(col.study, c)
         md += report._md_aggregate(table, {f: len(c.tasks) for f, c in cover.items()})
         for family, entries in table.items():
-            key = f"{family} ({study.name})" if clash else family
+            key = f"{family} ({col.name})" if clash else family
             tables[key] = entries
             covers[key] = cover[family]
     written = {}
     if tables:
-        tasks = tuple(dict.fromkeys(t for study, *_ in read for t in study.tasks))
+        tasks = tuple(dict.fromkeys(t for col, *_ in read for t in col.study.tasks))
         shown = types.SimpleNamespace(name=" + ".join(names), tasks=tasks)
         written.update(figures.aggregate(tables, out / "aggregate", shown, covers))
         md += ["![aggregate](aggregate.png)", ""]
@@ -91,6 +99,11 @@ def compare(paths, out, command: str | None = None) -> dict[str, Path]:
     (out / "summary.md").write_text("\n".join(md))
     written["summary.md"] = out / "summary.md"
     return written
+
+
+def _title(col) -> str:
+    """A column's name for the heading, with its study's name where the folder is named otherwise."""
+    return f"`{col.name}`" + (f" (study `{col.study.name}`)" if col.study.name != col.name else "")
 
 
 def claim_key(text: str, families) -> str:
@@ -103,13 +116,13 @@ def claim_key(text: str, families) -> str:
 
 def _md_claims(read) -> list[str]:
     """One table per claim (`claim_key`): a row per (scope, method kind, other kind), a column per study."""
-    names = [study.name for study, *_ in read]
+    names = [col.name for col, *_ in read]
     groups: dict[str, dict[str, tuple]] = {}
-    for study, *_, checked, _ in read:
-        kinds = {m.label: m.kind for m in study.methods}
-        families = {m.family for m in study.methods}
+    for col, *_, checked, _ in read:
+        kinds = {m.label: m.kind for m in col.study.methods}
+        families = {m.family for m in col.study.methods}
         for entry in checked:
-            groups.setdefault(claim_key(entry[0].text, families), {})[study.name] = (entry, kinds)
+            groups.setdefault(claim_key(entry[0].text, families), {})[col.name] = (entry, kinds)
     if not groups:
         return []
     lines = ["## The paper's claims, study by study", "",
@@ -140,16 +153,16 @@ def _md_claims(read) -> list[str]:
 def _md_per_task(read) -> list[str]:
     """Per task and method (without its family), each study's mean AUC in returns [95% CI] over its
     finished seeds: the numbers that compare across studies (normalized ones do not)."""
-    names = [study.name for study, *_ in read]
+    names = [col.name for col, *_ in read]
     cells: dict[tuple, dict[str, str]] = {}
-    for study, *_, rows in read:
-        for task in study.tasks:
-            for m in study.methods:
+    for col, *_, rows in read:
+        for task in col.study.tasks:
+            for m in col.study.methods:
                 aucs = [r["auc"] for r in rows if r["task"] == task and r["method"] == m.label]
                 if aucs:
                     res = stats.mean_interval(aucs)
                     cell = f"{report._with_ci(res[0][0], *report._lohi(res))} ({len(aucs)})"
-                    cells.setdefault((task, m.kind), {})[study.name] = cell
+                    cells.setdefault((task, m.kind), {})[col.name] = cell
     if not cells:
         return []
     lines = ["## Per task: AUC in returns, mean [95% CI] (seeds)", "",

@@ -105,8 +105,9 @@ def aggregate(table: dict, stem: Path, study, covers: dict | None = None) -> dic
             for side in ("top", "right", "left"):
                 ax.spines[side].set_visible(False)
             ax.tick_params(axis="y", length=0)
-            ax.set_title(f"{family}: {metric}" + (" (lower is better)" if metric == "Optimality Gap" else ""),
-                         fontsize=10)
+            ax.set_title(metric + (" (lower is better)" if metric == "Optimality Gap" else ""), fontsize=10)
+            if c == 0:   # the family names its row once, left of the methods (a long name fits there)
+                ax.set_ylabel(family, fontsize=11, fontweight="bold")
             if r == len(families) - 1:
                 ax.set_xlabel("normalized AUC" if metric != "Optimality Gap" else "1 − mean normalized AUC")
     ns = [n for v in table.values() for _, n, _, _ in v]
