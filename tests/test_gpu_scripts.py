@@ -1,7 +1,8 @@
-"""The GPU host's study script: refuses a bad limit, starts nothing on too little, archives before listing.
+"""The GPU host's scripts: the study script refuses a bad limit, starts nothing on too little, archives
+before listing; the wheel slimmer drops only what it names and keeps every other byte.
 
 scripts/gpu-host/gpu_study.sh runs on the lent host; the first calls stop before it installs anything there,
-so they run here as they would there; the last runs it whole with python3 and nvidia-smi stood in for.
+so they run here as they would there; the third runs it whole with python3 and nvidia-smi stood in for.
 """
 import pathlib
 import subprocess
@@ -71,3 +72,41 @@ def test_the_archive_is_written_before_the_listing(tmp_path):
         assert not [m for m in members if "checkpoints" in m or m.endswith(".npz")]
     finally:
         subprocess.run(["rm", "-rf", f"/tmp/study-{name}"], check=True)
+
+
+def test_slim_wheels_drops_what_training_never_loads_and_keeps_every_other_byte(tmp_path):
+    """scripts/gpu-host/slim_wheels.py on two hand-made wheels: mujoco's drops its headers and experimental
+    modules and keeps the rest byte for byte, LZMA-compressed; a tiny wheel, where LZMA's header costs more
+    than it saves, stays as it was; a second pass changes neither."""
+    import importlib.util
+    import zipfile
+
+    spec = importlib.util.spec_from_file_location("slim_wheels", ROOT / "scripts/gpu-host/slim_wheels.py")
+    slim_wheels = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(slim_wheels)
+    mujoco = "mujoco-3.17.0-cp312-cp312-manylinux_2_28_x86_64.whl"
+    members = {"mujoco/__init__.py": b"from ._structs import *\n" * 50,
+               "mujoco/libmujoco.so.3": bytes(range(256)) * 400,
+               "mujoco/include/mujoco/mujoco.h": b"int mj_step(void);\n" * 100,
+               "mujoco/experimental/studio.py": b"import filament\n" * 100,
+               "mujoco-3.17.0.dist-info/RECORD": b"mujoco/__init__.py,,\n"}
+    wheels = {mujoco: members, "brax-0.14.2-py3-none-any.whl": {"brax/__init__.py": b"version = '0.14.2'\n"}}
+    for name, files in wheels.items():
+        with zipfile.ZipFile(tmp_path / name, "w", zipfile.ZIP_DEFLATED) as z:
+            for member, data in files.items():
+                z.writestr(member, data)
+    tiny = (tmp_path / "brax-0.14.2-py3-none-any.whl").read_bytes()
+    before = (tmp_path / mujoco).stat().st_size
+    assert slim_wheels.slim(tmp_path / "brax-0.14.2-py3-none-any.whl") == (0, 0)
+    assert (tmp_path / "brax-0.14.2-py3-none-any.whl").read_bytes() == tiny
+    dropped, saved = slim_wheels.slim(tmp_path / mujoco)
+    assert dropped == 2 and saved == before - (tmp_path / mujoco).stat().st_size > 0
+    with zipfile.ZipFile(tmp_path / mujoco) as z:
+        kept = {i.filename: z.read(i.filename) for i in z.infolist()}
+        methods = {i.compress_type for i in z.infolist()}
+    dropped_prefixes = ("mujoco/include/", "mujoco/experimental/")
+    assert kept == {m: d for m, d in members.items() if not m.startswith(dropped_prefixes)}
+    assert methods == {zipfile.ZIP_LZMA}
+    again = {name: (tmp_path / name).read_bytes() for name in wheels}
+    assert all(slim_wheels.slim(tmp_path / name) == (0, 0) for name in wheels)
+    assert again == {name: (tmp_path / name).read_bytes() for name in wheels}

@@ -22,7 +22,8 @@
 # For the torch trainer (e.g. `bench.agent_throughput --frameworks torch,jax`) keep TorchRL and tensordict
 # apart and carry both folders (`carry: [".whl-jax", ".whl-torch"]`; scripts/gpu-host/gpu_env.sh installs both):
 #   python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
-#     --platform manylinux_2_28_x86_64 -d .whl-torch torchrl==0.14.1 tensordict==0.14.3
+#     --platform manylinux_2_28_x86_64 -d .whl-torch torchrl==0.14.1 tensordict==0.14.3 \
+#     && python3 scripts/gpu-host/slim_wheels.py .whl-torch
 # This repository (its results/ included) and the wheels travel within 64 MiB. Statistics stay here: without
 # rliable (and arch, and the pandas < 3 it needs: 14 MB) `train`'s final table and learning_curve.png have
 # means and no interval (a warning says so), and reports are made here from the archive. PyOpenGL, Flask,
