@@ -74,9 +74,10 @@ def add_parser(sub, prog: str) -> None:
     p.add_argument("--out", default=None, help="report folder (default: DIR/report)")
     k = ssub.add_parser("compare", help="several study folders' aggregates and claim verdicts side by side",
                         description="Write summary.md (each study's aggregate per family and its claims' "
-                        "comparisons, a column per study) and aggregate.png/svg (every family's panels in "
+                        "comparisons, a column per folder) and aggregate.png/svg (every family's panels in "
                         "one figure, as the paper's Fig. 7) into OUT. Each study keeps its own "
-                        "normalization and intervals; nothing is pooled.")
+                        "normalization and intervals; nothing is pooled. One study file run into two "
+                        "folders (e.g. at two settings) compares too.")
     k.add_argument("dirs", nargs="+", metavar="DIR", help="study folder (two or more)")
     k.add_argument("--out", required=True, help="folder for summary.md and the figure")
     g = ssub.add_parser("merge", help="join the runs of study folders or their .tar.gz archives into one "

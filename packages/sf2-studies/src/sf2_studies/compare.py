@@ -5,7 +5,7 @@ results/fig7`).
 Nothing is pooled across studies: each study's numbers are the ones its own `study report` gives (per-task
 min–max normalization over that study's runs, paper §4.2; rliable intervals over its seeds; its claims'
 verdicts, sf2_studies/claims.py). This module reads each folder once with `report`'s functions and
-writes `summary.md` (one aggregate table per family, one row per comparison with a column per study, and
+writes `summary.md` (one aggregate table per family, one row per comparison with a column per folder, and
 per task each method's AUC in returns, the scale that does compare across studies) and
 `aggregate.png/svg` (one row of panels per family, `figures.aggregate`). Claims are matched by
 their text with the family's name blanked (`claim_key`), comparisons by scope and the two methods without
@@ -115,7 +115,7 @@ def claim_key(text: str, families) -> str:
 
 
 def _md_claims(read) -> list[str]:
-    """One table per claim (`claim_key`): a row per (scope, method kind, other kind), a column per study."""
+    """One table per claim (`claim_key`): a row per (scope, method kind, other kind), a column per folder."""
     names = [col.name for col, *_ in read]
     groups: dict[str, dict[str, tuple]] = {}
     for col, *_, checked, _ in read:
