@@ -448,7 +448,8 @@ def test_rows_difference_names_a_learned_value_before_timing():
 def test_study_file_takes_the_runs_another_study_shares_and_nothing_else(tmp_path, runs_of):
     """`--study`: a new study (the baselines of "merging" and a method of its own) takes "merging"'s runs
     of the methods both have, at the same paths with the same configs; a run at a shared path whose config
-    differs, the other study's own methods and its commands stay out, and DEST records the merge command."""
+    differs, the other study's own methods and its commands stay out, and DEST records the merge command.
+    A later file that adds a claim replaces DEST's copy and nothing else."""
     own = ('[[methods]]\nlabel = "TD3+SF², own Adam"\nname = "td3-sf2-own"\nalgo = "td3"\n'
            'representation = "sf2"\n')
     mine = STUDY.replace('"merging"', '"reuse"').replace(
@@ -479,6 +480,14 @@ def test_study_file_takes_the_runs_another_study_shares_and_nothing_else(tmp_pat
     held = folder_digest(dest)
     out, said = _merge([src], dest, runs_of, study_file=tmp_path / "reuse.toml", command="again")
     assert not out.merged and "identical to DEST's" in said and folder_digest(dest) == held
+    # a study file that only adds a claim: DEST's copy follows it, its runs and commands stay as they were
+    claimed = mine + '[[claims]]\ntext = "t"\nmethod = "td3-sf2-own"\nabove = ["td3"]\n'
+    (tmp_path / "reuse.toml").write_text(claimed)
+    out, said = _merge([src], dest, runs_of, study_file=tmp_path / "reuse.toml", command="claims")
+    assert not out.merged and "changes what no run depends on (description, report, claims)" in said
+    assert (dest / "study.toml").read_text() == claimed
+    assert json.loads((dest / "study.json").read_text())["commands"] == state["commands"]
+    held = folder_digest(dest)
     # a DEST of another study is refused, nothing written
     (tmp_path / "merging.toml").write_text(STUDY)
     with pytest.raises(StudyError, match="holds study 'reuse', not the study of .*merging.toml"):

@@ -611,7 +611,7 @@ def test_compare_names_columns_by_folder_so_one_study_in_two_folders_compares(tm
     assert f"| scope | comparison | `{a.path}` | `{b.path}` |" in summary
 
 
-def test_compare_refuses_one_folder_the_same_study_twice_and_a_file_as_out(tmp_path):
+def test_compare_refuses_one_folder_the_same_folder_twice_and_a_file_as_out(tmp_path):
     from sf2_studies.compare import compare
 
     t = _family_study(tmp_path, "t", "TD3", {"": 0.0, "-sf2": 10.0})

@@ -167,8 +167,9 @@ def merge(sources, into, runs_of: Callable[[Study], list[Run]], *, framework: st
             atomic_write(dest.study_path, study.text)
         elif dest.load_study().data != study.data:
             say(f"  study.toml of {dest.path}: replaced by {study_file if foreign else 'a source'}'s, which "
-                f"adds tasks or methods, rewrites a method whose runs DEST holds as they are, or groups the "
-                f"seeds otherwise, keeping every run folder DEST holds")
+                f"changes what no run depends on (description, report, claims), adds tasks or methods, "
+                f"rewrites a method whose runs DEST holds as they are, or groups the seeds otherwise, "
+                f"keeping every run folder DEST holds")
             atomic_write(dest.study_path, study.text)
         for name, side in chosen.items():
             target = dest.run_path(expected[name].task, expected[name].rel)
