@@ -56,7 +56,12 @@ source scripts/gpu-host/gpu_env.sh || exit 1
 # that went back between calls) means that command's unfinished runs start again here.
 if [ ! -d "$folder" ]; then
   echo "host $(hostname): fresh (no $folder); runs start from $results's finished ones"
-  if [ -d "$results/runs" ]; then cp -r "$results" "$folder"; fi
+  if [ -d "$results/runs" ]; then
+    cp -r "$results" "$folder"
+    # runs it reads in another study folder (`study borrow`): named from the copy's place
+    python3 -c "import sys; from sf2_studies.folder import StudyFolder as F; F(sys.argv[1]).rebase(sys.argv[2])" \
+      "$folder" "$results" || exit 2
+  fi
 else
   echo "host $(hostname): kept from an earlier command ($folder is here; its unfinished runs resume)"
 fi

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import gzip
 import json
+import shutil
 import tarfile
 
 import pytest
@@ -532,3 +533,105 @@ def test_study_file_may_rewrite_a_method_whose_runs_dest_holds_as_they_are(tmp_p
     StudyFolder(dest).check(study, "jax", runs_of(study))
     run = next(r for r in runs_of(study) if f"{r.task}/{r.rel}" == "A/td3/seeds-0-1")
     assert StudyFolder(dest).run_state(run, study).status == "done"
+
+
+# ------------------------------------------------------------------------------------------- borrowing
+def _borrow(dest, lend, runs_of, **kw):
+    from sf2_studies.borrow import borrow
+
+    lines = []
+    out = borrow(dest, lend, runs_of, framework="jax", say=lines.append, **kw)
+    return out, "\n".join(lines)
+
+
+def _lender_and_copy(tmp_path, runs_of, finished):
+    """Two sibling study folders: "lend" (study "merging" as `study run` left it: plain metrics,
+    checkpoints) and "reuse" (study "reuse", the same runs) holding merged copies of `finished`."""
+    lend = tmp_path / "results" / "lend"
+    _source(tmp_path / "results", "lend", runs_of, finished=finished)
+    (tmp_path / "reuse.toml").write_text(STUDY.replace('"merging"', '"reuse"'))
+    dest = tmp_path / "results" / "reuse"
+    _merge([lend], dest, runs_of, study_file=tmp_path / "reuse.toml", command="sf2-jax study merge lend")
+    return lend, dest
+
+
+def test_borrow_reads_identical_runs_in_the_other_folder_and_removes_only_identical_copies(tmp_path, runs_of):
+    """`study borrow`: a run DIR holds identically (gzip or not) is read in OTHER and DIR's copy removed
+    (with the folders it leaves empty), one DIR lacks is taken, one whose file differs stays DIR's; the
+    report reads the same returns; OTHER is never written; --dry-run and a second borrow change nothing."""
+    from sf2_studies import report
+
+    lend, dest = _lender_and_copy(tmp_path, runs_of,
+                                  ["A/td3/seeds-0-1", "B/td3/seeds-2-3", "A/td3-sf2/seeds-0-1"])
+    folder, study = StudyFolder(dest), StudyFolder(dest).load_study()
+    returns = {(d.task, d.method.name): d.returns for d in report.collect(study, folder)}
+    shutil.rmtree(dest / "runs/B/td3/seeds-2-3")                       # DEST lacks it
+    log = dest / "runs/A/td3-sf2/seeds-0-1/train.log"                   # DEST's differs
+    log.write_text(log.read_text() + "resumed\n")
+    lent, held = folder_digest(lend), folder_digest(dest)
+    copy = sum(p.stat().st_size for p in (dest / "runs/A/td3").rglob("*") if p.is_file())
+    out, said = _borrow(dest, lend, runs_of, dry_run=True)
+    assert "would borrow A/td3/seeds-0-1" in said and folder_digest(dest) == held
+    out, said = _borrow(dest, lend, runs_of)
+    assert out.removed == ["A/td3/seeds-0-1"] and out.taken == ["B/td3/seeds-2-3"]
+    assert out.kept == ["A/td3-sf2/seeds-0-1"] and "train.log differs from OTHER's" in said
+    assert out.freed == copy > 0
+    assert not (dest / "runs/A/td3").exists() and (dest / "runs/A/td3-sf2/seeds-0-1").is_dir()
+    state = json.loads((dest / "study.json").read_text())
+    entries = {(r["task"], r["folder"]): r.get("from") for r in state["runs"]}
+    assert entries[("A", "td3/seeds-0-1")] == entries[("B", "td3/seeds-2-3")] == "../lend"
+    assert sum(v is not None for v in entries.values()) == 2 and folder_digest(lend) == lent
+    after = report.collect(study, folder)
+    assert {(d.task, d.method.name) for d in after} == returns.keys()
+    for d in after:
+        assert {s: list(r) for s, r in d.returns.items()} == {
+            s: list(r) for s, r in returns[(d.task, d.method.name)].items()}
+    held = folder_digest(dest)
+    out, said = _borrow(dest, lend, runs_of)
+    assert not (out.removed or out.taken) and folder_digest(dest) == held
+
+
+def test_a_borrowed_run_is_read_where_it_lies_and_never_written(tmp_path, runs_of):
+    """A borrowed run is done for `study run` and kept by its rewrite of study.json; `compress` and a merge
+    never write it (an identical source's run is skipped, a different one refused); a source's borrowings are
+    its own; a missing OTHER, or a borrowed run that is not finished there, stops the command by name."""
+    from sf2_studies import report, reruns, runner
+
+    lend, dest = _lender_and_copy(tmp_path, runs_of, ["A/td3/seeds-0-1"])
+    _borrow(dest, lend, runs_of)
+    folder, study = StudyFolder(dest), StudyFolder(dest).load_study()
+    runs = runs_of(study)
+    todo, done = runner.plan(study, folder, runs)
+    assert [j.path for j in done] == [lend / "runs/A/td3/seeds-0-1"] and len(todo) == 7
+    assert folder.groups_on_disk(study) == {(0, 1)}
+    folder.open(study, "jax", runs, "sf2-jax study run reuse.toml")
+    assert json.loads((dest / "study.json").read_text())["runs"][0]["from"] == "../lend"
+    assert reruns.collect(folder, report.collect(study, folder)) == ([], [])
+    lent = folder_digest(lend)
+    assert folder.compress_runs(runs, study) == [] and folder_digest(lend) == lent   # plain metrics stay
+    out, said = _merge([lend], dest, runs_of, study_file=tmp_path / "reuse.toml", command="again")
+    assert out.skipped == ["A/td3/seeds-0-1"] and "identical to DEST's" in said
+    assert folder_digest(lend) == lent
+    other = _source(tmp_path, "other", runs_of, finished=["A/td3/seeds-0-1"], ret=5.0)
+    with pytest.raises(StudyError, match="both hold it finished with different metrics"):
+        _merge([other], dest, runs_of, study_file=tmp_path / "reuse.toml", command="other")
+    out, _ = _merge([dest], tmp_path / "copy", runs_of)          # DEST as a source: its own runs only
+    assert out.merged == [] and all("from" not in r for r in
+                                    json.loads((tmp_path / "copy/study.json").read_text())["runs"])
+    copy = tmp_path / "host" / "tmp" / "study-reuse"            # gpu_study.sh's copy, named from its place
+    shutil.copytree(dest, copy)
+    with pytest.raises(StudyError, match="which is not there"):
+        StudyFolder(copy).borrowed()
+    assert StudyFolder(copy).rebase(dest) == 1
+    assert json.loads((copy / "study.json").read_text())["runs"][0]["from"] == "../../../results/lend"
+    assert StudyFolder(copy).borrowed() == {("A", "td3/seeds-0-1"): lend / "runs/A/td3/seeds-0-1"}
+    metrics = lend / "runs/A/td3/seeds-0-1/metrics.jsonl"       # unfinished there: never trained here
+    full = metrics.read_text()
+    metrics.write_text("".join(full.splitlines(keepends=True)[:4]))
+    with pytest.raises(StudyError, match="never trains another's run"):
+        runner.plan(study, folder, runs)
+    metrics.write_text(full)
+    lend.rename(tmp_path / "moved")
+    for call in (lambda: runner.plan(study, folder, runs), lambda: report.collect(study, folder)):
+        with pytest.raises(StudyError, match=r"lives in the study folder '\.\./lend'.*which is not there"):
+            call()

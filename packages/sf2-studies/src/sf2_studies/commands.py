@@ -7,7 +7,7 @@
                    [--dry-run]
     PROG study report DIR [--out REPORT_DIR]
     PROG study merge SOURCE... --into DIR [--partial] [--study STUDY.toml]
-    PROG study compress DIR
+    PROG study borrow DIR --from OTHER [--dry-run]  |  PROG study compress DIR
     PROG study compare DIR... --out DIR
     PROG study export DIR --out FILE.csv|FILE.parquet
 
@@ -103,6 +103,16 @@ def add_parser(sub, prog: str) -> None:
                    "run twice: GPU runs differ) is kept in DIR/rerun/<task>-<method>/<seeds>/, out of the "
                    "results (the report compares it with the run it repeats), and the rest is merged; "
                    "without it the merge is refused")
+    b = ssub.add_parser("borrow", help="read the runs another study folder holds finished there, keeping no "
+                        "copy", description="Of DIR's runs, those the study folder OTHER holds finished with "
+                        "exactly their config and seeds, and DIR identically (every file equal) or not at "
+                        "all, are read in OTHER from now on: DIR's study.json names OTHER for each, and "
+                        "DIR's copy is removed. `study run`, `report`, `compare`, `export` and `merge` read "
+                        "them there and never write them; a run DIR holds with other contents stays DIR's.")
+    b.add_argument("dir", metavar="DIR", help="study folder whose runs are borrowed")
+    b.add_argument("--from", dest="lender", required=True, metavar="OTHER",
+                   help="the study folder that holds the runs (e.g. results/fig7-td3 for results/own-adam)")
+    b.add_argument("--dry-run", action="store_true", help="say what would be borrowed; change nothing")
     c = ssub.add_parser("compress", help="gzip the metrics.jsonl and obs_noise.json of a study folder's "
                         "finished runs", description="Replace each finished run's metrics.jsonl and "
                         "obs_noise.json by a .gz of it (4-5x smaller; `study report`, `study run` and "
@@ -149,6 +159,8 @@ def main(backend: Backend, args) -> int:
             return _compare(args, command)
         if args.study_command == "merge":
             return _merge(backend, args, command)
+        if args.study_command == "borrow":
+            return _borrow(backend, args)
         if args.study_command == "compress":
             return _compress(backend, args)
         if args.study_command == "export":
@@ -331,6 +343,14 @@ def _merge(backend, args, command: str) -> int:
     merge(args.sources, args.into, functools.partial(_resolve, backend), framework=backend.name,
           partial=args.partial, reruns=args.keep_reruns,
           study_file=None if args.study is None else _study_file(args.study), command=command)
+    return 0
+
+
+def _borrow(backend, args) -> int:
+    from .borrow import borrow
+
+    borrow(args.dir, args.lender, functools.partial(_resolve, backend), framework=backend.name,
+           dry_run=args.dry_run)
     return 0
 
 

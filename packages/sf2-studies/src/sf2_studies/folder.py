@@ -1,6 +1,7 @@
 """A study folder: the study file it was made from (study.toml), its state (study.json: the run folder of
 every (task, method) and seed group, the commands), one run folder per training program under
-runs/<task>/<method>[/seeds-0-4]/, reruns under rerun/, and the report under report/.
+runs/<task>/<method>[/seeds-0-4]/ (or, for a run `study borrow` found identical in another study folder,
+that folder's, named in study.json), reruns under rerun/, and the report under report/.
 
 A study file that differs from the copy only in what no run depends on, or only adds tasks or methods,
 replaces the copy; any other difference is a `StudyError` and nothing is written. The layout:
@@ -10,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import socket
 import time
 import uuid
@@ -21,10 +23,23 @@ from sf2_common.fileio import atomic_write, compress, read_text, stored
 
 from .spec import Run, Study, StudyError, changed_methods, loads, same_runs, seeds_folder
 
-__all__ = ["StudyFolder", "RunState", "OBS_NOISE", "LOG", "evaluation_settings", "evaluation_done",
-           "read_obs_noise", "command_line"]
+__all__ = ["StudyFolder", "RunState", "ReadingRun", "OBS_NOISE", "LOG", "FROM", "evaluation_settings",
+           "evaluation_done", "read_obs_noise", "command_line"]
 
 LOG = "train.log"
+FROM = "from"   # a study.json runs entry's key: the study folder, relative to this one, that holds the run
+
+
+class ReadingRun(RunFolder):
+    """`RunFolder.check_compatible` that writes nothing: without the writability probe (a merge's source or
+    another study's run may be read-only) and without the checkpoints (never copied or borrowed)."""
+
+    def check_usable(self) -> None:
+        if self.path.exists() and not self.path.is_dir():
+            raise RunFolderError(f"run folder {self.path} is a file, not a folder")
+
+    def checkpoint_epochs(self) -> list[int]:
+        return []
 
 
 @dataclasses.dataclass(frozen=True)
@@ -113,7 +128,8 @@ class StudyFolder:
             mine = [r for r in runs if name in (m.name for m in r.methods)]
             try:
                 ok = bool(mine) and all(
-                    RunFolder(self.path_of(r)).check_compatible(r.config.to_dict(), r.seeds)
+                    (ReadingRun if self.is_borrowed(r) else RunFolder)(self.path_of(r)).check_compatible(
+                        r.config.to_dict(), r.seeds)
                     or not self.path_of(r).exists() for r in mine)
             except (RunFolderError, OSError, ValueError):   # another run, or one that cannot be read
                 ok = False
@@ -125,9 +141,11 @@ class StudyFolder:
         """The seed groups of `study` that have a run folder here (of any task and method, any state); without
         `seeds_per_run`, the one group of every seed if any method's folder is here."""
         base = self.path / self.RUNS
+        lent = {tuple(r.get("seeds", study.seeds)) for r in self.read_state().get("runs", []) if r.get(FROM)}
         if study.seeds_per_run is None:
-            return {tuple(study.seeds)} if any(p.is_dir() for p in base.glob("*/*")) else set()
-        return {g for g in study.seed_groups() if any(base.glob(f"*/*/{study.group_folder(g)}"))}
+            return {tuple(study.seeds)} if lent or any(p.is_dir() for p in base.glob("*/*")) else set()
+        return {g for g in study.seed_groups()
+                if g in lent or any(base.glob(f"*/*/{study.group_folder(g)}"))}
 
     def open(self, study: Study, framework: str, runs: list[Run], command: str | None = None) -> dict:
         """`check`, then create or update the folder: its copy of the study file, and study.json (the run
@@ -141,7 +159,9 @@ class StudyFolder:
         state = self.read_state()
         state.setdefault("id", uuid.uuid4().hex)
         state.update(name=study.name, framework=framework)
-        state["runs"] = [run_entry(r) for r in runs]
+        held = {(r.get("task"), r.get("folder")): r[FROM] for r in state.get("runs", []) if r.get(FROM)}
+        state["runs"] = [{**run_entry(r), **({FROM: held[r.task, r.rel]} if (r.task, r.rel) in held else {})}
+                         for r in runs]
         if command is not None:
             state.setdefault("commands", []).append(command_entry(command))
         atomic_write(self.path / self.STATE, json.dumps(state, indent=2, ensure_ascii=False) + "\n")
@@ -153,7 +173,50 @@ class StudyFolder:
         return self.path / self.RUNS / task / folder
 
     def path_of(self, run: Run) -> Path:
-        return self.run_path(run.task, run.rel)
+        """The run's folder: runs/<task>/<run.rel>, or the other study folder's that study.json names."""
+        return self.borrowed().get((run.task, run.rel)) or self.run_path(run.task, run.rel)
+
+    def borrowed(self) -> dict[tuple[str, str], Path]:
+        """{(task, folder): run folder} of the runs this folder reads from another study folder (study.json's
+        `from`, written by `study borrow`); `StudyError` naming an entry whose study folder is missing."""
+        out = {}
+        for r in self.read_state().get("runs", []):
+            if not r.get(FROM):
+                continue
+            other = Path(os.path.normpath(self.path / r[FROM]))
+            if not (other / self.STUDY).is_file():
+                raise StudyError(
+                    f"{self.path / self.STATE}: the run {r['task']}/{r['folder']} lives in the study folder "
+                    f"{r[FROM]!r} (relative to {self.path}), which is not there ({other}); nothing was "
+                    f"changed. Restore that folder beside this one, or merge the run into this folder and "
+                    f"remove the entry's {FROM!r}")
+            out[(r["task"], r["folder"])] = other / self.RUNS / r["task"] / r["folder"]
+        return out
+
+    def rebase(self, origin) -> int:
+        """After this folder was copied from `origin` (e.g. to a GPU host's /tmp): each study.json `from`
+        made to name, from here, the folder it named from `origin`. Returns the entries changed.
+
+        Args:
+            origin: the study folder this one is a copy of.
+
+        Returns:
+            The number of runs entries rewritten (0 for a folder that borrows nothing).
+        """
+        state = self.read_state()
+        changed = 0
+        for r in state.get("runs", []):
+            if r.get(FROM):
+                r[FROM] = Path(os.path.relpath(Path(origin) / r[FROM], self.path)).as_posix()
+                changed += 1
+        if changed:
+            atomic_write(self.path / self.STATE, json.dumps(state, indent=2, ensure_ascii=False) + "\n")
+        self.borrowed()   # every folder named is there, or `StudyError` names the one that is not
+        return changed
+
+    def is_borrowed(self, run: Run) -> bool:
+        """True if the run's folder is another study folder's (`borrowed`): this folder never writes it."""
+        return self.path_of(run) != self.run_path(run.task, run.rel)
 
     def rerun_path(self, task: str, folder: str, seeds, k: int = 1) -> Path:
         """rerun/<task>-<folder>/<seeds folder>, '.k' appended for the k-th rerun (k > 1) of one run;
@@ -170,19 +233,22 @@ class StudyFolder:
                 out[(t, m.name)] = {
                     g: self.run_path(t, "/".join(filter(None, (m.name, study.group_folder(g)))))
                     for g in study.seed_groups()}
+        lent = self.borrowed()
         for r in self.read_state().get("runs", []):
             seeds = tuple(r.get("seeds", study.seeds))   # study.json before seed groups: all seeds
             for name in r["methods"]:
                 groups = out.get((r["task"], name))
                 if groups is not None and seeds in groups:
-                    groups[seeds] = self.run_path(r["task"], r["folder"])
+                    key = (r["task"], r["folder"])
+                    groups[seeds] = lent.get(key) or self.run_path(*key)
         return out
 
     def check_run(self, run: Run) -> None:
         """Raise `StudyError` if the run's folder holds another config or other seeds (the trainer would
         refuse it too, after compiling)."""
+        kind = ReadingRun if self.is_borrowed(run) else RunFolder
         try:
-            RunFolder(self.path_of(run)).check_compatible(run.config.to_dict(), run.seeds)
+            kind(self.path_of(run)).check_compatible(run.config.to_dict(), run.seeds)
         except RunFolderMismatch as err:
             raise StudyError(f"{err} (the study folder's runs must come from its study file)") from None
 
@@ -218,7 +284,7 @@ class StudyFolder:
             self.check_run(run)
         done = []
         for run in runs:
-            if self.run_state(run, study).status != "done":
+            if self.is_borrowed(run) or self.run_state(run, study).status != "done":
                 continue
             path = self.path_of(run)
             if any([compress(path / RunFolder.METRICS), compress(path / OBS_NOISE)]):

@@ -25,7 +25,7 @@ from sf2_common.agents.lock import FolderLock, holder_of
 from sf2_common.agents.runfolder import RunFolder, RunFolderError, RunFolderMismatch
 from sf2_common.fileio import GZ, atomic_write, compress, stored
 
-from .folder import OBS_NOISE, StudyFolder, command_entry, read_obs_noise, run_entry
+from .folder import FROM, OBS_NOISE, ReadingRun, StudyFolder, command_entry, read_obs_noise, run_entry
 from .spec import Run, Study, StudyError, load, loads, only_adds, same_runs, seeds_text
 
 __all__ = ["KEPT", "Outcome", "first_difference", "merge", "rows_difference"]
@@ -208,7 +208,7 @@ def _open_source(text: str, stack: contextlib.ExitStack) -> tuple[str, StudyFold
                              "(`study run FILE --out DIR` makes one; scripts/gpu-host/gpu_study.sh archives "
                              "one)")
         root = inner[0]
-    return text, StudyFolder(root)
+    return text, _Source(root)
 
 
 def _unpack(path: Path, into: Path) -> Path:
@@ -329,7 +329,7 @@ def _other_config(src: StudyFolder, run: Run) -> str | None:
     if not (path / RunFolder.CONFIG).is_file():
         return None
     try:
-        _Reading(path).check_compatible(run.config.to_dict(), run.seeds)
+        ReadingRun(path).check_compatible(run.config.to_dict(), run.seeds)
     except RunFolderMismatch as err:
         return str(err).replace(" Use another --out, or --fresh to overwrite it.", "").rstrip(".")
     except RunFolderError:
@@ -354,7 +354,7 @@ def _stray_runs(src: StudyFolder, expected) -> list[str]:
 def _look(folder: StudyFolder, run: Run, study: Study, where: str) -> _Side:
     path = folder.path_of(run)
     try:
-        _Reading(path).check_compatible(run.config.to_dict(), run.seeds)
+        ReadingRun(path).check_compatible(run.config.to_dict(), run.seeds)
         state = folder.run_state(run, study)
         rows = RunFolder(path).read_rows(strict=True)
     except RunFolderMismatch as err:
@@ -375,16 +375,12 @@ def _look(folder: StudyFolder, run: Run, study: Study, where: str) -> _Side:
     return _Side(path, state.status, state.env_steps, rows, noise, where)
 
 
-class _Reading(RunFolder):
-    """`RunFolder.check_compatible` for a merge: without the writability probe (a source may be read-only;
-    the checks write nothing) and without the checkpoints (a merge never copies them)."""
+class _Source(StudyFolder):
+    """A SOURCE: only the runs in its own runs/ (a run it borrows from another study folder is that one's to
+    merge; an archive holds no other folder)."""
 
-    def check_usable(self) -> None:
-        if self.path.exists() and not self.path.is_dir():
-            raise RunFolderError(f"run folder {self.path} is a file, not a folder")
-
-    def checkpoint_epochs(self) -> list[int]:
-        return []
+    def borrowed(self) -> dict:
+        return {}
 
 
 def _total(run: Run, study: Study) -> int:
@@ -529,10 +525,14 @@ def _merge_state(dest: StudyFolder, sources: list[StudyFolder], study: Study, fr
     state.setdefault("framework", framework)
     runs = state["runs"] = [r for r in state.get("runs", []) if _entry_of(study, r)]
     have = {(r.get("task"), r.get("folder")) for r in runs}
+    for run in merged:   # written into DEST's runs/ now: no longer read from another folder
+        for r in runs:
+            if (r.get("task"), r.get("folder")) == (run.task, run.rel):
+                r.pop(FROM, None)
     for entry in (e for s in states for e in s.get("runs", []) if _entry_of(study, e)):
         if (entry.get("task"), entry.get("folder")) not in have:
             have.add((entry.get("task"), entry.get("folder")))
-            runs.append(entry)
+            runs.append({k: v for k, v in entry.items() if k != FROM})   # a source's borrowing is its own
     for run in merged:   # a source whose study.json lacks the entry (hand-made): the run's own
         if (run.task, run.rel) not in have:
             have.add((run.task, run.rel))

@@ -59,10 +59,12 @@ def collect(folder: StudyFolder, data) -> tuple[list[Rerun], list[Path]]:
     repeats none of them: ignored, and named by the report). `StudyError` naming a rerun folder that
     cannot be read, or whose seeds are not its run's."""
     found, matched = [], set()
-    runs_dir = folder.path / StudyFolder.RUNS
     for d in data:
         for g in (g for g in d.groups if g.finished):
-            run_folder = g.path.relative_to(runs_dir / d.task).parts[0]
+            # runs/<task>/<folder>[/seeds-…] of this study folder, or of another that it borrows the run from
+            task_dir = next(p for p in g.path.parents
+                            if p.name == d.task and p.parent.name == StudyFolder.RUNS)
+            run_folder = g.path.relative_to(task_dir).parts[0]
             k = 1
             while (path := folder.rerun_path(d.task, run_folder, g.seeds, k)).is_dir():
                 matched.add(path)

@@ -89,6 +89,11 @@ def plan(study: Study, folder: StudyFolder, runs: list[Run], log: str | None = N
         folder.check_run(run)
         state = folder.run_state(run, study)
         path = folder.path_of(run)
+        if state.status != "done" and folder.is_borrowed(run):
+            raise StudyError(f"{run.task}/{run.rel}: {folder.path}'s study.json reads it from {path}, "
+                             f"where it is {state.status}, not finished; nothing was run. A study folder "
+                             f"never trains another's run: finish it in its own study, or remove the "
+                             f"entry's \"from\" in {folder.path / folder.STATE} to train it here")
         commands = []
         if state.status in ("new", "partial"):
             commands.append(["train", *run.argv, "--out", str(path), "--no-progress",
