@@ -62,15 +62,17 @@ PARTIAL_EPOCH = 20   # the SAC run on CheetahRun stops here (of 99): unfinished
 @pytest.fixture(scope="module")
 def study_dir(tmp_path_factory):
     """The study folder: the TD3 methods' run folders of results/own-adam on two tasks, both seed groups
-    (finished); SAC's seeds 0-4 on CheetahRun from results/fig7-sac cut after epoch 20 (unfinished); SAC on
-    AcrobotSwingup and SAC's seeds 5-14 not started. Then `study report` on it."""
+    (finished; read where own-adam reads them, some in fig7-td3: `study borrow`); SAC's seeds 0-4 on
+    CheetahRun from results/fig7-sac cut after epoch 20 (unfinished); SAC on AcrobotSwingup and SAC's
+    seeds 5-14 not started. Then `study report` on it."""
     root = tmp_path_factory.mktemp("export")
     folder = StudyFolder(root / "study")
     folder.open(loads(STUDY, root / "s.toml"), "jax", [], command="sf2-jax study run s.toml --out study")
+    own = StudyFolder(RESULTS / "own-adam")
     for task in TASKS:
         for name in TD3:
             for group in ("seeds-0-4", "seeds-5-14"):
-                src = RESULTS / "own-adam" / "runs" / task / name / group
+                src = own.borrowed().get((task, f"{name}/{group}")) or own.run_path(task, f"{name}/{group}")
                 dst = folder.run_path(task, f"{name}/{group}")
                 dst.mkdir(parents=True)
                 for f in ("config.json", "metrics.jsonl.gz"):
