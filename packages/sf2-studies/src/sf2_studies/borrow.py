@@ -17,7 +17,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from sf2_common.agents.runfolder import RunFolderError
-from sf2_common.fileio import atomic_write, read_text, stored
+from sf2_common.fileio import read_text, stored
 
 from .folder import FROM, OBS_NOISE, ReadingRun, StudyFolder, run_entry
 from .merge import KEPT, _check_not_running
@@ -139,7 +139,7 @@ def _record(dest: StudyFolder, study: Study, runs: list[Run], entries: dict) -> 
                 have[key] = run_entry(run)
                 state["runs"].append(have[key])
             have[key][FROM] = Path(entries[key]).as_posix()
-    atomic_write(dest.path / StudyFolder.STATE, json.dumps(state, indent=2, ensure_ascii=False) + "\n")
+    dest.write_state(state)
 
 
 def _remove(path: Path, runs_dir: Path) -> None:

@@ -137,6 +137,14 @@ class StudyFolder:
                 fit.add(name)
         return frozenset(fit)
 
+    def write_state(self, state: dict) -> None:
+        """Write study.json atomically (indented, UTF-8): the one way every command writes it.
+
+        Args:
+            state: the study's state, as `read_state` returns it.
+        """
+        atomic_write(self.path / self.STATE, json.dumps(state, indent=2, ensure_ascii=False) + "\n")
+
     def groups_on_disk(self, study: Study) -> set[tuple[int, ...]]:
         """The seed groups of `study` that have a run folder here (of any task and method, any state); without
         `seeds_per_run`, the one group of every seed if any method's folder is here."""
@@ -164,7 +172,7 @@ class StudyFolder:
                          for r in runs]
         if command is not None:
             state.setdefault("commands", []).append(command_entry(command))
-        atomic_write(self.path / self.STATE, json.dumps(state, indent=2, ensure_ascii=False) + "\n")
+        self.write_state(state)
         return state
 
     # ------------------------------------------------------------------ runs
@@ -210,7 +218,7 @@ class StudyFolder:
                 r[FROM] = Path(os.path.relpath(Path(origin) / r[FROM], self.path)).as_posix()
                 changed += 1
         if changed:
-            atomic_write(self.path / self.STATE, json.dumps(state, indent=2, ensure_ascii=False) + "\n")
+            self.write_state(state)
         self.borrowed()   # every folder named is there, or `StudyError` names the one that is not
         return changed
 

@@ -551,7 +551,7 @@ def _merge_state(dest: StudyFolder, sources: list[StudyFolder], study: Study, fr
         state["commands"] = sorted(commands, key=lambda c: str(c.get("time", "")))
     if state != old:
         dest.path.mkdir(parents=True, exist_ok=True)
-        atomic_write(dest.path / StudyFolder.STATE, json.dumps(state, indent=2, ensure_ascii=False) + "\n")
+        dest.write_state(state)
     return added
 
 
