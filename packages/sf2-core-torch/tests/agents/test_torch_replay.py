@@ -52,6 +52,22 @@ def test_the_state_dict_restores_contents_and_write_position():
     assert stored[0] == stored[1] == [9.0, 10.0, 11.0, 12.0, 13.0, 14.0, 15.0, 100.0, 101.0, 102.0]
 
 
+def test_a_state_loaded_onto_another_device_restores_and_keeps_the_generator():
+    """A checkpoint restored with `map_location` set to a GPU holds TorchRL's copy of the generator state
+    there, and a generator takes only a CPU byte tensor; that copy is not read (the `meta` device stands
+    in for the GPU here). The buffer keeps drawing from the seed's own generator."""
+    rb = _filled()
+    state = rb.state_dict()
+    rng_state, rng_device = state["_rng"]
+    state["_rng"] = (rng_state.to("meta"), rng_device)
+    generator = torch.Generator().manual_seed(0)
+    fresh = ReplayBuffer(10, "cpu", generator)
+    fresh.load_state_dict(state)
+    assert fresh.size() == 10 and fresh.buffer._rng is generator
+    generator.set_state(rb.generator.get_state())
+    assert torch.equal(to_batch(fresh.sample(64)).obs, to_batch(rb.sample(64)).obs)
+
+
 def test_inserting_and_drawing_read_no_value_to_the_host(monkeypatch):
     """TorchRL's default storage read its last written index with `.item()` at every insert; with
     `compilable=True` (replay.py) nothing on this path does."""

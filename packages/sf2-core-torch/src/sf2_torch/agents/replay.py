@@ -96,6 +96,8 @@ class ReplayBuffer:
     def load_state_dict(self, state: dict) -> None:
         """Restore the transitions and the write position. The generator stays the one this buffer was
         built with (TorchRL's `load_state_dict` would install a new generator object, splitting the
-        seed's one random stream in two); its state is restored by the owner of the generator."""
-        self.buffer.load_state_dict(state)
+        seed's one random stream in two); its state is restored by the owner of the generator. The
+        state's own copy of the generator state is not read: a checkpoint loaded onto a GPU holds it
+        there, where no generator accepts it."""
+        self.buffer.load_state_dict({k: v for k, v in state.items() if k != "_rng"})
         self.buffer.set_rng(self.generator)

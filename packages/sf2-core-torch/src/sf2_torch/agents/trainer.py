@@ -279,7 +279,8 @@ class Program:
             for ag, s in zip(state.agents, saved["agents"]):
                 ag.algo.load_state_dict(s["algo"])
                 ag.replay.load_state_dict(s["replay"])
-                ag.generator.set_state(s["generator"])
+                # a generator takes its state as a CPU byte tensor, wherever the checkpoint was loaded
+                ag.generator.set_state(s["generator"].cpu())
             state.env.set_state_leaves(env_leaves)
         except (RuntimeError, ValueError, KeyError) as err:
             raise CheckpointMismatch(f"checkpoint does not fit this program: {err}") from err
