@@ -9,10 +9,10 @@ Each case builds the trainer's own program (the `paper` preset cut so an epoch h
 steps and the random prefill at most one epoch; on-policy an actor step is one update: take 1), runs one
 epoch (compilation, prefill), then traces `--epochs` epochs, per SGD step (comparable with `python -m bench
 run --profile`'s single updates); `--hlo` adds the kernels and kernel time per phase, from the compiled
-epoch (`bench.hlo`). The torch case times each phase of an actor step on the host (as trained, then drained
-around each), then traces the kernels and the CUDA calls that can make the host wait: host time close to the
-wall time means the host paces the epoch, busy time close to it the device. Each summary lists where the
-device idles (`bench.profile.idle_gaps`); the torch case also writes its trace (`trace-*.json.gz`).
+epoch (`bench.hlo`). The torch case times on the host each phase of an actor step and of an evaluation
+env step (as trained, then drained around each), then traces the kernels and the CUDA calls that can make
+the host wait: host time near the wall time means the host paces the epoch, busy time the device. Each
+summary lists where the device idles (`bench.profile.idle_gaps`); the torch case writes its trace too.
 """
 
 from __future__ import annotations
@@ -239,6 +239,7 @@ def profile_torch_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides,
         sync()
         host["synced" if synced else "as trained"] = timer.take(updates, time.perf_counter() - t)
     timer.synced = False
+    evaluation = time_evaluation(program, state, epoch, sync)
     # on CUDA the device activity alone (kernels, copies, CUDA runtime/driver calls through CUPTI): the
     # summary reads nothing else, and recording every CPU op as well slows the host several times over,
     # which hides where the device idles
@@ -265,8 +266,44 @@ def profile_torch_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides,
                if e.get("ph") == "X" and e.get("cat") in ("kernel", "gpu_memcpy", "gpu_memset")]
     device = f"GPU {torch.cuda.get_device_name()}" if torch.cuda.is_available() else "CPU"
     return {"label": label, "updates": updates, "wall_ms_per_update": traced_wall / updates * 1e3,
-            "host": host, "runtime": _runtime_calls(events, updates),
+            "host": host, "evaluation": evaluation, "runtime": _runtime_calls(events, updates),
             "devices": [summarize_kernels(kernels, updates, device)] if kernels else []}
+
+
+def time_evaluation(program, state, epoch: int, sync) -> dict:
+    """Time the torch trainer's evaluation (`Program.evaluate`) per env step, by phase: the seeds' policies
+    (`act`) and the env step, unsynchronized and synchronized (`_PhaseTimer`), after one untimed episode.
+
+    Args:
+        program: the torch trainer's `Program`.
+        state: its `TrainState` (the agents act, its `eval_keys` give the start states).
+        epoch: the epoch the acting noise is drawn for.
+        sync: a callable that drains the device.
+
+    Returns:
+        {"as trained": …, "synced": …}, each `_PhaseTimer.take`'s ms per evaluation env step.
+    """
+    import time
+
+    from sf2_torch.agents.trainer import _eval_env
+
+    timer = _PhaseTimer(sync)
+    env = _eval_env(program, state.seeds)
+    env.step = timer.wrap("env_step", env.step)
+    for ag in state.agents:
+        ag.algo.act = timer.wrap("act", ag.algo.act)
+    steps, out = program.sched.eval_actor_steps, {}
+    for how in (None, "as trained", "synced"):   # None: the untimed episode (compilation)
+        timer.synced = how == "synced"
+        t = time.perf_counter()
+        program.evaluate(state.agents, state.eval_keys, state.seeds, epoch, env)
+        sync()
+        taken = timer.take(steps, time.perf_counter() - t)
+        if how:
+            out[how] = taken
+    for ag in state.agents:
+        del ag.algo.act   # the class's own again
+    return out
 
 
 def main(argv=None) -> int:

@@ -241,6 +241,10 @@ def markdown(summaries: list[dict]) -> str:
             out += ["", f"host, untraced epochs {how}: wall {h['wall_ms']:.3f} ms per update; "
                     + ", ".join(f"{k} {v:.3f} ms" for k, v in h["phases_ms"].items())
                     + f"; the rest (the trainer's own Python between them) {h['rest_ms']:.3f} ms"]
+        for how, h in s.get("evaluation", {}).items():   # the torch trainer's evaluation (agent_profile)
+            out += ["", f"evaluation {how}: wall {h['wall_ms']:.3f} ms per env step; "
+                    + ", ".join(f"{k} {v:.3f} ms" for k, v in h["phases_ms"].items())
+                    + f"; the rest (the loop's own Python and tensors) {h['rest_ms']:.3f} ms"]
         if s.get("runtime"):
             out += ["", "CUDA runtime/driver calls per update (those that can wait first): "
                     + ", ".join(f"`{r['name']}` {r['count']:.1f} × / {r['ms']:.3f} ms" for r in s["runtime"])]

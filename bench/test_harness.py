@@ -237,6 +237,49 @@ def test_agent_profile_hlo_is_the_jax_trainers(capsys, tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_agent_profile_times_the_torch_evaluation_per_env_step(monkeypatch):
+    """`agent_profile.time_evaluation` splits `Program.evaluate`'s wall time per env step into the seeds'
+    policies (`act`) and the env step, as trained and synced, leaves each agent's own `act` in place after,
+    and `profile.markdown` shows both ways. A fake program whose policies and env sleep known times."""
+    trainer = pytest.importorskip("sf2_torch.agents.trainer", reason="the torch trainer: install "
+                                  "\"packages/sf2-core-torch[train]\"")
+    from types import SimpleNamespace
+
+    from bench import agent_profile, profile
+
+    act_s, env_s, steps, seeds = 0.002, 0.001, 5, (0, 1)
+
+    class Algo:
+        def act(self, obs, generator, deterministic):
+            time.sleep(act_s)
+
+    class Env:
+        def step(self, td):
+            time.sleep(env_s)
+
+    class Program:
+        sched = SimpleNamespace(eval_actor_steps=steps)
+
+        def evaluate(self, agents, start_keys, seeds_, epoch, env):
+            for _ in range(steps):
+                for ag in agents:
+                    ag.algo.act(None, None, True)
+                env.step(None)
+
+    monkeypatch.setattr(trainer, "_eval_env", lambda program, seeds_: Env())
+    state = SimpleNamespace(seeds=seeds, eval_keys=None, agents=[SimpleNamespace(algo=Algo()) for _ in seeds])
+    drained = []
+    out = agent_profile.time_evaluation(Program(), state, 3, lambda: drained.append(1))
+    assert set(out) == {"as trained", "synced"} and drained
+    for h in out.values():
+        assert set(h["phases_ms"]) == {"act", "env_step"}
+        assert h["phases_ms"]["act"] >= len(seeds) * act_s * 1e3 and h["phases_ms"]["env_step"] >= env_s * 1e3
+        assert h["wall_ms"] >= sum(h["phases_ms"].values()) and h["rest_ms"] >= 0
+    assert all("act" not in vars(ag.algo) for ag in state.agents)
+    md = profile.markdown([{"label": "fake", "wall_ms_per_update": 1.0, "evaluation": out, "devices": []}])
+    assert "evaluation as trained: wall" in md and "evaluation synced: wall" in md and "ms per env step" in md
+
+
 @pytest.mark.parametrize("env_steps,epochs,prefill,expected", [
     (16_000, 3, 8_192, (5_334, 2)),   # 8,192 // 5,334 = 1 whole prefill epoch, the next holds SGD step 1
     (32_000, 2, 8_192, (16_000, 1)),  # the prefill ends inside epoch 1
