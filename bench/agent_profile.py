@@ -289,7 +289,7 @@ def time_evaluation(program, state, epoch: int, sync) -> dict:
 
     timer = _PhaseTimer(sync)
     env = _eval_env(program, state.seeds)
-    env.step = timer.wrap("env_step", env.step)
+    env.step_actions = timer.wrap("env_step", env.step_actions)
     for ag in state.agents:
         ag.algo.act = timer.wrap("act", ag.algo.act)
     steps, out = program.sched.eval_actor_steps, {}

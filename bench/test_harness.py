@@ -254,7 +254,7 @@ def test_agent_profile_times_the_torch_evaluation_per_env_step(monkeypatch):
             time.sleep(act_s)
 
     class Env:
-        def step(self, td):
+        def step_actions(self, action):
             time.sleep(env_s)
 
     class Program:
@@ -264,7 +264,7 @@ def test_agent_profile_times_the_torch_evaluation_per_env_step(monkeypatch):
             for _ in range(steps):
                 for ag in agents:
                     ag.algo.act(None, None, True)
-                env.step(None)
+                env.step_actions(None)
 
     monkeypatch.setattr(trainer, "_eval_env", lambda program, seeds_: Env())
     state = SimpleNamespace(seeds=seeds, eval_keys=None, agents=[SimpleNamespace(algo=Algo()) for _ in seeds])

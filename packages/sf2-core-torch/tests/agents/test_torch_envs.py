@@ -1,6 +1,7 @@
 """The torch trainer's env keeps the JAX state packed (sf2_torch/agents/envs.py, module docstring): stepping
 it gives, bit for bit, what stepping the plain JAX state with the same jitted step gives, across episode
-ends (auto-reset, truncation); its state leaves are the plain state's, copies that later steps do not
+ends (auto-reset, truncation); `step_actions` (the trainer's loops' step) gives what TorchRL's `step` nests
+under "next", key for key; its state leaves are the plain state's, copies that later steps do not
 change, and restore into another env exactly; a leaf that does not fit is refused with its shapes."""
 
 from __future__ import annotations
@@ -98,3 +99,19 @@ def test_state_leaves_are_copies_and_restore_exactly():
         other.set_state_leaves(bad)
     with pytest.raises(ValueError, match=f"has {len(leaves)} arrays, got {len(leaves) - 1}"):
         other.set_state_leaves(leaves[:-1])
+
+
+def test_step_actions_gives_what_torchrls_step_gives():
+    env, lean = envs.make_env(TASK, EPISODE, 1, N), envs.make_env(TASK, EPISODE, 1, N)
+    obs = env.reset_from_keys(_keys()).get("observation")
+    lean.reset_from_keys(_keys())
+    ends = 0
+    for action in _actions(16):
+        nxt, mine = _step(env, obs, action), lean.step_actions(action)
+        assert set(mine.keys()) == set(nxt.keys()) == {"observation", "reward", "done", "terminated",
+                                                       "truncated"}
+        for key in nxt.keys():
+            assert mine.get(key).dtype == nxt.get(key).dtype and torch.equal(mine.get(key), nxt.get(key)), key
+        obs = nxt.get("observation")
+        ends += int(mine.get("truncated").any())
+    assert ends == 2   # at steps 7 and 14

@@ -207,7 +207,8 @@ class PlaygroundEnv(MujocoPlaygroundWrapper):
         import jax
 
         self._key = None
-        self._packed = None    # the packed JAX state (module docstring)
+        self._keep(_packed=None,     # the packed JAX state (module docstring)
+                   _step_fn=None)    # its jitted step (`_packed_fns`), set at each reset
         self._layout: StateLayout | None = None
         self._jax_device = jax.devices("gpu" if self.device.type == "cuda" else "cpu")[0]
 
@@ -225,10 +226,27 @@ class PlaygroundEnv(MujocoPlaygroundWrapper):
         return self._reset_from(jax.random.split(sub, self.batch_size.numel()))
 
     def _step(self, tensordict):
-        action = tensordict.get("action")
-        _, step = _packed_fns(self._spec, self._layout)
-        self._packed, transition = step(self._packed, self._to_jax(action.to(torch.float32)))
+        return self.step_actions(tensordict.get("action"))
+
+    # ---------------------------------------------------------------- helpers
+    def step_actions(self, action: torch.Tensor) -> TensorDict:
+        """Step every env with `action`, without TorchRL's `step` around it (the trainer's loops).
+
+        Args:
+          action: (num_envs, A).
+
+        Returns:
+          What `step(td)["next"]` holds: `observation`, `reward`, `done`, `terminated`, `truncated`.
+        """
+        packed, transition = self._step_fn(self._packed, self._to_jax(action.to(torch.float32)))
+        self._keep(_packed=packed)
         return self._outputs(transition, with_reward=True)
+
+    def _keep(self, **values) -> None:
+        """Set plain attributes straight in the instance's dict: TorchRL's and `nn.Module`'s `__setattr__`
+        (spec and submodule bookkeeping, none of which a JAX state needs) cost more host time than the
+        rest of a step (bench/lab/torch_eval_env.py)."""
+        self.__dict__.update(values)
 
     # ---------------------------------------------------------------- helpers
     def reset_from_keys(self, keys) -> TensorDict:
@@ -248,8 +266,9 @@ class PlaygroundEnv(MujocoPlaygroundWrapper):
         keys = jax.device_put(keys, self._jax_device)  # committed, like every later input
         state = self._spec.reset(keys)
         self._layout = StateLayout.of(state)
-        pack, _ = _packed_fns(self._spec, self._layout)
-        self._packed, transition = pack(state)
+        pack, step = _packed_fns(self._spec, self._layout)
+        packed, transition = pack(state)
+        self._keep(_packed=packed, _step_fn=step)
         return self._outputs(transition, with_reward=False)
 
     def _to_jax(self, t: torch.Tensor):
@@ -310,7 +329,7 @@ class PlaygroundEnv(MujocoPlaygroundWrapper):
             if x.shape != shape or str(x.dtype) != dtype:
                 raise ValueError(f"env state array {x.shape} {x.dtype} does not fit {shape} {dtype}")
             arrays.append(x)
-        self._packed = tuple(jax.device_put(b, self._jax_device) for b in layout.pack(arrays, np))
+        self._keep(_packed=tuple(jax.device_put(b, self._jax_device) for b in layout.pack(arrays, np)))
 
     def __repr__(self) -> str:
         return (f"PlaygroundEnv(task={self._spec.task!r}, num_envs={self.batch_size.numel()}, "

@@ -159,11 +159,9 @@ class Program:
     def _env_step(self, state: TrainState, actions: torch.Tensor) -> TensorDict:
         """Step every env with `actions` (seeds, num_envs, A); returns the transitions (seeds, num_envs)."""
         s, n = len(state.seeds), self.cfg.num_envs
-        td = TensorDict({"observation": state.obs.reshape(s * n, -1), "action": actions.reshape(s * n, -1)},
-                        [s * n], device=self.device)
-        out = state.env.step(td)
-        nxt = out.get("next")
-        trans = TensorDict({"observation": td.get("observation"), "action": td.get("action"),
+        obs, actions = state.obs.reshape(s * n, -1), actions.reshape(s * n, -1)
+        nxt = state.env.step_actions(actions)
+        trans = TensorDict({"observation": obs, "action": actions,
                             "next": nxt.select("observation", "reward", "done", "terminated", "truncated")},
                            [s * n], device=self.device)
         state.obs = nxt.get("observation").view(s, n, -1)
@@ -255,9 +253,7 @@ class Program:
             with self.learner_precision():
                 actions = torch.stack([ag.algo.act(seen[i], gens[i], cfg.deterministic_eval)
                                        for i, ag in enumerate(agents)]).float()
-            td = TensorDict({"observation": obs.reshape(s * n, -1), "action": actions.reshape(s * n, -1)},
-                            [s * n], device=self.device)
-            nxt = env.step(td).get("next")
+            nxt = env.step_actions(actions.reshape(s * n, -1))
             ret += nxt.get("reward").view(s, n) * alive
             alive *= 1.0 - nxt.get("done").view(s, n).to(alive.dtype)
             obs = nxt.get("observation").view(s, n, -1)
