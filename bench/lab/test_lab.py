@@ -328,3 +328,40 @@ ENTRY %main {
     counts = opcode_counts(hlo)
     assert counts["convolution"] == counts["while"] == counts["dot"] == counts["fusion"] == 1
     assert counts["instructions"] == 6 and counts["sort"] == 0
+
+
+def test_torch_eval_env_ways_step_the_same_envs_to_the_same_states(capsys):
+    """`torch_eval_env` times like with like: TorchRL's step, `step_actions`, `_step` and the jitted JAX step
+    reach the same observations from one reset and one action sequence, the compiled scan the same up to
+    its own fusion's rounding; a bad size or task exits 2."""
+    pytest.importorskip("torchrl", reason="the torch trainer's env: install sf2-core-torch[train]")
+    import jax
+    import jax.numpy as jnp
+    import torch
+    from sf2_torch.agents import envs
+
+    from bench.lab import torch_eval_env
+
+    n, steps = 3, 4
+    env = envs.make_env("CartpoleBalance", 1000, 1, n, "cpu")
+    keys = jax.random.split(jax.random.PRNGKey(1), n)
+    g = torch.Generator().manual_seed(2)
+    actions = [torch.rand(n, env._spec.action_size, generator=g) * 2 - 1 for _ in range(steps)]
+    jax_actions = jnp.stack([jnp.asarray(a.numpy()) for a in actions])
+    last = {}
+    for way in torch_eval_env.WAYS:
+        env.reset_from_keys(keys)
+        fn = torch_eval_env.stepper(way, env, actions, jax_actions)
+        obs = [np.asarray(fn(i)) for i in range(steps)]
+        last[way] = obs[-1]
+        assert not np.array_equal(obs[0], obs[-1])   # the envs moved
+    np.testing.assert_array_equal(last["own_step"], last["torchrl_step"])
+    np.testing.assert_array_equal(last["step_actions"], last["torchrl_step"])
+    np.testing.assert_array_equal(last["jax_step"], last["torchrl_step"])
+    np.testing.assert_allclose(np.asarray(torch_eval_env.scan_steps(env, keys, jax_actions)()),
+                               last["torchrl_step"], rtol=1e-5, atol=1e-6)
+    with pytest.raises(ValueError, match="unknown way 'nope'"):
+        torch_eval_env.stepper("nope", env, actions, jax_actions)
+    assert torch_eval_env.main(["--envs", "0"]) == 2
+    assert torch_eval_env.main(["--task", "Nope", "--device", "cpu"]) == 2
+    assert "unknown task 'Nope'" in capsys.readouterr().err
