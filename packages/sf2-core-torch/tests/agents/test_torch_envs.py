@@ -103,6 +103,8 @@ def test_state_leaves_are_copies_and_restore_exactly():
 
 def test_step_actions_gives_what_torchrls_step_gives():
     env, lean = envs.make_env(TASK, EPISODE, 1, N), envs.make_env(TASK, EPISODE, 1, N)
+    with pytest.raises(RuntimeError, match="reset the env once before stepping it"):
+        lean.step_actions(_actions(1)[0])
     obs = env.reset_from_keys(_keys()).get("observation")
     lean.reset_from_keys(_keys())
     ends = 0

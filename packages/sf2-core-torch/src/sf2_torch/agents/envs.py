@@ -8,7 +8,8 @@ see identical dynamics, truncation flags and resets; arrays cross by DLPack. Tor
 `MujocoPlaygroundEnv` steps the bare task (no time limit, no per-env auto-reset, no action repeat), so the
 subclass keeps TorchRL's specs and `reset`/`step`/`rollout` API and replaces `_init_env`/`_reset`/`_step`:
 one jitted vectorised reset and step per task, episode length and action repeat; TorchRL's done
-convention (`done = terminated | truncated`); `reset_from_keys` from the JAX trainer's keys; the state
+convention (`done = terminated | truncated`); `reset_from_keys` from the JAX trainer's keys;
+`step_actions`, the step without TorchRL's `step` around it (the trainer's loops); the state
 kept packed into one buffer per dtype between steps (`StateLayout`, exact; fewer arrays cross per call:
 docs/decisions/torch-trainer-step.md); `get_state_leaves`/`set_state_leaves` for checkpoints. Playground
 and JAX are imported when an env is built.
@@ -237,18 +238,21 @@ class PlaygroundEnv(MujocoPlaygroundWrapper):
 
         Returns:
           What `step(td)["next"]` holds: `observation`, `reward`, `done`, `terminated`, `truncated`.
+
+        Raises:
+          RuntimeError: the env was never reset.
         """
+        if self._step_fn is None:
+            raise RuntimeError("reset the env once before stepping it")
         packed, transition = self._step_fn(self._packed, self._to_jax(action.to(torch.float32)))
         self._keep(_packed=packed)
         return self._outputs(transition, with_reward=True)
 
     def _keep(self, **values) -> None:
-        """Set plain attributes straight in the instance's dict: TorchRL's and `nn.Module`'s `__setattr__`
-        (spec and submodule bookkeeping, none of which a JAX state needs) cost more host time than the
-        rest of a step (bench/lab/torch_eval_env.py)."""
+        """Set plain attributes straight in the instance's dict, skipping TorchRL's and `nn.Module`'s
+        `__setattr__` (spec and submodule bookkeeping, none of which a JAX state needs) on every step."""
         self.__dict__.update(values)
 
-    # ---------------------------------------------------------------- helpers
     def reset_from_keys(self, keys) -> TensorDict:
         """Reset every env from explicit JAX PRNG keys, as the JAX trainer resets from the same keys.
 
