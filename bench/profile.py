@@ -237,14 +237,15 @@ def markdown(summaries: list[dict]) -> str:
             continue
         out.append("")
         out.append(f"wall {s['wall_ms_per_update']:.3f} ms per update (under the profiler)")
-        for how, h in s.get("host", {}).items():   # the torch trainer's phases (bench.agent_profile)
-            out += ["", f"host, untraced epochs {how}: wall {h['wall_ms']:.3f} ms per update; "
-                    + ", ".join(f"{k} {v:.3f} ms" for k, v in h["phases_ms"].items())
-                    + f"; the rest (the trainer's own Python between them) {h['rest_ms']:.3f} ms"]
-        for how, h in s.get("evaluation", {}).items():   # the torch trainer's evaluation (agent_profile)
-            out += ["", f"evaluation {how}: wall {h['wall_ms']:.3f} ms per env step; "
-                    + ", ".join(f"{k} {v:.3f} ms" for k, v in h["phases_ms"].items())
-                    + f"; the rest (the loop's own Python and tensors) {h['rest_ms']:.3f} ms"]
+        # the torch trainer's phases and its evaluation's (bench.agent_profile)
+        for key, what, per, rest in (("host", "host, untraced epochs", "update", "the trainer's own Python "
+                                      "between them"),
+                                     ("evaluation", "evaluation", "env step", "the loop's own Python and "
+                                      "tensors")):
+            for how, h in s.get(key, {}).items():
+                out += ["", f"{what} {how}: wall {h['wall_ms']:.3f} ms per {per}; "
+                        + ", ".join(f"{k} {v:.3f} ms" for k, v in h["phases_ms"].items())
+                        + f"; the rest ({rest}) {h['rest_ms']:.3f} ms"]
         if s.get("runtime"):
             out += ["", "CUDA runtime/driver calls per update (those that can wait first): "
                     + ", ".join(f"`{r['name']}` {r['count']:.1f} × / {r['ms']:.3f} ms" for r in s["runtime"])]
