@@ -272,7 +272,8 @@ def profile_torch_case(task, algo, rep, n_seeds, actor_steps, epochs, overrides,
 
 def time_evaluation(program, state, epoch: int, sync) -> dict:
     """Time the torch trainer's evaluation (`Program.evaluate`) per env step, by phase: the seeds' policies
-    (`act`) and the env step, unsynchronized and synchronized (`_PhaseTimer`), after one untimed episode.
+    (`act`: `Program.eval_policy`, one CUDA graph replay a step where the trainer graphs it) and the env
+    step, unsynchronized and synchronized (`_PhaseTimer`), after one untimed episode.
 
     Args:
         program: the torch trainer's `Program`.
@@ -290,8 +291,8 @@ def time_evaluation(program, state, epoch: int, sync) -> dict:
     timer = _PhaseTimer(sync)
     env = _eval_env(program, state.seeds)
     env.step_actions = timer.wrap("env_step", env.step_actions)
-    for ag in state.agents:
-        ag.algo.act = timer.wrap("act", ag.algo.act)
+    own_policy = program.eval_policy
+    program.eval_policy = lambda agents, gens: timer.wrap("act", own_policy(agents, gens))
     steps, out = program.sched.eval_actor_steps, {}
     for how in (None, "as trained", "synced"):   # None: the untimed episode (compilation)
         timer.synced = how == "synced"
@@ -301,8 +302,7 @@ def time_evaluation(program, state, epoch: int, sync) -> dict:
         taken = timer.take(steps, time.perf_counter() - t)
         if how:
             out[how] = taken
-    for ag in state.agents:
-        del ag.algo.act   # the class's own again
+    del program.eval_policy   # the class's own again
     return out
 
 

@@ -239,8 +239,9 @@ def test_agent_profile_hlo_is_the_jax_trainers(capsys, tmp_path):
 
 def test_agent_profile_times_the_torch_evaluation_per_env_step(monkeypatch):
     """`agent_profile.time_evaluation` splits `Program.evaluate`'s wall time per env step into the seeds'
-    policies (`act`) and the env step, as trained and synced, leaves each agent's own `act` in place after,
-    and `profile.markdown` shows both ways. A fake program whose policies and env sleep known times."""
+    policies (`act`, the function `Program.eval_policy` returns) and the env step, as trained and synced,
+    leaves the program's own `eval_policy` in place after, and `profile.markdown` shows both ways. A fake
+    program whose policies and env sleep known times."""
     trainer = pytest.importorskip("sf2_torch.agents.trainer", reason="the torch trainer: install "
                                   "\"packages/sf2-core-torch[train]\"")
     from types import SimpleNamespace
@@ -249,10 +250,6 @@ def test_agent_profile_times_the_torch_evaluation_per_env_step(monkeypatch):
 
     act_s, env_s, steps, seeds = 0.002, 0.001, 5, (0, 1)
 
-    class Algo:
-        def act(self, obs, generator, deterministic):
-            time.sleep(act_s)
-
     class Env:
         def step_actions(self, action):
             time.sleep(env_s)
@@ -260,22 +257,26 @@ def test_agent_profile_times_the_torch_evaluation_per_env_step(monkeypatch):
     class Program:
         sched = SimpleNamespace(eval_actor_steps=steps)
 
+        def eval_policy(self, agents, generators):
+            return lambda obs: time.sleep(len(agents) * act_s)
+
         def evaluate(self, agents, start_keys, seeds_, epoch, env):
+            policy = self.eval_policy(agents, None)
             for _ in range(steps):
-                for ag in agents:
-                    ag.algo.act(None, None, True)
+                policy(None)
                 env.step_actions(None)
 
     monkeypatch.setattr(trainer, "_eval_env", lambda program, seeds_: Env())
-    state = SimpleNamespace(seeds=seeds, eval_keys=None, agents=[SimpleNamespace(algo=Algo()) for _ in seeds])
+    state = SimpleNamespace(seeds=seeds, eval_keys=None, agents=[object() for _ in seeds])
+    program = Program()
     drained = []
-    out = agent_profile.time_evaluation(Program(), state, 3, lambda: drained.append(1))
+    out = agent_profile.time_evaluation(program, state, 3, lambda: drained.append(1))
     assert set(out) == {"as trained", "synced"} and drained
     for h in out.values():
         assert set(h["phases_ms"]) == {"act", "env_step"}
         assert h["phases_ms"]["act"] >= len(seeds) * act_s * 1e3 and h["phases_ms"]["env_step"] >= env_s * 1e3
         assert h["wall_ms"] >= sum(h["phases_ms"].values()) and h["rest_ms"] >= 0
-    assert all("act" not in vars(ag.algo) for ag in state.agents)
+    assert "eval_policy" not in vars(program)
     md = profile.markdown([{"label": "fake", "wall_ms_per_update": 1.0, "evaluation": out, "devices": []}])
     assert "evaluation as trained: wall" in md and "evaluation synced: wall" in md and "ms per env step" in md
 

@@ -60,6 +60,21 @@ def float32_jax():
         yield
 
 
+@pytest.fixture
+def jax_on_gpu():
+    """Skips a test that needs JAX on the GPU when it has none: this conftest defaults JAX to the CPU, so on
+    the GPU host run such a test with JAX_PLATFORMS=cuda,cpu."""
+    import jax
+
+    try:
+        gpus = jax.devices("gpu")
+    except RuntimeError:
+        gpus = []
+    if not gpus:
+        pytest.skip("needs JAX on a GPU (this conftest defaults JAX to the CPU: on the GPU host run it with "
+                    "JAX_PLATFORMS=cuda,cpu)")
+
+
 TINY = dict(
     num_envs=4, num_eval_envs=4, episode_length=60, num_evals=4, num_timesteps=4 * 36,
     batch_size=16, grad_updates_per_step=2, min_replay_size=32, max_replay_size=512,

@@ -2,19 +2,24 @@
 the function computes (a toy step with state, then the agents' TD3+SF² and SAC+SF² steps against the same
 algorithm without graphs), each call's inputs are the ones used, outputs are copies, a call of another
 shape is refused, and no replay synchronizes the device (the reason it replaced tensordict's
-`CudaGraphModule`: graphs.py). CUDA graphs need a CUDA device: on a CPU-only host these tests report
-themselves skipped, with that reason, except the argument check; on a leased GPU host (scripts/gpu-host/)
-they run with `source scripts/gpu-host/gpu_env.sh && python3 -m pytest
-packages/sf2-core-torch/tests/agents/test_torch_graphs.py`."""
+`CudaGraphModule`: graphs.py); a replay draws from a registered generator what an eager call would, so the
+trainer's evaluation, its seeds' policies one graph, acts as without it. CUDA graphs need a CUDA device: on
+a CPU-only host these tests report themselves skipped, with that reason, except the argument checks; on a
+leased GPU host (scripts/gpu-host/) they run with `source scripts/gpu-host/gpu_env.sh &&
+JAX_PLATFORMS=cuda,cpu python3 -m pytest packages/sf2-core-torch/tests/agents/test_torch_graphs.py` (the
+evaluation's envs are JAX's, on the GPU)."""
 
 from __future__ import annotations
 
+import re
+
+import numpy as np
 import pytest
 import torch
 from sf2_common.config import SF2Config
 from sf2_torch import losses
 from sf2_torch import params as params_mod
-from sf2_torch.agents import algorithms, representations
+from sf2_torch.agents import algorithms, graphs, representations
 from sf2_torch.agents.graphs import StepGraph
 
 cuda = pytest.mark.skipif(not torch.cuda.is_available(),
@@ -143,3 +148,71 @@ def test_compiled_updates_are_the_fused_adam_step(name):
     a, b = params_mod.to_canonical(plain.groups), params_mod.to_canonical(fast.groups)
     for k in a:
         torch.testing.assert_close(b[k], a[k], rtol=1e-5, atol=1e-5, msg=lambda m, k=k: f"{k}: {m}")
+
+
+def _draws_from_generators():
+    if not graphs.graphs_draw_from_generators():
+        pytest.skip(f"torch {torch.__version__} cannot register a generator with a CUDA graph (the "
+                    "trainer's evaluation then acts without one)")
+
+
+@cuda
+def test_a_replay_draws_from_a_registered_generator_what_an_eager_call_would():
+    """A function drawing from a generator of its own, graphed with the generator registered, against the
+    same function on a generator seeded alike: the same draws at every call (1 warm-up, the capture, 4
+    replays), so the graph advances the generator as eager calls do."""
+    _draws_from_generators()
+
+    def fn(generator):
+        return lambda x: x + torch.randn(x.shape, device="cuda", generator=generator)
+
+    g_graph, g_eager = (torch.Generator(device="cuda").manual_seed(7) for _ in range(2))
+    graphed, eager = StepGraph(fn(g_graph), warmup=1, generators=[g_graph]), fn(g_eager)
+    for i in range(6):
+        x = torch.full((4, 3), float(i), device="cuda")
+        torch.testing.assert_close(graphed(x), eager(x), rtol=0, atol=0)
+    assert graphed.graph is not None
+
+
+@cuda
+@pytest.mark.parametrize("algo", ["td3", "sac"])
+def test_the_evaluation_acts_as_without_its_graph(algo, jax_on_gpu):
+    """The trainer's evaluation policy (`Program.eval_policy`: every seed's exploring `act` as one CUDA
+    graph) against the seeds acting one by one, same agents and generator seeds: the same actions at every
+    step of a sequence of observations, and the same evaluation returns. The tolerance (1e-6) only allows
+    for cuBLAS picking another kernel under capture, as in the SGD step's test."""
+    _draws_from_generators()
+    from sf2_torch.agents import configs, trainer
+
+    cfg = configs.make_config("quick", "CartpoleBalance", algo, "sf2", {
+        "device": "cuda", "num_eval_envs": 8, "episode_length": 100, "deterministic_eval": False})
+    program = trainer.get_program(cfg)
+    state = program.init((0, 1))
+    assert program.cudagraphs
+
+    def gens():
+        return [torch.Generator(device="cuda").manual_seed(10 + i) for i in range(2)]
+
+    graphed = program.eval_policy(state.agents, gens())
+    assert isinstance(graphed, StepGraph)
+    program.cudagraphs = False
+    eager = program.eval_policy(state.agents, gens())
+    g = torch.Generator(device="cuda").manual_seed(3)
+    for _ in range(6):
+        obs = torch.randn(2, 8, program.spec.obs_size, device="cuda", generator=g)
+        torch.testing.assert_close(graphed(obs), eager(obs), rtol=1e-6, atol=1e-6)
+    plain = program.evaluate(state.agents, state.eval_keys, state.seeds, 1)
+    program.cudagraphs = True
+    got = program.evaluate(state.agents, state.eval_keys, state.seeds, 1)
+    np.testing.assert_allclose(got, plain, rtol=1e-5, atol=1e-5)
+
+
+def test_a_torch_that_cannot_register_a_generator_refuses_one():
+    """Where torch has no `CUDAGraph.register_generator_state`, a graph of a function drawing from a
+    generator of its own would not advance it: StepGraph refuses the generator, naming the version."""
+    g = torch.Generator()
+    if graphs.graphs_draw_from_generators():
+        assert StepGraph(lambda x: x, generators=[g]).generators == (g,)
+    else:
+        with pytest.raises(RuntimeError, match=re.escape(f"torch {torch.__version__} cannot register")):
+            StepGraph(lambda x: x, generators=[g])

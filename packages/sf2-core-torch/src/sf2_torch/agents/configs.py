@@ -28,7 +28,7 @@ class TrainConfig(_configs.TrainConfig):
 
     device: str = "auto"          # "auto" (cuda if available, else cpu), "cpu", "cuda", "cuda:1", ...
     compile: str = "auto"         # torch.compile of the SGD step: "auto", "off", or a torch.compile mode
-    cudagraphs: str = "auto"      # CUDA graphs of the SGD step (agents/graphs.py StepGraph): auto/on/off
+    cudagraphs: str = "auto"      # CUDA graphs (StepGraph) of the SGD step, eval acting: auto/on/off
 
 
 def make_config(preset: str, task: str, algo: str = "td3", representation: str = "sf2",

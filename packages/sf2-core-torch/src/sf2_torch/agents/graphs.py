@@ -1,10 +1,11 @@
-"""One CUDA graph per SGD-step function, replayed without a host synchronization.
+"""One CUDA graph per SGD-step (or acting) function, replayed without a host synchronization.
 
 `StepGraph(fn)` runs `fn` (a function of pytrees of CUDA tensors, e.g. the `Batch` and the noise dict,
 returning a pytree of tensors, e.g. the metrics) eagerly for `warmup` calls on a side stream (the warm-up
 that `torch.compile` and capturable Adam need before capture), captures it as a `torch.cuda.CUDAGraph` at
 the next call, and from then on copies each call's inputs into the captured input tensors and replays the
-graph, all on the current stream, returning copies of the outputs.
+graph, all on the current stream, returning copies of the outputs. Draws from CUDA generators other than
+the default one need them named (`generators`, registered): a replay draws what an eager call would have.
 
 Why not tensordict's `CudaGraphModule`: it synchronizes the device before every replay (inputs copied from
 the host with `non_blocking=True` could otherwise be read before they land). In the torch trainer every
@@ -21,18 +22,28 @@ from typing import Any
 import torch
 from torch.utils._pytree import tree_flatten, tree_map, tree_unflatten
 
-__all__ = ["StepGraph"]
+__all__ = ["StepGraph", "graphs_draw_from_generators"]
+
+
+def graphs_draw_from_generators() -> bool:
+    """Whether this torch can capture draws from generators other than the default one in a CUDA graph."""
+    return hasattr(torch.cuda.CUDAGraph, "register_generator_state")
 
 
 class StepGraph:
     """`fn` captured once as a CUDA graph and replayed (module docstring). Every call must pass tensors of
     the shapes, dtypes and tree structure of the call that was captured; a call that does not raises
-    ValueError naming the difference."""
+    ValueError naming the difference. `generators`: the CUDA generators `fn` draws from, other than the
+    default one."""
 
-    def __init__(self, fn: Callable[..., Any], warmup: int = 3):
+    def __init__(self, fn: Callable[..., Any], warmup: int = 3, generators=()):
         if warmup < 1:
             raise ValueError(f"warmup = {warmup}: at least one eager call must come before the capture")
+        if generators and not graphs_draw_from_generators():
+            raise RuntimeError(f"torch {torch.__version__} cannot register a generator with a CUDA graph "
+                               "(CUDAGraph.register_generator_state): capture a function without them")
         self.fn, self.warmup = fn, int(warmup)
+        self.generators = tuple(generators)
         self.calls = 0
         self.graph: torch.cuda.CUDAGraph | None = None
         self._inputs: list[torch.Tensor] = []
@@ -70,6 +81,8 @@ class StepGraph:
         self._spec = spec
         args = tree_unflatten(self._inputs, spec)
         self.graph = torch.cuda.CUDAGraph()
+        for generator in self.generators:
+            self.graph.register_generator_state(generator)
         # torch.cuda.graph synchronizes the device once as it begins (the warm-up's work and the input
         # copies have landed) and captures on a stream of its own
         with torch.cuda.graph(self.graph):

@@ -35,7 +35,7 @@ from tensordict import TensorDict
 
 from sf2_torch import losses, networks, params
 
-from . import configs, envs, representations
+from . import configs, envs, graphs, representations
 from .algorithms import Algorithm, make_algorithm
 from .checkpoint import Checkpointer, CheckpointMismatch
 from .configs import TrainConfig
@@ -227,6 +227,25 @@ class Program:
                     for v in per_seed])
         return state, means, first_bad
 
+    def eval_policy(self, agents, generators) -> Callable[[torch.Tensor], torch.Tensor]:
+        """The evaluation's acting: observations (seeds, n, D) → every seed's `act` (seeds, n, A), float32,
+        with `cfg.deterministic_eval`, seed i's noise drawn from `generators[i]`. On CUDA with `cudagraphs`
+        (and a learner precision other than bfloat16, whose autocast caches casts) the seeds' policies are
+        one CUDA graph, replayed once per step after one eager call (`graphs.StepGraph`); else the seeds
+        act one after another."""
+        det = self.cfg.deterministic_eval
+
+        @torch.no_grad()
+        def act(obs):
+            with self.learner_precision():
+                return torch.stack([ag.algo.act(obs[i], generators[i], det)
+                                    for i, ag in enumerate(agents)]).float()
+
+        if (self.cudagraphs and self.cfg.learner_precision != "bfloat16"
+                and graphs.graphs_draw_from_generators()):
+            return graphs.StepGraph(act, warmup=1, generators=generators)
+        return act
+
     @torch.no_grad()
     def evaluate(self, agents, start_keys, seeds, epoch: int, env=None, obs_noise: float = 0.0) -> np.ndarray:
         """Episode returns (n_seeds, n) of one episode from each start state, the envs reset from the JAX
@@ -242,6 +261,7 @@ class Program:
             (int(seed) * 1_000_003 + EVAL_STREAM * 7919 + int(epoch)) % (2**63)) for seed in seeds]
         noise_gens = [torch.Generator(device=self.device).manual_seed(
             (int(seed) * 1_000_003 + OBS_NOISE_STREAM * 7919 + int(epoch)) % (2**63)) for seed in seeds]
+        policy = self.eval_policy(agents, gens)
         ret = torch.zeros(s, n, device=self.device)
         alive = torch.ones(s, n, device=self.device)
         for _ in range(self.sched.eval_actor_steps):
@@ -250,9 +270,7 @@ class Program:
                 seen = obs + obs_noise * torch.stack([torch.randn(obs[i].shape, generator=noise_gens[i],
                                                                   device=self.device, dtype=obs.dtype)
                                                       for i in range(s)])
-            with self.learner_precision():
-                actions = torch.stack([ag.algo.act(seen[i], gens[i], cfg.deterministic_eval)
-                                       for i, ag in enumerate(agents)]).float()
+            actions = policy(seen)
             nxt = env.step_actions(actions.reshape(s * n, -1))
             ret += nxt.get("reward").view(s, n) * alive
             alive *= 1.0 - nxt.get("done").view(s, n).to(alive.dtype)
