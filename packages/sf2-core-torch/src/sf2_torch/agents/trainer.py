@@ -229,10 +229,10 @@ class Program:
 
     def eval_policy(self, agents, generators) -> Callable[[torch.Tensor], torch.Tensor]:
         """The evaluation's acting: observations (seeds, n, D) → every seed's `act` (seeds, n, A), float32,
-        with `cfg.deterministic_eval`, seed i's noise drawn from `generators[i]`. On CUDA with `cudagraphs`
-        (and a learner precision other than bfloat16, whose autocast caches casts) the seeds' policies are
-        one CUDA graph, replayed once per step after one eager call (`graphs.StepGraph`); else the seeds
-        act one after another."""
+        with `cfg.deterministic_eval`, seed i's noise drawn from `generators[i]`. On CUDA with `cudagraphs`,
+        a learner precision other than bfloat16 (whose autocast caches casts) and a torch that can register
+        generators with a graph, the seeds' policies are one CUDA graph, replayed once per step after one
+        eager call (`graphs.StepGraph`); else the seeds act one after another."""
         det = self.cfg.deterministic_eval
 
         @torch.no_grad()
