@@ -1,13 +1,13 @@
 """`sf2_torch.agents.graphs.StepGraph`, the CUDA graph of the torch agents' SGD step: a replay computes what
 the function computes (a toy step with state, then the agents' TD3+SF² and SAC+SF² steps against the same
 algorithm without graphs), each call's inputs are the ones used, outputs are copies, a call of another
-shape is refused, and no replay synchronizes the device (the reason it replaced tensordict's
-`CudaGraphModule`: graphs.py); a replay draws from a registered generator what an eager call would, so the
-trainer's evaluation, its seeds' policies one graph, acts as without it. CUDA graphs need a CUDA device: on
-a CPU-only host these tests report themselves skipped, with that reason, except the argument checks; on a
-leased GPU host (scripts/gpu-host/) they run with `source scripts/gpu-host/gpu_env.sh &&
-JAX_PLATFORMS=cuda,cpu python3 -m pytest packages/sf2-core-torch/tests/agents/test_torch_graphs.py` (the
-evaluation's envs are JAX's, on the GPU)."""
+shape is refused, a replay normalizes with the statistics as updated before it, and no replay synchronizes
+the device (the reason it replaced tensordict's `CudaGraphModule`: graphs.py); a replay draws from a
+registered generator what an eager call would, so the trainer's evaluation, its seeds' policies one graph,
+acts as without it. CUDA graphs need a CUDA device: on a CPU-only host these tests report themselves
+skipped, with that reason, except the argument checks; on a leased GPU host (scripts/gpu-host/) they run
+with `source scripts/gpu-host/gpu_env.sh && JAX_PLATFORMS=cuda,cpu python3 -m pytest
+packages/sf2-core-torch/tests/agents/test_torch_graphs.py` (the evaluation's envs are JAX's, on the GPU)."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import torch
 from sf2_common.config import SF2Config
-from sf2_torch import losses
+from sf2_torch import losses, networks
 from sf2_torch import params as params_mod
 from sf2_torch.agents import algorithms, graphs, representations
 from sf2_torch.agents.graphs import StepGraph
@@ -73,12 +73,12 @@ def test_a_call_of_another_shape_is_refused():
 D, A, B = 5, 2, 16
 
 
-def _algorithm(name, cudagraphs):
+def _algorithm(name, cudagraphs, rep="sf2"):
     """The algorithm as the trainer builds it with graphs (capturable Adam, its learning rate a device
     tensor); `cudagraphs` False then runs the same optimizers without capture, so only the graph differs."""
     torch.manual_seed(0)
     cfg = SF2Config.small(D, A, gamma_su=0.9)
-    algo = algorithms.make_algorithm(name, cfg, representations.get("sf2"), device="cuda", cudagraphs=True)
+    algo = algorithms.make_algorithm(name, cfg, representations.get(rep), device="cuda", cudagraphs=True)
     algo.cudagraphs = cudagraphs
     return algo
 
@@ -121,6 +121,26 @@ def test_the_agents_graphed_step_is_their_step(name, monkeypatch):
     assert syncs == []
     a, b = params_mod.to_canonical(plain.groups), params_mod.to_canonical(graphed.groups)
     assert a.keys() == b.keys()
+    for k in a:
+        torch.testing.assert_close(b[k], a[k], rtol=1e-6, atol=1e-6, msg=lambda m, k=k: f"{k}: {m}")
+
+
+@cuda
+@pytest.mark.parametrize("rep", ["none", "sf2"])
+def test_a_replay_reads_the_normalizer_as_updated_before_it(rep):
+    """The trainer updates the observation normalizer in place before each actor step's SGD steps
+    (`networks.update_normalizer`): TD3 steps with and without CUDA graphs, each after the same update
+    (every step's observations shifted and scaled, so the statistics move), give the same metrics and
+    parameters, so a replay normalizes with the statistics of its own step, not those of its capture."""
+    plain, graphed = _algorithm("td3", False, rep), _algorithm("td3", True, rep)
+    for i, batch in enumerate(_batches(12)):
+        for algo in (plain, graphed):
+            networks.update_normalizer(algo.nets.obs_norm, batch.obs * (i + 1) + i, algo.cfg)
+        noise = plain.step_noise(torch.Generator(device="cuda").manual_seed(100 + i), batch)
+        want = plain.sgd_step(batch, noise, step=i)
+        torch.testing.assert_close(graphed.sgd_step(batch, noise, step=i), want, rtol=1e-6, atol=1e-6)
+    assert float(graphed.nets.obs_norm.mean.abs().max()) > 1.0   # the statistics did move
+    a, b = params_mod.to_canonical(plain.groups), params_mod.to_canonical(graphed.groups)
     for k in a:
         torch.testing.assert_close(b[k], a[k], rtol=1e-6, atol=1e-6, msg=lambda m, k=k: f"{k}: {m}")
 
