@@ -34,21 +34,15 @@ def _np(t):
     return t.cpu().numpy()
 
 
-def _jax_gpu() -> bool:
-    try:
-        return bool(jax.devices("gpu"))
-    except RuntimeError:
-        return False
-
-
-_CUDA = pytest.mark.skipif(
-    not (torch.cuda.is_available() and _jax_gpu()),
-    reason="needs a CUDA device for torch and for JAX (the tests' conftest defaults JAX to the CPU: on the "
-           "GPU host run it with JAX_PLATFORMS=cuda,cpu)")
+_CUDA = pytest.mark.skipif(not torch.cuda.is_available(),
+                           reason="needs a CUDA device for torch (and for JAX: on the GPU host run it with "
+                                  "JAX_PLATFORMS=cuda,cpu)")
 
 
 @pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=_CUDA)])
-def test_the_packed_state_steps_as_the_plain_state(device):
+def test_the_packed_state_steps_as_the_plain_state(device, request):
+    if device == "cuda":
+        request.getfixturevalue("jax_on_gpu")   # skips, with its reason, where JAX has no GPU
     env = envs.make_env(TASK, EPISODE, 1, N, device)
     spec = envs.env_spec(TASK, EPISODE, 1)
     jax_device = jax.devices("gpu" if device == "cuda" else "cpu")[0]
