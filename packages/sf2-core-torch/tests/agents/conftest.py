@@ -79,7 +79,7 @@ TINY = dict(
     num_envs=4, num_eval_envs=4, episode_length=60, num_evals=4, num_timesteps=4 * 36,
     batch_size=16, grad_updates_per_step=2, min_replay_size=32, max_replay_size=512,
     feature_size=8, hidden_sizes=(16,), q_hidden_size=16, zeta_hidden_sizes=(16,), embedding_size=4,
-    compile="off",
+    compile="off", device="cpu",   # CPU tests on any host; the CUDA paths: test_torch_graphs.py, @cuda
 )
 
 

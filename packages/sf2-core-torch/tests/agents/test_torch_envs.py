@@ -2,9 +2,12 @@
 it gives, bit for bit, what stepping the plain JAX state with the same jitted step gives, across episode
 ends (auto-reset, truncation); `step_actions` (the trainer's loops' step) gives what TorchRL's `step` nests
 under "next", key for key; its state leaves are the plain state's, copies that later steps do not
-change, and restore into another env exactly; a leaf that does not fit is refused with its shapes."""
+change, and restore into another env exactly; a leaf that does not fit is refused with its shapes, and so
+is an action of another shape or device, the state left as it was."""
 
 from __future__ import annotations
+
+import re
 
 import jax
 import numpy as np
@@ -111,3 +114,18 @@ def test_step_actions_gives_what_torchrls_step_gives():
         obs = nxt.get("observation")
         ends += int(mine.get("truncated").any())
     assert ends == 2   # at steps 7 and 14
+
+
+def test_an_action_of_another_shape_or_device_is_refused_and_the_state_kept():
+    env = envs.make_env(TASK, EPISODE, 1, N)
+    env.reset_from_keys(_keys())
+    before = env.get_state_leaves()
+    bad = {"(4, 2)": torch.zeros(N, 2), "(4,)": torch.zeros(N), "(3, 1)": torch.zeros(N - 1, 1),
+           "meta": torch.zeros(N, 1, device="meta")}
+    for shown, action in bad.items():
+        with pytest.raises(ValueError, match=re.escape(shown)) as err:
+            env.step_actions(action)
+        assert "CartpoleBalance" in str(err.value) and "= (4, 1) on cpu" in str(err.value)
+    assert all(np.array_equal(x, y) for x, y in zip(env.get_state_leaves(), before))
+    env.step_actions(torch.zeros(N, 1))   # a right action still steps
+    assert not all(np.array_equal(x, y) for x, y in zip(env.get_state_leaves(), before))

@@ -180,7 +180,7 @@ LEARN = dict(
     episode_length=1000, action_repeat=4, num_envs=8, num_eval_envs=8, num_evals=4, num_timesteps=31_000,
     batch_size=128, grad_updates_per_step=4, min_replay_size=1024, max_replay_size=100_000,
     feature_size=32, hidden_sizes=(64, 64), q_hidden_size=64, zeta_hidden_sizes=(64, 64), embedding_size=16,
-    discount=0.95, tau=0.05, compile="off",
+    discount=0.95, tau=0.05, compile="off", device="cpu",   # a CPU test on any host, as TINY (conftest)
 )
 
 
@@ -193,8 +193,8 @@ class _Fixed:
 
     def act(self, obs, generator, deterministic):
         if self.kind == "zero":
-            return torch.zeros(obs.shape[0], self.action_size)
-        return torch.rand(obs.shape[0], self.action_size, generator=generator) * 2 - 1
+            return torch.zeros(obs.shape[0], self.action_size, device=obs.device)
+        return torch.rand(obs.shape[0], self.action_size, generator=generator, device=obs.device) * 2 - 1
 
 
 @pytest.mark.slow

@@ -241,9 +241,16 @@ class PlaygroundEnv(MujocoPlaygroundWrapper):
 
         Raises:
           RuntimeError: the env was never reset.
+          ValueError: `action` of another shape, or on another kind of device than the env's (the state is
+            left as it was).
         """
         if self._step_fn is None:
             raise RuntimeError("reset the env once before stepping it")
+        want = (*self.batch_size, self._spec.action_size)
+        if tuple(action.shape) != want or action.device.type != self.device.type:
+            raise ValueError(f"{self._spec.task}: an action of shape {tuple(action.shape)} on "
+                             f"{action.device}; this env steps (num_envs, action_size) = {want} on "
+                             f"{self.device}")
         packed, transition = self._step_fn(self._packed, self._to_jax(action.to(torch.float32)))
         self._keep(_packed=packed)
         return self._outputs(transition, with_reward=True)
