@@ -124,6 +124,30 @@ def test_a_config_that_is_not_a_runs_is_an_error(tmp_path, text, expected):
         run.read_config()
 
 
+@pytest.mark.parametrize("old,new", [('"task": "CartpoleBalance"', '"task": "CartpoleBalancf"'),
+                                     ('"hidden_sizes"', '"hidden_s;zes"'), ('"seeds"', '"seedx"')])
+def test_a_config_damaged_into_other_valid_json_is_an_error_and_changes_nothing(tmp_path, old, new):
+    """A byte flipped inside a name or a string leaves valid JSON (as `damage`'s garble did on a GPU host,
+    whose config.json names its GPU): the checksum written with config.json names it damaged, not "a
+    different run", and nothing changes; a config.json from before checksums (none in it) still reads."""
+    run, _ = _run_folder(tmp_path / "run")
+    conf = {"config": TrainConfig(task="CartpoleBalance").to_dict(), "seeds": list(SEEDS), "hardware": "GPU"}
+    run.write_config(conf)
+    assert run.read_config() == json.loads(json.dumps(conf))
+    text = run.config_path.read_text()
+    assert text.count(old) == 1 and json.loads(text.replace(old, new))      # still valid JSON
+    run.config_path.write_text(text.replace(old, new))
+    before = folder_digest(run.path)
+    with pytest.raises(RunFolderError, match=f"{run.config_path} is damaged: its content does not match the "
+                                             f"sha256 checksum") as err:
+        run.check_compatible(conf["config"], SEEDS)
+    assert "nothing was changed" in str(err.value) and "--fresh" in str(err.value)
+    assert folder_digest(run.path) == before
+    unsummed = {k: v for k, v in json.loads(text).items() if k != "sha256"}
+    run.config_path.write_text(json.dumps(unsummed))
+    assert run.read_config() == unsummed and run.check_compatible(conf["config"], SEEDS)
+
+
 @pytest.mark.parametrize("fault", FAULTS)
 def test_damaged_metrics_are_an_error_and_change_nothing(tmp_path, fault):
     run, _ = _run_folder(tmp_path / "run")

@@ -6,6 +6,7 @@ repeated (epoch, seed) rows skipped), then `checkpoints/`, `learning_curve.png`,
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import os
 import re
@@ -23,6 +24,7 @@ from .configs import ADDED_FIELDS, EXECUTION_FIELDS, superseded_values
 __all__ = ["RunFolder", "RunFolderError", "RunFolderMismatch", "METRIC_NAME"]
 
 METRIC_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")   # a metrics.jsonl key: an identifier (fullmatch)
+DIGEST = "sha256"   # config.json's checksum of the rest of it (folders written before it have none)
 
 
 class RunFolderError(ConfigError):
@@ -31,6 +33,20 @@ class RunFolderError(ConfigError):
 
 class RunFolderMismatch(RunFolderError):
     """The folder holds a run with another config or other seeds."""
+
+
+def config_digest(payload: dict) -> str:
+    """The SHA-256 of a run's config payload, its `DIGEST` entry left out.
+
+    Args:
+      payload: config.json's object, as written or as read back.
+
+    Returns:
+      The hex digest of its canonical JSON (sorted keys, no spaces), equal for the dict written and the
+      one parsed back from the file.
+    """
+    body = {k: v for k, v in payload.items() if k != DIGEST}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
 def framework_of(conf: dict) -> str:
@@ -111,8 +127,8 @@ class RunFolder:
 
     # ------------------------------------------------------------------ config
     def read_config(self) -> dict | None:
-        """The parsed config.json, or None if there is none. `RunFolderError` if it cannot be read or is
-        not a run's config (truncated, garbled, not JSON)."""
+        """The parsed config.json (without its checksum), or None if there is none. `RunFolderError` if it
+        cannot be read, is not a run's config (truncated, garbled, not JSON) or differs from its checksum."""
         path = self.config_path
         if path.is_dir():
             raise RunFolderError(f"{path} is a folder, not the run's config file")
@@ -134,6 +150,10 @@ class RunFolder:
         except json.JSONDecodeError as err:
             raise RunFolderError(f"{path} is not valid JSON ({err.msg}: line {err.lineno} column "
                                  f"{err.colno}); {fix}") from None
+        # a damaged file can still parse (a flipped byte inside a name or a string): its checksum tells
+        if isinstance(conf, dict) and DIGEST in conf and conf.pop(DIGEST) != config_digest(conf):
+            raise RunFolderError(f"{path} is damaged: its content does not match the {DIGEST} checksum "
+                                 f"written with it; {fix}")
         if not (isinstance(conf, dict) and isinstance(conf.get("config"), dict)
                 and isinstance(conf.get("seeds"), list)):
             raise RunFolderError(f"{path} is not a run's config (it needs a 'config' object and a 'seeds' "
@@ -215,7 +235,10 @@ class RunFolder:
         return cfg
 
     def write_config(self, payload: dict) -> None:
+        """Write config.json atomically, with the `DIGEST` checksum that `read_config` checks."""
         self.path.mkdir(parents=True, exist_ok=True)
+        payload = json.loads(json.dumps(payload))   # as it will read back (tuples as lists)
+        payload[DIGEST] = config_digest(payload)
         atomic_write(self.config_path, json.dumps(payload, indent=2, sort_keys=True) + "\n")
 
     # ------------------------------------------------------------------ metrics
