@@ -624,3 +624,28 @@ def test_compare_refuses_one_folder_the_same_folder_twice_and_a_file_as_out(tmp_
     with pytest.raises(StudyError, match="is a file, not a folder; nothing was written"):
         compare([t.path, s.path], tmp_path / "file" / "cmp")
     assert (tmp_path / "file").read_text() == "keep" and not (tmp_path / "cmp").exists()
+
+
+def test_a_sweep_with_both_families_draws_them_apart(monkeypatch):
+    """fig9-left's panel holds TD3+SF² and SAC+SF² (one method kind): each line its own color and marker,
+    shifted 2.5% of the x span apart (values 1–8: ∓0.0875 about each value) so their error bars do not
+    overlap, and an IQM over 1 of 4 tasks named interim in the title and the axis label."""
+    from types import SimpleNamespace
+
+    from sf2_studies import figures
+
+    drawn = {}
+    monkeypatch.setattr(figures, "_save", lambda fig, stem: drawn.setdefault("fig", fig) and {})
+    study = SimpleNamespace(name="fig9-left", tasks=("A", "B", "C", "D"), report=SimpleNamespace(
+        sweeps=(("k", "flow steps"),), sweep_score="iqm_auc"))
+    entries = [(str(k), float(k), 10, 0.1 * k, 0.05 * k, 0.2 * k) for k in (1, 2, 4, 8)]
+    figures.sweeps(study, {"k": {"TD3+SF²": entries, "SAC+SF²": entries}}, None, tasks={1})
+    ax = drawn["fig"].axes[0]
+    td3, sac = (line for line in ax.lines if line.get_label().endswith("(n=10)"))
+    assert td3.get_color() != sac.get_color() and td3.get_marker() != sac.get_marker()
+    np.testing.assert_allclose(td3.get_xdata(), [0.9125, 1.9125, 3.9125, 7.9125])
+    np.testing.assert_allclose(sac.get_xdata(), [1.0875, 2.0875, 4.0875, 8.0875])
+    np.testing.assert_allclose(td3.get_ydata(), [0.1, 0.2, 0.4, 0.8])
+    assert [t.get_text() for t in ax.get_xticklabels()] == ["1", "2", "4", "8"]
+    assert "over 1 of 4 tasks (interim: summary.md says which) and seeds" in drawn["fig"]._suptitle.get_text()
+    assert ax.get_ylabel() == "IQM of normalized AUC over 1 of 4 tasks"

@@ -35,12 +35,16 @@ def _kind(label: str) -> str:
 
 
 class _Colors:
-    def __init__(self):
+    """One color per method kind (both families share it), or with `by_label` per whole label (for a panel
+    that holds both families' lines)."""
+
+    def __init__(self, by_label: bool = False):
         self.map: dict[str, tuple] = {}
         self.cycle = list(_plt().get_cmap("tab10").colors)
+        self.by_label = by_label
 
     def __call__(self, label: str):
-        k = _kind(label)
+        k = label if self.by_label else _kind(label)
         if k not in self.map:
             self.map[k] = self.cycle[len(self.map) % len(self.cycle)]
         return self.map[k]
@@ -68,6 +72,25 @@ def _steps_formatter():
     from matplotlib.ticker import EngFormatter
 
     return EngFormatter(sep="")
+
+
+def _tasks_over(study, counts: set[int]) -> str:
+    """'4 task(s)', or for an interim report '1 of 4 tasks (interim: summary.md says which)': the number of
+    tasks the families' aggregates cover (`counts`, one per family)."""
+    over = (f"{min(counts)}" if len(counts) == 1 else "–".join(map(str, (min(counts), max(counts)))))
+    return over + (" task(s)" if over == str(len(study.tasks)) else
+                   f" of {len(study.tasks)} tasks (interim: summary.md says which)")
+
+
+def _dodge(xs: np.ndarray, j: int, m: int, log: bool) -> np.ndarray:
+    """Series j of m drawn at shared x values, shifted apart by 2.5% of the x span per series (of its
+    decades on a log axis) so that their error bars do not overlap."""
+    if m == 1 or len(xs) == 0:
+        return xs
+    shift = (j - (m - 1) / 2) * 0.025
+    if log:
+        return xs * 10 ** (shift * max(np.log10(xs.max() / xs.min()), 1.0))
+    return xs + shift * (float(xs.max() - xs.min()) or 1.0)
 
 
 def _seed_note(ns) -> str:
@@ -111,10 +134,7 @@ def aggregate(table: dict, stem: Path, study, covers: dict | None = None) -> dic
             if r == len(families) - 1:
                 ax.set_xlabel("normalized AUC" if metric != "Optimality Gap" else "1 − mean normalized AUC")
     ns = [n for v in table.values() for _, n, _, _ in v]
-    counts = {len(covers[f].tasks) for f in table} if covers else {len(study.tasks)}
-    over = (f"{counts.pop()}" if len(counts) == 1 else "–".join(map(str, (min(counts), max(counts)))))
-    over += (" task(s)" if over == str(len(study.tasks)) else
-             f" of {len(study.tasks)} tasks (interim: summary.md says which)")
+    over = _tasks_over(study, {len(covers[f].tasks) for f in table} if covers else {len(study.tasks)})
     fig.suptitle(f"{study.name}: aggregate normalized AUC over {over}, "
                  + (f"{max(ns)} seeds per task" if min(ns) == max(ns) else
                     f"{min(ns)}–{max(ns)} seeds per task (unequal: see summary.md)")
@@ -196,43 +216,53 @@ def learning_curves(study, data: list, stem: Path) -> dict[str, Path]:
 
 
 # ------------------------------------------------------------------------------------------- Fig. 2
-def sweeps(study, points: dict, stem: Path) -> dict[str, Path]:
+def sweeps(study, points: dict, stem: Path, tasks: set[int] | None = None) -> dict[str, Path]:
     """points: {field: {base label: [(text, value, n, score, lo, hi)]}} → one panel per swept field (the
-    score `study.report.sweep_score`'s: `report.sweep_points`)."""
+    score `study.report.sweep_score`'s: `report.sweep_points`); each base label its own color and marker,
+    the lines shifted apart a little along x (`_dodge`). `tasks`: the number of tasks each family's IQM
+    covers (`report.Coverage`; default every task of the study), named in the title when fewer."""
     plt = _plt()
-    colors = _Colors()
+    colors = _Colors(by_label=True)
+    markers = "osD^v<>"
     titles = dict(study.report.sweeps)
     fields = list(points)
     fig, axes = plt.subplots(1, len(fields), squeeze=False, figsize=(4.4 * len(fields), 3.6))
     ns = []
     for ax, field in zip(axes[0], fields):
         numeric = all(isinstance(v, float) for entries in points[field].values() for _, v, *_ in entries)
-        for base, entries in points[field].items():
+        values = [v for entries in points[field].values() for _, v, *_ in entries]
+        log = numeric and min(values) > 0 and max(values) / min(values) >= 10
+        for j, (base, entries) in enumerate(points[field].items()):
             entries = sorted(entries, key=lambda e: e[1]) if numeric else entries
-            xs = [e[1] if numeric else i for i, e in enumerate(entries)]
+            ticks = np.array([e[1] if numeric else i for i, e in enumerate(entries)], dtype=float)
+            xs = _dodge(ticks, j, len(points[field]), log)
             means = np.array([e[3] for e in entries])
             ns += [e[2] for e in entries]
             color = colors(base)
-            ax.plot(xs, means, marker="o", color=color, label=f"{base} (n={max(e[2] for e in entries)})")
+            ax.plot(xs, means, marker=markers[j % len(markers)], color=color,
+                    label=f"{base} (n={max(e[2] for e in entries)})")
             have = [i for i, e in enumerate(entries) if e[4] is not None]
             if have:
                 lo = means[have] - np.array([entries[i][4] for i in have])
                 hi = np.array([entries[i][5] for i in have]) - means[have]
-                ax.errorbar(np.array(xs)[have], means[have], yerr=[lo, hi], fmt="none", ecolor=color,
-                            capsize=3)
+                ax.errorbar(xs[have], means[have], yerr=[lo, hi], fmt="none", ecolor=color, capsize=3)
             if not numeric:
-                ax.set_xticks(xs)
+                ax.set_xticks(ticks)
                 ax.set_xticklabels([e[0] for e in entries])
-        values = [v for entries in points[field].values() for _, v, *_ in entries]
-        if numeric and min(values) > 0 and max(values) / min(values) >= 10:
+        if log:
             ax.set_xscale("log")
+        if numeric:
+            ax.set_xticks(sorted(set(values)))
+            ax.set_xticklabels([f"{v:g}" for v in sorted(set(values))])
+            ax.minorticks_off()
         ax.set_title(titles.get(field, field), fontsize=10)
         ax.set_xlabel(field)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="best")   # named: matplotlib warns of its cost only when defaulted
     if study.report.sweep_score == "iqm_auc":
-        axes[0][0].set_ylabel("IQM of normalized AUC over the tasks")
-        fig.suptitle(f"{study.name}: IQM over tasks and seeds; error bar: {_CI}, stratified over tasks"
+        over = _tasks_over(study, tasks or {len(study.tasks)})
+        axes[0][0].set_ylabel(f"IQM of normalized AUC over {over.split(' (')[0]}")
+        fig.suptitle(f"{study.name}: IQM over {over} and seeds\nerror bar: {_CI}, stratified over tasks"
                      + _seed_note(ns), fontsize=10)
     else:
         axes[0][0].set_ylabel(f"mean eval return, final {study.report.final_window:,} env steps")

@@ -242,6 +242,15 @@ def coverage(family: str, tasks: list[str], methods: list[str], got: dict) -> Co
     return Coverage(family, chosen, sorted(best), left, sorted(union - best), fewer)
 
 
+def _family_cover(study: Study, rows: list[dict], family: str):
+    """(the family's methods, {(task, label): {seed: normalized AUC}}, its `Coverage`)."""
+    methods = [m for m in study.methods if m.family == family]
+    got = {(t, m.label): {r["seed"]: r["normalized_auc"] for r in rows
+                          if r["method"] == m.label and r["task"] == t}
+           for t in study.tasks for m in methods}
+    return methods, got, coverage(family, list(study.tasks), [m.label for m in methods], got)
+
+
 def aggregate_table(study: Study, rows: list[dict]):
     """({family: [(method label, n_seeds, points (4,), intervals (2, 4) or None)]}, {family: `Coverage`}).
     Every method of a family is scored on the same tasks and seeds (`coverage`: an interim study
@@ -249,11 +258,8 @@ def aggregate_table(study: Study, rows: list[dict]):
     out of the table."""
     out, covers = {}, {}
     for family in _families(study):
-        methods = [m for m in study.methods if m.family == family]
-        got = {(t, m.label): {r["seed"]: r["normalized_auc"] for r in rows
-                              if r["method"] == m.label and r["task"] == t}
-               for t in study.tasks for m in methods}
-        cover = covers[family] = coverage(family, list(study.tasks), [m.label for m in methods], got)
+        methods, got, cover = _family_cover(study, rows, family)
+        covers[family] = cover
         tasks, seeds = cover.tasks, cover.seeds
         if not seeds:
             continue
@@ -479,7 +485,9 @@ def report(path, out=None, command: str | None = None) -> dict[str, Path]:
                               f"{_with_ci(mean, lo, hi)} |")
         md.append("")
         if points:
-            written.update(figures.sweeps(study, points, out / "sweeps"))
+            covered = {len(c.tasks) for c in (_family_cover(study, rows, f)[2] for f in _families(study))
+                       if c.seeds}
+            written.update(figures.sweeps(study, points, out / "sweeps", tasks=covered or None))
             md += ["![sweeps](sweeps.png)", ""]
     if "obs_noise" in figs:
         points = obs_noise_points(study, data)
