@@ -649,3 +649,4 @@ def test_a_sweep_with_both_families_draws_them_apart(monkeypatch):
     assert [t.get_text() for t in ax.get_xticklabels()] == ["1", "2", "4", "8"]
     assert "over 1 of 4 tasks (interim: summary.md says which) and seeds" in drawn["fig"]._suptitle.get_text()
     assert ax.get_ylabel() == "IQM of normalized AUC over 1 of 4 tasks"
+    figures._plt().close(drawn["fig"])
