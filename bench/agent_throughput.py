@@ -9,9 +9,10 @@ epochs after warm-up epochs that hold the compilation, the random prefill and th
 epoch is the trainer's own program (env steps, buffer inserts, `grad_updates_per_step` SGD steps, the
 seeds vmapped; no evaluation or checkpoint), timed from dispatch to completion. Reported: the median over
 the timed epochs of env steps/s per seed and over all seeds. `--precisions` sets the learner's matmul
-precision (the physics always runs at fp32 `highest`); `--frameworks jax,torch` adds the torch trainer.
-`--algos ppo` (MinAtar), `fpo` (Playground) and `crl` (ant-goal) time the JAX on-policy and goal-conditioned
-trainers the same way; an epoch is then whole updates (`--env-steps` rounded up), its warm-up the first.
+precision (default `highest`, not the preset's, which throughput.md names where a row differs; physics at
+fp32 `highest`); `--frameworks jax,torch` adds torch. `--algos ppo` (MinAtar), `fpo` (Playground), `crl`
+(ant-goal) time the JAX on-policy and goal-conditioned trainers: an epoch is whole updates (`--env-steps`
+rounded up), the first its warm-up.
 """
 
 from __future__ import annotations
@@ -241,6 +242,27 @@ def measure(task: str, algo: str, rep: str, n_seeds: int, env_steps: int, epochs
             "epoch_s": ";".join(f"{x:.4f}" for x in times)}
 
 
+def preset_precisions(tasks, algos, arms, frameworks, overrides: dict) -> dict[str, str]:
+    """The learner precision each case's `paper` preset trains at (a study's runs), `--precisions` aside.
+
+    Args:
+        tasks, algos: the cases' tasks and algorithms.
+        arms: `parse_reps` arms (label, representation, the arm's own fields).
+        frameworks: "jax" and/or "torch".
+        overrides: `--set`'s fields (a `learner_precision` there is the runs' too).
+
+    Returns:
+        {"FRAMEWORK TASK ALGO+LABEL": learner_precision}.
+    """
+    out = {}
+    for fw in frameworks:
+        configs, _ = framework_configs(fw, (0,))
+        for task, algo, (label, rep, own) in itertools.product(tasks, algos, arms):
+            cfg = configs.make_config("paper", task, algo, rep, {**overrides, **own})
+            out[f"{fw} {task} {algo}+{label}"] = cfg.learner_precision
+    return out
+
+
 def markdown(rows: list[dict], info: dict) -> str:
     """Render the rows and the ratios between them (SF²/vanilla, seeds, precisions, torch/JAX).
 
@@ -257,6 +279,7 @@ def markdown(rows: list[dict], info: dict) -> str:
              f"- machine: {info.get('cpu')}; GPU: {info.get('gpu')} ({info.get('nvidia_smi')})",
              f"- versions: {json.dumps(info.get('versions'))}; jax backend {info.get('jax_backend')}; "
              f"physics at fp32 `highest`, the learner at the row's `learner_precision`",
+             *_preset_note(rows, info.get("preset_learner_precision") or {}),
              "",
              "One epoch = the trainer's program over `env_steps_per_epoch` env steps per seed (env steps, "
              "buffer inserts, SGD steps; no evaluation). Warm-up epochs (compilation, random prefill, the "
@@ -311,6 +334,17 @@ def markdown(rows: list[dict], info: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _preset_note(rows: list[dict], trained: dict[str, str]) -> list[str]:
+    """throughput.md's line naming the precision the `paper` preset trains at, where a row times another."""
+    off = sorted({f"{r['framework']} {r['task']} {r['algo']}+{r['rep']}: {trained[k]}"
+                  for r in rows if (k := f"{r['framework']} {r['task']} {r['algo']}+{r['rep']}") in trained
+                  and trained[k] != r["learner_precision"]})
+    if not off:
+        return []
+    return [f"- **not the preset's learner precision**: the `paper` preset trains {'; '.join(off)}; rows at "
+            "another precision time a learner its runs do not use (`--precisions` names the timed one)"]
+
+
 def main(argv=None) -> int:
     """Run `python -m bench.agent_throughput`.
 
@@ -328,7 +362,8 @@ def main(argv=None) -> int:
                         "config fields, e.g. sf2@contract_zeta=false)")
     p.add_argument("--seeds", default="1,8", help="numbers of vmapped seeds to measure, e.g. 1,8")
     p.add_argument("--precisions", default="highest", type=_names,
-                   help="learner_precision values (highest, tensorfloat32, bfloat16)")
+                   help="learner_precision values (highest, tensorfloat32, bfloat16); default highest, "
+                        "whatever the preset trains at (a note names it where they differ)")
     p.add_argument("--frameworks", default="jax", type=_names, help="jax and/or torch")
     p.add_argument("--env-steps", type=int, default=600_000, help="timed env steps per seed (all epochs)")
     p.add_argument("--epochs", type=int, default=3, help="timed epochs (after the warm-up ones)")
@@ -361,10 +396,16 @@ def main(argv=None) -> int:
                        {**overrides, **own, "learner_precision": prec}, framework=fw)
     except (ConfigError, ValueError) as err:
         p.error(str(err))
+    trained = preset_precisions(args.tasks, args.algos, arms, args.frameworks, overrides)
+    for case, prec in trained.items():
+        if any(p != prec for p in args.precisions):
+            print(f"note: the `paper` preset trains {case} at learner_precision = {prec!r}; --precisions "
+                  f"times {', '.join(args.precisions)}", file=sys.stderr)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     command = "python -m bench.agent_throughput " + " ".join(argv if argv is not None else sys.argv[1:])
     info = describe(str(Path(__file__).resolve().parents[1]), command)
+    info["preset_learner_precision"] = trained
     (out / "machine.json").write_text(json.dumps(info, indent=2))
     rows = []
     for task in args.tasks:

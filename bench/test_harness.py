@@ -546,6 +546,33 @@ def test_an_arm_of_reps_carries_its_own_fields_and_its_ratio_to_the_plain_arm():
     assert _file_part(sized[1][0]) == "sf2+zeta_hidden_sizes-128x128+batch_size-64"
 
 
+def test_the_report_names_the_presets_learner_precision_where_a_row_times_another():
+    """`--precisions` defaults to `highest` whatever the preset trains at: `preset_precisions` reads each
+    case's `paper` config (a `--set learner_precision` counts as the runs'), and throughput.md names it for
+    a row timed at another precision, and says nothing where every row times the preset's."""
+    pytest.importorskip("mujoco_playground", reason="the paper preset's config needs the Playground "
+                        "task list: install a core's [train] extra")
+    from sf2_common.agents.configs import PRESETS
+
+    from bench.agent_throughput import markdown, parse_reps, preset_precisions
+
+    arms = parse_reps("sf2", ["jax"])
+    paper = PRESETS["paper"]["learner_precision"]
+    assert preset_precisions(["CheetahRun"], ["td3"], arms, ["jax"], {}) == {"jax CheetahRun td3+sf2": paper}
+    assert preset_precisions(["CheetahRun"], ["td3"], arms, ["jax"], {"learner_precision": "bfloat16"}) == {
+        "jax CheetahRun td3+sf2": "bfloat16"}
+    row = dict(framework="jax", task="CheetahRun", algo="td3", rep="sf2", seeds=1, env_steps_per_epoch=1000,
+               sgd_steps_per_epoch=10, warmup_s=1.0, warmup_epochs=1, median_epoch_s=1.0, sps_per_seed=1000.0,
+               sps_total=1000.0)
+    info = {"command": "c", "preset_learner_precision": {"jax CheetahRun td3+sf2": paper}}
+    other = "highest" if paper != "highest" else "tensorfloat32"
+    text = markdown([{**row, "learner_precision": other}], info)
+    assert f"the `paper` preset trains jax CheetahRun td3+sf2: {paper}; rows at another precision" in text
+    assert "not the preset's learner precision" not in markdown([{**row, "learner_precision": paper}], info)
+    assert "not the preset's learner precision" not in markdown([{**row, "learner_precision": other}],
+                                                                 {"command": "c"})
+
+
 _DOT_HLO = """\
 HloModule m, entry_computation_layout={(f32[8,3]{1,0}, f32[3,5]{1,0})->f32[8,5]{1,0}}
 
