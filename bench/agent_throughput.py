@@ -398,7 +398,7 @@ def main(argv=None) -> int:
         p.error(str(err))
     trained = preset_precisions(args.tasks, args.algos, arms, args.frameworks, overrides)
     for case, prec in trained.items():
-        if any(p != prec for p in args.precisions):
+        if any(timed != prec for timed in args.precisions):
             print(f"note: the `paper` preset trains {case} at learner_precision = {prec!r}; --precisions "
                   f"times {', '.join(args.precisions)}", file=sys.stderr)
     out = Path(args.out)
