@@ -259,8 +259,13 @@ def preset_precisions(tasks, algos, arms, frameworks, overrides: dict) -> dict[s
         configs, _ = framework_configs(fw, (0,))
         for task, algo, (label, rep, own) in itertools.product(tasks, algos, arms):
             cfg = configs.make_config("paper", task, algo, rep, {**overrides, **own})
-            out[f"{fw} {task} {algo}+{label}"] = cfg.learner_precision
+            out[_case(fw, task, algo, label)] = cfg.learner_precision
     return out
+
+
+def _case(framework: str, task: str, algo: str, rep: str) -> str:
+    """A case's name in `preset_learner_precision` and its note: 'FRAMEWORK TASK ALGO+REP'."""
+    return f"{framework} {task} {algo}+{rep}"
 
 
 def markdown(rows: list[dict], info: dict) -> str:
@@ -336,8 +341,8 @@ def markdown(rows: list[dict], info: dict) -> str:
 
 def _preset_note(rows: list[dict], trained: dict[str, str]) -> list[str]:
     """throughput.md's line naming the precision the `paper` preset trains at, where a row times another."""
-    off = sorted({f"{r['framework']} {r['task']} {r['algo']}+{r['rep']}: {trained[k]}"
-                  for r in rows if (k := f"{r['framework']} {r['task']} {r['algo']}+{r['rep']}") in trained
+    off = sorted({f"{k}: {trained[k]}" for r in rows
+                  if (k := _case(r["framework"], r["task"], r["algo"], r["rep"])) in trained
                   and trained[k] != r["learner_precision"]})
     if not off:
         return []
