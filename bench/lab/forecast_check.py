@@ -2,16 +2,16 @@
 
     python -m bench.lab.forecast_check results/fig7-td3 results/fig7-sac \\
         --runs results/fig7-sac/runs/AcrobotSwingup/*/seeds-* [--markdown]
-    python -m bench.lab.forecast_check results/fig7-sac --by-task [--new-task-rule any-seed-count]
+    python -m bench.lab.forecast_check results/fig7-sac --by-task [--new-task-rule seed-count]
 
 The runs named by `--runs` (finished run folders of the study folders given) are forecast as the runner
 would have before any of them ran (`--dry-run`, `--finish-within`, `--forecast-from`): from every *other*
 finished run there, by sf2_studies/runner.py `Forecast`; with `--leave-one-out` each from all runs but
 itself; with `--by-task` each task's runs (all runs without `--runs`) from the other tasks' alone, as for a
-task with no finished run (`--new-task-rule any-seed-count`: the alternative docs/decisions/forecasts.md
-kept out). Per run: the forecast, the wall time taken (its last `walltime`, restarts included) and their
-ratio, then the sums and the ratios' spread; a ratio above 1 is a run `--finish-within` could have started
-too late. results/fig7-sac/README.md "Cost per run" uses it.
+task with no finished run (`--new-task-rule`: the runner's rule, `method-scaled`, or one it replaced or kept
+out, docs/decisions/forecasts.md). Per run: the forecast, the wall time taken (its last `walltime`,
+restarts included) and their ratio, then the sums and the ratios' spread; a ratio above 1 is a run
+`--finish-within` could have started too late. results/fig7-sac/README.md "Cost per run" uses it.
 """
 
 from __future__ import annotations
@@ -30,9 +30,8 @@ FIELDS = ("run", "seeds", "forecast_s", "actual_s", "ratio")
 
 
 class AnySeedCount(runner.Forecast):
-    """`runner.Forecast` with its last preference (a task with no finished run) over every seed count: the
-    largest finished rate, each scaled to the job's seed count by `scale`, instead of the slowest run of
-    the job's own seed count where one exists."""
+    """`runner.Forecast` with a task with no finished run at the largest finished rate of any seed count,
+    each scaled to the job's seed count by `scale`, whatever the job's method (kept out)."""
 
     def rate(self, task: str, folder: str, seeds: int = 1) -> float:
         if self.has_task(task):   # the runner's first three preferences, and its last over the task's runs
@@ -40,7 +39,16 @@ class AnySeedCount(runner.Forecast):
         return max(r * self.scale(m, seeds) for t, f in self.rates for m, r in self._rates(t, f))
 
 
-RULES = {"seed-count": runner.Forecast, "any-seed-count": AnySeedCount}
+class SeedCount(runner.Forecast):
+    """`runner.Forecast` without its fourth preference: a task with no finished run at the slowest run of
+    the job's seed count (else of any, scaled), whatever the job's method; the runner's rule before
+    docs/decisions/forecasts.md "Added: a new task scaled to the job's method"."""
+
+    def scaled_slowest(self, folder: str, seeds: int) -> float | None:
+        return None
+
+
+RULES = {"method-scaled": runner.Forecast, "seed-count": SeedCount, "any-seed-count": AnySeedCount}
 
 
 def check(history: list[runner.Job], targets: list[runner.Job], each: bool = False,
@@ -101,9 +109,10 @@ def main(argv=None) -> int:
                              "(required without --by-task; with it, all finished runs by default)")
     parser.add_argument("--by-task", action="store_true",
                         help="forecast each task's runs from the other tasks' runs alone")
-    parser.add_argument("--new-task-rule", choices=sorted(RULES), default="seed-count",
-                        help="the forecast of a task with no finished run: the runner's (seed-count) or the "
-                             "alternative docs/decisions/forecasts.md kept out (any-seed-count)")
+    parser.add_argument("--new-task-rule", choices=sorted(RULES), default="method-scaled",
+                        help="the forecast of a task with no finished run: the runner's (method-scaled), the "
+                             "one it replaced (seed-count) or one kept out (any-seed-count); "
+                             "docs/decisions/forecasts.md")
     parser.add_argument("--leave-one-out", action="store_true",
                         help="forecast each of --runs from every other finished run (the others of --runs "
                              "included), not all of them from the runs outside --runs")

@@ -136,9 +136,10 @@ def test_eval_share_of_a_run_folder(tmp_path):
 
 def test_forecast_check_against_hand_derived_forecasts(tmp_path):
     """Finished runs of 1,000 env steps, 5 seeds each: A/m 100 s (0.1 s per env step), A/q 200 s, B/m 50 s.
-    Checking A/q and B/m leaves A/m alone to forecast from (runner.Forecast's preference 4: the slowest
-    run of the task, else of all): A/q 0.1 x 1000 = 100 s (took 200: ratio 2.0), B/m (no other run of B)
-    100 s (took 50: 0.5). Sums 200 s forecast against 250 s taken (1.25x); median of the ratios 1.25."""
+    Checking A/q and B/m leaves A/m alone to forecast from (runner.Forecast's preferences 5 and 4: the
+    slowest run of the task; on a task without one the slowest pair scaled to the method): A/q 0.1 x 1000
+    = 100 s (took 200: ratio 2.0), B/m (no other run of B) A/m's 100 s (took 50: 0.5). Sums 200 s
+    forecast against 250 s taken (1.25x); median of the ratios 1.25."""
     from types import SimpleNamespace
 
     pytest.importorskip("sf2_studies", reason="the forecasts are the study runner's: install sf2-studies")
@@ -164,14 +165,17 @@ def test_forecast_check_against_hand_derived_forecasts(tmp_path):
         "median 1.25, max 2.00; 1 took longer than forecast")
     with pytest.raises(StudyError, match="no finished run outside --runs"):
         forecast_check.check(history, history)
-    # leave one out: A/m from A/q and B/m (preference 4, the slowest run of A: A/q, 0.2 s per env step) 200 s,
-    # A/q from A/m and B/m 100 s as above, B/m from A/m and A/q (no run of B: the slowest of all, A/q) 200 s
+    # leave one out: A/m from A/q and B/m (preference 5, the slowest run of A: A/q, 0.2 s per env step) 200 s,
+    # A/q from A/m and B/m 100 s as above, B/m from A/m and A/q (no run of B, preference 4: A/m's 0.1, and
+    # A/q's 0.2 x m / q on A, 0.5) 100 s; without preference 4 the slowest of all, A/q, 200 s
     rows = forecast_check.check(history, history, each=True)
     assert [(r["run"], r["forecast_s"], r["ratio"]) for r in rows] == [
-        ("A/m", 200.0, 0.5), ("A/q", 100.0, 2.0), ("B/m", 200.0, 0.25)]
+        ("A/m", 200.0, 0.5), ("A/q", 100.0, 2.0), ("B/m", 100.0, 0.5)]
     assert forecast_check.summary(rows) == (
-        "3 run(s): forecast 8.3 min in all, took 5.8 min (0.70x); actual / forecast per run: min 0.25, "
+        "3 run(s): forecast 6.7 min in all, took 5.8 min (0.88x); actual / forecast per run: min 0.50, "
         "median 0.50, max 2.00; 1 took longer than forecast")
+    rows = forecast_check.check(history, history, each=True, forecast_cls=forecast_check.SeedCount)
+    assert [(r["run"], r["forecast_s"]) for r in rows] == [("A/m", 200.0), ("A/q", 100.0), ("B/m", 200.0)]
     # a folder that is not a study folder is named, exit status 2, no traceback
     assert forecast_check.main([str(tmp_path / "nope"), "--runs", str(tmp_path / "A" / "m")]) == 2
 
@@ -179,10 +183,13 @@ def test_forecast_check_against_hand_derived_forecasts(tmp_path):
 def test_forecast_check_by_task_and_the_new_task_rules(tmp_path):
     """1,000 env steps per seed. A/m: 5 seeds 100 s (0.02 s per env step), 10 seeds 140 s (0.014); B/m: 10
     seeds 100 s (0.01); B/q: 5 seeds 200 s (0.04). C (5 seeds 60 s, 10 seeds 90 s) forecast from A and B
-    alone (`--by-task`; no run of C, the runner's last preference): its rule takes the slowest run of the
-    job's seed count, 0.04 x 5,000 = 200 s at 5 seeds, 0.014 x 10,000 = 140 s at 10 (shorter than at 5);
-    the alternative scales every run to the job's seed count (A/m's 5 -> 10 ratio 0.7, 10 -> 5 1/0.7) and
-    takes the largest, 200 s at 5 seeds (0.04) and 0.04 x 0.7 x 10,000 = 280 s at 10."""
+    alone (`--by-task`; no run of C). The runner's rule (method-scaled) takes the slowest pair of the job's
+    seed count scaled to its method: at 5 seeds A/m's 0.02 (B/q's 0.04 is not related to m: no task ran
+    both at 5 seeds), 100 s; at 10 A/m's 0.014 (B/m 0.01), 140 s. The one it replaced (seed-count) takes the
+    slowest run of the job's seed count whatever its method, 0.04 x 5,000 = 200 s at 5 seeds, 0.014 x
+    10,000 = 140 s at 10 (shorter than at 5); the one kept out (any-seed-count) scales every run to the
+    job's seed count (A/m's 5 -> 10 ratio 0.7, 10 -> 5 1/0.7) and takes the largest, 200 s at 5 seeds
+    (0.04) and 0.04 x 0.7 x 10,000 = 280 s at 10."""
     from types import SimpleNamespace
 
     pytest.importorskip("sf2_studies", reason="the forecasts are the study runner's: install sf2-studies")
@@ -200,14 +207,16 @@ def test_forecast_check_by_task_and_the_new_task_rules(tmp_path):
 
     history = [job("A", "m", 5, 100.0), job("A", "m", 10, 140.0), job("B", "m", 10, 100.0),
                job("B", "q", 5, 200.0), job("C", "m", 5, 60.0), job("C", "m", 10, 90.0)]
-    expected = {"seed-count": [200.0, 140.0], "any-seed-count": [200.0, 280.0]}
+    expected = {"method-scaled": [100.0, 140.0], "seed-count": [200.0, 140.0],
+                "any-seed-count": [200.0, 280.0]}
     for rule, seconds in expected.items():
         rows = forecast_check.check_by_task(history, history[4:], forecast_check.RULES[rule])
         assert [(r["run"], r["forecast_s"]) for r in rows] == [
             ("C/m/seeds-5", seconds[0]), ("C/m/seeds-10", seconds[1])], rule
-    # every task in turn: A/m at 5 seeds from B and C; the runner's rule, the slowest 5-seed run (B/q)
+    # every task in turn: A/m at 5 seeds from B and C; the runner's rule, m's slowest 5-seed run (C/m: 60 s
+    # for 5,000 env steps; B/q's is not related to m), 60 s
     rows = forecast_check.check_by_task(history, history)
-    assert [r["run"] for r in rows] == [j.name for j in history] and rows[0]["forecast_s"] == 200.0
+    assert [r["run"] for r in rows] == [j.name for j in history] and rows[0]["forecast_s"] == 60.0
 
 
 def test_checkpoint_cost_timings_are_medians_after_the_warm_up(monkeypatch):

@@ -235,8 +235,9 @@ def test_forecast_scales_rates_between_seed_counts(tmp_path):
     0.07. No run measures 5 -> 2 or 5 -> 20: 2 seeds scale by 5/2 (B/m: 0.1, a run no longer than its
     5-seed run), 20 by 1 (B/m: 0.04, as if the time doubled with the seeds). A new method on B at 10 seeds
     (B/q): B's slowest run, none of 10 seeds, so B/m's 0.04 scaled, 0.028. A task with no finished run (C):
-    the slowest run of all with its seed count, A/m's 0.07 at 10 seeds and A/q's 0.2 at 5 (not A/q's 0.2
-    scaled to 10 by the largest ratio, 0.14: runs of its own seed count come first)."""
+    the slowest (task, method) pair of its seed count scaled to its method, at 10 seeds A/m's own 0.07 (not
+    A/q's 0.2 scaled to 10 by the largest ratio, 0.14: runs of its own seed count come first), at 5 seeds
+    the largest of A/m's 0.1, A/q's 0.2 x m / q on A (0.1 / 0.2) = 0.1 and B/m's 0.04: 0.1."""
     job = functools.partial(_forecast_job, tmp_path)
 
     forecast = runner.Forecast([job("A", "m", 5, wall=100.0), job("A", "m", 10, wall=70.0),
@@ -244,7 +245,7 @@ def test_forecast_scales_rates_between_seed_counts(tmp_path):
     assert forecast.scale(5, 10) == pytest.approx(0.7)
     expected = {("A", "q", 10): 0.14, ("B", "m", 10): 0.028, ("A", "m", 10): 0.07, ("A", "m", 5): 0.1,
                 ("B", "m", 2): 0.1, ("B", "m", 20): 0.04, ("B", "q", 10): 0.028, ("C", "m", 10): 0.07,
-                ("C", "m", 5): 0.2}
+                ("C", "m", 5): 0.1}
     for (task, name, seeds), rate in expected.items():
         assert forecast.seconds(job(task, name, seeds)) == pytest.approx(1000 * rate), (task, name, seeds)
 
@@ -273,6 +274,25 @@ def test_forecast_prefers_the_same_task_at_the_same_seed_count(tmp_path):
                 ("A", "sf2", 20): 0.5}
     for (task, name, seeds), rate in expected.items():
         assert forecast.seconds(job(task, name, seeds)) == pytest.approx(1000 * rate), (task, name, seeds)
+
+
+def test_forecast_prices_a_new_task_from_the_slowest_pair_scaled_to_its_method(tmp_path):
+    """A task with no finished run (C), 10 seeds, rates in s per env step. A: td3 0.02, sf2 0.03, spr 0.01;
+    B (slower physics): td3 0.05. Each finished pair's rate times the largest ratio of the job's method to
+    that pair's method on a task both ran (A only), the largest:
+        C/td3: A/td3 0.02, A/sf2 0.03 x 2/3 = 0.02, A/spr 0.01 x 2 = 0.02, B/td3 0.05: 0.05
+        C/sf2: A/td3 0.02 x 1.5 = 0.03, A/sf2 0.03, A/spr 0.01 x 3 = 0.03, B/td3 0.05 x 1.5 = 0.075
+        C/spr: A/td3 0.02 x 0.5, A/sf2 0.03 x 1/3, A/spr 0.01, B/td3 0.05 x 0.5 = 0.025
+    C/sim (no run anywhere, nothing relates it): the slowest run of all, 0.05. Without the scaling every one
+    of them would be 0.05 (`bench.lab.forecast_check --new-task-rule seed-count`)."""
+    job = functools.partial(_forecast_job, tmp_path)
+
+    finished = {("A", "td3"): 20.0, ("A", "sf2"): 30.0, ("A", "spr"): 10.0, ("B", "td3"): 50.0}
+    forecast = runner.Forecast([job(t, m, 10, wall=w) for (t, m), w in finished.items()])
+    expected = {"td3": 0.05, "sf2": 0.075, "spr": 0.025, "sim": 0.05}
+    for name, rate in expected.items():
+        assert forecast.seconds(job("C", name, 10)) == pytest.approx(1000 * rate), name
+    assert forecast.scaled_slowest("sim", 10) is None
 
 
 def test_forecast_caps_a_run_of_fewer_seeds_by_one_of_more(tmp_path):

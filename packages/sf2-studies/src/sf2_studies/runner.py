@@ -107,11 +107,12 @@ def plan(study: Study, folder: StudyFolder, runs: list[Run], log: str | None = N
 
 class Forecast:
     """Seconds of training a job still needs: its remaining env steps at the wall-clock seconds per env step
-    of finished runs (its own task and method at its seed count first; else another method on its task
-    scaled by the largest ratio between the two; else its own runs at other seed counts, scaled; else the
-    slowest run of its task). A sweep's method over a `LINEAR_COST` field with no run of its own on the task
-    is priced from the sweep's values run there (`swept`) before the rest. `known` is False without any
-    finished run. docs/decisions/forecasts.md."""
+    of finished runs (1: its own task and method at its seed count; 2: another method on its task scaled
+    by the largest ratio between the two; 3: its own runs at other seed counts, scaled; 4: on a task with
+    no finished run, the slowest (task, method) pair scaled to its method by the largest ratio between the
+    two; 5: the slowest run of its task, else of any task). A sweep's method over a `LINEAR_COST` field with
+    no run of its own on the task is priced from the sweep's values run there (`swept`) before the rest.
+    `known` is False without any finished run. docs/decisions/forecasts.md."""
 
     def __init__(self, done: list[Job]):
         self.rates: dict[tuple[str, str], list[tuple[int, float]]] = {}   # (seeds, s per env step)
@@ -159,16 +160,21 @@ class Forecast:
         same = [r for m, r in self._rates(task, folder) if m == seeds]
         return sum(same) / len(same) if same else None
 
+    def ratio(self, folder: str, other: str, seeds: int, tasks: set[str]) -> float | None:
+        """The largest ratio of `folder`'s rate to `other`'s at `seeds` seeds on the `tasks` where both
+        finished runs, or None where none did."""
+        pairs = [(self._at(t, folder, seeds), self._at(t, other, seeds)) for t in tasks]
+        ratios = [mine / theirs for mine, theirs in pairs if mine is not None and theirs is not None]
+        return max(ratios, default=None)
+
     def relative(self, task: str, folder: str, seeds: int) -> float | None:
         """Preference 2 of the class docstring, or None where no other method and task give it."""
         tasks = {t for t, _ in self.rates} - {task}
         estimates = []
         for other in {f for t, f in self.rates if t == task and f != folder}:
-            base = self._at(task, other, seeds)
-            pairs = [(self._at(t, folder, seeds), self._at(t, other, seeds)) for t in tasks]
-            ratios = [mine / theirs for mine, theirs in pairs if mine is not None and theirs is not None]
-            if base is not None and ratios:
-                estimates.append(base * max(ratios))
+            base, ratio = self._at(task, other, seeds), self.ratio(folder, other, seeds, tasks)
+            if base is not None and ratio is not None:
+                estimates.append(base * ratio)
         return max(estimates, default=None)
 
     def rate(self, task: str, folder: str, seeds: int = 1) -> float:
@@ -182,6 +188,28 @@ class Forecast:
         if mine:
             scaled = [r * self.scale(m, seeds) for m, r in mine]
             return sum(scaled) / len(scaled)
+        if not self.has_task(task):
+            scaled = self.scaled_slowest(folder, seeds)
+            if scaled is not None:
+                return scaled
+        return self.slowest(task, seeds)
+
+    def scaled_slowest(self, folder: str, seeds: int) -> float | None:
+        """Preference 4 of the class docstring, for a task with no finished run: the largest rate at `seeds`
+        seeds of a finished (task, method) pair times the largest ratio of `folder` to that method on the
+        tasks both ran (1 for `folder` itself); None where no pair relates to `folder`."""
+        tasks = {t for t, _ in self.rates}
+        estimates = []
+        for task, other in self.rates:
+            base = self._at(task, other, seeds)
+            ratio = 1.0 if other == folder else self.ratio(folder, other, seeds, tasks)
+            if base is not None and ratio is not None:
+                estimates.append(base * ratio)
+        return max(estimates, default=None)
+
+    def slowest(self, task: str, seeds: int) -> float:
+        """Preference 5 of the class docstring: the slowest finished run of `task` (else of any task) at
+        `seeds` seeds, else the slowest at any seed count scaled to `seeds`."""
         pool = ([(m, r) for t, f in self.rates if t == task for m, r in self._rates(t, f)]
                 or [(m, r) for t, f in self.rates for m, r in self._rates(t, f)])
         exact = [r for m, r in pool if m == seeds]
