@@ -284,7 +284,8 @@ def test_forecast_prices_a_new_task_from_the_slowest_pair_scaled_to_its_method(t
         C/sf2: A/td3 0.02 x 1.5 = 0.03, A/sf2 0.03, A/spr 0.01 x 3 = 0.03, B/td3 0.05 x 1.5 = 0.075
         C/spr: A/td3 0.02 x 0.5, A/sf2 0.03 x 1/3, A/spr 0.01, B/td3 0.05 x 0.5 = 0.025
     C/sim (no run anywhere, nothing relates it): the slowest run of all, 0.05. Without the scaling every one
-    of them would be 0.05 (`bench.lab.forecast_check --new-task-rule seed-count`)."""
+    of them would be 0.05 (`bench.lab.forecast_check --new-task-rule seed-count`). At 1 seed (no run of 1
+    seed; no measured 10 -> 1 ratio, so `scale` gives 10 / 1): C/spr 0.025 x 10 = 0.25, C/sim 0.05 x 10."""
     job = functools.partial(_forecast_job, tmp_path)
 
     finished = {("A", "td3"): 20.0, ("A", "sf2"): 30.0, ("A", "spr"): 10.0, ("B", "td3"): 50.0}
@@ -293,6 +294,8 @@ def test_forecast_prices_a_new_task_from_the_slowest_pair_scaled_to_its_method(t
     for name, rate in expected.items():
         assert forecast.seconds(job("C", name, 10)) == pytest.approx(1000 * rate), name
     assert forecast.scaled_slowest("sim", 10) is None
+    assert forecast.seconds(job("C", "spr", 1)) == pytest.approx(1000 * 0.25)
+    assert forecast.seconds(job("C", "sim", 1)) == pytest.approx(1000 * 0.5)
 
 
 def test_forecast_caps_a_run_of_fewer_seeds_by_one_of_more(tmp_path):

@@ -197,7 +197,16 @@ class Forecast:
     def scaled_slowest(self, folder: str, seeds: int) -> float | None:
         """Preference 4 of the class docstring, for a task with no finished run: the largest rate at `seeds`
         seeds of a finished (task, method) pair times the largest ratio of `folder` to that method on the
-        tasks both ran (1 for `folder` itself); None where no pair relates to `folder`."""
+        tasks both ran (1 for `folder` itself); with no such pair at `seeds` seeds, the largest at another
+        seed count scaled to `seeds` (`scale`); None where no pair relates to `folder`."""
+        here = self._scaled_slowest_at(folder, seeds)
+        if here is not None:
+            return here
+        counts = {k for runs in self.rates.values() for k, _ in runs} - {seeds}
+        return max((rate * self.scale(k, seeds) for k in counts
+                    if (rate := self._scaled_slowest_at(folder, k)) is not None), default=None)
+
+    def _scaled_slowest_at(self, folder: str, seeds: int) -> float | None:
         tasks = {t for t, _ in self.rates}
         estimates = []
         for task, other in self.rates:
